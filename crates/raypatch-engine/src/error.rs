@@ -1,0 +1,17 @@
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum EngineError {
+    #[error("no GPU adapter: {0}")]
+    NoAdapter(String),
+    #[error("GPU device error: {0}")]
+    Device(String),
+    #[error("{what} needs {bytes} bytes in one buffer, more than this adapter's limit of {max} bytes")]
+    TooLarge { what: String, bytes: u64, max: u64 },
+    #[error(transparent)]
+    Model(#[from] raypatch_model::ModelError),
+    #[error("invalid request: {0}")]
+    Request(String),
+}
+
+pub type Result<T> = std::result::Result<T, EngineError>;

@@ -1,0 +1,58 @@
+//! Kernel wrappers: each records one op of its WGSL kernel family into a [`PlanBuilder`](crate::plan::PlanBuilder).
+//!
+//! Conventions shared by every kernel (see also `shaders/README.md`):
+//! - binding 0 is the op's params (a uniform struct of 32-bit scalars); tensors follow from binding 1;
+//! - tensors are row-major `[rows, cols]` with rows padded to `ld = round_up(cols, 4)`; a kernel writes
+//!   zeros into the padding of the rows it produces;
+//! - images are NHWC: one row per pixel, one column per channel;
+//! - workgroups are laid out with [`grid`](crate::plan::grid); a kernel takes its flat group index as
+//!   `wid.x + wid.y * nwg.x` and returns early past the end.
+
+pub mod attention;
+pub mod conv;
+pub mod elementwise;
+pub mod matmul;
+pub mod norm;
+pub mod posenc;
+pub mod resize;
+
+use crate::gpu::Shader;
+
+/// Activation fused into the end of a matmul or convolution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    None,
+    Relu,
+    LeakyRelu(f32),
+    /// Exact GELU: x · Φ(x) with the erf form.
+    Gelu,
+}
+
+impl Activation {
+    /// (code, slope) as the shaders read them: 0 none, 1 relu, 2 leaky relu, 3 gelu.
+    pub fn params(self) -> [u32; 2] {
+        match self {
+            Activation::None => [0, 0],
+            Activation::Relu => [1, 0],
+            Activation::LeakyRelu(slope) => [2, slope.to_bits()],
+            Activation::Gelu => [3, 0],
+        }
+    }
+}
+
+macro_rules! shader {
+    ($name:literal) => {
+        Shader { name: $name, source: include_str!(concat!("../../../../shaders/", $name, ".wgsl")) }
+    };
+}
+
+pub static MATMUL: Shader = shader!("matmul");
+pub static ATTENTION: Shader = shader!("attention");
+pub static LAYERNORM: Shader = shader!("layernorm");
+pub static POSENC: Shader = shader!("posenc");
+pub static RESIZE: Shader = shader!("resize");
+pub static CONV: Shader = shader!("conv");
+pub static ELEMENTWISE: Shader = shader!("elementwise");
+
+/// Every shader, for validation tests and pipeline warm-up.
+pub static ALL_SHADERS: [&Shader; 7] = [&MATMUL, &ATTENTION, &LAYERNORM, &POSENC, &RESIZE, &CONV, &ELEMENTWISE];

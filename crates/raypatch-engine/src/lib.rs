@@ -1,0 +1,15 @@
+//! raypatch-engine: WGSL kernels, the plan/executor, and the SRT / RP-SRT graphs.
+//!
+//! Data path: safetensors weights (`raypatch-model`) → GPU weights (`model`) → a [`plan::Plan`] per
+//! (model, input views, target size, outputs) → kernels (`kernels`, one WGSL file each in `shaders/`) → frame.
+
+pub mod error;
+pub mod gpu;
+pub mod kernels;
+pub mod plan;
+pub mod reference;
+pub mod tensor;
+
+pub use error::{EngineError, Result};
+pub use gpu::{AdapterChoice, Gpu, GpuOptions};
+pub use tensor::GpuTensor;

@@ -1,0 +1,374 @@
+//! The executor. A model graph is recorded once into a [`PlanBuilder`] as a list of ops (kernel, params,
+//! tensor bindings, dispatch size). [`PlanBuilder::build`] then
+//! - gives every transient tensor a pooled buffer, reusing a buffer once the tensors in it are dead
+//!   (liveness over the op list), and reports the planned peak bytes;
+//! - writes all ops' params into one uniform buffer;
+//! - fetches the cached pipelines and creates every bind group.
+//!
+//! Executing a plan records all ops into one compute pass and submits once. Nothing is allocated or
+//! compiled per execution. [`Plan::execute_debug`] instead runs op by op and reads back what each wrote.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+use crate::error::{EngineError, Result};
+use crate::gpu::{storage_usage, Gpu, Shader};
+use crate::tensor::{padded_cols, GpuTensor};
+
+/// Largest workgroup count per dispatch dimension that WebGPU guarantees.
+const MAX_GROUPS_PER_DIM: u32 = 65535;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TensorId(usize);
+
+/// Rows `[row_start, row_start + rows)` of a tensor, bound as a buffer range.
+#[derive(Clone, Copy, Debug)]
+pub struct View {
+    pub id: TensorId,
+    pub row_start: usize,
+    pub rows: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Access {
+    Read,
+    /// The op writes every element of the view (padding included).
+    Write,
+    /// The op reads and updates the view (accumulate into it).
+    ReadWrite,
+}
+
+/// One kernel dispatch. Its params are bound at binding 0 as a uniform; `bindings` follow from binding 1.
+pub struct Op {
+    pub label: String,
+    pub shader: &'static Shader,
+    pub entry: &'static str,
+    /// Uniform contents as 32-bit words (f32 params as `f32::to_bits`).
+    pub params: Vec<u32>,
+    pub bindings: Vec<(View, Access)>,
+    pub workgroups: [u32; 3],
+}
+
+/// Workgroup grid for `groups` groups: WebGPU caps each dimension at 65535, so large counts spill into y.
+/// Kernels recover the flat group index as `wid.x + wid.y * nwg.x` and skip indices past the end.
+pub fn grid(groups: usize) -> [u32; 3] {
+    let groups = groups.max(1) as u32;
+    if groups <= MAX_GROUPS_PER_DIM {
+        [groups, 1, 1]
+    } else {
+        let y = groups.div_ceil(MAX_GROUPS_PER_DIM);
+        [groups.div_ceil(y), y, 1]
+    }
+}
+
+#[derive(Clone, Debug)]
+enum Storage {
+    /// Lives between its first and last use; shares pooled buffers with other transients.
+    Transient,
+    /// Written by the host before execution; has its own buffer.
+    Input,
+    /// Read by the host after execution; has its own buffer.
+    Output,
+    /// Owned elsewhere (weights, scene caches).
+    External(GpuTensor),
+}
+
+#[derive(Clone, Debug)]
+struct TensorInfo {
+    name: String,
+    rows: usize,
+    cols: usize,
+    storage: Storage,
+}
+
+impl TensorInfo {
+    fn bytes(&self) -> u64 {
+        (self.rows * padded_cols(self.cols) * 4) as u64
+    }
+}
+
+#[derive(Default)]
+pub struct PlanBuilder {
+    tensors: Vec<TensorInfo>,
+    ops: Vec<Op>,
+}
+
+impl PlanBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn add(&mut self, name: &str, rows: usize, cols: usize, storage: Storage) -> TensorId {
+        self.tensors.push(TensorInfo { name: name.to_string(), rows, cols, storage });
+        TensorId(self.tensors.len() - 1)
+    }
+
+    /// An intermediate tensor; its buffer is shared with tensors whose lifetimes do not overlap.
+    pub fn transient(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
+        self.add(name, rows, cols, Storage::Transient)
+    }
+    pub fn input(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
+        self.add(name, rows, cols, Storage::Input)
+    }
+    pub fn output(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
+        self.add(name, rows, cols, Storage::Output)
+    }
+    pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
+        self.add(name, tensor.rows, tensor.cols, Storage::External(tensor.clone()))
+    }
+
+    pub fn rows(&self, id: TensorId) -> usize {
+        self.tensors[id.0].rows
+    }
+    pub fn cols(&self, id: TensorId) -> usize {
+        self.tensors[id.0].cols
+    }
+    pub fn ld(&self, id: TensorId) -> usize {
+        padded_cols(self.tensors[id.0].cols)
+    }
+    pub fn name(&self, id: TensorId) -> &str {
+        &self.tensors[id.0].name
+    }
+
+    /// The whole tensor.
+    pub fn all(&self, id: TensorId) -> View {
+        View { id, row_start: 0, rows: self.rows(id) }
+    }
+    /// Rows `[row_start, row_start + rows)` of a tensor.
+    pub fn rows_of(&self, id: TensorId, row_start: usize, rows: usize) -> View {
+        assert!(row_start + rows <= self.rows(id), "view past the end of {}", self.name(id));
+        View { id, row_start, rows }
+    }
+
+    pub fn push(&mut self, op: Op) {
+        self.ops.push(op);
+    }
+
+    pub fn op_count(&self) -> usize {
+        self.ops.len()
+    }
+
+    pub fn build(self, gpu: &Gpu) -> Result<Plan> {
+        let PlanBuilder { tensors, ops } = self;
+        let storage_align = gpu.limits.min_storage_buffer_offset_alignment as u64;
+        let uniform_align = gpu.limits.min_uniform_buffer_offset_alignment as u64;
+
+        // Liveness of each transient: first and last op that binds it.
+        let mut live: Vec<Option<(usize, usize)>> = vec![None; tensors.len()];
+        for (i, op) in ops.iter().enumerate() {
+            for (view, _) in &op.bindings {
+                let span = live[view.id.0].get_or_insert((i, i));
+                span.1 = i;
+            }
+        }
+
+        // Pool transient buffers: walk the ops in order, give each tensor born at op i the best-fitting
+        // free slot (growing the largest free one if none fits), free tensors after their last op.
+        let mut slot_of: Vec<Option<usize>> = vec![None; tensors.len()];
+        let mut slot_bytes: Vec<u64> = Vec::new();
+        let mut slot_free: Vec<bool> = Vec::new();
+        for i in 0..ops.len() {
+            for (t, info) in tensors.iter().enumerate() {
+                if !matches!(info.storage, Storage::Transient) || live[t].map(|l| l.0) != Some(i) {
+                    continue;
+                }
+                let need = info.bytes();
+                let free = (0..slot_bytes.len()).filter(|&s| slot_free[s]);
+                let best_fit = free.clone().filter(|&s| slot_bytes[s] >= need).min_by_key(|&s| slot_bytes[s]);
+                let slot = match best_fit.or_else(|| free.max_by_key(|&s| slot_bytes[s])) {
+                    Some(s) => s,
+                    None => {
+                        slot_bytes.push(0);
+                        slot_free.push(true);
+                        slot_bytes.len() - 1
+                    }
+                };
+                slot_bytes[slot] = slot_bytes[slot].max(need);
+                slot_free[slot] = false;
+                slot_of[t] = Some(slot);
+            }
+            for (t, slot) in slot_of.iter().enumerate() {
+                if let (Some(s), Some((_, last))) = (slot, live[t]) {
+                    if last == i {
+                        slot_free[*s] = true;
+                    }
+                }
+            }
+        }
+
+        for (t, info) in tensors.iter().enumerate() {
+            gpu.check_binding_size(&info.name, info.bytes())?;
+            if matches!(info.storage, Storage::Transient) && live[t].is_none() {
+                return Err(EngineError::Request(format!("plan bug: tensor {} is never used", info.name)));
+            }
+        }
+        let slot_buffers: Vec<Arc<wgpu::Buffer>> = slot_bytes
+            .iter()
+            .enumerate()
+            .map(|(s, &bytes)| Arc::new(gpu.create_buffer(&format!("pool{s}"), bytes, storage_usage())))
+            .collect();
+        let mut peak_bytes: u64 = slot_bytes.iter().sum();
+        let mut buffers: Vec<Arc<wgpu::Buffer>> = Vec::with_capacity(tensors.len());
+        for (t, info) in tensors.iter().enumerate() {
+            buffers.push(match &info.storage {
+                Storage::Transient => slot_buffers[slot_of[t].expect("transient without slot")].clone(),
+                Storage::Input | Storage::Output => {
+                    peak_bytes += info.bytes();
+                    Arc::new(gpu.create_buffer(&info.name, info.bytes(), storage_usage()))
+                }
+                Storage::External(tensor) => tensor.buffer.clone(),
+            });
+        }
+
+        // All params in one uniform buffer, one aligned block per op.
+        let block = |words: usize| ((words * 4) as u64).max(16).div_ceil(uniform_align) * uniform_align;
+        let uniform_bytes: u64 = ops.iter().map(|op| block(op.params.len())).sum();
+        let uniforms = gpu.create_buffer(
+            "params",
+            uniform_bytes,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        peak_bytes += uniform_bytes;
+        let mut staged = vec![0u8; uniform_bytes as usize];
+        let mut offsets = Vec::with_capacity(ops.len());
+        let mut offset = 0u64;
+        for op in &ops {
+            let bytes: &[u8] = bytemuck::cast_slice(&op.params);
+            staged[offset as usize..offset as usize + bytes.len()].copy_from_slice(bytes);
+            offsets.push(offset);
+            offset += block(op.params.len());
+        }
+        gpu.queue.write_buffer(&uniforms, 0, &staged);
+
+        let mut planned = Vec::with_capacity(ops.len());
+        for (op, &param_offset) in ops.iter().zip(&offsets) {
+            let pipeline = gpu.pipeline(op.shader, op.entry);
+            let param_size = ((op.params.len() * 4) as u64).max(16).div_ceil(16) * 16;
+            let mut entries = vec![wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &uniforms,
+                    offset: param_offset,
+                    size: wgpu::BufferSize::new(param_size),
+                }),
+            }];
+            for (b, (view, _)) in op.bindings.iter().enumerate() {
+                let info = &tensors[view.id.0];
+                let row_bytes = (padded_cols(info.cols) * 4) as u64;
+                let offset = view.row_start as u64 * row_bytes;
+                if offset % storage_align != 0 {
+                    return Err(EngineError::Request(format!(
+                        "plan bug: op {} binds {} at byte offset {offset}, not a multiple of {storage_align}",
+                        op.label, info.name
+                    )));
+                }
+                entries.push(wgpu::BindGroupEntry {
+                    binding: b as u32 + 1,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &buffers[view.id.0],
+                        offset,
+                        size: wgpu::BufferSize::new((view.rows as u64 * row_bytes).max(16)),
+                    }),
+                });
+            }
+            let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(&op.label),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            });
+            let written = op
+                .bindings
+                .iter()
+                .filter(|(_, a)| *a != Access::Read)
+                .map(|(v, _)| *v)
+                .collect();
+            planned.push(PlannedOp { label: op.label.clone(), pipeline, bind_group, workgroups: op.workgroups, written });
+        }
+
+        let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols)).collect();
+        Ok(Plan { ops: planned, buffers, infos, peak_bytes, _uniforms: uniforms })
+    }
+}
+
+struct PlannedOp {
+    label: String,
+    pipeline: Arc<wgpu::ComputePipeline>,
+    bind_group: wgpu::BindGroup,
+    workgroups: [u32; 3],
+    written: Vec<View>,
+}
+
+/// A built plan: buffers allocated, bind groups made, ready to execute any number of times.
+pub struct Plan {
+    ops: Vec<PlannedOp>,
+    buffers: Vec<Arc<wgpu::Buffer>>,
+    infos: Vec<(String, usize, usize)>,
+    peak_bytes: u64,
+    _uniforms: wgpu::Buffer,
+}
+
+/// What one op wrote, read back by [`Plan::execute_debug`].
+pub struct OpOutput {
+    pub op: String,
+    pub tensor: String,
+    pub rows: usize,
+    pub cols: usize,
+    pub data: Vec<f32>,
+}
+
+impl Plan {
+    /// Bytes of GPU memory the plan allocated itself (pooled intermediates, inputs, outputs, params);
+    /// weights and scene caches it only binds are not counted.
+    pub fn peak_bytes(&self) -> u64 {
+        self.peak_bytes
+    }
+
+    pub fn dispatch_count(&self) -> usize {
+        self.ops.len()
+    }
+
+    pub fn op_labels(&self) -> impl Iterator<Item = &str> {
+        self.ops.iter().map(|o| o.label.as_str())
+    }
+
+    /// The buffer of an input or output tensor, as a [`GpuTensor`] the host can write or read.
+    pub fn tensor(&self, id: TensorId) -> GpuTensor {
+        let (_, rows, cols) = self.infos[id.0];
+        GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols }
+    }
+
+    fn record(&self, gpu: &Gpu, ops: &[PlannedOp]) {
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            for op in ops {
+                pass.set_pipeline(&op.pipeline);
+                pass.set_bind_group(0, &op.bind_group, &[]);
+                let [x, y, z] = op.workgroups;
+                pass.dispatch_workgroups(x, y, z);
+            }
+        }
+        gpu.queue.submit([encoder.finish()]);
+        gpu.counters.submits.fetch_add(1, Ordering::Relaxed);
+        gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
+    }
+
+    /// Records every op into one compute pass and submits it. Returns without waiting for the GPU.
+    pub fn execute(&self, gpu: &Gpu) {
+        self.record(gpu, &self.ops);
+    }
+
+    /// Runs the ops one submit at a time and reads back every tensor each op wrote, in order.
+    pub fn execute_debug(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
+        let mut outputs = Vec::new();
+        for op in &self.ops {
+            self.record(gpu, std::slice::from_ref(op));
+            for view in &op.written {
+                let (name, _, cols) = &self.infos[view.id.0];
+                let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
+                outputs.push(OpOutput { op: op.label.clone(), tensor: name.clone(), rows: view.rows, cols: *cols, data });
+            }
+        }
+        Ok(outputs)
+    }
+}

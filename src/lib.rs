@@ -1,0 +1,1 @@
+pub use raypatch_engine; pub use raypatch_model;

@@ -1,0 +1,14 @@
+//! Every kernel against its float64 CPU reference on random inputs and random shapes, including shapes
+//! that are not multiples of the tile sizes (in the spirit of llama.cpp's test-backend-ops).
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod attention;
+mod conv;
+mod elementwise;
+mod matmul;
+mod norm;
+mod posenc;
+mod resize;
+mod shaders;

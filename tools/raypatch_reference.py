@@ -1,0 +1,403 @@
+"""PyTorch reference of the official SRT / RP-SRT model of tberriel/RayPatchQuerying (commit 297afbc).
+
+The modules mirror the official src/layers.py, src/encoder.py, src/decoder.py and the SRT class of src/model.py
+module for module and attribute for attribute, so `SRT.state_dict()` carries exactly the official Lightning
+keys (`encoder.…`, `decoder_att.…`, `decoder_rp.…`). Only inference is modelled: dropout is 0 in every official
+config, so its slots are `nn.Identity` placeholders that keep the `nn.Sequential` indices of the official code.
+
+Widths that the official code hard-codes can be set through the raypatch extension keys of docs/FORMATS.md;
+their defaults are the official values.
+"""
+
+import copy
+import inspect
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class PositionalEncoding(nn.Module):
+    """sin/cos encoding, coordinate-major: [sin(c0·m0..m_{N-1}), sin(c1·…), …, cos(same order)]."""
+
+    def __init__(self, num_octaves=8, start_octave=0, end_octave=None):
+        super().__init__()
+        self.num_octaves = num_octaves
+        self.start_octave = start_octave
+        self.end_octave = end_octave
+
+    def forward(self, coords):
+        # The official code builds the multipliers in float32 whatever the input dtype, so a float64 run keeps
+        # the float32 multipliers f32(2^o)·f32(pi) and only the products are promoted.
+        if self.end_octave is None:
+            octaves = torch.arange(self.start_octave, self.start_octave + self.num_octaves, dtype=torch.float32)
+            multipliers = 2**octaves * math.pi
+        else:
+            octaves = torch.linspace(self.start_octave, self.end_octave, self.num_octaves, dtype=torch.float32)
+            multipliers = octaves * math.pi
+        scaled = coords.unsqueeze(-1) * multipliers.to(coords.device)  # [..., D, N]
+        return torch.cat((torch.sin(scaled).flatten(-2), torch.cos(scaled).flatten(-2)), -1)
+
+
+class RayEncoder(nn.Module):
+    """cat(posenc(camera position), posenc(ray direction))."""
+
+    def __init__(self, pos_octaves=8, pos_start_octave=0, pos_end_octave=None,
+                 ray_octaves=4, ray_start_octave=0, ray_end_octave=None):
+        super().__init__()
+        self.pos_encoding = PositionalEncoding(pos_octaves, pos_start_octave, pos_end_octave)
+        self.ray_encoding = PositionalEncoding(ray_octaves, ray_start_octave, ray_end_octave)
+
+    def forward(self, pos, rays):
+        if rays.dim() == 4:
+            # Encoder: pos [n, 3], rays [n, h, w, 3] -> channels-first [n, C, h, w], position broadcast per pixel.
+            _, height, width, _ = rays.shape
+            pos_enc = self.pos_encoding(pos)[:, :, None, None].expand(-1, -1, height, width)
+            ray_enc = self.ray_encoding(rays).permute(0, 3, 1, 2)
+            return torch.cat((pos_enc, ray_enc), 1)
+        # Decoder: pos and rays [b, p, 3] -> [b, p, C].
+        return torch.cat((self.pos_encoding(pos), self.ray_encoding(rays)), -1)
+
+
+class PreNorm(nn.Module):
+    """LayerNorm on the query stream only; cross-attention latents are not normalised."""
+
+    def __init__(self, dim, fn, eps=1e-5):
+        super().__init__()
+        self.norm = nn.LayerNorm(dim, eps=eps)
+        self.fn = fn
+
+    def forward(self, x, **kwargs):
+        return self.fn(self.norm(x), **kwargs)
+
+
+class FeedForward(nn.Module):
+    def __init__(self, dim, hidden_dim):
+        super().__init__()
+        # Official: Linear, GELU, Dropout, Linear, Dropout -> keys net.0 and net.3.
+        self.net = nn.Sequential(nn.Linear(dim, hidden_dim), nn.GELU(), nn.Identity(),
+                                 nn.Linear(hidden_dim, dim), nn.Identity())
+
+    def forward(self, x):
+        return self.net(x)
+
+
+class Attention(nn.Module):
+    """The official EfficientAttention: softmax(q·kᵀ·dim_head^-0.5)·v over heads split as '(h d)'.
+
+    Self-attention when kv_dim is None (to_qkv), else cross-attention of x onto z (to_q, to_kv).
+    """
+
+    def __init__(self, dim, heads, dim_head, kv_dim=None):
+        super().__init__()
+        inner_dim = heads * dim_head
+        self.heads = heads
+        if kv_dim is None:
+            self.to_qkv = nn.Linear(dim, 3 * inner_dim, bias=False)
+        else:
+            self.to_q = nn.Linear(dim, inner_dim, bias=False)
+            self.to_kv = nn.Linear(kv_dim, 2 * inner_dim, bias=False)
+        project_out = not (heads == 1 and dim_head == dim)
+        # Official: Sequential(Dropout-or-Identity, Linear, Dropout) -> key to_out.1.
+        self.to_out = (nn.Sequential(nn.Identity(), nn.Linear(inner_dim, dim), nn.Identity())
+                       if project_out else nn.Identity())
+
+    def forward(self, x, z=None):
+        if z is None:
+            q, k, v = self.to_qkv(x).chunk(3, dim=-1)
+        else:
+            q = self.to_q(x)
+            k, v = self.to_kv(z).chunk(2, dim=-1)
+        q, k, v = (t.unflatten(-1, (self.heads, -1)).transpose(1, 2) for t in (q, k, v))
+        # The official mode "efficient" is this call; its default scale is dim_head^-0.5.
+        out = F.scaled_dot_product_attention(q, k, v)
+        return self.to_out(out.transpose(1, 2).flatten(2))
+
+
+class Transformer(nn.Module):
+    """Pre-norm transformer without a final LayerNorm; cross-attends to z when kv_dim is set."""
+
+    def __init__(self, dim, depth, heads, dim_head, mlp_dim, kv_dim=None):
+        super().__init__()
+        self.layers = nn.ModuleList([
+            nn.ModuleList([PreNorm(dim, Attention(dim, heads, dim_head, kv_dim)),
+                           PreNorm(dim, FeedForward(dim, mlp_dim))])
+            for _ in range(depth)])
+
+    def forward(self, x, z=None):
+        for attn, ff in self.layers:
+            x = attn(x, z=z) + x
+            x = ff(x) + x
+        return x
+
+
+def _norm2d(norm, channels):
+    # Official: anything but "Batch" means no normalisation.
+    return nn.BatchNorm2d(channels) if norm == "Batch" else nn.Identity()
+
+
+class SRTConvBlock(nn.Module):
+    """Conv3x3 (stride 1) -> norm -> ReLU -> Conv3x3 (stride 2) -> norm -> ReLU, convolutions without bias."""
+
+    def __init__(self, idim, hdim=None, odim=None, norm=None):
+        super().__init__()
+        hdim = idim if hdim is None else hdim
+        odim = 2 * hdim if odim is None else odim
+        self.layers = nn.Sequential(
+            nn.Conv2d(idim, hdim, kernel_size=3, stride=1, padding=1, bias=False), _norm2d(norm, hdim), nn.ReLU(),
+            nn.Conv2d(hdim, odim, kernel_size=3, stride=2, padding=1, bias=False), _norm2d(norm, odim), nn.ReLU())
+
+    def forward(self, x):
+        return self.layers(x)
+
+
+class SRTEncoder(nn.Module):
+    """Images + ray encoding -> conv blocks -> 1x1 conv to tokens -> self-attention transformer."""
+
+    def __init__(self, num_conv_blocks=4, num_att_blocks=10, pos_start_octave=0, num_octaves=15, max_pooling=False,
+                 norm=None, latent_dim=768, conv_hidden=96, token_dim=768, heads=12, dim_head=64):
+        super().__init__()
+        self.ray_encoder = RayEncoder(pos_octaves=num_octaves, pos_start_octave=pos_start_octave,
+                                      ray_octaves=num_octaves)
+        conv_blocks = [SRTConvBlock(idim=3 + 12 * num_octaves, hdim=conv_hidden, norm=norm)]
+        channels = 2 * conv_hidden
+        for _ in range(1, num_conv_blocks):
+            conv_blocks.append(SRTConvBlock(idim=channels, norm=norm))
+            channels *= 2
+        self.conv_blocks = nn.Sequential(*conv_blocks)
+        self.pooling = nn.MaxPool2d(2) if max_pooling else nn.Identity()
+        self.per_patch_linear = nn.Conv2d(channels, token_dim, kernel_size=1)
+        self.transformer = Transformer(token_dim, num_att_blocks, heads, dim_head, mlp_dim=int(latent_dim * 2))
+
+    def forward(self, images, camera_pos, rays):
+        """images [b, n, 3, H, W] in [0, 1], camera_pos [b, n, 3], rays [b, n, H, W, 3] -> z [b, n·h·w, token_dim]."""
+        batch_size = images.shape[0]
+        ray_enc = self.ray_encoder(camera_pos.flatten(0, 1), rays.flatten(0, 1))
+        x = torch.cat((images.flatten(0, 1), ray_enc), 1)
+        x = self.per_patch_linear(self.pooling(self.conv_blocks(x)))
+        x = x.flatten(2).transpose(1, 2)  # row-major tokens per image, then images in order
+        return self.transformer(x.reshape(batch_size, -1, x.shape[-1]))
+
+
+class RayPredictor(nn.Module):
+    """Query encoding -> input_mlp -> cross-attention onto z (-> optional output_mlp).
+
+    Built as the official SRTDecoder builds it, i.e. always with the input_mlp.
+    """
+
+    def __init__(self, num_att_blocks=2, pos_octaves=15, pos_start_octave=0, pos_end_octave=None, ray_octaves=15,
+                 ray_start_octave=0, ray_end_octave=None, out_dims=3, output_mlp=True, latent_dim=768, heads=12,
+                 input_mlp_hidden=360):
+        super().__init__()
+        idim = 6 * (pos_octaves + ray_octaves)
+        self.query_encoder = RayEncoder(pos_octaves, pos_start_octave, pos_end_octave,
+                                        ray_octaves, ray_start_octave, ray_end_octave)
+        self.transformer = Transformer(idim, num_att_blocks, heads, dim_head=int(latent_dim / heads),
+                                       mlp_dim=int(latent_dim * 2), kv_dim=latent_dim)
+        self.input_mlp = nn.Sequential(nn.Linear(idim, input_mlp_hidden), nn.ReLU(),
+                                       nn.Linear(input_mlp_hidden, idim))
+        if output_mlp:
+            if out_dims not in (3, 128):
+                raise ValueError(f"RayPredictor output_mlp supports out_dims 3 or 128, got {out_dims}")
+            self.output_mlp = nn.Sequential(nn.Linear(idim, 128), nn.ReLU(), nn.Linear(128, out_dims))
+        else:
+            self.output_mlp = nn.Identity()
+
+    def forward(self, z, x, rays):
+        queries = self.input_mlp(self.query_encoder(x, rays))
+        return self.output_mlp(self.transformer(queries, z))
+
+
+class SRTDecoder(nn.Module):
+    """The RayPatchQuerying "srt" decoder: RayPredictor, then a 5-layer LeakyReLU(0.01) out_mlp, no activation."""
+
+    def __init__(self, num_att_blocks=2, pos_octaves=15, pos_start_octave=0, pos_end_octave=None, ray_octaves=15,
+                 ray_start_octave=0, ray_end_octave=None, out_dims=3, out_mlp=True, latent_dim=768, mode="efficient",
+                 heads=12, input_mlp_hidden=360, out_mlp_hidden=1536):
+        super().__init__()
+        if mode not in ("base", "efficient"):  # both official modes compute the same attention
+            raise ValueError(f"decoder_kwargs.mode must be 'base' or 'efficient', got {mode!r}")
+        idim = 6 * (pos_octaves + ray_octaves)
+        self.ray_predictor = RayPredictor(num_att_blocks, pos_octaves, pos_start_octave, pos_end_octave,
+                                          ray_octaves, ray_start_octave, ray_end_octave, out_dims=out_dims,
+                                          output_mlp=not out_mlp, latent_dim=latent_dim, heads=heads,
+                                          input_mlp_hidden=input_mlp_hidden)
+        if out_mlp:
+            hidden = out_mlp_hidden
+            self.out_mlp = nn.Sequential(
+                nn.Linear(idim, hidden), nn.LeakyReLU(),
+                nn.Linear(hidden, hidden), nn.LeakyReLU(),
+                nn.Linear(hidden, hidden), nn.LeakyReLU(),
+                nn.Linear(hidden, hidden), nn.LeakyReLU(),
+                nn.Linear(hidden, out_dims))
+        else:
+            self.out_mlp = nn.Identity()
+
+    def forward(self, z, x, rays):
+        """z [b, tokens, latent_dim], x (camera positions) and rays [b, p, 3] -> [b, p, out_dims]."""
+        return self.out_mlp(self.ray_predictor(z, x, rays))
+
+
+class FeatureDecoder(nn.Module):
+    """GIRAFFE-style upsampler: per block nearest x2 + conv + norm + LeakyReLU(0.2), summed bilinear RGB skips."""
+
+    def __init__(self, conv_features=128, upsample=3, out_dims=3, norm=None):
+        super().__init__()
+        self.upsample = upsample
+        self.conv_0 = nn.Conv2d(conv_features, out_dims, 3, padding=1)
+        self.conv_blocks = nn.ModuleList()
+        for i in range(upsample):
+            c_in, c_out = int(conv_features / 2**i), int(conv_features / 2**(i + 1))
+            self.conv_blocks.append(nn.ModuleList([
+                nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(c_in, c_out, 3, padding=1),
+                              _norm2d(norm, c_out), nn.LeakyReLU(0.2)),
+                nn.Conv2d(c_out, out_dims, 3, padding=1)]))
+
+    def forward(self, x):
+        """x [n, conv_features, h, w] -> [n, out_dims, h·2^upsample, w·2^upsample]."""
+        skip = F.interpolate(self.conv_0(x), scale_factor=2, mode="bilinear", align_corners=False)
+        for i, (conv_block, conv_out) in enumerate(self.conv_blocks):
+            x = conv_block(x)
+            x_out = conv_out(x) + skip
+            if i < self.upsample - 1:
+                skip = F.interpolate(x_out, scale_factor=2, mode="bilinear", align_corners=False)
+        return x_out
+
+
+class RayPatchDecoder(nn.Module):
+    """Reshapes patch features to image grids and upsamples them by k = 2^upsample."""
+
+    def __init__(self, out_dims=3, conv_features=128, h_in=16, w_in=16, h_out=None, w_out=None, upsample=3,
+                 norm=None):
+        super().__init__()
+        if upsample < 1 or not conv_features / 2**upsample > 1:
+            raise ValueError(f"rp_kwargs need upsample >= 1 and conv_features / 2^upsample > 1, "
+                             f"got conv_features {conv_features}, upsample {upsample}")
+        self.h_in = h_in
+        self.w_in = w_in
+        self.out_size = (h_out, w_out) if h_out is not None and w_out is not None else None
+        self.upsample = upsample
+        self.conv_decoder = FeatureDecoder(conv_features, upsample, out_dims, norm=norm)
+
+    def forward(self, x, grid=None, out_size=None):
+        """x [b, n·h_in·w_in, conv_features] -> [b, n, H, W, out_dims].
+
+        grid (h_in, w_in) and out_size (H, W) default to the configured values; the official code only knows
+        the configured ones, the renderer passes those of the actual target.
+        """
+        b, _, features = x.shape
+        h_in, w_in = grid or (self.h_in, self.w_in)
+        out = self.conv_decoder(x.reshape(-1, h_in, w_in, features).permute(0, 3, 1, 2))
+        out_size = out_size or self.out_size
+        if out_size is not None:
+            out = F.interpolate(out, out_size)  # official: default mode, i.e. nearest
+        return out.reshape(b, -1, *out.shape[1:]).permute(0, 1, 3, 4, 2)
+
+
+def _build(module_cls, section, kwargs):
+    """Constructs module_cls(**kwargs), rejecting keys its constructor does not take (as the official code does)."""
+    accepted = inspect.signature(module_cls.__init__).parameters
+    for key in kwargs:
+        if key not in accepted or key == "self":
+            raise ValueError(f"model config: unknown key {section}.{key}")
+    return module_cls(**kwargs)
+
+
+class SRT(nn.Module):
+    """encoder + decoder_att + decoder_rp, output sigmoid(decoder_rp(decoder_att(z, pos, rays)))."""
+
+    def __init__(self, encoder, decoder_att, decoder_rp):
+        super().__init__()
+        self.encoder = encoder
+        self.decoder_att = decoder_att
+        self.decoder_rp = decoder_rp
+
+    @classmethod
+    def from_config(cls, model_cfg):
+        """Builds the model from a run's config.yaml model section (a plain dict)."""
+        cfg = copy.deepcopy(model_cfg)
+        if cfg.get("base") != "srt":
+            raise ValueError(f"model config: base must be 'srt', got {cfg.get('base')!r}")
+        for section in ("encoder_kwargs", "decoder_kwargs"):
+            if not isinstance(cfg.get(section), dict):
+                raise ValueError(f"model config: missing section {section}")
+        encoder = _build(SRTEncoder, "encoder_kwargs", cfg["encoder_kwargs"])
+        decoder_kwargs = cfg["decoder_kwargs"]
+        if cfg.get("decoder") == "featurefield":
+            if not isinstance(cfg.get("rp_kwargs"), dict):
+                raise ValueError("model config: decoder featurefield needs section rp_kwargs")
+            decoder_rp = _build(RayPatchDecoder, "rp_kwargs", cfg["rp_kwargs"])
+            # Official SRT.__init__ overwrites decoder_kwargs.out_dims with the patch feature width.
+            decoder_kwargs["out_dims"] = cfg["rp_kwargs"].get("conv_features", 128)
+            out_dims = cfg["rp_kwargs"].get("out_dims", 3)
+        elif cfg.get("decoder") == "lightfield":
+            decoder_rp = nn.Identity()
+            out_dims = decoder_kwargs.get("out_dims", 3)
+        else:
+            raise ValueError(f"model config: decoder must be 'lightfield' or 'featurefield', "
+                             f"got {cfg.get('decoder')!r}")
+        if out_dims not in (3, 4):
+            raise ValueError(f"model config: out_dims must be 3 (rgb) or 4 (rgb + log-depth), got {out_dims}")
+        decoder_att = _build(SRTDecoder, "decoder_kwargs", decoder_kwargs)
+        return cls(encoder, decoder_att, decoder_rp)
+
+    @property
+    def patch_size(self):
+        """k: pixels per patch-ray side (1 for a light field)."""
+        return 2**self.decoder_rp.upsample if isinstance(self.decoder_rp, RayPatchDecoder) else 1
+
+    def encode(self, images, camera_pos, rays):
+        """images [B, N, 3, H, W], camera_pos [B, N, 3], rays [B, N, H, W, 3] -> z [B, tokens, token_dim]."""
+        return self.encoder(images, camera_pos, rays)
+
+    def decode(self, z, camera_pos, rays, patch_grid=None, out_size=None):
+        """The official SRT.decoder: camera_pos and rays [B, P, 3] -> (rgb [B, P', 3], logdepth [B, P'] or None).
+
+        For Ray-Patch, P = n_img·h·w patch rays on a patch_grid (h, w) (default: the configured h_in, w_in)
+        and P' = n_img·H·W pixels.
+        """
+        out = self.decoder_att(z, camera_pos, rays)
+        if isinstance(self.decoder_rp, RayPatchDecoder):
+            out = self.decoder_rp(out, patch_grid, out_size).flatten(1, 3)
+        logdepth = None
+        if out.shape[-1] == 4:
+            logdepth = out[..., 3]
+            out = out[..., :3]
+        return torch.sigmoid(out), logdepth
+
+    def render_views(self, z, target_camera_pos, target_rays, target_size=None):
+        """Renders whole target views: target_camera_pos [B, T, 3], target_rays [B, T, h, w, 3]
+        -> (rgb [B, T, Ht, Wt, 3], logdepth [B, T, Ht, Wt] or None).
+
+        target_size (Ht, Wt) defaults to the ray grid. A ray grid of the target size is full resolution: for
+        Ray-Patch its patch rays are made like the official MSN-Easy loader, torchvision
+        Resize([Ht//k, Wt//k], antialias=False) (bilinear, align_corners=False) without renormalisation.
+        A ray grid of (Ht//k, Wt//k) holds patch rays and is used as given.
+        """
+        b, t, h, w, _ = target_rays.shape
+        ht, wt = target_size or (h, w)
+        k = self.patch_size
+        if (h, w) == (ht, wt) and k > 1:
+            rays = F.interpolate(target_rays.flatten(0, 1).permute(0, 3, 1, 2), size=(ht // k, wt // k),
+                                 mode="bilinear", align_corners=False, antialias=False)
+            rays = rays.permute(0, 2, 3, 1).unflatten(0, (b, t))
+        elif (h, w) == (ht // k, wt // k):
+            rays = target_rays
+        else:
+            raise ValueError(f"target rays grid {h}x{w} is neither the target size {ht}x{wt} "
+                             f"nor the patch grid {ht // k}x{wt // k}")
+        grid_h, grid_w = rays.shape[2:4]
+        out_size = None
+        if k > 1:
+            if self.decoder_rp.out_size is not None:
+                # Official test_profile.py sets h_out, w_out to the rendered size; nearest resize to it.
+                out_size = (ht, wt)
+            elif (grid_h * k, grid_w * k) != (ht, wt):
+                raise ValueError(f"target size {ht}x{wt} is not a multiple of k={k} and rp_kwargs set no h_out/w_out")
+        camera_pos = target_camera_pos[:, :, None, :].expand(b, t, grid_h * grid_w, 3).reshape(b, -1, 3)
+        rgb, logdepth = self.decode(z, camera_pos, rays.reshape(b, -1, 3), (grid_h, grid_w), out_size)
+        rgb = rgb.reshape(b, t, ht, wt, 3)
+        if logdepth is not None:
+            logdepth = logdepth.reshape(b, t, ht, wt)
+        return rgb, logdepth
