@@ -1,4 +1,14 @@
-//! raypatch-model: what a model and a scene are, independent of the GPU.
+//! raypatch-model: what a model and a scene are, independent of the GPU: the config (official keys and
+//! defaults), the official state_dict names and shapes, and the safetensors model and scene files.
 
+pub mod config;
 pub mod error;
+pub mod scene;
+pub mod tensor_file;
+pub mod weights;
+
+pub use config::{DecoderConfig, EncoderConfig, ModelConfig, Octaves, RayPatchConfig};
 pub use error::ModelError;
+pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
+pub use tensor_file::{HostTensor, TensorFile};
+pub use weights::{load_model, LoadedModel, MODEL_FORMAT};

@@ -1,0 +1,186 @@
+//! Scene files: posed input views and the target cameras to render (docs/FORMATS.md).
+
+use std::path::Path;
+
+use crate::config::ModelConfig;
+use crate::error::ModelError;
+use crate::tensor_file::{HostTensor, TensorFile};
+
+/// Posed input views: images `[N,H,W,3]` in [0,1], camera centres `[N,3]`, unit rays `[N,H,W,3]`.
+#[derive(Clone, Debug)]
+pub struct InputViews {
+    pub count: usize,
+    pub height: usize,
+    pub width: usize,
+    pub images: Vec<f32>,
+    pub camera_pos: Vec<f32>,
+    pub rays: Vec<f32>,
+}
+
+/// Target cameras: centres `[T,3]` and a ray grid `[T,rays_height,rays_width,3]`, full resolution or one
+/// ray per patch.
+#[derive(Clone, Debug)]
+pub struct TargetViews {
+    pub count: usize,
+    pub camera_pos: Vec<f32>,
+    pub rays: Vec<f32>,
+    pub rays_height: usize,
+    pub rays_width: usize,
+    /// The size of the image to render when the file says it (`target_images` or `target_size` metadata).
+    pub declared_size: Option<(usize, usize)>,
+    /// Ground truth `[T,Ht,Wt,3]`, when the file has it.
+    pub images: Option<Vec<f32>>,
+}
+
+/// How a target ray grid maps onto the image to render, for a given patch size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TargetGrid {
+    pub height: usize,
+    pub width: usize,
+    /// The rays are one per k×k patch (used as given) rather than one per pixel.
+    pub rays_are_patches: bool,
+}
+
+#[derive(Clone, Debug)]
+pub struct SceneFile {
+    pub path: String,
+    pub inputs: InputViews,
+    pub targets: TargetViews,
+}
+
+fn shape_err(path: &str, key: &str, expected: String, found: &[usize]) -> ModelError {
+    ModelError::Value { path: path.to_string(), key: key.to_string(), reason: format!("shape {found:?}, expected {expected}") }
+}
+
+/// Reads `key` and checks it is `[.., 3]` with the given leading dimensions (None = any).
+fn read(file: &TensorFile, key: &str, lead: &[Option<usize>], what: &str) -> Result<HostTensor, ModelError> {
+    let t = file.f32(key)?;
+    let ok = t.shape.len() == lead.len() + 1
+        && t.shape[lead.len()] == 3
+        && lead.iter().zip(&t.shape).all(|(want, &got)| want.is_none_or(|w| w == got));
+    if !ok {
+        return Err(shape_err(&file.path, key, what.to_string(), &t.shape));
+    }
+    Ok(t)
+}
+
+pub fn load_scene(path: impl AsRef<Path>) -> Result<SceneFile, ModelError> {
+    scene_from_file(&TensorFile::open(path.as_ref())?)
+}
+
+pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
+    let path = file.path.as_str();
+    let images = read(file, "input_images", &[None, None, None], "[N,H,W,3]")?;
+    let (n, h, w) = (images.shape[0], images.shape[1], images.shape[2]);
+    if n == 0 || h == 0 || w == 0 {
+        return Err(ModelError::Value {
+            path: path.into(),
+            key: "input_images".into(),
+            reason: format!("shape {:?}: the scene needs at least one non-empty input view", images.shape),
+        });
+    }
+    if let Some(i) = images.data.iter().position(|v| !(0.0..=1.0).contains(v)) {
+        return Err(ModelError::Value {
+            path: path.into(),
+            key: "input_images".into(),
+            reason: format!("element {i} is {}, expected values in [0, 1]", images.data[i]),
+        });
+    }
+    let camera_pos = read(file, "input_camera_pos", &[Some(n)], &format!("[{n},3] (one position per input view)"))?;
+    let rays = read(file, "input_rays", &[Some(n), Some(h), Some(w)], &format!("[{n},{h},{w},3] (like input_images)"))?;
+    check_unit_rays(path, "input_rays", &rays.data)?;
+
+    let target_pos = read(file, "target_camera_pos", &[None], "[T,3]")?;
+    let t = target_pos.shape[0];
+    if t == 0 {
+        return Err(ModelError::Value { path: path.into(), key: "target_camera_pos".into(), reason: "no target view".into() });
+    }
+    let target_rays = read(file, "target_rays", &[Some(t), None, None], &format!("[{t},Ht,Wt,3] (one grid per target view)"))?;
+    check_unit_rays(path, "target_rays", &target_rays.data)?;
+    let target_images = if file.contains("target_images") {
+        Some(read(file, "target_images", &[Some(t), None, None], &format!("[{t},Ht,Wt,3]"))?)
+    } else {
+        None
+    };
+    let declared_size = match (&target_images, file.metadata.get("target_size")) {
+        (Some(img), _) => Some((img.shape[1], img.shape[2])),
+        (None, Some(text)) => Some(parse_size(text).ok_or_else(|| ModelError::Value {
+            path: path.into(),
+            key: "target_size".into(),
+            reason: format!("metadata value {text:?}, expected \"HEIGHTxWIDTH\""),
+        })?),
+        (None, None) => None,
+    };
+
+    Ok(SceneFile {
+        path: path.to_string(),
+        inputs: InputViews { count: n, height: h, width: w, images: images.data, camera_pos: camera_pos.data, rays: rays.data },
+        targets: TargetViews {
+            count: t,
+            camera_pos: target_pos.data,
+            rays_height: target_rays.shape[1],
+            rays_width: target_rays.shape[2],
+            rays: target_rays.data,
+            declared_size,
+            images: target_images.map(|t| t.data),
+        },
+    })
+}
+
+/// Rays are directions; a zero vector cannot be encoded meaningfully and is a sign of a broken file.
+fn check_unit_rays(path: &str, key: &str, rays: &[f32]) -> Result<(), ModelError> {
+    for (i, r) in rays.chunks_exact(3).enumerate() {
+        let norm = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+        if norm < 1e-6 {
+            return Err(ModelError::Value { path: path.into(), key: key.into(), reason: format!("ray {i} has zero length") });
+        }
+    }
+    Ok(())
+}
+
+fn parse_size(text: &str) -> Option<(usize, usize)> {
+    let (h, w) = text.split_once('x')?;
+    Some((h.trim().parse().ok()?, w.trim().parse().ok()?))
+}
+
+impl InputViews {
+    /// Checks that the model can encode these views.
+    pub fn check_for(&self, config: &ModelConfig, path: &str) -> Result<(), ModelError> {
+        let d = config.input_divisor();
+        if self.height % d != 0 || self.width % d != 0 {
+            return Err(ModelError::Value {
+                path: path.into(),
+                key: "input_images".into(),
+                reason: format!(
+                    "input size {}x{} is not divisible by {d} (the model's {} conv blocks each halve it)",
+                    self.height, self.width, config.encoder.num_conv_blocks
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+impl TargetViews {
+    /// Resolves the image size and whether the rays are per patch, for patch size `k` (docs/FORMATS.md).
+    pub fn grid(&self, k: usize, path: &str) -> Result<TargetGrid, ModelError> {
+        let (rh, rw) = (self.rays_height, self.rays_width);
+        let (height, width) = self.declared_size.unwrap_or((rh, rw));
+        let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
+        if height % k != 0 || width % k != 0 {
+            return Err(err(format!("target size {height}x{width} is not divisible by the model's patch size k={k}")));
+        }
+        let rays_are_patches = if (rh, rw) == (height, width) {
+            false
+        } else if (rh * k, rw * k) == (height, width) {
+            true
+        } else {
+            return Err(err(format!(
+                "ray grid {rh}x{rw} matches neither the target size {height}x{width} nor its patch grid {}x{} (k={k})",
+                height / k,
+                width / k
+            )));
+        };
+        Ok(TargetGrid { height, width, rays_are_patches })
+    }
+}

@@ -1,0 +1,108 @@
+//! Reading safetensors files into f32 host tensors, with errors that name the file and the tensor.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use safetensors::{Dtype, SafeTensors};
+
+use crate::error::ModelError;
+
+/// A row-major f32 tensor on the host.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HostTensor {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// One tensor as found in the file; `data` is decoded only for F32.
+#[derive(Clone, Debug)]
+struct FileTensor {
+    shape: Vec<usize>,
+    dtype: Dtype,
+    data: Option<Vec<f32>>,
+}
+
+/// A parsed safetensors file.
+#[derive(Debug)]
+pub struct TensorFile {
+    pub path: String,
+    pub metadata: HashMap<String, String>,
+    tensors: BTreeMap<String, FileTensor>,
+}
+
+impl TensorFile {
+    pub fn open(path: &Path) -> Result<TensorFile, ModelError> {
+        let shown = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: shown.clone(), source })?;
+        Self::parse(&shown, &bytes)
+    }
+
+    /// Parses file contents; `path` names the file in errors. The safetensors crate checks the header
+    /// length, the JSON, and that the tensors' byte ranges tile the data section exactly.
+    pub fn parse(path: &str, bytes: &[u8]) -> Result<TensorFile, ModelError> {
+        let format_err = |reason: String| ModelError::Format { path: path.to_string(), reason };
+        let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| format_err(e.to_string()))?;
+        let st = SafeTensors::deserialize(bytes).map_err(|e| format_err(e.to_string()))?;
+        let metadata = header.metadata().clone().unwrap_or_default();
+        let mut tensors = BTreeMap::new();
+        for (name, view) in st.tensors() {
+            let data = (view.dtype() == Dtype::F32).then(|| {
+                view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+            });
+            tensors.insert(name, FileTensor { shape: view.shape().to_vec(), dtype: view.dtype(), data });
+        }
+        Ok(TensorFile { path: path.to_string(), metadata, tensors })
+    }
+
+    pub fn contains(&self, key: &str) -> bool {
+        self.tensors.contains_key(key)
+    }
+
+    pub fn keys(&self) -> impl Iterator<Item = &str> {
+        self.tensors.keys().map(String::as_str)
+    }
+
+    pub fn shape(&self, key: &str) -> Option<&[usize]> {
+        self.tensors.get(key).map(|t| t.shape.as_slice())
+    }
+
+    /// The F32 tensor `key`: an error if it is absent, has another dtype, or holds NaN or infinity.
+    pub fn f32(&self, key: &str) -> Result<HostTensor, ModelError> {
+        let t = self.tensors.get(key).ok_or_else(|| ModelError::Missing {
+            path: self.path.clone(),
+            key: key.to_string(),
+            expected: Vec::new(),
+        })?;
+        let data = t.data.as_ref().ok_or_else(|| ModelError::Dtype {
+            path: self.path.clone(),
+            key: key.to_string(),
+            found: format!("{:?}", t.dtype),
+        })?;
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(ModelError::Value {
+                path: self.path.clone(),
+                key: key.to_string(),
+                reason: format!("element {i} is {} (NaN or infinity)", data[i]),
+            });
+        }
+        Ok(HostTensor { shape: t.shape.clone(), data: data.clone() })
+    }
+
+    /// Like [`f32`](Self::f32), also checking the shape.
+    pub fn f32_shaped(&self, key: &str, expected: &[usize]) -> Result<HostTensor, ModelError> {
+        let shape = self.shape(key).ok_or_else(|| ModelError::Missing {
+            path: self.path.clone(),
+            key: key.to_string(),
+            expected: expected.to_vec(),
+        })?;
+        if shape != expected {
+            return Err(ModelError::Shape {
+                path: self.path.clone(),
+                key: key.to_string(),
+                expected: expected.to_vec(),
+                found: shape.to_vec(),
+            });
+        }
+        self.f32(key)
+    }
+}

@@ -1,0 +1,315 @@
+"""Writes the golden test cases of raypatch: small random-weight models, synthetic scenes and the outputs of the
+PyTorch reference (tools/raypatch_reference.py).
+
+    python3 tools/make_golden.py --out assets/golden
+    python3 tools/make_golden.py --full-size --out target/golden-full
+
+Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors and expected.safetensors
+(docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
+computes them; `latent_f64`, `rgb_f64` (`logdepth_f64`) are float64 tensors from a float64 copy of the same
+model on the same float32 inputs, for error analysis.
+"""
+
+import argparse
+import copy
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import save_file
+from torch import nn
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cameras import get_camera_rays, look_at_positions  # noqa: E402
+from convert_checkpoint import write_model  # noqa: E402
+from official_configs import RPSRT_MDBN_4_32  # noqa: E402
+from raypatch_reference import SRT  # noqa: E402
+
+SCENE_FORMAT = "raypatch-scene/1"
+GOLDEN_FORMAT = "raypatch-golden/1"
+
+
+def small_config(decoder="lightfield", encoder_norm="Batch", rp_kwargs=None, out_dims=3, width=32):
+    """The official structure (3 conv blocks, 2+2 attention layers here, 15+15 octaves, MSN octave starts) at small
+    widths: tokens and latents `width` wide (4 heads), conv_hidden width/4, FF hidden 2·width.
+    width 32 gives ~170k parameters, width 16 ~80k (the query width is 180 either way)."""
+    cfg = {
+        "base": "srt",
+        "encoder_kwargs": {"pos_start_octave": -5, "num_att_blocks": 2, "num_conv_blocks": 3, "norm": encoder_norm,
+                           "latent_dim": width, "conv_hidden": width // 4, "token_dim": width, "heads": 4,
+                           "dim_head": width // 4},
+        "decoder": decoder,
+        "decoder_kwargs": {"num_att_blocks": 2, "pos_octaves": 15, "ray_octaves": 15, "pos_start_octave": -5,
+                           "pos_end_octave": None, "ray_start_octave": 0, "ray_end_octave": None, "latent_dim": width,
+                           "mode": "efficient", "out_dims": out_dims, "heads": 4, "input_mlp_hidden": 24,
+                           "out_mlp_hidden": 48},
+        # Training keys the engine must ignore, as in the official configs.
+        "lr_config": "linear",
+        "lr": 0.0001,
+    }
+    if rp_kwargs is not None:
+        cfg["rp_kwargs"] = rp_kwargs
+        # What an official checkpoint stores: SRT.__init__ writes the patch feature width here.
+        cfg["decoder_kwargs"]["out_dims"] = rp_kwargs["conv_features"]
+    return cfg
+
+
+@dataclass
+class Case:
+    name: str
+    seed: int  # weights, cameras and images
+    model_cfg: dict
+    input_size: tuple  # (H, W)
+    target_size: tuple  # (Ht, Wt)
+    num_inputs: int = 1
+    num_targets: int = 2
+    patch_rays: bool = False  # store target rays at patch resolution (and the target size as metadata)
+    target_images: bool = False
+    description: str = field(default="")
+
+
+def golden_cases():
+    # Width 32 for srt_k1 and rpsrt_k2, 16 elsewhere to keep assets/golden small.
+    k2 = small_config("featurefield", rp_kwargs=dict(upsample=1, h_in=8, w_in=12, conv_features=16, norm="Batch"))
+    del k2["decoder_kwargs"]["out_dims"]  # the config.yaml form, without the checkpoint's out_dims
+    # h_in/w_in are the training grid (30x40 as in the official run), not the 8x12 grid of these targets.
+    k4 = small_config("featurefield", width=16,
+                      rp_kwargs=dict(upsample=2, h_in=30, w_in=40, conv_features=16, norm="Batch"))
+    k8 = small_config("featurefield", encoder_norm=None, width=16,
+                      rp_kwargs=dict(upsample=3, h_in=4, w_in=6, h_out=32, w_out=48, conv_features=16, norm="Batch"))
+    k16 = small_config("featurefield", width=16,
+                       rp_kwargs=dict(upsample=4, h_in=2, w_in=4, conv_features=32, norm="Batch"))
+    return [
+        Case("srt_k1", 1, small_config("lightfield"), (32, 32), (16, 24),
+             description="light field, 1 input view"),
+        Case("srt_k1_depth", 2, small_config("lightfield", out_dims=4, width=16), (24, 32), (16, 24), num_targets=1,
+             description="light field with decoder out_dims 4 (rgb + log-depth)"),
+        Case("rpsrt_k2", 3, k2, (24, 32), (16, 24), target_images=True,
+             description="Ray-Patch k=2, config without decoder_kwargs.out_dims, scene with target_images"),
+        Case("rpsrt_k4", 4, k4, (24, 32), (32, 48), num_inputs=2,
+             description="Ray-Patch k=4, 2 input views, rp h_in/w_in 30x40 differ from the 8x12 target grid"),
+        Case("rpsrt_k4_patchrays", 4, copy.deepcopy(k4), (24, 32), (32, 48), num_inputs=2, patch_rays=True,
+             description="rpsrt_k4 (same weights and scene) with target rays given at patch resolution "
+                         "and target_size metadata: the same expected rgb"),
+        Case("rpsrt_k8", 5, k8, (24, 32), (32, 48), num_targets=1,
+             description="Ray-Patch k=8, encoder without norm, rp h_out/w_out set (identity resize)"),
+        Case("rpsrt_k16", 6, k16, (24, 32), (32, 64), num_targets=1,
+             description="Ray-Patch k=16, conv_features 32"),
+    ]
+
+
+def full_size_case():
+    cfg = copy.deepcopy(RPSRT_MDBN_4_32)
+    cfg["decoder_kwargs"]["out_dims"] = 128  # as the official checkpoint stores it
+    return Case("rpsrt_k4_full", 7, cfg, (120, 160), (60, 80),
+                description="official rpsrt_MDBN_4_32 config (random weights), MSN-Easy input size")
+
+
+def randomize_weights(model):
+    """He-style random weights (activations stay O(1) through the ReLUs), random biases, and non-trivial
+    LayerNorm and BatchNorm parameters and statistics. Default PyTorch init would shrink the activations layer by
+    layer and make the outputs insensitive to mistakes."""
+    def normal(tensor, std):
+        tensor.copy_(torch.randn(tensor.shape) * std)
+
+    def uniform(tensor, low, high):
+        tensor.copy_(low + (high - low) * torch.rand(tensor.shape))
+
+    with torch.no_grad():
+        for name, module in model.named_modules():
+            if isinstance(module, (nn.Linear, nn.Conv2d)):
+                fan_in = module.weight[0].numel()
+                # Attention projections keep unit gain so the attention logits stay O(1); the rest feed (Leaky)ReLUs.
+                gain = 1.0 if any(part in name for part in ("to_q", "to_kv", "to_qkv", "to_out")) else math.sqrt(2)
+                normal(module.weight, gain / math.sqrt(fan_in))
+                if module.bias is not None:
+                    normal(module.bias, 0.1)
+            elif isinstance(module, nn.LayerNorm):
+                uniform(module.weight, 0.5, 1.5)
+                normal(module.bias, 0.1)
+            elif isinstance(module, nn.BatchNorm2d):
+                uniform(module.weight, 0.5, 1.5)
+                normal(module.bias, 0.1)
+                normal(module.running_mean, 0.2)
+                uniform(module.running_var, 0.5, 2.0)
+
+
+def calibrate_output(model, scene, target_size, logit_std=1.5):
+    """Rescales the output layers so that on this scene the pre-sigmoid outputs have per-channel mean 0 and
+    standard deviation logit_std: random weights otherwise saturate many pixels at 0 or 1, hiding errors."""
+    decoder_rp = model.decoder_rp
+    captured = []
+    hook = (decoder_rp if model.patch_size > 1 else model.decoder_att).register_forward_hook(
+        lambda module, inputs, output: captured.append(output))
+    run_model(model, scene, target_size, torch.float32)
+    hook.remove()
+    logits = captured[0].flatten(0, -2)
+    mean, scale = logits.mean(0), logit_std / logits.std(0)
+    with torch.no_grad():
+        if model.patch_size > 1:
+            # The output is a sum of conv_0 and every conv_out, bilinearly upsampled: linear in all of them,
+            # and the last conv_out adds to it directly.
+            convs = [decoder_rp.conv_decoder.conv_0] + [out for _, out in decoder_rp.conv_decoder.conv_blocks]
+        else:
+            convs = [model.decoder_att.out_mlp[-1]]
+        for conv in convs:
+            conv.weight.mul_(scale.view(-1, *[1] * (conv.weight.dim() - 1)))
+            conv.bias.mul_(scale)
+        convs[-1].bias.sub_(scale * mean)
+
+
+def structured_image(height, width, rng):
+    """A smooth colour gradient with a few flat discs and rectangles, values in [0, 1], [H, W, 3] float32."""
+    y, x = np.meshgrid(np.linspace(0, 1, height), np.linspace(0, 1, width), indexing="ij")
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    image = np.stack([0.5 + 0.25 * np.sin(2 * np.pi * (rng.uniform(0.3, 1.2) * x + rng.uniform(0.3, 1.2) * y)
+                                          + phase[c]) for c in range(3)], -1)
+    for _ in range(3):
+        cy, cx = rng.uniform(0.15, 0.85, 2)
+        radius = rng.uniform(0.08, 0.25)
+        image[(y - cy) ** 2 + (x - cx) ** 2 < radius**2] = rng.uniform(0, 1, 3)
+    for _ in range(2):
+        y0, x0 = rng.uniform(0, 0.7, 2)
+        h, w = rng.uniform(0.1, 0.3, 2)
+        image[(y >= y0) & (y < y0 + h) & (x >= x0) & (x < x0 + w)] = rng.uniform(0, 1, 3)
+    return np.clip(image, 0, 1).astype(np.float32)
+
+
+def make_scene(case, rng):
+    """Input cameras on one side of the origin, targets elsewhere, all 5 to 12 units away."""
+    input_pos = look_at_positions(rng.uniform(0, 360) + 70.0 * np.arange(case.num_inputs),
+                                  rng.uniform(5, 12, case.num_inputs), rng.uniform(15, 50, case.num_inputs))
+    target_pos = look_at_positions(rng.uniform(0, 360, case.num_targets), rng.uniform(5, 12, case.num_targets),
+                                   rng.uniform(10, 60, case.num_targets))
+    (h, w), (ht, wt) = case.input_size, case.target_size
+    scene = {
+        "input_images": np.stack([structured_image(h, w, rng) for _ in range(case.num_inputs)]),
+        "input_camera_pos": input_pos,
+        "input_rays": np.stack([get_camera_rays(p, w, h) for p in input_pos]),
+        "target_camera_pos": target_pos,
+        "target_rays": np.stack([get_camera_rays(p, wt, ht) for p in target_pos]),
+    }
+    if case.target_images:
+        scene["target_images"] = np.stack([structured_image(ht, wt, rng) for _ in range(case.num_targets)])
+    return {name: torch.from_numpy(array) for name, array in scene.items()}
+
+
+def run_model(model, scene, target_size, dtype):
+    """Encodes the input views and renders the target views; batch dimension dropped from the results."""
+    def batch(name):
+        return scene[name].to(dtype)[None]
+
+    with torch.no_grad():
+        z = model.encode(batch("input_images").permute(0, 1, 4, 2, 3), batch("input_camera_pos"),
+                         batch("input_rays"))
+        rgb, logdepth = model.render_views(z, batch("target_camera_pos"), batch("target_rays"), target_size)
+    out = {"latent": z[0], "rgb": rgb[0]}
+    if logdepth is not None:
+        out["logdepth"] = logdepth[0]
+    return out
+
+
+def patch_rays_of(model, scene):
+    """The scene with its target rays replaced by the patch rays the model makes from them."""
+    k = model.patch_size
+    rays = scene["target_rays"].permute(0, 3, 1, 2)
+    rays = torch.nn.functional.interpolate(rays, size=(rays.shape[2] // k, rays.shape[3] // k), mode="bilinear",
+                                           align_corners=False, antialias=False)
+    return {**scene, "target_rays": rays.permute(0, 2, 3, 1).contiguous()}
+
+
+def write_case(case, out_dir, generator_command):
+    seed = case.seed
+    torch.manual_seed(seed)
+    model = SRT.from_config(case.model_cfg).eval()
+    randomize_weights(model)
+    scene = make_scene(case, np.random.default_rng(seed))
+    calibrate_output(model, scene, case.target_size)
+    scene_metadata = {"format": SCENE_FORMAT}
+    if case.patch_rays:
+        rgb_from_full_rays = run_model(model, scene, case.target_size, torch.float32)["rgb"]
+        scene = patch_rays_of(model, scene)
+        scene_metadata["target_size"] = "{}x{}".format(*case.target_size)
+
+    expected = run_model(model, scene, case.target_size, torch.float32)
+    expected_f64 = run_model(copy.deepcopy(model).double(), scene, case.target_size, torch.float64)
+    expected.update({f"{name}_f64": tensor for name, tensor in expected_f64.items()})
+    if case.patch_rays:
+        # Patch rays given as such must render exactly what the model makes of the full-resolution rays.
+        assert torch.equal(expected["rgb"], rgb_from_full_rays)
+
+    case_dir = out_dir / case.name
+    case_dir.mkdir(parents=True, exist_ok=True)
+    state_dict = {name: tensor for name, tensor in model.state_dict().items()
+                  if not name.endswith("num_batches_tracked")}
+    write_model(case_dir / "model.safetensors", state_dict, case.model_cfg,
+                {"source": f"random weights (seed {seed}) from {generator_command}"})
+    save_file({name: tensor.contiguous() for name, tensor in scene.items()}, str(case_dir / "scene.safetensors"),
+              metadata=scene_metadata)
+    save_file({name: tensor.contiguous() for name, tensor in expected.items()},
+              str(case_dir / "expected.safetensors"),
+              metadata={"format": GOLDEN_FORMAT, "case": case.name, "generator": generator_command})
+    return scene, expected
+
+
+README_HEADER = """# Golden test cases
+
+Written by `{command}` (tools/make_golden.py); do not edit by hand, regenerate instead. Each folder holds
+`model.safetensors` (random weights, raypatch-model/1), `scene.safetensors` (raypatch-scene/1) and
+`expected.safetensors` (raypatch-golden/1), see docs/FORMATS.md.
+
+`latent`, `rgb` and `logdepth` are float32 outputs of the PyTorch reference (tools/raypatch_reference.py) on CPU,
+computed as the official model computes them. `latent_f64`, `rgb_f64` and `logdepth_f64` are **F64** tensors from
+a float64 copy of the same model on the same float32 inputs. The float32 and float64 results differ by up to about
+1e-3 in rgb because float32 rounds the arguments of the top sin/cos octaves (up to about 2^14·π·|d|).
+
+Models are small SRT configs with the raypatch width extensions: 3 conv blocks, 2 encoder and 2 decoder attention
+layers, 15 + 15 octaves, 4 heads, token width 32 (srt_k1, rpsrt_k2) or 16 (the others). Note that rpsrt_k2 stores decoder_kwargs without `out_dims` like a config.yaml, while the other Ray-Patch cases
+store `out_dims` = conv_features like an official checkpoint. Output layers are rescaled so the pre-sigmoid
+outputs have mean 0 and standard deviation 1.5 on the case's own scene.
+
+| case | decoder | input views | targets | scene target_rays | what it covers |
+|---|---|---|---|---|---|
+"""
+
+
+def readme_row(case, scene):
+    k = 2 ** case.model_cfg["rp_kwargs"]["upsample"] if "rp_kwargs" in case.model_cfg else 1
+    decoder = "lightfield" if k == 1 else f"Ray-Patch k={k}"
+    inputs = "{} x {}x{}".format(case.num_inputs, *case.input_size)
+    targets = "{} x {}x{}".format(case.num_targets, *case.target_size)
+    return (f"| `{case.name}` | {decoder} | {inputs} | {targets} | {list(scene['target_rays'].shape)} "
+            f"| {case.description} |")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", required=True, type=Path, help="folder to write the case folders into")
+    parser.add_argument("--full-size", action="store_true",
+                        help="write only the official-size case rpsrt_k4_full (about 170 MB)")
+    args = parser.parse_args(argv)
+
+    command = "python3 tools/make_golden.py" + (" --full-size" if args.full_size else "") + f" --out {args.out}"
+    cases = [full_size_case()] if args.full_size else golden_cases()
+    rows = []
+    for case in cases:
+        start = time.perf_counter()
+        scene, expected = write_case(case, args.out, command)
+        rows.append(readme_row(case, scene))
+        rgb = expected["rgb"]
+        shapes = ", ".join(f"{name} {list(tensor.shape)}" for name, tensor in {**scene, **expected}.items()
+                           if not name.endswith("_f64"))
+        print(f"{case.name}: {shapes}\n    rgb mean {rgb.mean():.3f} std {rgb.std():.3f}, "
+              f"max |rgb - rgb_f64| {(rgb.double() - expected['rgb_f64']).abs().max():.2e}, "
+              f"{time.perf_counter() - start:.1f} s")
+    if not args.full_size:
+        (args.out / "README.md").write_text(README_HEADER.format(command=command) + "\n".join(rows) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
