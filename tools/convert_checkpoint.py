@@ -9,16 +9,15 @@ model section as metadata. Exit code 2 and no output file on any error.
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import torch
-from safetensors.torch import save_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from raypatch_reference import SRT  # noqa: E402
+from safetensors_io import save_safetensors  # noqa: E402
 
 MODEL_FORMAT = "raypatch-model/1"
 KEPT_PREFIXES = ("encoder.", "decoder_att.", "decoder_rp.")
@@ -77,17 +76,10 @@ def shape_problems(tensors, model_cfg):
 
 
 def write_model(path, state_dict, model_cfg, extra_metadata=None):
-    """Writes a raypatch model file atomically (temporary file, then rename)."""
+    """Writes a raypatch model file (float32 tensors, format and config metadata) atomically."""
     metadata = {"format": MODEL_FORMAT, "config": json.dumps(model_cfg)}
     metadata.update(extra_metadata or {})
-    tensors = {name: tensor.detach().to(torch.float32).contiguous() for name, tensor in state_dict.items()}
-    path = Path(path)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        save_file(tensors, str(temporary), metadata=metadata)
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
+    save_safetensors(path, {name: tensor.to(torch.float32) for name, tensor in state_dict.items()}, metadata)
 
 
 def convert(in_path, out_path):

@@ -6,8 +6,9 @@ PyTorch reference (tools/raypatch_reference.py).
 
 Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors and expected.safetensors
 (docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
-computes them; `latent_f64`, `rgb_f64` (`logdepth_f64`) are float64 tensors from a float64 copy of the same
-model on the same float32 inputs, for error analysis.
+computes them, and `patch_rays` the patch rays made from full-resolution target rays; `latent_f64`, `rgb_f64`
+(`logdepth_f64`) are float64 tensors from a float64 copy of the same model on the same float32 inputs, for error
+analysis.
 """
 
 import argparse
@@ -15,12 +16,11 @@ import copy
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import save_file
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -28,6 +28,7 @@ from cameras import get_camera_rays, look_at_positions  # noqa: E402
 from convert_checkpoint import write_model  # noqa: E402
 from official_configs import RPSRT_MDBN_4_32  # noqa: E402
 from raypatch_reference import SRT  # noqa: E402
+from safetensors_io import save_safetensors  # noqa: E402
 
 SCENE_FORMAT = "raypatch-scene/1"
 GOLDEN_FORMAT = "raypatch-golden/1"
@@ -69,7 +70,7 @@ class Case:
     num_targets: int = 2
     patch_rays: bool = False  # store target rays at patch resolution (and the target size as metadata)
     target_images: bool = False
-    description: str = field(default="")
+    description: str = ""
 
 
 def golden_cases():
@@ -236,6 +237,9 @@ def write_case(case, out_dir, generator_command):
         scene_metadata["target_size"] = "{}x{}".format(*case.target_size)
 
     expected = run_model(model, scene, case.target_size, torch.float32)
+    if model.patch_size > 1 and not case.patch_rays:
+        # For debugging an engine's ray resize in isolation.
+        expected["patch_rays"] = patch_rays_of(model, scene)["target_rays"]
     expected_f64 = run_model(copy.deepcopy(model).double(), scene, case.target_size, torch.float64)
     expected.update({f"{name}_f64": tensor for name, tensor in expected_f64.items()})
     if case.patch_rays:
@@ -248,11 +252,9 @@ def write_case(case, out_dir, generator_command):
                   if not name.endswith("num_batches_tracked")}
     write_model(case_dir / "model.safetensors", state_dict, case.model_cfg,
                 {"source": f"random weights (seed {seed}) from {generator_command}"})
-    save_file({name: tensor.contiguous() for name, tensor in scene.items()}, str(case_dir / "scene.safetensors"),
-              metadata=scene_metadata)
-    save_file({name: tensor.contiguous() for name, tensor in expected.items()},
-              str(case_dir / "expected.safetensors"),
-              metadata={"format": GOLDEN_FORMAT, "case": case.name, "generator": generator_command})
+    save_safetensors(case_dir / "scene.safetensors", scene, scene_metadata)
+    save_safetensors(case_dir / "expected.safetensors", expected,
+                     {"format": GOLDEN_FORMAT, "case": case.name, "generator": generator_command})
     return scene, expected
 
 
@@ -263,14 +265,17 @@ Written by `{command}` (tools/make_golden.py); do not edit by hand, regenerate i
 `expected.safetensors` (raypatch-golden/1), see docs/FORMATS.md.
 
 `latent`, `rgb` and `logdepth` are float32 outputs of the PyTorch reference (tools/raypatch_reference.py) on CPU,
-computed as the official model computes them. `latent_f64`, `rgb_f64` and `logdepth_f64` are **F64** tensors from
-a float64 copy of the same model on the same float32 inputs. The float32 and float64 results differ by up to about
-1e-3 in rgb because float32 rounds the arguments of the top sin/cos octaves (up to about 2^14·π·|d|).
+computed as the official model computes them. Ray-Patch cases with full-resolution target rays also hold
+`patch_rays` [T, Ht/k, Wt/k, 3], the patch rays the model made from them. `latent_f64`, `rgb_f64` and
+`logdepth_f64` are **F64** tensors from a float64 copy of the same model on the same float32 inputs. The float32 and
+float64 rgb differ by up to about 1e-3, because float32 rounds the arguments of the top sin/cos octaves (up to about
+2^14·π·|d| for rays, 2^9·π·|p| for positions).
 
 Models are small SRT configs with the raypatch width extensions: 3 conv blocks, 2 encoder and 2 decoder attention
-layers, 15 + 15 octaves, 4 heads, token width 32 (srt_k1, rpsrt_k2) or 16 (the others). Note that rpsrt_k2 stores decoder_kwargs without `out_dims` like a config.yaml, while the other Ray-Patch cases
-store `out_dims` = conv_features like an official checkpoint. Output layers are rescaled so the pre-sigmoid
-outputs have mean 0 and standard deviation 1.5 on the case's own scene.
+layers, 15 + 15 octaves, 4 heads, token width 32 (srt_k1, rpsrt_k2) or 16 (the others). rpsrt_k2 stores
+decoder_kwargs without `out_dims` like a config.yaml; the other Ray-Patch cases store `out_dims` = conv_features
+like an official checkpoint. Output layers are rescaled so that the pre-sigmoid outputs have mean 0 and standard
+deviation 1.5 on the case's own scene.
 
 | case | decoder | input views | targets | scene target_rays | what it covers |
 |---|---|---|---|---|---|
