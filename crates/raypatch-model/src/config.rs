@@ -281,6 +281,20 @@ impl ModelConfig {
                         format!("`rp_kwargs.conv_features` {} must stay above 1 after {} halvings", rp.conv_features, rp.upsample),
                     ));
                 }
+                // The official decoder nearest-resizes its output to (h_out, w_out); that is the identity
+                // when they equal the patch grid times k, the only case this engine runs.
+                if let Some((ho, wo)) = rp.resize_out {
+                    let k = 1 << rp.upsample;
+                    if (ho, wo) != (rp.grid_in.0 * k, rp.grid_in.1 * k) {
+                        return Err(config_err(
+                            path,
+                            format!(
+                                "`rp_kwargs.h_out/w_out` {ho}x{wo} differ from h_in/w_in {}x{} times k={k}: an output resize is not supported",
+                                rp.grid_in.0, rp.grid_in.1
+                            ),
+                        ));
+                    }
+                }
                 if rp.out_dims != 3 && rp.out_dims != 4 {
                     return Err(config_err(path, format!("`rp_kwargs.out_dims` must be 3 or 4, found {}", rp.out_dims)));
                 }
