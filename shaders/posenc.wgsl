@@ -66,7 +66,9 @@ fn sin_cos(a: f32) -> vec2<f32> {
     // ~1e-7 there.
     let z = r * r;
     let s = ((S3 * z + S2) * z + S1) * z * r + r;
-    let c = ((C3 * z + C2) * z + C1) * z * z - 0.5 * z + 1.0;
+    // cos in plain Horner form: a compiler may reassociate Cephes' (p·z² - z/2) + 1 into (p·z² + 1) - z/2,
+    // which rounds twice near 1 (lavapipe does); Horner leaves nothing to reassociate.
+    let c = (((C3 * z + C2) * z + C1) * z - 0.5) * z + 1.0;
     // a = r + q·π/2: q odd swaps to (cos r, -sin r); q = 2, 3 negate.
     let q = i32(n) & 3;
     let sc = select(vec2<f32>(s, c), vec2<f32>(c, -s), (q & 1) != 0);
