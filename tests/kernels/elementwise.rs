@@ -1,5 +1,7 @@
 //! Elementwise column maps against the float64 reference.
 
+use std::ops::Range;
+
 use raypatch_engine::kernels::elementwise::{map_columns, Map};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::elementwise as reference;
@@ -10,22 +12,30 @@ use crate::common::*;
 
 const SENTINEL: f32 = 3.75;
 
-/// Maps rows `[x_start, x_start + rows)` of `x` (`[x_rows, cols_x]`), columns from `col`, into as many rows
-/// from `out_start` of a `[out_rows, cols]` output prefilled with SENTINEL (padding included). Checks that
-/// the view's padding is zero and every other row untouched; returns the view's rows, unpadded.
-#[allow(clippy::too_many_arguments)]
-fn run_map(x: &[f32], cols_x: usize, x_start: usize, rows: usize, col: usize, cols: usize, out_rows: usize, out_start: usize, f: Map) -> Vec<f32> {
+/// Maps columns `columns` of rows `x_rows` of `x` (`[rows, cols_x]`) into as many rows from `out_start` of an
+/// `[out_total, columns.len()]` output prefilled with SENTINEL (padding included). Checks that the view's
+/// padding is zero and every other row untouched; returns the view's rows, unpadded.
+fn run_map(
+    x: &[f32],
+    cols_x: usize,
+    x_rows: Range<usize>,
+    columns: Range<usize>,
+    out_total: usize,
+    out_start: usize,
+    f: Map,
+) -> Vec<f32> {
     let gpu = gpu();
+    let (rows, cols) = (x_rows.len(), columns.len());
     let ld = padded_cols(cols);
     let xt = gpu.upload("x", x.len() / cols_x, cols_x, x).unwrap();
-    let out = gpu.upload("out", out_rows, ld, &vec![SENTINEL; out_rows * ld]).unwrap();
+    let out = gpu.upload("out", out_total, ld, &vec![SENTINEL; out_total * ld]).unwrap();
     let out = GpuTensor { cols, ..out };
     let mut b = PlanBuilder::new();
     let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
-    let (xv, ov) = (b.rows_of(xi, x_start, rows), b.rows_of(oi, out_start, rows));
-    map_columns(&mut b, "map", xv, col, ov, f);
+    let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
+    map_columns(&mut b, "map", xv, columns.start, ov, f);
     run(b);
-    let padded = gpu.read_rows(&out.buffer, 0, out_rows, ld).unwrap();
+    let padded = gpu.read_rows(&out.buffer, 0, out_total, ld).unwrap();
     let mut got = Vec::with_capacity(rows * cols);
     for (r, row) in padded.chunks(ld).enumerate() {
         if (out_start..out_start + rows).contains(&r) {
@@ -59,7 +69,15 @@ fn map_columns_random_shapes_and_views() {
         let (x_start, out_start) = (64 * rng.range(0, 2), 64 * rng.range(0, 2));
         let x_rows = x_start + rows + rng.range(0, 30);
         let x = rng.vec_f32(x_rows * cols_x, -12.0, 12.0);
-        let got = run_map(&x, cols_x, x_start, rows, col, cols, out_start + rows + rng.range(0, 30), out_start, f);
+        let got = run_map(
+            &x,
+            cols_x,
+            x_start..x_start + rows,
+            col..col + cols,
+            out_start + rows + rng.range(0, 30),
+            out_start,
+            f,
+        );
         let want = reference::map_columns(&f64s(&x[x_start * cols_x..(x_start + rows) * cols_x]), cols_x, col, cols, f);
         let what = format!("{f:?} of columns {col}..{} of {rows}x{cols_x} from rows {x_start}/{out_start}", col + cols);
         // Identity is a copy: bit exact.
@@ -70,11 +88,9 @@ fn map_columns_random_shapes_and_views() {
 /// Large and infinite inputs neither overflow nor give NaN.
 #[test]
 fn sigmoid_extremes() {
-    let x = [
-        0.0f32, -0.0, 1e-8, -1e-8, 0.5, -0.5, 15.0, -15.0, 17.0, -17.0, 20.0, -20.0, 88.0, -88.0, 88.8, -88.8, 100.0, -100.0,
-        1e30, -1e30, f32::MAX, f32::MIN, f32::INFINITY, f32::NEG_INFINITY,
-    ];
-    let got = run_map(&x, 1, 0, x.len(), 0, 1, x.len(), 0, Map::Sigmoid);
+    let magnitudes = [0.0f32, 1e-8, 0.5, 15.0, 17.0, 20.0, 88.0, 88.8, 100.0, 1e30, f32::MAX, f32::INFINITY];
+    let x: Vec<f32> = magnitudes.iter().flat_map(|&v| [v, -v]).collect();
+    let got = run_map(&x, 1, 0..x.len(), 0..1, x.len(), 0, Map::Sigmoid);
     let want = reference::map_columns(&f64s(&x), 1, 0, 1, Map::Sigmoid);
     assert_close("sigmoid of extreme inputs", &got, &want, SIGMOID_TOL, 0.0);
     // The tail keeps its relative accuracy (e^x / (1 + e^x), not 1 - 1 / (1 + e^-x)).
@@ -89,7 +105,7 @@ fn map_columns_grid_spill() {
     let mut rng = Rng::new(32);
     let rows = 65535 * 64 + 1000;
     let x = rng.vec_f32(rows * 2, -1.0, 1.0);
-    let got = run_map(&x, 2, 0, rows, 1, 1, rows, 0, Map::Identity);
+    let got = run_map(&x, 2, 0..rows, 1..2, rows, 0, Map::Identity);
     let want = reference::map_columns(&f64s(&x), 2, 1, 1, Map::Identity);
     assert_close("identity over 4.2M rows", &got, &want, 0.0, 0.0);
 }

@@ -1,5 +1,7 @@
 //! LayerNorm against the float64 reference.
 
+use std::ops::Range;
+
 use raypatch_engine::kernels::norm::layernorm;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::norm as reference;
@@ -9,33 +11,38 @@ use raypatch_engine::GpuTensor;
 use crate::common::*;
 
 const SENTINEL: f32 = 7.25;
+/// PyTorch's default.
+const EPS: f32 = 1e-5;
 
-/// Runs `layernorm` from rows `[x_start, x_start + rows)` of `x` into the same number of rows from
-/// `out_start` of an `out_rows`-row output prefilled with SENTINEL (padding included); returns the whole
-/// output with its padding.
-fn run_layernorm(x: &GpuTensor, x_start: usize, rows: usize, gamma: &[f32], beta: &[f32], out_rows: usize, out_start: usize, eps: f32) -> Vec<f32> {
+/// Runs `layernorm` on rows `x_rows` of `x` into as many rows from `out_start` of an `out_total`-row output
+/// prefilled with SENTINEL (padding included). Checks that the view's padding is zero and every other row
+/// untouched; returns the view's rows, unpadded.
+fn run_layernorm(
+    x: &GpuTensor,
+    x_rows: Range<usize>,
+    gamma: &[f32],
+    beta: &[f32],
+    eps: f32,
+    out_total: usize,
+    out_start: usize,
+) -> Vec<f32> {
     let gpu = gpu();
-    let cols = x.cols;
+    let (cols, rows) = (x.cols, x_rows.len());
     let ld = padded_cols(cols);
-    let out = gpu.upload("out", out_rows, ld, &vec![SENTINEL; out_rows * ld]).unwrap();
+    let out = gpu.upload("out", out_total, ld, &vec![SENTINEL; out_total * ld]).unwrap();
     let out = GpuTensor { cols, ..out };
     let gamma = gpu.upload("gamma", 1, cols, gamma).unwrap();
     let beta = gpu.upload("beta", 1, cols, beta).unwrap();
     let mut b = PlanBuilder::new();
-    let (xi, gi, bi, oi) = (b.external("x", x), b.external("gamma", &gamma), b.external("beta", &beta), b.external("out", &out));
-    let (xv, ov) = (b.rows_of(xi, x_start, rows), b.rows_of(oi, out_start, rows));
+    let (xi, gi, bi, oi) =
+        (b.external("x", x), b.external("gamma", &gamma), b.external("beta", &beta), b.external("out", &out));
+    let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
     layernorm(&mut b, "ln", xv, gi, bi, ov, eps);
     run(b);
-    gpu.read_rows(&out.buffer, 0, out_rows, ld).unwrap()
-}
-
-/// Splits a padded read-back into the view's rows (unpadded), checking that the view's padding is zero and
-/// that every row outside the view still holds SENTINEL.
-fn view_rows(padded: &[f32], cols: usize, start: usize, rows: usize) -> Vec<f32> {
-    let ld = padded_cols(cols);
+    let padded = gpu.read_rows(&out.buffer, 0, out_total, ld).unwrap();
     let mut got = Vec::with_capacity(rows * cols);
     for (r, row) in padded.chunks(ld).enumerate() {
-        if (start..start + rows).contains(&r) {
+        if (out_start..out_start + rows).contains(&r) {
             got.extend_from_slice(&row[..cols]);
             assert!(row[cols..].iter().all(|&v| v == 0.0), "row {r}: padding not zeroed");
         } else {
@@ -68,11 +75,16 @@ fn layernorm_random_shapes_and_views() {
         let x = normals(&mut rng, x_rows * cols, mean, std);
         let gamma = normals(&mut rng, cols, 1.0, 0.5);
         let beta = normals(&mut rng, cols, 0.0, 1.0);
-        let eps = [1e-5f32, 1e-6, 1e-3][rng.range(0, 2)];
+        let eps = [EPS, 1e-6, 1e-3][rng.range(0, 2)];
         let xt = gpu.upload("x", x_rows, cols, &x).unwrap();
-        let padded = run_layernorm(&xt, x_start, rows, &gamma, &beta, out_rows, out_start, eps);
-        let got = view_rows(&padded, cols, out_start, rows);
-        let want = reference::layernorm(&f64s(&x[x_start * cols..(x_start + rows) * cols]), cols, &f64s(&gamma), &f64s(&beta), eps as f64);
+        let got = run_layernorm(&xt, x_start..x_start + rows, &gamma, &beta, eps, out_rows, out_start);
+        let want = reference::layernorm(
+            &f64s(&x[x_start * cols..(x_start + rows) * cols]),
+            cols,
+            &f64s(&gamma),
+            &f64s(&beta),
+            eps as f64,
+        );
         // The normalised values are within ~√C·u of exact on random rows (f32 sums of C/4 terms); times
         // |gamma| ≤ 3 and plus beta: 2e-6 absolute plus 2e-6 of the output's scale leaves a 5x margin.
         assert_close(&format!("{rows}x{cols} from rows {x_start}/{out_start}, eps {eps}"), &got, &want, 2e-6, 2e-6);
@@ -89,8 +101,8 @@ fn layernorm_large_mean_small_spread() {
         let x = normals(&mut rng, rows * cols, mean, 1e-2);
         let (ones, zeros) = (vec![1.0; cols], vec![0.0; cols]);
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
-        let got = view_rows(&run_layernorm(&xt, 0, rows, &ones, &zeros, rows, 0, 1e-12), cols, 0, rows);
-        let want = reference::layernorm(&f64s(&x), cols, &vec![1.0; cols], &vec![0.0; cols], 1e-12);
+        let got = run_layernorm(&xt, 0..rows, &ones, &zeros, EPS, rows, 0);
+        let want = reference::layernorm(&f64s(&x), cols, &vec![1.0; cols], &vec![0.0; cols], EPS as f64);
         // The kernel's error bound for the normalised value is (C/4 + 3)·u·(max - min)/std per row (see
         // `layernorm`); taken with the widest spread over the rows, plus 4 ulp of the largest value.
         let u = 2f64.powi(-24);
@@ -106,7 +118,7 @@ fn layernorm_large_mean_small_spread() {
                 (cols as f64 / 4.0 + 3.0) * u * spread / std.max(1e-30) + 4.0 * u * top
             })
             .fold(0.0, f64::max);
-        assert!(bound < 1e-3, "the stated bound is ~1e-3 at most");
+        assert!(bound < 1e-3, "{cols} columns: bound {bound:e} above the 1e-3 that `layernorm` states");
         assert_close(&format!("{cols} columns around {mean}"), &got, &want, bound, 0.0);
     }
 }
@@ -126,7 +138,7 @@ fn layernorm_constant_rows_give_beta() {
         let beta = normals(&mut rng, cols, 0.0, 2.0);
         let rows = constants.len();
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
-        let got = view_rows(&run_layernorm(&xt, 0, rows, &gamma, &beta, rows, 0, 1e-5), cols, 0, rows);
+        let got = run_layernorm(&xt, 0..rows, &gamma, &beta, EPS, rows, 0);
         for (r, row) in got.chunks(cols).enumerate() {
             assert_eq!(row, &beta[..], "{cols} columns: constant row {} is not beta", constants[r]);
         }
@@ -143,8 +155,8 @@ fn layernorm_many_rows() {
     let gamma = normals(&mut rng, cols, 1.0, 0.5);
     let beta = normals(&mut rng, cols, 0.0, 1.0);
     let xt = gpu.upload("x", rows, cols, &x).unwrap();
-    let got = view_rows(&run_layernorm(&xt, 0, rows, &gamma, &beta, rows, 0, 1e-5), cols, 0, rows);
-    let want = reference::layernorm(&f64s(&x), cols, &f64s(&gamma), &f64s(&beta), 1e-5);
+    let got = run_layernorm(&xt, 0..rows, &gamma, &beta, EPS, rows, 0);
+    let want = reference::layernorm(&f64s(&x), cols, &f64s(&gamma), &f64s(&beta), EPS as f64);
     // As in the random-shape test; 3 columns only, but rows with nearly equal values get large outputs.
     assert_close("1.2M rows", &got, &want, 2e-6, 2e-6);
 }

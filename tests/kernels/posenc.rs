@@ -49,7 +49,14 @@ fn encode(coords: &[f32], repeat: usize, first_row: usize, m: &[f32], out: &OutL
                 got.push(v);
             } else {
                 let want = if in_view && ends_row && j >= out.cols { 0.0 } else { SENTINEL };
-                assert_eq!(v, want, "row {r} column {j} (view rows {}.., columns {}..{})", out.start, out.col, out.col + width);
+                assert_eq!(
+                    v,
+                    want,
+                    "row {r} column {j} (view rows {}.., columns {}..{})",
+                    out.start,
+                    out.col,
+                    out.col + width
+                );
             }
         }
     }
@@ -81,21 +88,36 @@ fn multipliers_match_torch() {
     // torch.linspace(start, end, n, dtype=torch.float32) * math.pi, from torch 2.x on the CPU.
     let linspace: [(usize, f64, f64, &[u32]); 5] = [
         (7, 0.0, 8.0, &[0x00000000, 0x40860a92, 0x41060a92, 0x41490fdb, 0x41860a91, 0x41a78d36, 0x41c90fdb]),
-        (20, -5.0, 14.0, &[
-            0xc17b53d2, 0xc1490fdb, 0xc116cbe4, 0xc0c90fdb, 0xc0490fdb, 0x00000000, 0x40490fdb, 0x40c90fdb, 0x4116cbe4,
-            0x41490fdb, 0x417b53d2, 0x4196cbe4, 0x41afede0, 0x41c90fdb, 0x41e231d6, 0x41fb53d2, 0x420a3ae7, 0x4216cbe4,
-            0x42235ce2, 0x422fede0,
-        ]),
-        (32, 0.001, 9.7, &[
-            0x3b4de32f, 0x3f7c6e14, 0x3ffc0723, 0x403ceb9e, 0x407bd3ab, 0x409d5ddb, 0x40bcd1e1, 0x40dc45e7, 0x40fbb9ed,
-            0x410d96fa, 0x411d50fd, 0x412d0b00, 0x413cc503, 0x414c7f06, 0x415c3909, 0x416bf30c, 0x417bad11, 0x4185b38a,
-            0x418d908c, 0x41956d8d, 0x419d4a8f, 0x41a52790, 0x41ad0492, 0x41b4e193, 0x41bcbe94, 0x41c49b96, 0x41cc7898,
-            0x41d45599, 0x41dc329b, 0x41e40f9c, 0x41ebec9e, 0x41f3c9a0,
-        ]),
-        (13, 2.0, -3.0, &[
-            0x40c90fdb, 0x409f2c8e, 0x406a9281, 0x4016cbe4, 0x3f860a93, 0xbe860a8d, 0xbfc90fdd, 0xc0384e8a, 0xc0860a92,
-            0xc0afede0, 0xc0d9d12e, 0xc101da3d, 0xc116cbe4,
-        ]),
+        (
+            20,
+            -5.0,
+            14.0,
+            &[
+                0xc17b53d2, 0xc1490fdb, 0xc116cbe4, 0xc0c90fdb, 0xc0490fdb, 0x00000000, 0x40490fdb, 0x40c90fdb,
+                0x4116cbe4, 0x41490fdb, 0x417b53d2, 0x4196cbe4, 0x41afede0, 0x41c90fdb, 0x41e231d6, 0x41fb53d2,
+                0x420a3ae7, 0x4216cbe4, 0x42235ce2, 0x422fede0,
+            ],
+        ),
+        (
+            32,
+            0.001,
+            9.7,
+            &[
+                0x3b4de32f, 0x3f7c6e14, 0x3ffc0723, 0x403ceb9e, 0x407bd3ab, 0x409d5ddb, 0x40bcd1e1, 0x40dc45e7,
+                0x40fbb9ed, 0x410d96fa, 0x411d50fd, 0x412d0b00, 0x413cc503, 0x414c7f06, 0x415c3909, 0x416bf30c,
+                0x417bad11, 0x4185b38a, 0x418d908c, 0x41956d8d, 0x419d4a8f, 0x41a52790, 0x41ad0492, 0x41b4e193,
+                0x41bcbe94, 0x41c49b96, 0x41cc7898, 0x41d45599, 0x41dc329b, 0x41e40f9c, 0x41ebec9e, 0x41f3c9a0,
+            ],
+        ),
+        (
+            13,
+            2.0,
+            -3.0,
+            &[
+                0x40c90fdb, 0x409f2c8e, 0x406a9281, 0x4016cbe4, 0x3f860a93, 0xbe860a8d, 0xbfc90fdd, 0xc0384e8a,
+                0xc0860a92, 0xc0afede0, 0xc0d9d12e, 0xc101da3d, 0xc116cbe4,
+            ],
+        ),
         (1, 2.5, 9.0, &[0x40fb53d2]),
     ];
     for (n, start, end, want) in linspace {

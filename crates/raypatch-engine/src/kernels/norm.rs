@@ -38,12 +38,8 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, x: View, gamma: TensorId, 
     }
     assert!(eps > 0.0 && eps.is_finite(), "layernorm {label}: eps {eps} must be positive");
     let params = vec![x.rows as u32, cols as u32, (plan.ld(x.id) / 4) as u32, eps.to_bits()];
-    let bindings = vec![
-        (x, Access::Read),
-        (plan.all(gamma), Access::Read),
-        (plan.all(beta), Access::Read),
-        (out, Access::Write),
-    ];
+    let bindings =
+        vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
     plan.push(Op {
         label: label.to_string(),
         shader: &LAYERNORM,

@@ -8,7 +8,13 @@
 /// `coords * multipliers` in float32, and at the top octaves (|a| ~ 5e5, where an f32 ulp is 0.03) that
 /// rounding moves the phase by up to 0.016 rad. The model was trained on those rounded arguments, so the
 /// reference reproduces them and is exact (to f64) from there on.
-pub fn fourier_encode(coords: &[f64], repeat: usize, first_row: usize, rows_out: usize, multipliers: &[f32]) -> Vec<f64> {
+pub fn fourier_encode(
+    coords: &[f64],
+    repeat: usize,
+    first_row: usize,
+    rows_out: usize,
+    multipliers: &[f32],
+) -> Vec<f64> {
     let n = multipliers.len();
     let mut out = Vec::with_capacity(rows_out * 6 * n);
     for r in 0..rows_out {
