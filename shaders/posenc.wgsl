@@ -2,11 +2,14 @@
 // coordinate row c (3 values) and the N multipliers m, writes
 //   out[col + d*N + i] = sin(a), out[col + 3N + d*N + i] = cos(a), a = f32(c[d] * m[i]).
 //
-// The arguments reach |a| ~ 5e5 (2^14·π·|c|), where the built-in sin/cos are not accurate, so sin_cos
-// reduces the f32 argument explicitly: n = round(a·2/π), r = a - n·π/2 by a Cody-Waite scheme in which
-// every product that is large enough to matter is exact, then the Cephes sinf/cosf minimax polynomials on
-// r and the quadrant n mod 4. Products that are exact give the same result whether or not the compiler
-// fuses them into an fma, so the scheme holds either way. Absolute error ≤ 1.2e-7 for |a| ≤ 2^20.
+// The arguments reach |a| ~ 5e5 (2^14·π·|c|), where WGSL sets no accuracy for the built-in sin/cos (it
+// bounds them only on [-π, π], to 2^-11), so sin_cos reduces the f32 argument explicitly:
+// n = round(a·2/π), r = a - n·π/2 by a Cody-Waite scheme in which every product large enough to matter is
+// exact, then the Cephes sinf/cosf minimax polynomials on r and the quadrant n mod 4. Exact products give
+// the same result whether or not the compiler fuses them into an fma, so the scheme holds either way.
+// Absolute error ≤ 1.2e-7 for |a| ≤ 2^20 (an f32 emulation of this operation order, fused or not, over
+// every 11th f32 there and the f32 values nearest to each multiple of π/2). Beyond 2^20 it degrades
+// gradually (round(a·2/π) drifts, so the polynomials see larger |r|).
 
 struct Params {
     // Output rows in the view.
