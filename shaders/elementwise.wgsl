@@ -1,1 +1,48 @@
-// (in progress)
+// Elementwise column map: out[r, j] = f(x[r, col + j]) for j < cols(out), zero in out's row padding.
+// f: 0 identity (copy a channel range), 1 sigmoid. One invocation per vec4 of out.
+
+struct Params {
+    rows: u32,
+    // x's row stride in floats.
+    x_ld: u32,
+    // First column of x read.
+    col: u32,
+    // out's columns and row stride in vec4s.
+    cols: u32,
+    ld4: u32,
+    f: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> out: array<vec4<f32>>;
+
+// 1 / (1 + exp(-v)) without overflow: exp only ever sees -|v| ≤ 0, and for v < 0 the form e / (1 + e),
+// e = exp(v), keeps the relative accuracy of the small results.
+fn sigmoid(v: vec4<f32>) -> vec4<f32> {
+    let e = exp(-abs(v));
+    let q = 1.0 / (1.0 + e);
+    return select(e * q, q, v >= vec4<f32>(0.0));
+}
+
+@compute @workgroup_size(64)
+fn map_columns(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let idx = (wid.x + wid.y * nwg.x) * 64u + lid;
+    if (idx >= p.rows * p.ld4) {
+        return;
+    }
+    let r = idx / p.ld4;
+    let j = (idx % p.ld4) * 4u + vec4<u32>(0u, 1u, 2u, 3u);
+    let valid = j < vec4<u32>(p.cols);
+    // Padding lanes read the row's last column instead, to stay inside x's row.
+    let at = r * p.x_ld + p.col + min(j, vec4<u32>(p.cols - 1u));
+    var v = vec4<f32>(x[at.x], x[at.y], x[at.z], x[at.w]);
+    if (p.f == 1u) {
+        v = sigmoid(v);
+    }
+    out[idx] = select(vec4<f32>(0.0), v, valid);
+}
