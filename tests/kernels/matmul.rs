@@ -93,7 +93,7 @@ fn check(case: &Case, rng: &mut Rng) -> f64 {
     // f32 accumulation error: a sum of K terms carries relative rounding errors of u = 2^-24 on each
     // partial sum, and those add up like a random walk, so |err| <~ c·√K·u·Σ|x·w| (Higham's probabilistic
     // bound); bias and residual add their own magnitudes, the activations are 1-Lipschitz (GELU 1.13).
-    // c·u = 1e-6 leaves ~16x headroom over u while a single missing product (~Σ|x·w|/K) still fails.
+    // c = 4 (measured c <= 0.72 over these cases); a single wrong product (~Σ|x·w|/K) fails by far.
     let magnitude = (0..m)
         .flat_map(|i| (0..n).map(move |j| (i, j)))
         .map(|(i, j)| {
@@ -101,7 +101,7 @@ fn check(case: &Case, rng: &mut Rng) -> f64 {
             sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
         })
         .fold(0.0, f64::max);
-    let tol = 1e-6 * (k as f64).sqrt() * magnitude;
+    let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
     assert_close(&what, &values, &expected, tol, 0.0);
     max_abs_diff(&values, &expected)
 }

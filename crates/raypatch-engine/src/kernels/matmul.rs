@@ -5,10 +5,10 @@ use crate::kernels::{Activation, MATMUL};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 use crate::tensor::padded_cols;
 
-/// Rows of `out` one workgroup computes (64 invocations x 4 rows); must match `WG * TM` in the shader.
+/// Rows of `out` one workgroup computes: 64 invocations x 4 rows (`WG * ROWS` in the shader).
 const ROWS_PER_GROUP: usize = 256;
-/// Columns of `out` one workgroup computes; must match the shader's 4-column tile.
-const COLS_PER_GROUP: usize = 4;
+/// Columns of `out` one workgroup computes: the shader's 8-column tile of w.
+const COLS_PER_GROUP: usize = 8;
 
 /// out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when `accumulate` (residual add in place).
 ///
