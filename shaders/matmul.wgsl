@@ -5,10 +5,10 @@
 // of x (4 rows) and 8 of w (8 rows) and takes 32 dot products; the block is written back as two vec4s
 // per row, padding columns included (as zeros).
 //
-// Why 4x8: lavapipe (Mesa 25) turns every storage-buffer load inside a loop into a per-invocation scalar
-// loop with bounds checks, so loads cost far more than arithmetic, and the block should carry as many
-// outputs per loaded vec4 as registers allow. 4x8 and 8x4 measured fastest; 4x4 was ~15% slower, 8x8
-// ~30% slower (it spills), as was a 2-D 8x8 workgroup layout.
+// Why 4x8: lavapipe (Mesa 25.0) turns every storage-buffer load inside a loop into a per-invocation
+// scalar loop with bounds checks, uniform address or not, so loads cost far more than arithmetic and the
+// block should carry as many outputs per loaded vec4 as registers allow. 4x8 and 8x4 measured fastest;
+// 4x4 was ~10-15% slower, 8x8 ~30% slower (it spills), a 2-D 8x8 workgroup layout ~20% slower.
 //
 // Grid: a workgroup is 64 invocations stacked along M (256 rows) sharing one 8-column tile of w.
 // Groups are numbered tile-fastest, so consecutive groups reuse the same rows of x.
