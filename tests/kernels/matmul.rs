@@ -1,1 +1,201 @@
+//! `linear` against the float64 reference: random shapes (tails of the 256x8 workgroup tile), every
+//! activation, with and without bias, accumulate, row-range views; plus erf accuracy through GELU.
 
+use raypatch_engine::kernels::matmul::linear;
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::reference::matmul as reference;
+use raypatch_engine::tensor::padded_cols;
+
+use crate::common::*;
+
+struct Case {
+    m: usize,
+    k: usize,
+    n: usize,
+    act: Activation,
+    bias: bool,
+    accumulate: bool,
+    /// Run on rows [64, 64 + m) of a bigger x and rows [128, 128 + m) of a bigger out.
+    view: bool,
+}
+
+fn to_f64(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&a| f64::from(a)).collect()
+}
+
+/// Runs one case and checks the values, the zeroed padding of out, and that rows outside the view of
+/// out are untouched.
+fn check(case: &Case, rng: &mut Rng) {
+    let Case { m, k, n, act, .. } = *case;
+    let gpu = gpu();
+    let (x_start, out_start, extra) = if case.view { (64, 128, 3) } else { (0, 0, 0) };
+    let x_rows = x_start + m + extra;
+    let out_rows = out_start + m + extra;
+
+    let x_all = rng.vec_f32(x_rows * k, -1.0, 1.0);
+    let w = rng.vec_f32(n * k, -1.0, 1.0);
+    let bias = case.bias.then(|| rng.vec_f32(n, -1.0, 1.0));
+    let residual = case.accumulate.then(|| rng.vec_f32(m * n, -1.0, 1.0));
+
+    // out before the op, padding included: 7 outside the view; in the view the residual (zero padding)
+    // when accumulating, else NaN everywhere so that any value or padding the kernel skips shows up.
+    let ldo = padded_cols(n);
+    let mut out_init = vec![0.0f32; out_rows * ldo];
+    for r in 0..out_rows {
+        let row = &mut out_init[r * ldo..(r + 1) * ldo];
+        if !(out_start..out_start + m).contains(&r) {
+            row[..n].fill(7.0);
+        } else if let Some(res) = &residual {
+            let i = r - out_start;
+            row[..n].copy_from_slice(&res[i * n..(i + 1) * n]);
+        } else {
+            row.fill(f32::NAN);
+        }
+    }
+
+    let x_t = gpu.upload("x", x_rows, k, &x_all).unwrap();
+    let w_t = gpu.upload("w", n, k, &w).unwrap();
+    let bias_t = bias.as_ref().map(|b| gpu.upload("bias", 1, n, b).unwrap());
+    let out_t = gpu.upload("out", out_rows, n, &vec![0.0; out_rows * n]).unwrap();
+    let out_bytes: Vec<u8> = out_init.iter().flat_map(|v| v.to_le_bytes()).collect();
+    gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
+
+    let mut plan = PlanBuilder::new();
+    let x_id = plan.external("x", &x_t);
+    let w_id = plan.external("w", &w_t);
+    let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
+    let out_id = plan.external("out", &out_t);
+    let x_view = plan.rows_of(x_id, x_start, m);
+    let out_view = plan.rows_of(out_id, out_start, m);
+    linear(&mut plan, "linear", x_view, w_id, bias_id, out_view, act, case.accumulate);
+    run(plan);
+    let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
+
+    let x = to_f64(&x_all[x_start * k..(x_start + m) * k]);
+    let w = to_f64(&w);
+    let bias = bias.map(|b| to_f64(&b));
+    let residual = residual.map(|r| to_f64(&r));
+    let expected = reference::linear(&x, m, k, &w, n, bias.as_deref(), act, residual.as_deref());
+
+    let what = format!("m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}", case.bias, case.accumulate, case.view);
+    let mut values = Vec::with_capacity(m * n);
+    for r in 0..out_rows {
+        let row = &got[r * ldo..(r + 1) * ldo];
+        if (out_start..out_start + m).contains(&r) {
+            values.extend_from_slice(&row[..n]);
+            assert!(row[n..].iter().all(|&v| v == 0.0), "{what}: padding of out row {r} is {:?}", &row[n..]);
+        } else {
+            assert_eq!(row, &out_init[r * ldo..(r + 1) * ldo], "{what}: row {r} outside the view changed");
+        }
+    }
+
+    // f32 accumulation error: a sum of K terms carries relative rounding errors of u = 2^-24 on each
+    // partial sum, and those add up like a random walk, so |err| <~ c·√K·u·Σ|x·w| (Higham's probabilistic
+    // bound); bias and residual add their own magnitudes, the activations are 1-Lipschitz (GELU 1.13)
+    // and GELU's erf error (< 1e-7·|v|/2) is far below the bound.
+    // c = 4 (measured c <= 0.72 over these cases); a single wrong product (~Σ|x·w|/K) fails by far.
+    let magnitude = (0..m)
+        .flat_map(|i| (0..n).map(move |j| (i, j)))
+        .map(|(i, j)| {
+            let sum: f64 = (0..k).map(|l| (x[i * k + l] * w[j * k + l]).abs()).sum();
+            sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
+        })
+        .fold(0.0, f64::max);
+    let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
+    assert_close(&what, &values, &expected, tol, 0.0);
+}
+
+const ACTIVATIONS: [Activation; 4] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.1), Activation::Gelu];
+
+#[test]
+fn linear_random_shapes() {
+    let mut rng = Rng::new(1);
+    // Every combination of activation, bias and accumulate, three times, on random shapes.
+    for i in 0..48 {
+        let act = match ACTIVATIONS[i % 4] {
+            Activation::LeakyRelu(_) => Activation::LeakyRelu(rng.uniform(0.01, 0.3) as f32),
+            act => act,
+        };
+        let case = Case {
+            m: rng.range(1, 300),
+            k: rng.range(1, 300),
+            n: rng.range(1, 200),
+            act,
+            bias: (i / 4) % 2 == 1,
+            accumulate: (i / 8) % 2 == 1,
+            view: rng.range(0, 1) == 1,
+        };
+        check(&case, &mut rng);
+    }
+}
+
+/// Shapes on and just past the edges of the 256x8 workgroup tile and the 4x8 invocation block.
+#[test]
+fn linear_tile_edges() {
+    let mut rng = Rng::new(3);
+    let shapes = [(1, 1, 1), (256, 4, 8), (257, 5, 9), (255, 3, 7), (4, 8, 12), (513, 9, 16), (3, 2, 5)];
+    for (i, &(m, k, n)) in shapes.iter().enumerate() {
+        let case = Case { m, k, n, act: ACTIVATIONS[i % 4], bias: i % 2 == 0, accumulate: i % 3 == 0, view: i % 2 == 1 };
+        check(&case, &mut rng);
+    }
+}
+
+#[test]
+fn linear_big_shapes() {
+    let mut rng = Rng::new(2);
+    let cases = [
+        Case { m: 1000, k: 768, n: 256, act: Activation::Gelu, bias: true, accumulate: false, view: false },
+        Case { m: 777, k: 1536, n: 97, act: Activation::None, bias: true, accumulate: true, view: true },
+    ];
+    for case in &cases {
+        check(case, &mut rng);
+    }
+}
+
+/// erf as the shader computes it, read back through GELU on a dense grid of erf arguments in [-10, 10].
+/// For v < 0 the kernel's gelu(v) = (v/2)·(1 + erf(a)) with a = f32(v·(1/√2)), so 2·gelu(v)/v - 1 gives
+/// back its erf(a) up to the rounding of 1 + erf and of the product (<= 2^-24 each, relative to 1 + erf);
+/// erf(a) for a > 0 is the exact mirror image (the shader evaluates sign(a)·erf(|a|)).
+#[test]
+fn gelu_erf_accuracy() {
+    let gpu = gpu();
+    let points = 200_001;
+    let v: Vec<f32> = (0..points)
+        .map(|i| (-10.0 + 20.0 * i as f64 / (points - 1) as f64) * std::f64::consts::SQRT_2)
+        .map(|v| v as f32)
+        .collect();
+    let x_t = gpu.upload("x", points, 1, &v).unwrap();
+    let w_t = gpu.upload("w", 1, 1, &[1.0]).unwrap();
+    let mut plan = PlanBuilder::new();
+    let x = plan.external("x", &x_t);
+    let w = plan.external("w", &w_t);
+    let out = plan.output("gelu", points, 1);
+    let (x_view, out_view) = (plan.all(x), plan.all(out));
+    linear(&mut plan, "gelu", x_view, w, None, out_view, Activation::Gelu, false);
+    let plan = run(plan);
+    let gelu = gpu.read(&plan.tensor(out)).unwrap();
+
+    // erf(a) in float64 from the reference GELU at v = a·√2.
+    let erf = |a: f64| {
+        let v = a * std::f64::consts::SQRT_2;
+        2.0 * reference::activation(v, Activation::Gelu) / v - 1.0
+    };
+    let mut erf_err = 0.0f64;
+    for (&v, &g) in v.iter().zip(&gelu) {
+        if v < 0.0 {
+            let a = f64::from(v * std::f32::consts::FRAC_1_SQRT_2);
+            erf_err = erf_err.max((2.0 * f64::from(g) / f64::from(v) - 1.0 - erf(a)).abs());
+        }
+    }
+    eprintln!("erf: max abs error {erf_err:e} over [-10, 10]");
+    // The erf approximation is good to ~1e-7 absolute; the read-back adds up to 1.2e-7 of rounding.
+    assert!(erf_err < 2e-7, "erf max abs error {erf_err:e}");
+
+    // GELU itself, on both sides: the erf error scaled by |v|/2, plus f32 rounding of the result.
+    let expected: Vec<f64> = v.iter().map(|&v| reference::activation(f64::from(v), Activation::Gelu)).collect();
+    for ((&v, &g), &e) in v.iter().zip(&gelu).zip(&expected) {
+        let tol = 0.5 * f64::from(v).abs() * 2e-7 + 2.0 * e.abs() * f64::from(f32::EPSILON);
+        assert!((f64::from(g) - e).abs() <= tol, "gelu({v}) = {g}, expected {e}");
+    }
+}
