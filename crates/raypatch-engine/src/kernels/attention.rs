@@ -6,7 +6,7 @@ use crate::plan::{grid, Access, Op, PlanBuilder, View};
 /// Query rows per workgroup (`WG * QUERIES` in `shaders/attention.wgsl`); a workgroup serves one head.
 const ROWS_PER_GROUP: usize = 64 * 8;
 
-/// Largest `dim_head` the kernel holds in registers (`MAX_CHUNKS * 4` in the shader).
+/// Largest `dim_head`: the kernel keeps a head of each query in private arrays of `MAX_CHUNKS * 4` floats.
 pub const MAX_DIM_HEAD: usize = 128;
 
 /// Multi-head attention, PyTorch's `softmax(q kᵀ · scale) v` per head with heads split as `(h d)`.
