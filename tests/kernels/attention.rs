@@ -1,1 +1,376 @@
+//! Fused attention against the float64 reference: self-attention from one fused qkv tensor, cross-attention
+//! onto a cached kv tensor, separate q/k/v at odd columns, row-range views, and the numerically hard cases
+//! (logits of ±1e4, one dominant key, flat rows, 16384 keys).
+//!
+//! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
+use raypatch_engine::kernels::attention::attention;
+use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::reference;
+use raypatch_engine::tensor::padded_cols;
+use raypatch_engine::GpuTensor;
+
+use crate::common::*;
+
+/// f32 unit roundoff.
+const U32: f64 = 1.0 / (1u64 << 24) as f64;
+/// Error allowed, times max |v|, with O(1) logits: the f32 logits are off by ~sqrt(dh)·u·|logit|, the weights
+/// by as much relatively (plus lavapipe's polynomial exp, ~1e-7), and the f32 sums of weights and weighted
+/// v add a few u; the worst seen is 4.4e-7.
+const TOL_V: f64 = 2e-6;
+/// Fill of the output tensor: rows outside the view must keep it, the row padding must become 0.
+const GARBAGE: f32 = 7.5;
+
+/// One input tensor, unpadded row-major.
+struct Host {
+    rows: usize,
+    cols: usize,
+    data: Vec<f32>,
+}
+
+/// Where q, k or v lives: tensor index, the view's first row, the column of head 0.
+#[derive(Clone, Copy, Debug)]
+struct Src {
+    tensor: usize,
+    row: usize,
+    col: usize,
+}
+
+struct Case {
+    tensors: Vec<Host>,
+    q: Src,
+    k: Src,
+    v: Src,
+    nq: usize,
+    nkv: usize,
+    heads: usize,
+    dim_head: usize,
+    scale: f32,
+    /// First row of the output view inside a taller output tensor.
+    out_row: usize,
+}
+
+impl Case {
+    fn describe(&self) -> String {
+        format!(
+            "nq {} nkv {} heads {} dim_head {} scale {} q {:?} k {:?} v {:?} out_row {}",
+            self.nq, self.nkv, self.heads, self.dim_head, self.scale, self.q, self.k, self.v, self.out_row
+        )
+    }
+
+    /// Runs the kernel, checks that it zeroed the output row padding and left the rows around the view
+    /// alone, and returns the view's rows (unpadded) and the bytes the plan allocated.
+    fn run_gpu(&self) -> (Vec<f32>, u64) {
+        let gpu = gpu();
+        let inner = self.heads * self.dim_head;
+        let ld = padded_cols(inner);
+        let out_rows = self.out_row + self.nq + 1;
+        let padded_out = gpu.upload("out", out_rows, ld, &vec![GARBAGE; out_rows * ld]).unwrap();
+        let out_tensor = GpuTensor { buffer: padded_out.buffer.clone(), rows: out_rows, cols: inner };
+
+        let mut plan = PlanBuilder::new();
+        let ids: Vec<_> = self
+            .tensors
+            .iter()
+            .enumerate()
+            .map(|(t, h)| {
+                let name = format!("in{t}");
+                let tensor = gpu.upload(&name, h.rows, h.cols, &h.data).unwrap();
+                plan.external(&name, &tensor)
+            })
+            .collect();
+        let out_id = plan.external("out", &out_tensor);
+        let q = plan.rows_of(ids[self.q.tensor], self.q.row, self.nq);
+        let k = plan.rows_of(ids[self.k.tensor], self.k.row, self.nkv);
+        let v = plan.rows_of(ids[self.v.tensor], self.v.row, self.nkv);
+        let out = plan.rows_of(out_id, self.out_row, self.nq);
+        attention(
+            &mut plan,
+            "attn",
+            q,
+            self.q.col,
+            k,
+            self.k.col,
+            v,
+            self.v.col,
+            out,
+            self.heads,
+            self.dim_head,
+            self.scale,
+        );
+        let plan = run(plan);
+
+        let padded = gpu.read(&padded_out).unwrap();
+        let mut result = Vec::with_capacity(self.nq * inner);
+        for (r, row) in padded.chunks(ld).enumerate() {
+            if (self.out_row..self.out_row + self.nq).contains(&r) {
+                result.extend_from_slice(&row[..inner]);
+                assert!(row[inner..].iter().all(|&x| x == 0.0), "{}: row {r} padding not zeroed", self.describe());
+            } else {
+                assert!(row.iter().all(|&x| x == GARBAGE), "{}: row {r} outside the view written", self.describe());
+            }
+        }
+        (result, plan.peak_bytes())
+    }
+
+    /// The view's rows of a tensor as f64, with the tensor's column count.
+    fn slice(&self, src: Src, rows: usize) -> (Vec<f64>, usize) {
+        let h = &self.tensors[src.tensor];
+        (h.data[src.row * h.cols..(src.row + rows) * h.cols].iter().map(|&x| x as f64).collect(), h.cols)
+    }
+
+    fn reference(&self) -> Vec<f64> {
+        let (q, q_ld) = self.slice(self.q, self.nq);
+        let (k, k_ld) = self.slice(self.k, self.nkv);
+        let (v, v_ld) = self.slice(self.v, self.nkv);
+        reference::attention::attention(
+            &q,
+            q_ld,
+            self.q.col,
+            &k,
+            k_ld,
+            self.k.col,
+            &v,
+            v_ld,
+            self.v.col,
+            self.nq,
+            self.nkv,
+            self.heads,
+            self.dim_head,
+            self.scale as f64,
+        )
+    }
+
+    /// The head columns of every row of `src`'s tensor from the view's first row on, for editing inputs.
+    fn heads_mut(&mut self, src: Src) -> impl Iterator<Item = &mut [f32]> {
+        let inner = self.heads * self.dim_head;
+        let h = &mut self.tensors[src.tensor];
+        h.data.chunks_mut(h.cols).skip(src.row).map(move |row| &mut row[src.col..src.col + inner])
+    }
+
+    /// max |v| over the values the heads read.
+    fn v_max(&self) -> f64 {
+        let (v, v_ld) = self.slice(self.v, self.nkv);
+        let cols = self.v.col..self.v.col + self.heads * self.dim_head;
+        v.chunks(v_ld).flat_map(|row| &row[cols.clone()]).fold(0.0, |m, x| m.max(x.abs()))
+    }
+
+    /// Per (query, head), the error the f32 rounding of the logits can cause, times max |v|.
+    ///
+    /// The kernel's logit s_j (scale folded into q, a dh-term dot product, minus the running max) is off by
+    /// at most D = (dh + 4)·u·max_j Σ_d |scale·q_d·k_jd|. That scales each softmax weight w_j by a factor in
+    /// [e^-2D, e^2D]; the weights off the top key move by at most (e^2D - 1)(1 - w_max) in total and the top
+    /// one by as much, so the output moves by at most 2(e^2D - 1)(1 - w_max)·max |v|.
+    fn logit_rounding_bounds(&self) -> Vec<f64> {
+        let (q, q_ld) = self.slice(self.q, self.nq);
+        let (k, k_ld) = self.slice(self.k, self.nkv);
+        let (dh, scale) = (self.dim_head, self.scale as f64);
+        let mut bounds = Vec::with_capacity(self.nq * self.heads);
+        for qi in q.chunks(q_ld) {
+            for h in 0..self.heads {
+                let qh = &qi[self.q.col + h * dh..][..dh];
+                let (mut logits, mut worst) = (Vec::with_capacity(self.nkv), 0.0f64);
+                for kj in k.chunks(k_ld) {
+                    let kh = &kj[self.k.col + h * dh..][..dh];
+                    logits.push(scale * qh.iter().zip(kh).map(|(a, b)| a * b).sum::<f64>());
+                    worst = worst.max(scale.abs() * qh.iter().zip(kh).map(|(a, b)| (a * b).abs()).sum::<f64>());
+                }
+                let max = logits.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                let w_max = 1.0 / logits.iter().map(|s| (s - max).exp()).sum::<f64>();
+                let d = (dh + 4) as f64 * U32 * worst;
+                bounds.push(2.0 * (2.0 * d).exp_m1() * (1.0 - w_max));
+            }
+        }
+        bounds
+    }
+
+    /// Checks the kernel against the reference within (TOL_V + extra[i*heads + h])·max |v| per (query, head).
+    fn check_within(&self, extra: &[f64]) {
+        let (got, _) = self.run_gpu();
+        let want = self.reference();
+        let v_max = self.v_max();
+        let dh = self.dim_head;
+        for (n, (&g, &w)) in got.iter().zip(&want).enumerate() {
+            let (i, h) = (n / (self.heads * dh), n % (self.heads * dh) / dh);
+            let tol = (TOL_V + extra[i * self.heads + h]) * v_max;
+            assert!(
+                (g as f64 - w).abs() <= tol,
+                "{}: out[{i}, head {h}, {}] = {g:e}, reference {w:e}, tolerance {tol:e}",
+                self.describe(),
+                n % dh
+            );
+        }
+    }
+
+    fn check(&self) {
+        self.check_within(&vec![0.0; self.nq * self.heads]);
+    }
+}
+
+/// How q, k and v are laid out.
+#[derive(Clone, Copy, Debug)]
+enum Layout {
+    /// One fused qkv tensor `[n, c0 + 3*inner + extra]`, one row range for q, k and v.
+    FusedQkv,
+    /// q `[nq, c0 + inner + extra]` and a cached kv tensor `[nkv, 2*inner + extra]`.
+    CachedKv,
+    /// Three tensors, each with its heads at a random column.
+    Separate,
+}
+
+/// A random case: every view starts at row 0, 64 or 128 of a taller tensor; columns start at random
+/// (unaligned) offsets; q, k and v are uniform in [-2, 2] (logits of a few units with scale dh^-0.5), the
+/// columns no head uses are NaN.
+fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usize, dim_head: usize) -> Case {
+    let inner = heads * dim_head;
+    let mut tensors = Vec::new();
+    // A tensor whose view has `rows` rows and `cols` used columns, with 0-2 rows and columns more.
+    let mut add = |rng: &mut Rng, rows: usize, cols: usize| -> Src {
+        let row = 64 * rng.range(0, 2);
+        let (total_rows, total_cols) = (row + rows + rng.range(0, 2), cols + rng.range(0, 2));
+        tensors.push(Host {
+            rows: total_rows,
+            cols: total_cols,
+            data: rng.vec_f32(total_rows * total_cols, -2.0, 2.0),
+        });
+        Src { tensor: tensors.len() - 1, row, col: 0 }
+    };
+    let (q, k, v) = match layout {
+        Layout::FusedQkv => {
+            let c0 = rng.range(0, 3);
+            let src = add(rng, nq, c0 + 3 * inner);
+            (Src { col: c0, ..src }, Src { col: c0 + inner, ..src }, Src { col: c0 + 2 * inner, ..src })
+        }
+        Layout::CachedKv => {
+            let c0 = rng.range(0, 3);
+            let q = add(rng, nq, c0 + inner);
+            let kv = add(rng, nkv, 2 * inner);
+            (Src { col: c0, ..q }, kv, Src { col: inner, ..kv })
+        }
+        Layout::Separate => {
+            let mut one = |rng: &mut Rng, rows: usize| {
+                let c0 = rng.range(0, 5);
+                Src { col: c0, ..add(rng, rows, c0 + inner) }
+            };
+            (one(rng, nq), one(rng, nkv), one(rng, nkv))
+        }
+    };
+    // The columns around the heads are other data the kernel must not use: make them NaN.
+    for (t, h) in tensors.iter_mut().enumerate() {
+        let used: Vec<_> = [q, k, v].into_iter().filter(|s| s.tensor == t).map(|s| s.col..s.col + inner).collect();
+        for row in h.data.chunks_mut(h.cols) {
+            for (c, x) in row.iter_mut().enumerate() {
+                if !used.iter().any(|r| r.contains(&c)) {
+                    *x = f32::NAN;
+                }
+            }
+        }
+    }
+    let out_row = 64 * rng.range(0, 1);
+    Case { tensors, q, k, v, nq, nkv, heads, dim_head, scale: (dim_head as f32).powf(-0.5), out_row }
+}
+
+#[test]
+fn attention_random_shapes() {
+    let mut rng = Rng::new(0xA77E);
+    let layouts = [Layout::FusedQkv, Layout::CachedKv, Layout::Separate];
+    let dim_heads = [1, 3, 5, 8, 15, 16, 64, 128];
+    for (n, &dim_head) in dim_heads.iter().cycle().take(24).enumerate() {
+        let layout = layouts[n % 3];
+        let heads = rng.range(1, 6);
+        // At most ~2e7 multiply-adds per case, so the file stays fast on lavapipe.
+        let budget = 20_000_000 / (heads * dim_head);
+        let (nq, nkv) = match layout {
+            Layout::FusedQkv => {
+                let n = rng.range(1, 300.min(budget.isqrt()));
+                (n, n)
+            }
+            _ => {
+                let nq = rng.range(1, 300.min(budget));
+                (nq, rng.range(1, 500.min(budget / nq)))
+            }
+        };
+        random_case(&mut rng, layout, nq, nkv, heads, dim_head).check();
+    }
+}
+
+/// Logits up to ~±1e4 from integer q and k (|x| <= 16) and a power-of-two scale: every product and partial
+/// sum is an integer below 2^24, so the f32 logits are exact and this tests the softmax itself (overflow
+/// would give inf or NaN) at the normal tolerance.
+#[test]
+fn attention_large_exact_logits() {
+    let mut rng = Rng::new(0x1E4);
+    for (layout, nq, nkv, heads, dim_head) in [(Layout::FusedQkv, 70, 70, 2, 64), (Layout::CachedKv, 33, 257, 3, 15)] {
+        let mut case = random_case(&mut rng, layout, nq, nkv, heads, dim_head);
+        for h in case.tensors.iter_mut() {
+            h.data.iter_mut().for_each(|x| *x = (*x * 8.0).round());
+        }
+        case.scale = 2.0;
+        case.check();
+    }
+}
+
+/// Logits up to ~±1e4 from arbitrary f32 q and k: the f32 logit itself is off by up to D ~ 0.1 here, so the
+/// tolerance adds `logit_rounding_bounds` (which vanishes where one key takes all the weight).
+#[test]
+fn attention_large_random_logits() {
+    let mut rng = Rng::new(0xB16);
+    let mut case = random_case(&mut rng, Layout::Separate, 60, 90, 2, 64);
+    case.scale = 300.0;
+    case.check_within(&case.logit_rounding_bounds());
+}
+
+/// One key's logit exceeds all others by > 70 (their weights < e^-70), and flat rows where all logits are
+/// equal (q = 0, or identical keys with large logits): the output is that key's v, or the mean of v, to
+/// f32 rounding.
+#[test]
+fn attention_dominant_key_and_flat_rows() {
+    let mut rng = Rng::new(0xD0);
+    let (nq, nkv, heads, dim_head) = (40, 300, 2, 8);
+    let inner = heads * dim_head;
+
+    // Every query is `direction`; key 123 is 40·direction (logit >= 80), the others are tiny (|logit| < 0.2).
+    let mut dominant = random_case(&mut rng, Layout::Separate, nq, nkv, heads, dim_head);
+    let direction: Vec<f32> = rng.vec_f32(inner, 0.5, 1.0);
+    dominant.heads_mut(dominant.q).for_each(|row| row.copy_from_slice(&direction));
+    for (j, key) in dominant.heads_mut(dominant.k).enumerate() {
+        if j == 123 {
+            key.iter_mut().zip(&direction).for_each(|(x, d)| *x = 40.0 * d);
+        } else {
+            key.iter_mut().for_each(|x| *x *= 0.01);
+        }
+    }
+    dominant.scale = 1.0;
+    dominant.check();
+
+    let mut zero_q = random_case(&mut rng, Layout::CachedKv, nq, nkv, heads, dim_head);
+    zero_q.heads_mut(zero_q.q).for_each(|row| row.fill(0.0));
+    zero_q.check();
+
+    let mut same_k = random_case(&mut rng, Layout::Separate, nq, nkv, heads, dim_head);
+    let first = same_k.heads_mut(same_k.k).next().unwrap().to_vec();
+    same_k.heads_mut(same_k.k).for_each(|row| row.copy_from_slice(&first));
+    same_k.scale = 50.0;
+    same_k.check();
+}
+
+/// 16384 keys for a few queries; the plan allocates nothing that grows with nq·nkv (only its params block:
+/// the tensors are external).
+#[test]
+fn attention_long_kv() {
+    let mut rng = Rng::new(0x4000);
+    let case = random_case(&mut rng, Layout::CachedKv, 5, 16384, 2, 64);
+    let (_, peak_bytes) = case.run_gpu();
+    assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
+    case.check();
+}
+
+#[test]
+#[should_panic(expected = "output must have heads*dim_head")]
+fn attention_rejects_wrong_output_width() {
+    let mut plan = PlanBuilder::new();
+    let qkv = plan.input("qkv", 10, 3 * 16);
+    let out = plan.output("out", 10, 15);
+    let (qkv, out) = (plan.all(qkv), plan.all(out));
+    attention(&mut plan, "attn", qkv, 0, qkv, 16, qkv, 32, out, 2, 8, 0.35);
+}
