@@ -129,7 +129,6 @@ impl Case {
         let (got, expected) = self.run(rng);
         // f32 sums of 9*cin products of O(1/sqrt(9 cin)) terms with |x| <= 1: rounding grows like sqrt(9 cin)·2^-24
         // relative to the terms; 1e-5 absolute leaves >10x margin at cin = 800.
-        eprintln!("ERR {self:?} {:e}", max_abs_diff(&got, &expected));
         assert_close(&format!("{self:?}"), &got, &expected, 1e-5, 1e-6);
     }
 }

@@ -45,7 +45,6 @@ fn check(rng: &mut Rng, mode: Mode, n: usize, hi: usize, wi: usize, c: usize, ho
     // rounds to a few 2^-24. A driver that fuses scale·(dst+0.5)−0.5 into an fma may move λ by an ulp of the
     // source coordinate (< 2^-17 here), so allow 1e-5. Nearest copies exactly.
     let atol = if mode == Mode::Nearest { 0.0 } else { 1e-5 };
-    eprintln!("ERR {what} {:e}", max_abs_diff(&got, &expected));
     assert_close(&what, &got, &expected, atol, 0.0);
 }
 

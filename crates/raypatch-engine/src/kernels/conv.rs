@@ -6,7 +6,7 @@ use crate::kernels::{Activation, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 use crate::tensor::padded_cols;
 
-/// Output pixels per invocation, consecutive in a row (`PX` in the shader).
+/// Output pixels per invocation, 64 apart in the flattened n*ho*wo order (`PX` in the shader).
 const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
@@ -81,8 +81,7 @@ pub fn conv3x3(
 
     let cout4 = padded_cols(cout) / 4;
     let cout_tiles = cout4.div_ceil(COUT_VEC4S_PER_INVOCATION);
-    let row_blocks = wo.div_ceil(PIXELS_PER_INVOCATION);
-    let block_tiles = (n * ho * row_blocks).div_ceil(64);
+    let pixel_tiles = npix.div_ceil(64 * PIXELS_PER_INVOCATION);
     let [act_code, slope] = act.params();
     let params = vec![
         h as u32,
@@ -92,22 +91,22 @@ pub fn conv3x3(
         cout4 as u32,
         ho as u32,
         wo as u32,
+        stride as u32,
         up as u32,
         act_code,
         slope,
         bias.is_some() as u32,
         accumulate as u32,
-        (n * ho) as u32,
-        row_blocks as u32,
+        npix as u32,
         cout_tiles as u32,
-        block_tiles as u32,
+        pixel_tiles as u32,
     ];
     let weight_view = plan.all(weight);
     let bias_view = bias.map_or(weight_view, |b| plan.all(b));
     plan.push(Op {
         label: label.to_string(),
         shader: &CONV,
-        entry: if stride == 1 { "conv3x3_s1" } else { "conv3x3_s2" },
+        entry: "conv3x3",
         params,
         bindings: vec![
             (x, Access::Read),
@@ -115,6 +114,6 @@ pub fn conv3x3(
             (bias_view, Access::Read),
             (out, if accumulate { Access::ReadWrite } else { Access::Write }),
         ],
-        workgroups: grid(block_tiles * cout_tiles),
+        workgroups: grid(pixel_tiles * cout_tiles),
     });
 }
