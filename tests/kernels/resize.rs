@@ -1,1 +1,107 @@
+//! bilinear and nearest resizes against the float64 reference.
 
+use raypatch_engine::kernels::resize::{bilinear, nearest};
+use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::reference::resize as reference;
+
+use crate::common::*;
+use crate::conv::{to_f64, Placed};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Mode {
+    Bilinear { accumulate: bool },
+    Nearest,
+}
+
+/// Resizes random data `[n*hi*wi, c]` to `ho × wo` on the GPU and checks it against the reference.
+#[allow(clippy::too_many_arguments)]
+fn check(rng: &mut Rng, mode: Mode, n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) {
+    let what = format!("{mode:?} {n}x{hi}x{wi}x{c} -> {ho}x{wo}");
+    let x = rng.vec_f32(n * hi * wi * c, -1.0, 1.0);
+    let init = rng.vec_f32(n * ho * wo * c, -1.0, 1.0);
+    let accumulate = mode == Mode::Bilinear { accumulate: true };
+    let xp = Placed::new(rng, "x", &x, c, 0.0);
+    let op = Placed::new(rng, "out", &init, c, if accumulate { 0.0 } else { f32::NAN });
+
+    let mut plan = PlanBuilder::new();
+    let xv = xp.view(&mut plan, "x");
+    let ov = op.view(&mut plan, "out");
+    match mode {
+        Mode::Bilinear { accumulate } => bilinear(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo, accumulate),
+        Mode::Nearest => nearest(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo),
+    }
+    run(plan);
+    let got = op.read_view(&what);
+
+    let x = to_f64(&x);
+    let mut expected = match mode {
+        Mode::Bilinear { .. } => reference::bilinear(&x, n, hi, wi, c, ho, wo),
+        Mode::Nearest => reference::nearest(&x, n, hi, wi, c, ho, wo),
+    };
+    if accumulate {
+        expected.iter_mut().zip(&init).for_each(|(e, &i)| *e += f64::from(i));
+    }
+    // Same source indices and λ (both computed in f32 the PyTorch way); the blend of 4 values of |x| <= 1 in f32
+    // rounds to a few 2^-24. A driver that fuses scale·(dst+0.5)−0.5 into an fma may move λ by an ulp of the
+    // source coordinate (< 2^-17 here), so allow 1e-5. Nearest copies exactly.
+    let atol = if mode == Mode::Nearest { 0.0 } else { 1e-5 };
+    assert_close(&what, &got, &expected, atol, 0.0);
+}
+
+const CHANNELS: [usize; 3] = [1, 3, 5];
+
+#[test]
+fn bilinear_downsample_by_k() {
+    // The patch-ray case: the full-resolution ray grid resized to [H/k, W/k], including sizes k does not divide.
+    let mut rng = Rng::new(11);
+    for (i, k) in [2, 4, 8, 16].into_iter().enumerate() {
+        for c in CHANNELS {
+            let (hi, wi) = if c == 3 { (k * rng.range(1, 4), k * rng.range(1, 5)) } else { (rng.range(k, 70), rng.range(k, 70)) };
+            let n = rng.range(1, 3);
+            check(&mut rng, Mode::Bilinear { accumulate: i % 2 == 1 }, n, hi, wi, c, hi / k, wi / k);
+        }
+    }
+    // The model's 120x160 grid at k = 8.
+    check(&mut rng, Mode::Bilinear { accumulate: false }, 1, 120, 160, 3, 15, 20);
+}
+
+#[test]
+fn bilinear_upsample_2x() {
+    // The decoder's rgb skip: F.interpolate(scale_factor=2), accumulated into the next stage's output.
+    let mut rng = Rng::new(12);
+    for (i, c) in CHANNELS.into_iter().enumerate() {
+        for accumulate in [false, true] {
+            let (hi, wi, n) = (rng.range(1, 17) + i, rng.range(1, 17), rng.range(1, 3));
+            check(&mut rng, Mode::Bilinear { accumulate }, n, hi, wi, c, 2 * hi, 2 * wi);
+        }
+    }
+}
+
+#[test]
+fn bilinear_and_nearest_random_sizes() {
+    // Arbitrary ratios in both directions, 1-pixel images, odd sizes.
+    let mut rng = Rng::new(13);
+    for case in 0..24 {
+        let (hi, wi, ho, wo) = (rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), rng.range(1, 25));
+        let c = CHANNELS[case % 3];
+        let mode = match case % 3 {
+            0 => Mode::Nearest,
+            1 => Mode::Bilinear { accumulate: false },
+            _ => Mode::Bilinear { accumulate: true },
+        };
+        let n = rng.range(1, 3);
+        check(&mut rng, mode, n, hi, wi, c, ho, wo);
+    }
+    // Nearest 2× up and k× down, the exact-index special cases of PyTorch.
+    check(&mut rng, Mode::Nearest, 2, 7, 5, 3, 14, 10);
+    check(&mut rng, Mode::Nearest, 1, 40, 48, 5, 10, 6);
+}
+
+#[test]
+fn bilinear_many_workgroups() {
+    // 4.3 million output pixels of one vec4 each: more than 65535 workgroups, so the grid spills into y.
+    let mut rng = Rng::new(14);
+    let (ho, wo): (usize, usize) = (1024, 4200);
+    assert!((ho * wo).div_ceil(64) > 65535);
+    check(&mut rng, Mode::Bilinear { accumulate: false }, 1, ho / 4, wo / 4, 3, ho, wo);
+}
