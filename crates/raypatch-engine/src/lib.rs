@@ -8,8 +8,11 @@ pub mod gpu;
 pub mod kernels;
 pub mod plan;
 pub mod reference;
+pub mod srt;
 pub mod tensor;
+pub mod weights;
 
 pub use error::{EngineError, Result};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use tensor::GpuTensor;
+pub use srt::{EncodedScene, Frame, Model, Outputs};

@@ -1,0 +1,467 @@
+//! SRT and RP-SRT as plans of kernels, mirroring the official modules (tberriel/RayPatchQuerying):
+//! `SRTEncoder` → latent tokens z; `SRTDecoder` (ray queries cross-attending to z) → per-ray features;
+//! `RayPatchDecoder` (conv upsampler with RGB skips) for Ray-Patch; then the sigmoid.
+//!
+//! A scene is encoded once ([`Model::encode`]); the decoder's keys and values are projected from z then,
+//! once per layer, and kept. Rendering ([`EncodedScene::render`]) builds a plan per (target count, size,
+//! outputs) on first use and reuses it.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use raypatch_model::{InputViews, LoadedModel, ModelConfig, Octaves, TargetGrid, TargetViews};
+
+use crate::error::{EngineError, Result};
+use crate::gpu::Gpu;
+use crate::kernels::elementwise::{map_columns, Map};
+use crate::kernels::{attention::attention, conv::conv3x3, matmul::linear, norm::layernorm, posenc, resize, Activation};
+use crate::plan::{Plan, PlanBuilder, TensorId, View};
+use crate::tensor::{padded_cols, GpuTensor};
+use crate::weights::{Conv3x3, LayerNorm, Linear, SrtWeights};
+
+/// LayerNorm eps of every official transformer.
+const LAYER_NORM_EPS: f32 = 1e-5;
+/// LeakyReLU slopes: the decoder's out_mlp (nn.LeakyReLU default) and the Ray-Patch conv decoder.
+const OUT_MLP_SLOPE: f32 = 0.01;
+const CONV_DECODER_SLOPE: f32 = 0.2;
+/// Decoder queries are processed in chunks whose widest intermediate stays under this many bytes, so that
+/// memory is bounded at any resolution. Chunks start at multiples of 64 rows (buffer offset alignment).
+const CHUNK_BYTES: usize = 32 << 20;
+const CHUNK_ALIGN: usize = 64;
+
+/// A loaded model with its weights on the GPU.
+pub struct Model {
+    gpu: Arc<Gpu>,
+    pub config: ModelConfig,
+    pub path: String,
+    pub parameter_count: usize,
+    weights: SrtWeights,
+}
+
+/// What to compute when rendering. RGB is always produced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Outputs {
+    /// The log-depth channel of models with 4 output channels.
+    pub logdepth: bool,
+}
+
+/// Rendered target views.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    pub views: usize,
+    pub height: usize,
+    pub width: usize,
+    /// `[views, height, width, 3]`, after the sigmoid.
+    pub rgb: Vec<f32>,
+    /// `[views, height, width]` when requested.
+    pub logdepth: Option<Vec<f32>>,
+}
+
+/// A scene encoded by a model: the latent tokens and, per decoder layer, their keys and values.
+pub struct EncodedScene<'m> {
+    model: &'m Model,
+    /// z: `[tokens, token_dim]`.
+    pub latent: GpuTensor,
+    /// Per decoder layer: `to_kv(z)` as `[tokens, 2·inner]` (keys, then values).
+    pub keys_values: Vec<GpuTensor>,
+    /// Bytes the encode plan allocated (its intermediates; freed after encoding).
+    pub encode_peak_bytes: u64,
+    render_plans: Mutex<HashMap<RenderKey, Arc<RenderGraph>>>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct RenderKey {
+    views: usize,
+    grid: (usize, usize, bool),
+    outputs: Outputs,
+}
+
+struct RenderGraph {
+    plan: Plan,
+    target_pos: TensorId,
+    target_rays: TensorId,
+    rgb: TensorId,
+    logdepth: Option<TensorId>,
+}
+
+impl Model {
+    pub fn load(gpu: Arc<Gpu>, path: impl AsRef<Path>) -> Result<Model> {
+        let loaded = raypatch_model::load_model(path)?;
+        Model::from_loaded(gpu, &loaded)
+    }
+
+    pub fn from_loaded(gpu: Arc<Gpu>, loaded: &LoadedModel) -> Result<Model> {
+        let weights = SrtWeights::upload(&gpu, loaded)?;
+        Ok(Model {
+            gpu,
+            config: loaded.config.clone(),
+            path: loaded.path.clone(),
+            parameter_count: loaded.parameter_count(),
+            weights,
+        })
+    }
+
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// Bytes of GPU memory the weights take.
+    pub fn weight_bytes(&self) -> u64 {
+        self.weights.bytes
+    }
+
+    /// Encodes posed input views into latent tokens and the decoder's keys and values. Waits for the GPU.
+    pub fn encode(&self, inputs: &InputViews) -> Result<EncodedScene<'_>> {
+        inputs.check_for(&self.config, "input views")?;
+        let gpu = &*self.gpu;
+        let cfg = &self.config;
+        let e = &cfg.encoder;
+        let w = &self.weights.encoder;
+        let (n, height, width) = (inputs.count, inputs.height, inputs.width);
+        let pixels = n * height * width;
+        let mut b = PlanBuilder::new();
+
+        // Encoder input [pixels, 3 + pos + ray encodings]: RGB written by the host, encodings by the GPU.
+        let in_dim = cfg.encoder_input_dim();
+        let input = b.input("encoder_input", pixels, in_dim);
+        let camera_pos = b.input("input_camera_pos", n, 3);
+        let rays = b.input("input_rays", pixels, 3);
+        let (pos_view, input_view, rays_view) = (b.all(camera_pos), b.all(input), b.all(rays));
+        let pos_mult = multipliers(&e.pos_octaves);
+        let ray_mult = multipliers(&e.ray_octaves);
+        posenc::fourier_encode(&mut b, "encoder.pos_enc", pos_view, height * width, 0, &pos_mult, input_view, 3);
+        posenc::fourier_encode(&mut b, "encoder.ray_enc", rays_view, 1, 0, &ray_mult, input_view, 3 + 6 * pos_mult.len());
+
+        // SRTConvBlocks: conv(stride 1) → BN → ReLU → conv(stride 2) → BN → ReLU, BN folded.
+        let (mut x, mut h, mut wd) = (input, height, width);
+        for (i, (first, second)) in w.conv_blocks.iter().enumerate() {
+            let hidden = b.transient(&format!("encoder.conv_blocks.{i}.hidden"), n * h * wd, first.cout);
+            conv(&mut b, &format!("encoder.conv_blocks.{i}.0"), x, n, h, wd, first, hidden, 1, false, Activation::Relu, false);
+            let (h2, w2) = (h.div_ceil(2), wd.div_ceil(2));
+            let out = b.transient(&format!("encoder.conv_blocks.{i}.out"), n * h2 * w2, second.cout);
+            conv(&mut b, &format!("encoder.conv_blocks.{i}.3"), hidden, n, h, wd, second, out, 2, false, Activation::Relu, false);
+            (x, h, wd) = (out, h2, w2);
+        }
+        // per_patch_linear (1×1 conv) over NHWC rows gives the tokens in the official order: row-major per
+        // image, images concatenated.
+        let tokens = n * h * wd;
+        let latent = b.output("latent", tokens, e.token_dim);
+        dense(&mut b, "encoder.per_patch_linear", x, &w.per_patch_linear, latent, Activation::None, false);
+
+        let inner = e.heads * e.dim_head;
+        for (l, layer) in w.layers.iter().enumerate() {
+            let p = format!("encoder.transformer.layers.{l}");
+            let normed = norm(&mut b, &format!("{p}.0.norm"), latent, &layer.attn_norm);
+            let qkv = b.transient(&format!("{p}.qkv"), tokens, 3 * inner);
+            dense(&mut b, &format!("{p}.0.fn.to_qkv"), normed, &layer.to_qkv, qkv, Activation::None, false);
+            let heads_out = b.transient(&format!("{p}.attention"), tokens, inner);
+            let (q, o) = (b.all(qkv), b.all(heads_out));
+            let scale = (e.dim_head as f32).powf(-0.5);
+            attention(&mut b, &format!("{p}.0.fn.attend"), q, 0, q, inner, q, 2 * inner, o, e.heads, e.dim_head, scale);
+            dense(&mut b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, latent, Activation::None, true);
+            feed_forward(&mut b, &p, latent, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
+        }
+
+        // The decoder's keys and values depend only on z: project them once per scene.
+        let d = &cfg.decoder;
+        let kv_inner = 2 * d.heads * d.dim_head;
+        let keys_values: Vec<TensorId> = self
+            .weights
+            .decoder
+            .layers
+            .iter()
+            .enumerate()
+            .map(|(l, layer)| {
+                let kv = b.output(&format!("decoder.layers.{l}.kv"), tokens, kv_inner);
+                dense(&mut b, &format!("decoder_att.ray_predictor.transformer.layers.{l}.0.fn.to_kv"), latent, &layer.to_kv, kv, Activation::None, false);
+                kv
+            })
+            .collect();
+
+        let plan = b.build(gpu)?;
+        let mut host_input = vec![0.0f32; pixels * in_dim];
+        for (row, rgb) in host_input.chunks_exact_mut(in_dim).zip(inputs.images.chunks_exact(3)) {
+            row[..3].copy_from_slice(rgb);
+        }
+        gpu.write(&plan.tensor(input), &host_input);
+        gpu.write(&plan.tensor(camera_pos), &inputs.camera_pos);
+        gpu.write(&plan.tensor(rays), &inputs.rays);
+        plan.execute(gpu);
+        wait(gpu)?;
+        Ok(EncodedScene {
+            model: self,
+            latent: plan.tensor(latent),
+            keys_values: keys_values.iter().map(|&id| plan.tensor(id)).collect(),
+            encode_peak_bytes: plan.peak_bytes(),
+            render_plans: Mutex::new(HashMap::new()),
+        })
+    }
+}
+
+impl EncodedScene<'_> {
+    pub fn model(&self) -> &Model {
+        self.model
+    }
+
+    /// Renders the target views. The plan for this (view count, size, outputs) is built on first use and
+    /// reused afterwards: no allocation, no pipeline compilation, one submit. Waits for the GPU.
+    pub fn render(&self, targets: &TargetViews, outputs: Outputs) -> Result<Frame> {
+        let cfg = &self.model.config;
+        let grid = targets.grid(cfg.patch_size(), "target views")?;
+        if outputs.logdepth && cfg.image_channels() != 4 {
+            return Err(EngineError::Request("log-depth was requested but this model has no depth channel".into()));
+        }
+        let key = RenderKey { views: targets.count, grid: (grid.height, grid.width, grid.rays_are_patches), outputs };
+        let graph = {
+            let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
+            match plans.get(&key) {
+                Some(g) => g.clone(),
+                None => {
+                    let g = Arc::new(self.build_render(targets.count, grid, outputs)?);
+                    plans.insert(key, g.clone());
+                    g
+                }
+            }
+        };
+        let gpu = self.model.gpu();
+        gpu.write(&graph.plan.tensor(graph.target_pos), &targets.camera_pos);
+        gpu.write(&graph.plan.tensor(graph.target_rays), &targets.rays);
+        graph.plan.execute(gpu);
+        let rgb = gpu.read(&graph.plan.tensor(graph.rgb))?;
+        let logdepth = graph.logdepth.map(|id| gpu.read(&graph.plan.tensor(id))).transpose()?;
+        Ok(Frame { views: targets.count, height: grid.height, width: grid.width, rgb, logdepth })
+    }
+
+    /// Planned peak bytes of the render plan for these targets (building it if needed).
+    pub fn render_peak_bytes(&self, targets: &TargetViews, outputs: Outputs) -> Result<u64> {
+        let grid = targets.grid(self.model.config.patch_size(), "target views")?;
+        Ok(self.build_render(targets.count, grid, outputs)?.plan.peak_bytes())
+    }
+
+    /// Number of render plans built so far (one per distinct target count, size and outputs).
+    pub fn cached_render_plans(&self) -> usize {
+        self.render_plans.lock().expect("render plan cache poisoned").len()
+    }
+
+    fn build_render(&self, views: usize, grid: TargetGrid, outputs: Outputs) -> Result<RenderGraph> {
+        let model = self.model;
+        let cfg = &model.config;
+        let d = &cfg.decoder;
+        let k = cfg.patch_size();
+        let (ph, pw) = (grid.height / k, grid.width / k);
+        let queries = views * ph * pw;
+        let mut b = PlanBuilder::new();
+
+        let target_pos = b.input("target_camera_pos", views, 3);
+        let (target_rays, query_rays) = if k > 1 && !grid.rays_are_patches {
+            // Patch rays: the full-resolution grid bilinearly downsampled by k, not renormalised (torchvision
+            // Resize as in the official data loader).
+            let full = b.input("target_rays", views * grid.height * grid.width, 3);
+            let patch = b.transient("patch_rays", queries, 3);
+            let (src, dst) = (b.all(full), b.all(patch));
+            resize::bilinear(&mut b, "patch_rays", src, views, grid.height, grid.width, dst, ph, pw, false);
+            (full, patch)
+        } else {
+            let rays = b.input("target_rays", queries, 3);
+            (rays, rays)
+        };
+        let keys_values: Vec<TensorId> =
+            self.keys_values.iter().enumerate().map(|(l, kv)| b.external(&format!("decoder.layers.{l}.kv"), kv)).collect();
+
+        let features = b.transient("decoder_features", queries, d.out_dims);
+        let pos_mult = multipliers(&d.pos_octaves);
+        let ray_mult = multipliers(&d.ray_octaves);
+        let widest = [d.out_mlp_hidden, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, cfg.query_dim()]
+            .into_iter()
+            .max()
+            .unwrap_or(1);
+        let chunk = (CHUNK_BYTES / (4 * padded_cols(widest))) / CHUNK_ALIGN * CHUNK_ALIGN;
+        let chunk = chunk.clamp(CHUNK_ALIGN, queries.div_ceil(CHUNK_ALIGN) * CHUNK_ALIGN);
+        for start in (0..queries).step_by(chunk) {
+            let rows = chunk.min(queries - start);
+            let chunk_rays = b.rows_of(query_rays, start, rows);
+            let chunk_out = b.rows_of(features, start, rows);
+            let queries_per_view = ph * pw;
+            self.decode_chunk(&mut b, target_pos, queries_per_view, start, chunk_rays, &pos_mult, &ray_mult, &keys_values, chunk_out);
+        }
+
+        let channels = cfg.image_channels();
+        let image = match &model.weights.ray_patch {
+            None => features,
+            Some(rp) => ray_patch_decoder(&mut b, rp, features, views, ph, pw, channels),
+        };
+        let pixels = views * grid.height * grid.width;
+        let rgb = b.output("rgb", pixels, 3);
+        let (src, dst) = (b.all(image), b.all(rgb));
+        map_columns(&mut b, "sigmoid", src, 0, dst, Map::Sigmoid);
+        let logdepth = outputs.logdepth.then(|| {
+            let depth = b.output("logdepth", pixels, 1);
+            let (src, dst) = (b.all(image), b.all(depth));
+            map_columns(&mut b, "logdepth", src, 3, dst, Map::Identity);
+            depth
+        });
+        let plan = b.build(model.gpu())?;
+        Ok(RenderGraph { plan, target_pos, target_rays, rgb, logdepth })
+    }
+
+    /// `SRTDecoder` on one chunk of ray queries: encode, input_mlp, cross-attention layers, out_mlp.
+    #[allow(clippy::too_many_arguments)]
+    fn decode_chunk(
+        &self,
+        b: &mut PlanBuilder,
+        target_pos: TensorId,
+        queries_per_view: usize,
+        start: usize,
+        rays: View,
+        pos_mult: &[f32],
+        ray_mult: &[f32],
+        keys_values: &[TensorId],
+        out: View,
+    ) {
+        let cfg = &self.model.config;
+        let d = &cfg.decoder;
+        let w = &self.model.weights.decoder;
+        let rows = rays.rows;
+        let tag = |name: &str| format!("decoder_att.{name}[{start}..{}]", start + rows);
+
+        // q = cat(posenc(camera_pos), posenc(ray)); the position is broadcast over its view's rays.
+        let query = b.transient(&tag("query"), rows, cfg.query_dim());
+        let (pos, q) = (b.all(target_pos), b.all(query));
+        posenc::fourier_encode(b, &tag("pos_enc"), pos, queries_per_view, start, pos_mult, q, 0);
+        posenc::fourier_encode(b, &tag("ray_enc"), rays, 1, 0, ray_mult, q, 6 * pos_mult.len());
+
+        let hidden = b.transient(&tag("input_mlp.hidden"), rows, d.input_mlp_hidden);
+        dense(b, &tag("ray_predictor.input_mlp.0"), query, &w.input_mlp.0, hidden, Activation::Relu, false);
+        let x = b.transient(&tag("x"), rows, cfg.query_dim());
+        dense(b, &tag("ray_predictor.input_mlp.2"), hidden, &w.input_mlp.1, x, Activation::None, false);
+
+        let inner = d.heads * d.dim_head;
+        let scale = (d.dim_head as f32).powf(-0.5);
+        for (l, (layer, &kv)) in w.layers.iter().zip(keys_values).enumerate() {
+            let p = tag(&format!("ray_predictor.transformer.layers.{l}"));
+            let normed = norm(b, &format!("{p}.0.norm"), x, &layer.attn_norm);
+            let q = b.transient(&format!("{p}.q"), rows, inner);
+            dense(b, &format!("{p}.0.fn.to_q"), normed, &layer.to_q, q, Activation::None, false);
+            let heads_out = b.transient(&format!("{p}.attention"), rows, inner);
+            let (qv, kvv, o) = (b.all(q), b.all(kv), b.all(heads_out));
+            attention(b, &format!("{p}.0.fn.attend"), qv, 0, kvv, 0, kvv, inner, o, d.heads, d.dim_head, scale);
+            dense(b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, x, Activation::None, true);
+            feed_forward(b, &p, x, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
+        }
+
+        let mut h = x;
+        let last = w.out_mlp.len() - 1;
+        for (i, lin) in w.out_mlp.iter().enumerate() {
+            let label = tag(&format!("out_mlp.{}", 2 * i));
+            if i == last {
+                let src = b.all(h);
+                dense_view(b, &label, src, lin, out, Activation::None, false);
+            } else {
+                let next = b.transient(&label, rows, d.out_mlp_hidden);
+                dense(b, &label, h, lin, next, Activation::LeakyRelu(OUT_MLP_SLOPE), false);
+                h = next;
+            }
+        }
+    }
+}
+
+/// `RayPatchDecoder`: the patch features `[views·ph·pw, C]` (NHWC) upsampled 2^upsample times with summed
+/// RGB skips. Returns the `[views·H·W, channels]` image before the sigmoid.
+#[allow(clippy::too_many_arguments)]
+fn ray_patch_decoder(
+    b: &mut PlanBuilder,
+    rp: &crate::weights::RayPatchWeights,
+    features: TensorId,
+    views: usize,
+    ph: usize,
+    pw: usize,
+    channels: usize,
+) -> TensorId {
+    let p = "decoder_rp.conv_decoder";
+    let (mut h, mut w) = (ph, pw);
+    let first_skip = b.transient(&format!("{p}.conv_0"), views * h * w, channels);
+    conv(b, &format!("{p}.conv_0"), features, views, h, w, &rp.conv_0, first_skip, 1, false, Activation::None, false);
+    let mut skip = b.transient(&format!("{p}.skip.0"), views * 4 * h * w, channels);
+    let (src, dst) = (b.all(first_skip), b.all(skip));
+    resize::bilinear(b, &format!("{p}.skip.0"), src, views, h, w, dst, 2 * h, 2 * w, false);
+    let mut x = features;
+    for (i, (feature_conv, to_rgb)) in rp.blocks.iter().enumerate() {
+        let (h2, w2) = (2 * h, 2 * w);
+        let up = b.transient(&format!("{p}.conv_blocks.{i}"), views * h2 * w2, feature_conv.cout);
+        let label = format!("{p}.conv_blocks.{i}.0");
+        conv(b, &label, x, views, h, w, feature_conv, up, 1, true, Activation::LeakyRelu(CONV_DECODER_SLOPE), false);
+        // x_out = conv_out(x) + skip, accumulated into the upsampled skip.
+        conv(b, &format!("{p}.conv_blocks.{i}.1"), up, views, h2, w2, to_rgb, skip, 1, false, Activation::None, true);
+        if i + 1 < rp.blocks.len() {
+            let next = b.transient(&format!("{p}.skip.{}", i + 1), views * 4 * h2 * w2, channels);
+            let (src, dst) = (b.all(skip), b.all(next));
+            resize::bilinear(b, &format!("{p}.skip.{}", i + 1), src, views, h2, w2, dst, 2 * h2, 2 * w2, false);
+            skip = next;
+        }
+        (x, h, w) = (up, h2, w2);
+    }
+    skip
+}
+
+/// The official multipliers of a Fourier encoding.
+fn multipliers(o: &Octaves) -> Vec<f32> {
+    posenc::multipliers(o.count, o.start, o.end)
+}
+
+/// A Linear layer from tensor `x` into tensor `out`.
+fn dense(b: &mut PlanBuilder, label: &str, x: TensorId, lin: &Linear, out: TensorId, act: Activation, accumulate: bool) {
+    let (xv, ov) = (b.all(x), b.all(out));
+    dense_view(b, label, xv, lin, ov, act, accumulate);
+}
+
+fn dense_view(b: &mut PlanBuilder, label: &str, x: View, lin: &Linear, out: View, act: Activation, accumulate: bool) {
+    let weight = b.external(label, &lin.weight);
+    let bias = lin.bias.as_ref().map(|t| b.external(label, t));
+    linear(b, label, x, weight, bias, out, act, accumulate);
+}
+
+fn norm(b: &mut PlanBuilder, label: &str, x: TensorId, ln: &LayerNorm) -> TensorId {
+    let out = b.transient(label, b.rows(x), b.cols(x));
+    let gamma = b.external(label, &ln.gamma);
+    let beta = b.external(label, &ln.beta);
+    let (xv, ov) = (b.all(x), b.all(out));
+    layernorm(b, label, xv, gamma, beta, ov, LAYER_NORM_EPS);
+    out
+}
+
+/// x += FF(LN(x)), FF = Linear → GELU → Linear.
+fn feed_forward(b: &mut PlanBuilder, prefix: &str, x: TensorId, ln: &LayerNorm, ff_in: &Linear, ff_out: &Linear) {
+    let normed = norm(b, &format!("{prefix}.1.norm"), x, ln);
+    let hidden = b.transient(&format!("{prefix}.ff"), b.rows(x), ff_in.weight.rows);
+    dense(b, &format!("{prefix}.1.fn.net.0"), normed, ff_in, hidden, Activation::Gelu, false);
+    dense(b, &format!("{prefix}.1.fn.net.3"), hidden, ff_out, x, Activation::None, true);
+}
+
+#[allow(clippy::too_many_arguments)]
+fn conv(
+    b: &mut PlanBuilder,
+    label: &str,
+    x: TensorId,
+    n: usize,
+    h: usize,
+    w: usize,
+    c: &Conv3x3,
+    out: TensorId,
+    stride: usize,
+    upsample_input: bool,
+    act: Activation,
+    accumulate: bool,
+) {
+    let weight = b.external(label, &c.weight);
+    let bias = c.bias.as_ref().map(|t| b.external(label, t));
+    let (xv, ov) = (b.all(x), b.all(out));
+    conv3x3(b, label, xv, n, h, w, c.cin, weight, bias, ov, c.cout, stride, upsample_input, act, accumulate);
+}
+
+fn wait(gpu: &Gpu) -> Result<()> {
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| EngineError::Device(format!("waiting for the GPU: {e}")))
+}

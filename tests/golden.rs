@@ -1,0 +1,119 @@
+//! Parity with the official PyTorch model: every case in assets/golden (written by tools/make_golden.py)
+//! is encoded and rendered on the GPU and compared with the latent and rgb PyTorch computed.
+//! Tolerances (issue #2): max |rgb - rgb_torch| <= 1e-4; max |z - z_torch| / max |z_torch| <= 1e-4.
+
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use raypatch_engine::{Gpu, GpuOptions, Model, Outputs};
+use raypatch_model::TensorFile;
+
+const RGB_MAX_ABS: f64 = 1e-4;
+const LATENT_MAX_REL: f64 = 1e-4;
+
+fn golden_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden")
+}
+
+fn max_abs(a: &[f32], b: &[f32]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| if x.is_finite() { (x - y).abs() as f64 } else { f64::INFINITY }).fold(0.0, f64::max)
+}
+
+/// Encodes and renders one case and returns what is out of tolerance.
+fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
+    let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+    let model = Model::load(gpu.clone(), dir.join("model.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let expected = TensorFile::open(&dir.join("expected.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+
+    let start = Instant::now();
+    let encoded = model.encode(&scene.inputs).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let encode_time = start.elapsed();
+    let latent = gpu.read(&encoded.latent).unwrap();
+    let want_latent = expected.f32("latent").unwrap();
+    assert_eq!(want_latent.shape, vec![encoded.latent.rows, encoded.latent.cols], "{name}: latent shape");
+    let scale = want_latent.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+    let latent_err = max_abs(&latent, &want_latent.data) / scale;
+
+    // Render twice: the second render reuses the plan and must give the same bytes.
+    let outputs = Outputs { logdepth: expected.contains("logdepth") };
+    let start = Instant::now();
+    let frame = encoded.render(&scene.targets, outputs).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let first_render = start.elapsed();
+    let start = Instant::now();
+    let again = encoded.render(&scene.targets, outputs).unwrap();
+    let warm_render = start.elapsed();
+    assert_eq!(frame.rgb, again.rgb, "{name}: a second render differs");
+    assert_eq!(encoded.cached_render_plans(), 1, "{name}: the second render built a new plan");
+
+    let want_rgb = expected.f32("rgb").unwrap();
+    assert_eq!(want_rgb.shape, vec![frame.views, frame.height, frame.width, 3], "{name}: rgb shape");
+    let rgb_err = max_abs(&frame.rgb, &want_rgb.data);
+    // Log-depth is the raw pre-sigmoid channel: compare it relative to its magnitude like the latent.
+    let depth_err = outputs.logdepth.then(|| {
+        let want = expected.f32("logdepth").unwrap();
+        let got = frame.logdepth.as_ref().expect("log-depth requested");
+        let scale = want.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        max_abs(got, &want.data) / scale
+    });
+    eprintln!(
+        "{name}: latent rel err {latent_err:.2e}, rgb max abs err {rgb_err:.2e}{}; encode {:.1} ms, render {:.1} ms (first {:.1} ms), planned peak {:.2} MiB",
+        depth_err.map_or(String::new(), |e| format!(", log-depth rel err {e:.2e}")),
+        encode_time.as_secs_f64() * 1e3,
+        warm_render.as_secs_f64() * 1e3,
+        first_render.as_secs_f64() * 1e3,
+        encoded.render_peak_bytes(&scene.targets, outputs).unwrap() as f64 / (1 << 20) as f64
+    );
+    let mut failures = Vec::new();
+    if let Some(err) = depth_err.filter(|&e| e > LATENT_MAX_REL) {
+        failures.push(format!("{name}: log-depth relative error {err:e} > {LATENT_MAX_REL:e}"));
+    }
+    if latent_err > LATENT_MAX_REL {
+        failures.push(format!("{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"));
+    }
+    if rgb_err > RGB_MAX_ABS {
+        failures.push(format!("{name}: rgb max abs error {rgb_err:e} > {RGB_MAX_ABS:e}"));
+    }
+    failures
+}
+
+fn shared_gpu() -> Arc<Gpu> {
+    Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)"))
+}
+
+#[test]
+fn golden_cases_match_pytorch() {
+    let gpu = shared_gpu();
+    let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
+        .expect("assets/golden is missing: run python3 tools/make_golden.py --out assets/golden")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.join("expected.safetensors").exists())
+        .collect();
+    cases.sort();
+    let names: Vec<String> = cases.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    // The issue asks for SRT, every k, and a two-view case; make sure the assets still have them.
+    for required in ["srt_k1", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k16"] {
+        assert!(names.iter().any(|n| n == required), "golden case {required} is missing from assets/golden");
+    }
+    let failures: Vec<String> = cases.iter().flat_map(|dir| check_case(&gpu, dir)).collect();
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The official full-size RP-SRT k=4 (768 wide, 5 encoder layers) at 60×80. Generate it first with
+/// `python3 tools/make_golden.py --full-size --out target/golden-full`, then run
+/// `cargo test --release --test golden -- --ignored --nocapture`.
+#[test]
+#[ignore = "needs target/golden-full from tools/make_golden.py --full-size (PyTorch)"]
+fn full_size_rpsrt_k4_matches_pytorch() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/golden-full/rpsrt_k4_full");
+    assert!(
+        dir.join("expected.safetensors").exists(),
+        "{} is missing: run python3 tools/make_golden.py --full-size --out target/golden-full",
+        dir.display()
+    );
+    let failures = check_case(&shared_gpu(), &dir);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
