@@ -76,6 +76,16 @@ pub fn bilinear(
 ///
 /// Same layouts as [`bilinear`]; `out` is overwritten, padding columns included.
 #[allow(clippy::too_many_arguments)]
-pub fn nearest(plan: &mut PlanBuilder, label: &str, x: View, n: usize, hi: usize, wi: usize, out: View, ho: usize, wo: usize) {
+pub fn nearest(
+    plan: &mut PlanBuilder,
+    label: &str,
+    x: View,
+    n: usize,
+    hi: usize,
+    wi: usize,
+    out: View,
+    ho: usize,
+    wo: usize,
+) {
     resize(plan, label, "nearest", x, n, (hi, wi), out, (ho, wo), false);
 }
