@@ -1,13 +1,12 @@
-// Image resizes as PyTorch's F.interpolate (antialias=False) on NHWC images: x [n*hi*wi, c] -> out [n*ho*wo, c].
+// Bilinear resize as PyTorch's F.interpolate (align_corners=False, antialias=False) on NHWC images:
+// x [n*hi*wi, c] -> out [n*ho*wo, c].
 //
 // One invocation per (output pixel, vec4 of channels). Input padding columns are zero, so the interpolated
 // padding is zero too and whole vec4s are written.
 //
 // Source indices follow PyTorch's CPU and CUDA kernels, with scale = in/out computed in f32 by the host
-// (a GPU division need not be correctly rounded):
-// - bilinear, align_corners=False: src = max(scale·(dst+0.5) − 0.5, 0), i0 = min(floor(src), in−1),
-//   i1 = min(i0+1, in−1), λ = clamp(src − i0, 0, 1);
-// - nearest: src = min(floor(dst·scale), in−1).
+// (a GPU division need not be correctly rounded): src = max(scale·(dst+0.5) − 0.5, 0),
+// i0 = min(floor(src), in−1), i1 = min(i0+1, in−1), λ = clamp(src − i0, 0, 1).
 
 struct Params {
     hi: u32,
@@ -20,7 +19,7 @@ struct Params {
     total: u32,
     scale_h: f32,
     scale_w: f32,
-    // bilinear only: out += result instead of out = result.
+    // out += result instead of out = result.
     accumulate: u32,
 }
 
@@ -75,25 +74,15 @@ fn bilinear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
     let h0 = 1.0 - h1;
     let w1 = xs.lambda;
     let w0 = 1.0 - w1;
-    // PyTorch's evaluation order: rows first, then between the rows.
-    let top = w0 * pixel(t.b, ys.i0, xs.i0, t.c) + w1 * pixel(t.b, ys.i0, xs.i1, t.c);
-    let bottom = w0 * pixel(t.b, ys.i1, xs.i0, t.c) + w1 * pixel(t.b, ys.i1, xs.i1, t.c);
-    var v = h0 * top + h1 * bottom;
+    // PyTorch's channels-last evaluation order, ((x00·w00 + x01·w01) + x10·w10) + x11·w11 with the weights
+    // multiplied first. The official loader resizes the ray grid as a permuted (channels-last) tensor, and
+    // the top ray octave (2^14·π) turns a 1-ulp difference in a patch ray into a visible one in the image;
+    // with k a power of two the weights are powers of two, so this order reproduces PyTorch bit for bit.
+    var v = pixel(t.b, ys.i0, xs.i0, t.c) * (h0 * w0) + pixel(t.b, ys.i0, xs.i1, t.c) * (h0 * w1);
+    v = v + pixel(t.b, ys.i1, xs.i0, t.c) * (h1 * w0);
+    v = v + pixel(t.b, ys.i1, xs.i1, t.c) * (h1 * w1);
     if (p.accumulate != 0u) {
         v += out[index];
     }
     out[index] = v;
-}
-
-@compute @workgroup_size(64)
-fn nearest(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-           @builtin(local_invocation_index) lid: u32) {
-    let index = (wid.x + wid.y * nwg.x) * WG + lid;
-    if (index >= p.total) {
-        return;
-    }
-    let t = locate(index);
-    let y = min(u32(floor(f32(t.oy) * p.scale_h)), p.hi - 1u);
-    let xx = min(u32(floor(f32(t.ox) * p.scale_w)), p.wi - 1u);
-    out[index] = pixel(t.b, y, xx, t.c);
 }

@@ -117,3 +117,38 @@ fn full_size_rpsrt_k4_matches_pytorch() {
     let failures = check_case(&shared_gpu(), &dir);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// The top ray octave multiplies rays by 2^14·π, so a 1-ulp difference in a patch ray shows in the image:
+/// the engine's patch rays must equal the ones the official loader makes, bit for bit.
+#[test]
+fn patch_rays_are_bit_exact() {
+    use raypatch_engine::kernels::resize::bilinear;
+    use raypatch_engine::plan::PlanBuilder;
+
+    let gpu = shared_gpu();
+    let mut checked = 0;
+    for entry in std::fs::read_dir(golden_dir()).unwrap() {
+        let dir = entry.unwrap().path();
+        let Ok(expected) = TensorFile::open(&dir.join("expected.safetensors")) else { continue };
+        if !expected.contains("patch_rays") {
+            continue;
+        }
+        let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap();
+        let want = expected.f32("patch_rays").unwrap();
+        let t = &scene.targets;
+        let (ph, pw) = (want.shape[1], want.shape[2]);
+        let mut b = PlanBuilder::new();
+        let rays = b.input("rays", t.count * t.rays_height * t.rays_width, 3);
+        let patch = b.output("patch_rays", t.count * ph * pw, 3);
+        let (src, dst) = (b.all(rays), b.all(patch));
+        bilinear(&mut b, "patch_rays", src, t.count, t.rays_height, t.rays_width, dst, ph, pw, false);
+        let plan = b.build(&gpu).unwrap();
+        gpu.write(&plan.tensor(rays), &t.rays);
+        plan.execute(&gpu);
+        let got = gpu.read(&plan.tensor(patch)).unwrap();
+        let differing = got.iter().zip(&want.data).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        assert_eq!(differing, 0, "{}: {differing} patch-ray components differ from PyTorch", dir.display());
+        checked += 1;
+    }
+    assert!(checked >= 4, "expected Ray-Patch golden cases with patch_rays, found {checked}");
+}

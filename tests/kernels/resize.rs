@@ -1,52 +1,38 @@
-//! bilinear and nearest resizes against the float64 reference.
+//! Bilinear resize against the float64 reference.
 
-use raypatch_engine::kernels::resize::{bilinear, nearest};
+use raypatch_engine::kernels::resize::bilinear;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::resize as reference;
 
 use crate::common::*;
 use crate::conv::{to_f64, Placed};
 
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Mode {
-    Bilinear { accumulate: bool },
-    Nearest,
-}
-
 /// Resizes random data `[n*hi*wi, c]` to `ho × wo` on the GPU and checks it against the reference.
 #[allow(clippy::too_many_arguments)]
-fn check(rng: &mut Rng, mode: Mode, n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) {
-    let what = format!("{mode:?} {n}x{hi}x{wi}x{c} -> {ho}x{wo}");
+fn check(rng: &mut Rng, accumulate: bool, n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) {
+    let what = format!("bilinear (accumulate {accumulate}) {n}x{hi}x{wi}x{c} -> {ho}x{wo}");
     let x = rng.vec_f32(n * hi * wi * c, -1.0, 1.0);
     let init = rng.vec_f32(n * ho * wo * c, -1.0, 1.0);
-    let accumulate = mode == Mode::Bilinear { accumulate: true };
     let xp = Placed::new(rng, "x", &x, c, 0.0);
     let op = Placed::new(rng, "out", &init, c, if accumulate { 0.0 } else { f32::NAN });
 
     let mut plan = PlanBuilder::new();
     let xv = xp.view(&mut plan, "x");
     let ov = op.view(&mut plan, "out");
-    match mode {
-        Mode::Bilinear { accumulate } => bilinear(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo, accumulate),
-        Mode::Nearest => nearest(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo),
-    }
+    bilinear(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo, accumulate);
     run(plan);
     let got = op.read_view(&what);
 
     let x = to_f64(&x);
-    let mut expected = match mode {
-        Mode::Bilinear { .. } => reference::bilinear(&x, n, hi, wi, c, ho, wo),
-        Mode::Nearest => reference::nearest(&x, n, hi, wi, c, ho, wo),
-    };
+    let mut expected = reference::bilinear(&x, n, hi, wi, c, ho, wo);
     if accumulate {
         expected.iter_mut().zip(&init).for_each(|(e, &i)| *e += f64::from(i));
     }
-    // Nearest copies exactly. Bilinear: the same f32 source coordinates and λ as the reference, then a blend of
+    // The same f32 source coordinates and λ as the reference, then a blend of
     // 4 values with |x| <= 1 (a few 2^-24 of rounding; 1.4e-7 measured on lavapipe). A driver may fuse
     // scale·(dst+0.5)−0.5 into an fma, moving λ by an ulp of the source coordinate (< 2^-17 for the sizes
     // here whose scale is not a power of two), which moves the result by up to 2·2^-17: allow 2e-5.
-    let atol = if mode == Mode::Nearest { 0.0 } else { 2e-5 };
-    assert_close(&what, &got, &expected, atol, 0.0);
+    assert_close(&what, &got, &expected, 2e-5, 0.0);
 }
 
 const CHANNELS: [usize; 3] = [1, 3, 5];
@@ -60,11 +46,11 @@ fn bilinear_downsample_by_k() {
             let (hi, wi) =
                 if c == 3 { (k * rng.range(1, 4), k * rng.range(1, 5)) } else { (rng.range(k, 70), rng.range(k, 70)) };
             let n = rng.range(1, 3);
-            check(&mut rng, Mode::Bilinear { accumulate: i % 2 == 1 }, n, hi, wi, c, hi / k, wi / k);
+            check(&mut rng, i % 2 == 1, n, hi, wi, c, hi / k, wi / k);
         }
     }
     // The model's 120x160 grid at k = 8.
-    check(&mut rng, Mode::Bilinear { accumulate: false }, 1, 120, 160, 3, 15, 20);
+    check(&mut rng, false, 1, 120, 160, 3, 15, 20);
 }
 
 #[test]
@@ -74,29 +60,20 @@ fn bilinear_upsample_2x() {
     for (i, c) in CHANNELS.into_iter().enumerate() {
         for accumulate in [false, true] {
             let (hi, wi, n) = (rng.range(1, 17) + i, rng.range(1, 17), rng.range(1, 3));
-            check(&mut rng, Mode::Bilinear { accumulate }, n, hi, wi, c, 2 * hi, 2 * wi);
+            check(&mut rng, accumulate, n, hi, wi, c, 2 * hi, 2 * wi);
         }
     }
 }
 
 #[test]
-fn bilinear_and_nearest_random_sizes() {
+fn bilinear_random_sizes() {
     // Arbitrary ratios in both directions, 1-pixel images, odd sizes.
     let mut rng = Rng::new(13);
     for case in 0..24 {
         let (hi, wi, ho, wo) = (rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), rng.range(1, 25));
-        let c = CHANNELS[case % 3];
-        let mode = match case % 3 {
-            0 => Mode::Nearest,
-            1 => Mode::Bilinear { accumulate: false },
-            _ => Mode::Bilinear { accumulate: true },
-        };
         let n = rng.range(1, 3);
-        check(&mut rng, mode, n, hi, wi, c, ho, wo);
+        check(&mut rng, case % 2 == 1, n, hi, wi, CHANNELS[case % 3], ho, wo);
     }
-    // Nearest 2× up and k× down, the exact-index special cases of PyTorch.
-    check(&mut rng, Mode::Nearest, 2, 7, 5, 3, 14, 10);
-    check(&mut rng, Mode::Nearest, 1, 40, 48, 5, 10, 6);
 }
 
 #[test]
@@ -105,5 +82,5 @@ fn bilinear_many_workgroups() {
     let mut rng = Rng::new(14);
     let (ho, wo): (usize, usize) = (1024, 4200);
     assert!((ho * wo).div_ceil(64) > 65535);
-    check(&mut rng, Mode::Bilinear { accumulate: false }, 1, ho / 4, wo / 4, 3, ho, wo);
+    check(&mut rng, false, 1, ho / 4, wo / 4, 3, ho, wo);
 }

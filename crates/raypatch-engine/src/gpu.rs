@@ -150,7 +150,7 @@ impl Gpu {
 
     /// Checks that a buffer of `bytes` can be bound as one storage buffer on this adapter.
     pub fn check_binding_size(&self, what: &str, bytes: u64) -> Result<()> {
-        let max = u64::from(self.limits.max_storage_buffer_binding_size).min(self.limits.max_buffer_size);
+        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         if bytes > max {
             return Err(EngineError::TooLarge { what: what.to_string(), bytes, max });
         }

@@ -256,7 +256,7 @@ impl PlanBuilder {
                 let info = &tensors[view.id.0];
                 let row_bytes = (padded_cols(info.cols) * 4) as u64;
                 let offset = view.row_start as u64 * row_bytes;
-                if offset % storage_align != 0 {
+                if !offset.is_multiple_of(storage_align) {
                     return Err(EngineError::Request(format!(
                         "plan bug: op {} binds {} at byte offset {offset}, not a multiple of {storage_align}",
                         op.label, info.name

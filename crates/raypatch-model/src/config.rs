@@ -215,7 +215,7 @@ impl ModelConfig {
             kv_dim,
             heads,
             // int(latent_dim / heads) as in the official RayPredictor.
-            dim_head: if heads == 0 { 0 } else { kv_dim / heads },
+            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
             ff_hidden: 2 * kv_dim,
             input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
             out_mlp_hidden: dec.usize("out_mlp_hidden", 1536)?,

@@ -147,7 +147,7 @@ impl InputViews {
     /// Checks that the model can encode these views.
     pub fn check_for(&self, config: &ModelConfig, path: &str) -> Result<(), ModelError> {
         let d = config.input_divisor();
-        if self.height % d != 0 || self.width % d != 0 {
+        if !self.height.is_multiple_of(d) || !self.width.is_multiple_of(d) {
             return Err(ModelError::Value {
                 path: path.into(),
                 key: "input_images".into(),
