@@ -37,6 +37,9 @@ struct Args {
     /// Print encode and render times and the planned peak memory.
     #[arg(long)]
     timings: bool,
+    /// Time every op of the encode and render plans (run one by one) and print the slowest.
+    #[arg(long)]
+    profile: bool,
     /// Render this many times after the first (warm) render and report the median (with --timings).
     #[arg(long, default_value_t = 0)]
     repeat: usize,
@@ -118,7 +121,24 @@ fn run(args: &Args) -> Result<()> {
             mib(scene.latent.bytes() + scene.keys_values.iter().map(|t| t.bytes()).sum::<u64>())
         );
     }
+    if args.profile {
+        let (_, encode_ops) = model.encode_profiled(&scene_file.inputs)?;
+        print_profile("encode", &encode_ops);
+        print_profile("render", &scene.profile_render(&scene_file.targets, Outputs::default())?);
+    }
     Ok(())
+}
+
+/// The slowest ops of a plan, with their share of the plan's total.
+fn print_profile(what: &str, ops: &[(String, std::time::Duration)]) {
+    let total: f64 = ops.iter().map(|(_, t)| t.as_secs_f64()).sum();
+    println!("{what}: {} ops, {:.1} ms run one by one; slowest:", ops.len(), total * 1e3);
+    let mut sorted: Vec<_> = ops.iter().collect();
+    sorted.sort_by(|a, b| b.1.cmp(&a.1));
+    for (label, t) in sorted.iter().take(12) {
+        let ms = t.as_secs_f64() * 1e3;
+        println!("  {ms:8.2} ms {:5.1}%  {label}", 100.0 * t.as_secs_f64() / total);
+    }
 }
 
 /// Fails before any work is done when an output cannot be written.

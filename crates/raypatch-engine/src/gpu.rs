@@ -206,9 +206,7 @@ impl Gpu {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| EngineError::Device(format!("waiting for the GPU: {e}")))?;
+        self.wait()?;
         rx.recv()
             .map_err(|_| EngineError::Device("readback callback dropped".into()))?
             .map_err(|e| EngineError::Device(format!("mapping a readback buffer: {e}")))?;
@@ -221,6 +219,14 @@ impl Gpu {
         drop(mapped);
         staging.unmap();
         Ok(out)
+    }
+
+    /// Blocks until the GPU has finished all submitted work.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| EngineError::Device(format!("waiting for the GPU: {e}")))
     }
 
     pub fn counters(&self) -> CounterSnapshot {

@@ -358,6 +358,19 @@ impl Plan {
         self.record(gpu, &self.ops);
     }
 
+    /// Runs the ops one submit at a time, waiting for each, and returns each op's label and wall time.
+    /// Slower than [`execute`](Self::execute) (a submit and a wait per op); for finding where time goes.
+    pub fn profile(&self, gpu: &Gpu) -> Result<Vec<(String, std::time::Duration)>> {
+        let mut times = Vec::with_capacity(self.ops.len());
+        for op in &self.ops {
+            let start = std::time::Instant::now();
+            self.record(gpu, std::slice::from_ref(op));
+            gpu.wait()?;
+            times.push((op.label.clone(), start.elapsed()));
+        }
+        Ok(times)
+    }
+
     /// Runs the ops one submit at a time and reads back every tensor each op wrote, in order.
     pub fn execute_debug(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
         let mut outputs = Vec::new();

@@ -30,6 +30,9 @@ const CONV_DECODER_SLOPE: f32 = 0.2;
 const CHUNK_BYTES: usize = 32 << 20;
 const CHUNK_ALIGN: usize = 64;
 
+/// Each op's label and wall time, in plan order (from the profiling entry points).
+pub type OpTimes = Vec<(String, std::time::Duration)>;
+
 /// A loaded model with its weights on the GPU.
 pub struct Model {
     gpu: Arc<Gpu>,
@@ -113,6 +116,15 @@ impl Model {
 
     /// Encodes posed input views into latent tokens and the decoder's keys and values. Waits for the GPU.
     pub fn encode(&self, inputs: &InputViews) -> Result<EncodedScene<'_>> {
+        self.encode_inner(inputs, false).map(|(scene, _)| scene)
+    }
+
+    /// Like [`encode`](Self::encode), running the ops one by one and timing each (slower; for profiling).
+    pub fn encode_profiled(&self, inputs: &InputViews) -> Result<(EncodedScene<'_>, OpTimes)> {
+        self.encode_inner(inputs, true)
+    }
+
+    fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
         inputs.check_for(&self.config, "input views")?;
         let gpu = &*self.gpu;
         let cfg = &self.config;
@@ -187,15 +199,21 @@ impl Model {
         gpu.write(&plan.tensor(input), &host_input);
         gpu.write(&plan.tensor(camera_pos), &inputs.camera_pos);
         gpu.write(&plan.tensor(rays), &inputs.rays);
-        plan.execute(gpu);
-        wait(gpu)?;
-        Ok(EncodedScene {
+        let times = if profile {
+            plan.profile(gpu)?
+        } else {
+            plan.execute(gpu);
+            gpu.wait()?;
+            Vec::new()
+        };
+        let scene = EncodedScene {
             model: self,
             latent: plan.tensor(latent),
             keys_values: keys_values.iter().map(|&id| plan.tensor(id)).collect(),
             encode_peak_bytes: plan.peak_bytes(),
             render_plans: Mutex::new(HashMap::new()),
-        })
+        };
+        Ok((scene, times))
     }
 }
 
@@ -207,6 +225,22 @@ impl EncodedScene<'_> {
     /// Renders the target views. The plan for this (view count, size, outputs) is built on first use and
     /// reused afterwards: no allocation, no pipeline compilation, one submit. Waits for the GPU.
     pub fn render(&self, targets: &TargetViews, outputs: Outputs) -> Result<Frame> {
+        let (graph, grid) = self.prepare(targets, outputs)?;
+        let gpu = self.model.gpu();
+        graph.plan.execute(gpu);
+        let rgb = gpu.read(&graph.plan.tensor(graph.rgb))?;
+        let logdepth = graph.logdepth.map(|id| gpu.read(&graph.plan.tensor(id))).transpose()?;
+        Ok(Frame { views: targets.count, height: grid.height, width: grid.width, rgb, logdepth })
+    }
+
+    /// Runs the render plan op by op, timing each (slower than [`render`](Self::render); for profiling).
+    pub fn profile_render(&self, targets: &TargetViews, outputs: Outputs) -> Result<OpTimes> {
+        let (graph, _) = self.prepare(targets, outputs)?;
+        graph.plan.profile(self.model.gpu())
+    }
+
+    /// The cached (or new) render plan for these targets, with their cameras and rays uploaded.
+    fn prepare(&self, targets: &TargetViews, outputs: Outputs) -> Result<(Arc<RenderGraph>, TargetGrid)> {
         let cfg = &self.model.config;
         let grid = targets.grid(cfg.patch_size(), "target views")?;
         if outputs.logdepth && cfg.image_channels() != 4 {
@@ -227,10 +261,7 @@ impl EncodedScene<'_> {
         let gpu = self.model.gpu();
         gpu.write(&graph.plan.tensor(graph.target_pos), &targets.camera_pos);
         gpu.write(&graph.plan.tensor(graph.target_rays), &targets.rays);
-        graph.plan.execute(gpu);
-        let rgb = gpu.read(&graph.plan.tensor(graph.rgb))?;
-        let logdepth = graph.logdepth.map(|id| gpu.read(&graph.plan.tensor(id))).transpose()?;
-        Ok(Frame { views: targets.count, height: grid.height, width: grid.width, rgb, logdepth })
+        Ok((graph, grid))
     }
 
     /// Planned peak bytes of the render plan for these targets (building it if needed).
@@ -457,11 +488,4 @@ fn conv(
     let bias = c.bias.as_ref().map(|t| b.external(label, t));
     let (xv, ov) = (b.all(x), b.all(out));
     conv3x3(b, label, xv, n, h, w, c.cin, weight, bias, ov, c.cout, stride, upsample_input, act, accumulate);
-}
-
-fn wait(gpu: &Gpu) -> Result<()> {
-    gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map(|_| ())
-        .map_err(|e| EngineError::Device(format!("waiting for the GPU: {e}")))
 }
