@@ -57,15 +57,17 @@ pub struct Gpu {
     pub counters: GpuCounters,
 }
 
-/// Adapters in the order Auto tries them: discrete and integrated GPUs before virtual and CPU ones.
-fn adapter_rank(info: &wgpu::AdapterInfo) -> u32 {
-    match info.device_type {
+/// Adapters in the order Auto tries them: discrete and integrated GPUs before virtual and CPU ones, and
+/// among equals the native APIs (Vulkan, Metal, DX12) before OpenGL.
+fn adapter_rank(info: &wgpu::AdapterInfo) -> (u32, bool) {
+    let kind = match info.device_type {
         wgpu::DeviceType::DiscreteGpu => 0,
         wgpu::DeviceType::IntegratedGpu => 1,
         wgpu::DeviceType::VirtualGpu => 2,
         wgpu::DeviceType::Other => 3,
         wgpu::DeviceType::Cpu => 4,
-    }
+    };
+    (kind, info.backend == wgpu::Backend::Gl)
 }
 
 /// Every adapter wgpu can see, best first.
