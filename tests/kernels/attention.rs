@@ -365,6 +365,23 @@ fn attention_long_kv() {
     case.check();
 }
 
+/// 16384 keys with exact logits up to ~±1e4 (integer q and k as in `attention_large_exact_logits`), and 16384
+/// keys with a flat row (q = 0: the output is the mean of v).
+#[test]
+fn attention_long_kv_large_logits() {
+    let mut rng = Rng::new(0x4001);
+    let mut large = random_case(&mut rng, Layout::CachedKv, 9, 16384, 2, 64);
+    for h in large.tensors.iter_mut() {
+        h.data.iter_mut().for_each(|x| *x = (*x * 8.0).round());
+    }
+    large.scale = 2.0;
+    large.check();
+
+    let mut flat = random_case(&mut rng, Layout::CachedKv, 9, 16384, 2, 64);
+    flat.heads_mut(flat.q).for_each(|row| row.fill(0.0));
+    flat.check();
+}
+
 #[test]
 #[should_panic(expected = "output must have heads*dim_head")]
 fn attention_rejects_wrong_output_width() {

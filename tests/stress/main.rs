@@ -20,8 +20,11 @@
 //!   `fourier_encode_far_camera_positions`.
 
 #[path = "../common/mod.rs"]
+#[allow(unused_imports)]
 mod common;
 
+mod cameras;
+mod long_runs;
 mod reference;
 
 use std::path::{Path, PathBuf};
