@@ -12,7 +12,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 use crate::error::{EngineError, Result};
-use crate::gpu::{storage_usage, Gpu, Shader};
+use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
 use crate::tensor::{padded_cols, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
@@ -282,7 +282,15 @@ impl PlanBuilder {
                 .filter(|(_, a)| *a != Access::Read)
                 .map(|(v, _)| *v)
                 .collect();
-            planned.push(PlannedOp { label: op.label.clone(), pipeline, bind_group, workgroups: op.workgroups, written });
+            planned.push(PlannedOp {
+                label: op.label.clone(),
+                shader: op.shader.name,
+                entry: op.entry,
+                pipeline,
+                bind_group,
+                workgroups: op.workgroups,
+                written,
+            });
         }
 
         let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols)).collect();
@@ -292,6 +300,8 @@ impl PlanBuilder {
 
 struct PlannedOp {
     label: String,
+    shader: &'static str,
+    entry: &'static str,
     pipeline: Arc<wgpu::ComputePipeline>,
     bind_group: wgpu::BindGroup,
     workgroups: [u32; 3],
@@ -337,17 +347,52 @@ impl Plan {
         GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols }
     }
 
+    /// Records `ops` into one compute pass and submits it, with GPU timestamps when the Gpu's
+    /// [`TimestampMode`] asks for them: at the pass's start and end, or also between every two ops.
     fn record(&self, gpu: &Gpu, ops: &[PlannedOp]) {
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let mut timestamps = gpu.timestamps.lock().expect("timestamps poisoned");
+        let mode = timestamps.mode;
+        let queries = match mode {
+            TimestampMode::Off => 0,
+            TimestampMode::Plan => 2,
+            TimestampMode::Ops => ops.len() as u32 + 1,
+        };
+        timestamps.reserve(&gpu.device, queries);
         {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            for op in ops {
+            let pass_writes = (mode == TimestampMode::Plan).then(|| {
+                let (query_set, _) = timestamps.slot(0);
+                wgpu::ComputePassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: Some(0),
+                    end_of_pass_write_index: Some(1),
+                }
+            });
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: pass_writes });
+            for (i, op) in ops.iter().enumerate() {
+                if mode == TimestampMode::Ops {
+                    let (set, index) = timestamps.slot(i as u32);
+                    pass.write_timestamp(set, index);
+                }
                 pass.set_pipeline(&op.pipeline);
                 pass.set_bind_group(0, &op.bind_group, &[]);
                 let [x, y, z] = op.workgroups;
                 pass.dispatch_workgroups(x, y, z);
             }
+            if mode == TimestampMode::Ops {
+                let (set, index) = timestamps.slot(ops.len() as u32);
+                pass.write_timestamp(set, index);
+            }
         }
+        if mode != TimestampMode::Off {
+            let names = match mode {
+                TimestampMode::Ops => ops.iter().map(|o| (o.label.clone(), format!("{}.{}", o.shader, o.entry))).collect(),
+                _ => Vec::new(),
+            };
+            timestamps.resolve(&mut encoder, queries, names);
+        }
+        drop(timestamps);
         gpu.queue.submit([encoder.finish()]);
         gpu.counters.submits.fetch_add(1, Ordering::Relaxed);
         gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
