@@ -66,7 +66,7 @@ impl Case {
         let ld = padded_cols(inner);
         let out_rows = self.out_row + self.nq + 1;
         let padded_out = gpu.upload("out", out_rows, ld, &vec![GARBAGE; out_rows * ld]).unwrap();
-        let out_tensor = GpuTensor { buffer: padded_out.buffer.clone(), rows: out_rows, cols: inner };
+        let out_tensor = GpuTensor { rows: out_rows, cols: inner, ..padded_out.clone() };
 
         let mut plan = PlanBuilder::new();
         let ids: Vec<_> = self

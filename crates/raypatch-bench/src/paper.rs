@@ -51,8 +51,10 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
         rows.push(Comparison {
             what: format!("{} {}x{}: work per frame", name(k), size.0, size.1),
             paper: format!("{gflops} \"Giga FLOPs\""),
+            // The paper's counts match multiply-accumulates (one MAC as one "FLOP"), as fvcore-style counters give.
             ours: ours.map_or("not measured".into(), |r| {
-                format!("{:.1} GMAC render + {:.1} GMAC encode", r.render_gflop / 2.0, r.encode_gflop / 2.0)
+                let (render, encode) = (r.render_gflop / 2.0, r.encode_gflop / 2.0);
+                format!("{:.1} GMAC (render {render:.1} + encode {encode:.1})", render + encode)
             }),
         });
         if k > 1 {

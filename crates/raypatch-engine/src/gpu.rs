@@ -6,13 +6,34 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use crate::error::{EngineError, Result};
-use crate::tensor::{padded_cols, GpuTensor};
+use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
 /// One WGSL file: a kernel family. Its entry points are the kernels.
 #[derive(Debug)]
 pub struct Shader {
     pub name: &'static str,
     pub source: &'static str,
+    /// A variant of the same source (e.g. f16 weights): a prefix (WGSL `enable` directives) and text
+    /// replacements applied when compiling, each of which must occur in `source` exactly once.
+    pub prefix: &'static str,
+    pub replace: &'static [(&'static str, &'static str)],
+    /// Features the variant needs.
+    pub features: wgpu::Features,
+}
+
+impl Shader {
+    /// The WGSL this shader compiles: `source` with the variant's prefix and replacements.
+    pub fn wgsl(&self) -> std::borrow::Cow<'static, str> {
+        if self.prefix.is_empty() && self.replace.is_empty() {
+            return self.source.into();
+        }
+        let mut text = format!("{}{}", self.prefix, self.source);
+        for (from, to) in self.replace {
+            assert_eq!(text.matches(from).count(), 1, "shader {}: `{from}` must occur exactly once", self.name);
+            text = text.replace(from, to);
+        }
+        text.into()
+    }
 }
 
 /// Which adapter to run on.
@@ -61,9 +82,11 @@ pub struct Gpu {
     pub(crate) timestamps: Mutex<Timestamps>,
 }
 
-/// Features the engine uses when the adapter has them: GPU timestamps around plans and between their ops.
-pub const OPTIONAL_FEATURES: wgpu::Features =
-    wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES);
+/// Features the engine uses when the adapter has them: GPU timestamps around plans and between their ops,
+/// and f16 in shaders (weights stored as f16).
+pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
+    .union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES)
+    .union(wgpu::Features::SHADER_F16);
 
 /// Whether executed plans are timed on the GPU (see [`Gpu::set_timestamps`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -221,7 +244,7 @@ impl Gpu {
         let needs = match mode {
             TimestampMode::Off => wgpu::Features::empty(),
             TimestampMode::Plan => wgpu::Features::TIMESTAMP_QUERY,
-            TimestampMode::Ops => OPTIONAL_FEATURES,
+            TimestampMode::Ops => wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES,
         };
         if !self.features.contains(needs) {
             return Err(EngineError::Device(format!("{} has no {needs:?}", self.info.name)));
@@ -277,7 +300,7 @@ impl Gpu {
                 self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
                 let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some(shader.name),
-                    source: wgpu::ShaderSource::Wgsl(shader.source.into()),
+                    source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
                 });
                 Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(entry),
@@ -323,7 +346,35 @@ impl Gpu {
             let padded = pad_rows(data, rows, cols);
             self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&padded));
         }
-        Ok(GpuTensor { buffer: Arc::new(buffer), rows, cols })
+        Ok(GpuTensor { buffer: Arc::new(buffer), rows, cols, dtype: Dtype::F32 })
+    }
+
+    /// Uploads a row-major `[rows, cols]` matrix as f16 (round to nearest even), rows padded to a multiple
+    /// of 8 halves. The caller checks that every value is within f16 range (|x| ≤ 65504): out-of-range
+    /// values are an error here, never silently infinity.
+    pub fn upload_f16(&self, label: &str, rows: usize, cols: usize, data: &[f32]) -> Result<GpuTensor> {
+        assert_eq!(data.len(), rows * cols, "upload of {label}: data length does not match {rows}x{cols}");
+        let ld = Dtype::F16.ld(cols);
+        let mut halves = vec![half::f16::ZERO; rows * ld];
+        for (r, row) in data.chunks_exact(cols.max(1)).enumerate() {
+            for (c, &v) in row.iter().enumerate() {
+                let h = half::f16::from_f32(v);
+                if !h.is_finite() {
+                    return Err(EngineError::Request(format!(
+                        "{label}: element [{r}, {c}] = {v} is outside the f16 range (|x| <= 65504)"
+                    )));
+                }
+                halves[r * ld + c] = h;
+            }
+        }
+        let bytes = (rows * ld * 2) as u64;
+        self.check_binding_size(label, bytes)?;
+        let buffer = self.create_buffer(label, bytes, storage_usage());
+        if rows > 0 {
+            let words: Vec<u16> = halves.iter().map(|h| h.to_bits()).collect();
+            self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&words));
+        }
+        Ok(GpuTensor { buffer: Arc::new(buffer), rows, cols, dtype: Dtype::F16 })
     }
 
     /// Writes a row-major `[rows, cols]` matrix into an existing tensor of that shape.
