@@ -5,6 +5,8 @@
 //! - `reference`: the float64 CPU reference of the whole model (`reference::model`) against float64 PyTorch
 //!   runs of the official model, and the engine against it, on every golden case;
 //! - `cameras`: cameras up to 1e3 away, looking from near the poles of the look-at frame, rays along the axes;
+//! - `f16`: f16 weight storage against the float64 reference; weights beyond f16's range keep their layer in
+//!   f32 (reported), never infinity;
 //! - `long_runs`: 1,000 renders of one scene give the same bytes and allocate nothing after the first.
 //!
 //! Kernel level, in the kernels test binary (`cargo test --release --test kernels`), next to the kernels'
@@ -24,6 +26,7 @@
 mod common;
 
 mod cameras;
+mod f16;
 mod long_runs;
 mod reference;
 

@@ -64,9 +64,14 @@ pub fn small_config(k: usize, width: usize) -> Value {
 /// U(0.5, 1.5), BatchNorm statistics N(0, 0.2²) and U(0.5, 2). The model goes through the same safetensors
 /// parsing and checks as a file. Returns the model and its file bytes (for tools that need a file).
 pub fn random_model(config: &Value, seed: u64, name: &str) -> Result<(LoadedModel, Vec<u8>), ModelError> {
+    model_from_tensors(config, &random_tensors(config, seed, name)?, name)
+}
+
+/// The tensors of [`random_model`]: (official name, shape, data).
+pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tensor>, ModelError> {
     let resolved = ModelConfig::from_value(name, config.clone())?;
     let mut rng = Rng::new(seed);
-    let tensors: Vec<(String, Vec<usize>, Vec<f32>)> = resolved
+    Ok(resolved
         .expected_tensors()
         .into_iter()
         .map(|(key, shape)| {
@@ -87,19 +92,24 @@ pub fn random_model(config: &Value, seed: u64, name: &str) -> Result<(LoadedMode
             };
             (key, shape, data)
         })
-        .collect();
+        .collect())
+}
+
+/// A model from its config and tensors, through a safetensors file in memory (returned too).
+pub fn model_from_tensors(config: &Value, tensors: &[Tensor], name: &str) -> Result<(LoadedModel, Vec<u8>), ModelError> {
     let metadata = [
         ("format".to_string(), MODEL_FORMAT.to_string()),
         ("config".to_string(), config.to_string()),
-        ("source".to_string(), format!("random weights (seed {seed}) from raypatch-bench")),
+        ("source".to_string(), format!("{name}, made in memory by raypatch-bench")),
     ];
-    let bytes = serialize(&tensors, metadata.into_iter().collect()).map_err(|reason| ModelError::Format {
-        path: name.to_string(),
-        reason,
-    })?;
+    let bytes = serialize(tensors, metadata.into_iter().collect())
+        .map_err(|reason| ModelError::Format { path: name.to_string(), reason })?;
     let model = raypatch_model::weights::model_from_file(TensorFile::parse(name, &bytes)?)?;
     Ok((model, bytes))
 }
+
+/// A named f32 tensor: (name, shape, row-major data).
+pub type Tensor = (String, Vec<usize>, Vec<f32>);
 
 /// Attention projections keep the logits O(1); output layers (no calibration here, unlike make_golden.py)
 /// keep the pre-sigmoid outputs O(1), so that few pixels saturate. Everything else feeds a (Leaky)ReLU.
@@ -115,7 +125,7 @@ fn unit_gain(key: &str) -> bool {
 
 /// A safetensors file of f32 tensors (name, shape, data) with metadata.
 pub fn serialize(
-    tensors: &[(String, Vec<usize>, Vec<f32>)],
+    tensors: &[Tensor],
     metadata: std::collections::HashMap<String, String>,
 ) -> Result<Vec<u8>, String> {
     let bytes: Vec<(&str, Vec<usize>, &[u8])> =
