@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
+use raypatch_engine::weights::{LoadOptions, WeightStorage};
 use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, Model, Outputs};
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
 use serde::Serialize;
@@ -39,6 +40,9 @@ pub struct Options {
     /// The command line, for the record.
     pub command: String,
 }
+
+/// A target size, (height, width).
+type Size = (usize, usize);
 
 /// The MSN-Easy setting of the paper: one 120×160 input view; target sizes of its Figure 2.
 const INPUT_SIZE: (usize, usize) = (120, 160);
@@ -76,6 +80,9 @@ struct Results<'a> {
     paper_comparison: &'a [paper::Comparison],
 }
 
+/// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
+type References = (ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene);
+
 /// One model under test with its encoded scene (engine and references).
 struct Subject<'a> {
     name: String,
@@ -84,10 +91,11 @@ struct Subject<'a> {
     /// The model as a file, for PyTorch.
     file: Option<&'a [u8]>,
     model: &'a Model,
+    storage: WeightStorage,
     inputs: &'a InputViews,
     encode: (Stats, Option<Stats>),
     encoded: EncodedScene<'a>,
-    references: Option<(ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene)>,
+    references: Option<&'a References>,
 }
 
 pub fn run(options: &Options) -> Result<()> {
@@ -167,6 +175,13 @@ fn size_text((h, w): (usize, usize)) -> String {
     format!("{h}x{w}")
 }
 
+fn precision_name(storage: WeightStorage) -> &'static str {
+    match storage {
+        WeightStorage::F32 => "f32",
+        WeightStorage::F16 => "f16",
+    }
+}
+
 fn decoder_name(k: usize) -> String {
     if k == 1 { "SRT" } else { "RP-SRT" }.to_string()
 }
@@ -195,7 +210,7 @@ impl Bench {
     }
 
     /// Both float64 references of a model and their encodings, when affordable.
-    fn references(&self, loaded: &LoadedModel, inputs: &InputViews) -> Result<Option<(ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene)>> {
+    fn references(&self, loaded: &LoadedModel, inputs: &InputViews) -> Result<Option<References>> {
         let macs = flops::encode_macs(&loaded.config, inputs.count, inputs.height, inputs.width);
         if macs > self.reference_macs {
             return Ok(None);
@@ -206,6 +221,7 @@ impl Bench {
         Ok(Some((f32_args, a, f64_args, b)))
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn subject<'a>(
         &self,
         name: String,
@@ -213,11 +229,12 @@ impl Bench {
         loaded: &'a LoadedModel,
         file: Option<&'a [u8]>,
         model: &'a Model,
+        storage: WeightStorage,
         inputs: &'a InputViews,
+        references: Option<&'a References>,
     ) -> Result<Subject<'a>> {
         let (encode, encoded) = self.encode(model, inputs)?;
-        let references = self.references(loaded, inputs)?;
-        Ok(Subject { name, group, loaded, file, model, inputs, encode, encoded, references })
+        Ok(Subject { name, group, loaded, file, model, storage, inputs, encode, encoded, references })
     }
 
     /// The fields of a record that do not need a measurement: the configuration, its FLOPs, the memory a
@@ -232,7 +249,7 @@ impl Bench {
             model: s.name.clone(),
             decoder: decoder_name(k),
             k,
-            precision: "f32".into(),
+            precision: precision_name(s.storage).into(),
             variant: variant.to_string(),
             parameters: s.loaded.parameter_count(),
             weight_bytes: s.model.weight_bytes(),
@@ -274,7 +291,7 @@ impl Bench {
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
         let rgb = self.time_render(s, targets, Outputs::default(), &mut record)?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
-        match &s.references {
+        match s.references {
             Some((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
                 let want = f32_args.render(f32_scene, targets)?;
                 record.max_err_f64_reference = Some(measure::max_abs_error(&rgb, &want.rgb));
@@ -332,7 +349,9 @@ impl Bench {
             let scene = raypatch_model::load_scene(case.join("scene.safetensors"))?;
             let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?.f32("rgb")?.data;
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
-            let subject = self.subject(name, "golden", &loaded, None, &model, &scene.inputs)?;
+            let references = self.references(&loaded, &scene.inputs)?;
+            let subject =
+                self.subject(name, "golden", &loaded, None, &model, WeightStorage::F32, &scene.inputs, references.as_ref())?;
             records.push(self.measure(&subject, &scene.targets, Some(&truth), false)?);
             if loaded.config.image_channels() == 4 {
                 records.extend(self.logdepth_skip(&subject, &scene.targets)?);
@@ -357,48 +376,82 @@ impl Bench {
 
     /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes.
     fn sweep(&self, records: &mut Vec<Record>, kernels: &mut Vec<KernelTime>) -> Result<()> {
-        let (small_sizes, official): (&[(usize, usize)], Vec<(usize, &[(usize, usize)])>) = if self.quick {
+        let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
             (&QUICK_SIZES, vec![(8, &[(120, 160)])])
         } else {
             (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
         };
-        let mut specs: Vec<(&str, usize, serde_json::Value, &[(usize, usize)])> =
+        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> =
             PATCH_SIZES.iter().map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
         for (k, sizes) in official {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
             specs.push(("official", k, config, sizes));
         }
         println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
+        let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
         for (name, k, config, sizes) in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
-            let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let (inputs, _) = scene(INPUT_SIZE)?;
-            let subject = self.subject(name.to_string(), "sweep", &loaded, Some(&file), &model, &inputs)?;
-            let mut rate: Option<f64> = None;
-            for &size in sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0) {
-                let (_, targets) = scene(size)?;
-                let macs = flops::render_macs(&loaded.config, 1, size.0, size.1, flops::tokens(&loaded.config, 1, INPUT_SIZE.0, INPUT_SIZE.1));
-                if let Some(rate) = rate {
-                    let predicted = macs as f64 / rate;
-                    if predicted > self.max_render.as_secs_f64() {
-                        println!("  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render", decoder_name(k), size_text(size));
-                        records.push(self.skipped(&subject, size, predicted));
-                        continue;
-                    }
-                }
-                let with_torch = self.torch_config(name, k, size);
-                let record = self.measure(&subject, &targets, None, with_torch)?;
-                rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
-                records.push(record);
-                if self.breakdown_config(name, k, size) {
-                    kernels.extend(self.kernel_breakdown(&subject, &targets)?);
-                }
-                if name == "small" && k == 4 && size == (120, 160) {
-                    records.extend(self.plan_and_encode_skips(&subject, &targets)?);
-                }
+            let references = self.references(&loaded, &inputs)?;
+            let mut storages = vec![WeightStorage::F32];
+            if f16 && (name == "small" || !self.quick) {
+                storages.push(WeightStorage::F16);
+            }
+            let mut sizes: Vec<(usize, usize)> = sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
+            for storage in storages {
+                let model = Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
+                let subject =
+                    self.subject(name.to_string(), "sweep", &loaded, Some(&file), &model, storage, &inputs, references.as_ref())?;
+                let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
+                // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
+                let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
+                sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
             }
         }
         Ok(())
+    }
+
+    /// One subject over target sizes (ascending): sizes predicted to render slower than the limit are skipped.
+    /// Returns the sizes rendered.
+    fn sweep_sizes(
+        &self,
+        s: &Subject,
+        sizes: &[(usize, usize)],
+        records: &mut Vec<Record>,
+        kernels: &mut Vec<KernelTime>,
+    ) -> Result<Vec<(usize, usize)>> {
+        let mut measured = Vec::new();
+        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
+        let mut rate: Option<f64> = None;
+        for &size in sizes {
+            let (_, targets) = scene(size)?;
+            let tokens = flops::tokens(&s.loaded.config, 1, INPUT_SIZE.0, INPUT_SIZE.1);
+            let macs = flops::render_macs(&s.loaded.config, 1, size.0, size.1, tokens);
+            if let Some(rate) = rate {
+                let predicted = macs as f64 / rate;
+                if predicted > self.max_render.as_secs_f64() {
+                    println!("  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render", decoder_name(k), size_text(size));
+                    records.push(self.skipped(s, &targets, predicted)?);
+                    continue;
+                }
+            }
+            let with_torch = f32_weights && self.torch_config(name, k, size);
+            let mut record = self.measure(s, &targets, None, with_torch)?;
+            if !s.model.weights_kept_f32().is_empty() {
+                let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
+                record.note = format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
+            }
+            rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
+            records.push(record);
+            measured.push(size);
+            if f32_weights && self.breakdown_config(name, k, size) {
+                kernels.extend(self.kernel_breakdown(s, &targets)?);
+            }
+            if f32_weights && name == "small" && k == 4 && size == (120, 160) {
+                records.extend(self.plan_and_encode_skips(s, &targets)?);
+            }
+        }
+        Ok(measured)
     }
 
     fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
@@ -413,10 +466,13 @@ impl Bench {
         size == (120, 160) && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
     }
 
-    fn skipped(&self, s: &Subject, size: (usize, usize), predicted: f64) -> Record {
-        let mut record = self.record(s, 1, size, "");
+    /// A size not rendered: its FLOPs and planned memory (the plan is built, not run) with the prediction.
+    fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64) -> Result<Record> {
+        let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
+        let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
+        record.render_peak_bytes = Some(s.encoded.render_peak_bytes(targets, Outputs::default())?);
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
-        record
+        Ok(record)
     }
 
     /// The skips of the plan cache and of the per-scene encoding, on and off (wall clock, host to host).
@@ -458,7 +514,7 @@ impl Bench {
         Ok(vec![
             row("plan cached, scene encoded once", cached),
             row("plan rebuilt per render", rebuilt),
-            row("(plan build alone)", build),
+            Record { fps: None, ..row("(plan build alone)", build) },
             row("scene encoded per render", encode_each),
         ])
     }
@@ -477,7 +533,7 @@ impl Bench {
         let Some(times) = times? else { bail!("no timestamps came back") };
         let k = s.loaded.config.patch_size();
         let grid = targets.grid(k, "target views")?;
-        let config = format!("{} {} k={k} {}x{} f32", s.name, decoder_name(k), grid.height, grid.width);
+        let config = format!("{} {} k={k} {}x{} {}", s.name, decoder_name(k), grid.height, grid.width, precision_name(s.storage));
         Ok(crate::kernels::fold(&config, &times))
     }
 
@@ -494,7 +550,10 @@ impl Bench {
             };
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-            let subject = self.subject(path.display().to_string(), "model", &loaded, Some(&file), &model, &inputs)?;
+            let references = self.references(&loaded, &inputs)?;
+            let name = path.display().to_string();
+            let subject =
+                self.subject(name, "model", &loaded, Some(&file), &model, WeightStorage::F32, &inputs, references.as_ref())?;
             records.push(self.measure(&subject, &targets, None, true)?);
         }
         Ok(())
@@ -511,10 +570,11 @@ fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
 
 fn print_row(r: &Record) {
     println!(
-        "  {:<12} {:<7} k={:<2} {:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
+        "  {:<12} {:<7} k={:<2} {} {:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
         r.model,
         r.decoder,
         r.k,
+        r.precision,
         r.target_size,
         r.variant,
         r.render_ms.map_or(0.0, |s| s.median_ms),
