@@ -54,14 +54,22 @@ fn gaussian_window() -> [f64; SSIM_WINDOW] {
     w.map(|v| v / total)
 }
 
-/// Structural similarity: the standard SSIM map with an 11×11 Gaussian window (σ = 1.5) over every position
-/// where the window fits inside the image, averaged over positions and channels. Both images need at least
-/// 11×11 pixels.
+/// Index `i` (from `-pad` to `n - 1 + pad`) mirrored into `0..n` without repeating the edge, like
+/// PyTorch's `reflect` padding.
+fn reflect(i: isize, n: usize) -> usize {
+    let last = n as isize - 1;
+    (if i < 0 { -i } else if i > last { 2 * last - i } else { i }) as usize
+}
+
+/// Structural similarity as torchmetrics (1.x) computes it: the SSIM map with an 11×11 Gaussian window
+/// (σ = 1.5) at every pixel, the image extended by reflection (without repeating the edge) where the window
+/// leaves it, variances clamped at 0; averaged over pixels and channels. Both images need at least 6×6
+/// pixels (the reflection needs more pixels than the window's radius).
 ///
 /// ```
 /// use raypatch::{metrics::ssim, Image};
-/// let a = Image::new(11, 11, vec![0.2; 11 * 11 * 3])?;
-/// let b = Image::new(11, 11, vec![0.4; 11 * 11 * 3])?;
+/// let a = Image::new(8, 6, vec![0.2; 8 * 6 * 3])?;
+/// let b = Image::new(8, 6, vec![0.4; 8 * 6 * 3])?;
 /// assert!((ssim(&a, &a)? - 1.0).abs() < 1e-12);
 /// // Constant images: only the luminance term is left, (2·μa·μb + C1) / (μa² + μb² + C1).
 /// let expected = (2.0 * 0.2 * 0.4 + 1e-4) / (0.04 + 0.16 + 1e-4);
@@ -71,23 +79,27 @@ fn gaussian_window() -> [f64; SSIM_WINDOW] {
 pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
     same_size(a, b)?;
     let (width, height) = (a.width(), a.height());
-    if width < SSIM_WINDOW || height < SSIM_WINDOW {
-        return Err(Error::Metrics(format!("SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {width}x{height}")));
+    let radius = SSIM_WINDOW / 2;
+    if width <= radius || height <= radius {
+        return Err(Error::Metrics(format!(
+            "SSIM needs images of at least {0}x{0} pixels, got {width}x{height}",
+            radius + 1
+        )));
     }
     let window = gaussian_window();
-    let (ow, oh) = (width - SSIM_WINDOW + 1, height - SSIM_WINDOW + 1);
-    // Gaussian-weighted local means of x, y, x², y², xy: rows first, then columns ("valid" positions only).
+    let tap = |centre: usize, k: usize, n: usize| reflect(centre as isize + k as isize - radius as isize, n);
+    // Gaussian-weighted local means of a value per pixel: along rows, then along columns.
     let blur = |values: &dyn Fn(usize) -> f64| -> Vec<f64> {
-        let mut rows = vec![0.0; height * ow];
+        let mut rows = vec![0.0; height * width];
         for y in 0..height {
-            for x in 0..ow {
-                rows[y * ow + x] = (0..SSIM_WINDOW).map(|k| window[k] * values(y * width + x + k)).sum();
+            for x in 0..width {
+                rows[y * width + x] = (0..SSIM_WINDOW).map(|k| window[k] * values(y * width + tap(x, k, width))).sum();
             }
         }
-        let mut out = vec![0.0; oh * ow];
-        for y in 0..oh {
-            for x in 0..ow {
-                out[y * ow + x] = (0..SSIM_WINDOW).map(|k| window[k] * rows[(y + k) * ow + x]).sum();
+        let mut out = vec![0.0; height * width];
+        for y in 0..height {
+            for x in 0..width {
+                out[y * width + x] = (0..SSIM_WINDOW).map(|k| window[k] * rows[tap(y, k, height) * width + x]).sum();
             }
         }
         out
@@ -98,12 +110,14 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
         let y = |i: usize| b.data()[i * 3 + c] as f64;
         let (mx, my) = (blur(&x), blur(&y));
         let (mxx, myy, mxy) = (blur(&|i| x(i) * x(i)), blur(&|i| y(i) * y(i)), blur(&|i| x(i) * y(i)));
-        for p in 0..oh * ow {
-            let (vx, vy, cov) = (mxx[p] - mx[p] * mx[p], myy[p] - my[p] * my[p], mxy[p] - mx[p] * my[p]);
+        for p in 0..width * height {
+            let vx = (mxx[p] - mx[p] * mx[p]).max(0.0);
+            let vy = (myy[p] - my[p] * my[p]).max(0.0);
+            let cov = mxy[p] - mx[p] * my[p];
             let luminance = (2.0 * mx[p] * my[p] + SSIM_C1) / (mx[p] * mx[p] + my[p] * my[p] + SSIM_C1);
             let structure = (2.0 * cov + SSIM_C2) / (vx + vy + SSIM_C2);
             total += luminance * structure;
         }
     }
-    Ok(total / (3 * oh * ow) as f64)
+    Ok(total / (3 * width * height) as f64)
 }
