@@ -21,7 +21,7 @@ pub enum Error {
     Model(#[from] raypatch_model::ModelError),
     /// The GPU side: no adapter, a device error, a request the model cannot serve.
     #[error(transparent)]
-    Engine(#[from] raypatch_engine::EngineError),
+    Engine(raypatch_engine::EngineError),
     /// A file that could not be read or written.
     #[error("{path}: {action}: {source}")]
     Io { path: String, action: &'static str, source: std::io::Error },
@@ -44,6 +44,16 @@ pub enum Error {
 
 /// `Result` with [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// File errors the engine passes through stay [`Error::Model`].
+impl From<raypatch_engine::EngineError> for Error {
+    fn from(e: raypatch_engine::EngineError) -> Error {
+        match e {
+            raypatch_engine::EngineError::Model(m) => Error::Model(m),
+            other => Error::Engine(other),
+        }
+    }
+}
 
 impl Error {
     pub(crate) fn io(path: &std::path::Path, action: &'static str, source: std::io::Error) -> Error {
