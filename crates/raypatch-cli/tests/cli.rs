@@ -260,30 +260,34 @@ fn malformed_safetensors_files() {
     let model = golden("rpsrt_k4", "model.safetensors");
     let bytes = std::fs::read(&model).unwrap();
     std::fs::write(d.join("truncated.safetensors"), &bytes[..bytes.len() - 100]).unwrap();
-    fails(d, &["--model", "truncated.safetensors"], &["truncated.safetensors", "not a valid safetensors file"]);
+    fails(d, &["--model", "truncated.safetensors"], &["truncated.safetensors", "not a valid safetensors file", "truncated file?"]);
     std::fs::write(d.join("short.safetensors"), &bytes[..5]).unwrap();
-    fails(d, &["--model", "short.safetensors"], &["short.safetensors", "header too small"]);
+    fails(d, &["--model", "short.safetensors"], &["short.safetensors", "too short for the 8-byte header length"]);
     let mut huge = bytes.clone();
     huge[..8].copy_from_slice(&(u64::MAX / 2).to_le_bytes());
     std::fs::write(d.join("huge-header.safetensors"), huge).unwrap();
-    fails(d, &["--model", "huge-header.safetensors"], &["huge-header.safetensors", "header"]);
+    fails(d, &["--model", "huge-header.safetensors"], &["huge-header.safetensors", "header length", "is more than"]);
     let mut past_end = bytes.clone();
     past_end[..8].copy_from_slice(&(bytes.len() as u64).to_le_bytes());
     std::fs::write(d.join("past-end.safetensors"), past_end).unwrap();
-    fails(d, &["--model", "past-end.safetensors"], &["past-end.safetensors", "invalid header length"]);
+    fails(d, &["--model", "past-end.safetensors"], &["past-end.safetensors", "header length", "is more than"]);
 
     let data = [0u8; 32];
     let outside = raw_file(d, "outside.safetensors", r#"{"a":{"dtype":"F32","shape":[8],"data_offsets":[0,64]}}"#, &data);
-    fails(d, &["--scene", &outside], &["outside.safetensors", "not a valid safetensors file"]);
+    fails(d, &["--scene", &outside], &["outside.safetensors", "`a` has data_offsets [0, 64] outside the 32-byte data section"]);
     let overlap = raw_file(
         d,
         "overlap.safetensors",
         r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]},"b":{"dtype":"F32","shape":[4],"data_offsets":[8,24]}}"#,
         &data,
     );
-    fails(d, &["--scene", &overlap], &["overlap.safetensors", "invalid offset for tensor `b`"]);
+    fails(d, &["--scene", &overlap], &["overlap.safetensors", "tensors `a` [0, 16] and `b` [8, 24] overlap"]);
     let dtype = raw_file(d, "dtype.safetensors", r#"{"a":{"dtype":"F33","shape":[8],"data_offsets":[0,32]}}"#, &data);
-    fails(d, &["--scene", &dtype], &["dtype.safetensors", "unknown variant `F33`"]);
+    fails(d, &["--scene", &dtype], &["dtype.safetensors", "tensor `a` has unknown dtype \"F33\""]);
+    let misfit = raw_file(d, "misfit.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,32]}}"#, &data);
+    fails(d, &["--scene", &misfit], &["misfit.safetensors", "shape [4] of F32 does not fill data_offsets [0, 32]"]);
+    let trailing = raw_file(d, "trailing.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#, &data);
+    fails(d, &["--scene", &trailing], &["trailing.safetensors", "trailing bytes"]);
     let json = raw_file(d, "json.safetensors", r#"{"a":"#, &data);
     fails(d, &["--scene", &json], &["json.safetensors", "invalid JSON"]);
 }
