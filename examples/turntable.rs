@@ -35,7 +35,12 @@ fn run() -> raypatch::Result<()> {
     let data = SceneData::load(&scene_path)?;
     let start = Instant::now();
     let scene = model.encode(&data.inputs)?;
-    println!("encoded {} input view(s) in {:.1} ms on {}", data.inputs.len(), start.elapsed().as_secs_f64() * 1e3, engine.adapter());
+    println!(
+        "encoded {} input view(s) in {:.1} ms on {}",
+        data.inputs.len(),
+        start.elapsed().as_secs_f64() * 1e3,
+        engine.adapter()
+    );
 
     std::fs::create_dir_all(&out_dir).map_err(|e| raypatch::Error::Io {
         path: out_dir.display().to_string(),

@@ -142,7 +142,8 @@ impl Camera {
         let error = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |e, v| e.max(v.abs()));
         if error > ROTATION_TOLERANCE || (r.determinant() - 1.0).abs() > ROTATION_TOLERANCE {
             return Err(Error::Camera(format!(
-                "pose rotation is not orthonormal and right-handed (max |RᵀR − I| = {error:.2e}, det = {:.6}, tolerance {ROTATION_TOLERANCE:e})",
+                "pose rotation is not orthonormal and right-handed \
+                 (max |RᵀR − I| = {error:.2e}, det = {:.6}, tolerance {ROTATION_TOLERANCE:e})",
                 r.determinant()
             )));
         }
@@ -163,7 +164,8 @@ impl Camera {
     pub fn look_at(eye: DVec3, target: DVec3, up: DVec3, intrinsics: Intrinsics) -> Result<Camera> {
         intrinsics.check()?;
         let (eye, target, up) = (finite_vec(eye, "eye")?, finite_vec(target, "target")?, finite_vec(up, "up")?);
-        let forward = (target - eye).try_normalize().ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;
+        let forward =
+            (target - eye).try_normalize().ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;
         let right = forward
             .cross(up)
             .try_normalize()
@@ -205,7 +207,10 @@ impl Camera {
             )));
         }
         if let Some(i) = grid.directions.iter().position(|d| !d.is_finite() || d.length() < 1e-6) {
-            return Err(Error::Camera(format!("ray {i} is {}: expected a finite, non-zero direction", grid.directions[i])));
+            return Err(Error::Camera(format!(
+                "ray {i} is {}: expected a finite, non-zero direction",
+                grid.directions[i]
+            )));
         }
         let (width, height) = (grid.width * k, grid.height * k);
         Ok(Camera { position, width, height, projection: Projection::Rays { grid, per_ray: k } })
@@ -230,14 +235,15 @@ impl Camera {
     /// given by rays.
     pub fn as_pinhole(&self) -> Option<(Intrinsics, DMat4)> {
         match &self.projection {
-            Projection::Pinhole { intrinsics, rotation } => {
-                Some((*intrinsics, DMat4::from_cols(
+            Projection::Pinhole { intrinsics, rotation } => Some((
+                *intrinsics,
+                DMat4::from_cols(
                     rotation.x_axis.extend(0.0),
                     rotation.y_axis.extend(0.0),
                     rotation.z_axis.extend(0.0),
                     self.position.extend(1.0),
-                )))
-            }
+                ),
+            )),
             Projection::Rays { .. } => None,
         }
     }

@@ -87,13 +87,18 @@ impl SceneData {
             return Err(Error::Model(raypatch_model::ModelError::Value {
                 path: file.path.clone(),
                 key: "target_rays".into(),
-                reason: format!("ray grid {gh}x{gw} is neither the target size {th}x{tw} nor that size divided by a patch size"),
+                reason: format!(
+                    "ray grid {gh}x{gw} is neither the target size {th}x{tw} nor that size divided by a patch size"
+                ),
             }));
         };
         let targets = (0..t.count)
             .map(|i| {
                 let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)?;
-                let image = t.images.as_ref().map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
+                let image = t
+                    .images
+                    .as_ref()
+                    .map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
                 Ok(TargetView { camera, image: image.transpose()? })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -118,7 +123,10 @@ impl SceneData {
         }
         let mut inputs: Vec<InputView> = Vec::with_capacity(frames.len());
         for (i, frame) in frames.iter().enumerate() {
-            let name = frame.get("file_path").and_then(Value::as_str).ok_or_else(|| err(format!("frame {i}: no `file_path`")))?;
+            let name = frame
+                .get("file_path")
+                .and_then(Value::as_str)
+                .ok_or_else(|| err(format!("frame {i}: no `file_path`")))?;
             let image = Image::load_png(frame_image_path(dir, name))?;
             if let Some(first) = inputs.first() {
                 let (w, h) = (first.image.width(), first.image.height());
@@ -134,7 +142,8 @@ impl SceneData {
                 .map_err(|reason| err(format!("frame {i} ({name}): {reason}")))?;
             inputs.push(InputView { image, camera });
         }
-        let targets = inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
+        let targets =
+            inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
         Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets })
     }
 }

@@ -28,11 +28,18 @@ impl Image {
         if data.len() != width * height * 3 {
             return Err(Error::Image {
                 path: "image".into(),
-                reason: format!("{} values for {width}x{height} RGB pixels (expected {})", data.len(), width * height * 3),
+                reason: format!(
+                    "{} values for {width}x{height} RGB pixels (expected {})",
+                    data.len(),
+                    width * height * 3
+                ),
             });
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Image { path: "image".into(), reason: format!("value {i} is {} (NaN or infinity)", data[i]) });
+            return Err(Error::Image {
+                path: "image".into(),
+                reason: format!("value {i} is {} (NaN or infinity)", data[i]),
+            });
         }
         Ok(Image { width, height, data })
     }
@@ -42,8 +49,9 @@ impl Image {
     pub fn load_png(path: impl AsRef<Path>) -> Result<Image> {
         let path = path.as_ref();
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, "cannot read", e))?;
-        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
-            .map_err(|e| Error::Image { path: path.display().to_string(), reason: format!("not a readable PNG: {e}") })?;
+        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
+            Error::Image { path: path.display().to_string(), reason: format!("not a readable PNG: {e}") }
+        })?;
         let rgba = decoded.into_rgba32f();
         let (width, height) = (rgba.width() as usize, rgba.height() as usize);
         let data = rgba.pixels().flat_map(|p| {
@@ -59,8 +67,10 @@ impl Image {
         let rgb = image::RgbImage::from_raw(self.width as u32, self.height as u32, self.to_rgb8())
             .expect("an Image always holds width * height * 3 values");
         let mut png = Vec::new();
-        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| Error::Image { path: path.display().to_string(), reason: format!("cannot encode PNG: {e}") })?;
+        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| Error::Image {
+            path: path.display().to_string(),
+            reason: format!("cannot encode PNG: {e}"),
+        })?;
         write_atomic(path, &png)
     }
 
@@ -102,7 +112,10 @@ impl Image {
         if x + width > self.width || y + height > self.height {
             return Err(Error::Image {
                 path: "image".into(),
-                reason: format!("region {x},{y},{width},{height} is not inside the {}x{} image", self.width, self.height),
+                reason: format!(
+                    "region {x},{y},{width},{height} is not inside the {}x{} image",
+                    self.width, self.height
+                ),
             });
         }
         let mut data = Vec::with_capacity(width * height * 3);

@@ -58,7 +58,13 @@ fn gaussian_window() -> [f64; SSIM_WINDOW] {
 /// PyTorch's `reflect` padding.
 fn reflect(i: isize, n: usize) -> usize {
     let last = n as isize - 1;
-    (if i < 0 { -i } else if i > last { 2 * last - i } else { i }) as usize
+    (if i < 0 {
+        -i
+    } else if i > last {
+        2 * last - i
+    } else {
+        i
+    }) as usize
 }
 
 /// Structural similarity as torchmetrics (1.x) computes it: the SSIM map with an 11×11 Gaussian window

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch::metrics::{psnr, ssim};
 use raypatch::{
-    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs, RayGrid, Region,
-    Request, SceneData,
+    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs, RayGrid, Region, Request,
+    SceneData,
 };
 
 /// Largest difference allowed between two ray directions that describe the same camera: both are rounded
@@ -42,7 +42,9 @@ fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
     let mut directions = Vec::new();
     for i in 0..height {
         for j in 0..width {
-            let plane = c_dir * focal + midpoint(j, width, sensor_width) * horizontal + midpoint(i, height, sensor_height) * vertical;
+            let plane = c_dir * focal
+                + midpoint(j, width, sensor_width) * horizontal
+                + midpoint(i, height, sensor_height) * vertical;
             directions.push(plane.normalize().as_vec3());
         }
     }
@@ -78,14 +80,17 @@ fn one_camera_three_ways_gives_the_same_rays() {
     let right = forward.cross(DVec3::Z).normalize();
     let down = forward.cross(right);
     let opencv = DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), pos.extend(1.0));
-    let intrinsics = Intrinsics { width: 24, height: 16, fx: 0.035 / 0.032 * 24.0, fy: 0.035 / 0.032 * 24.0, cx: 12.0, cy: 8.0 };
+    let intrinsics =
+        Intrinsics { width: 24, height: 16, fx: 0.035 / 0.032 * 24.0, fy: 0.035 / 0.032 * 24.0, cx: 12.0, cy: 8.0 };
     let pinhole_cv = Camera::pinhole(intrinsics, opencv, CameraAxes::OpenCv).unwrap();
     // OpenGL axes: y up and z backwards, i.e. the OpenCV y and z columns negated.
     let opengl = DMat4::from_cols(right.extend(0.0), (-down).extend(0.0), (-forward).extend(0.0), pos.extend(1.0));
     let pinhole_gl = Camera::pinhole(intrinsics, opengl, CameraAxes::OpenGl).unwrap();
     let explicit = Camera::from_rays(pos, official.clone()).unwrap();
 
-    for (name, camera) in [("msn", &msn), ("pinhole OpenCV", &pinhole_cv), ("pinhole OpenGL", &pinhole_gl), ("rays", &explicit)] {
+    for (name, camera) in
+        [("msn", &msn), ("pinhole OpenCV", &pinhole_cv), ("pinhole OpenGL", &pinhole_gl), ("rays", &explicit)]
+    {
         let err = max_ray_diff(&camera.rays(), &official);
         assert!(err <= RAY_TOLERANCE, "{name}: rays differ from the official ones by {err:e}");
         assert_eq!(camera.position(), pos);
@@ -169,9 +174,8 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
             let err = max_diff(part.rgb.as_ref().unwrap().data(), full_rgb.crop(region).unwrap().data());
             assert!(err <= 1e-6, "{case} {region:?}: region rgb differs from the full render by {err:e}");
             if let (Some(d), Some(full_d)) = (&part.logdepth, &full.logdepth) {
-                let rows = (region.y..region.y + region.height).flat_map(|y| {
-                    full_d[y * width + region.x..y * width + region.x + region.width].iter().copied()
-                });
+                let rows = (region.y..region.y + region.height)
+                    .flat_map(|y| full_d[y * width + region.x..y * width + region.x + region.width].iter().copied());
                 assert_eq!(max_diff(d, &rows.collect::<Vec<_>>()), 0.0, "{case} {region:?}: log-depth");
             }
 
@@ -180,7 +184,8 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
             let stats = scene.render_stats(camera, &request).unwrap();
             let span = |start: usize, len: usize, size: usize| {
                 let (first, last) = (start / k, (start + len - 1) / k);
-                let (lo, hi) = if k == 1 { (first, last) } else { (first.saturating_sub(HALO), (last + HALO).min(size / k - 1)) };
+                let (lo, hi) =
+                    if k == 1 { (first, last) } else { (first.saturating_sub(HALO), (last + HALO).min(size / k - 1)) };
                 hi + 1 - lo
             };
             let most = span(region.x, region.width, width) * span(region.y, region.height, height);

@@ -28,7 +28,8 @@ fn bundled(relative: &str) -> PathBuf {
     if here.exists() {
         return here;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).expect("crates/raypatch-cli is two levels deep");
+    let root =
+        Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).expect("crates/raypatch-cli is two levels deep");
     root.join(relative)
 }
 
@@ -101,9 +102,11 @@ struct Args {
 }
 
 fn parse_region(text: &str) -> Result<Region, String> {
-    let parts: Vec<usize> = text.split(',').map(|p| p.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|_| {
-        format!("{text:?} is not X,Y,W,H (four non-negative integers)")
-    })?;
+    let parts: Vec<usize> = text
+        .split(',')
+        .map(|p| p.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{text:?} is not X,Y,W,H (four non-negative integers)"))?;
     match parts[..] {
         [x, y, width, height] if width > 0 && height > 0 => Ok(Region { x, y, width, height }),
         [_, _, _, _] => Err(format!("{text:?}: width and height must be positive")),
@@ -193,12 +196,18 @@ fn run(args: &Args) -> Result<()> {
         None => (0..data.inputs.len()).collect(),
     };
     if inputs.is_empty() {
-        bail!("{}: no input view left to encode (every frame is a target; choose inputs with --input-views)", scene_path.display());
+        bail!(
+            "{}: no input view left to encode (every frame is a target; choose inputs with --input-views)",
+            scene_path.display()
+        );
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
     let shots = shots(args, &data, &views)?;
     if args.metrics && shots.iter().any(|s| s.truth.is_none()) {
-        bail!("--metrics: needs target views with ground-truth images (scene `target_images`, or frames), not --orbit, --orbit-frames or --pose");
+        bail!(
+            "--metrics: needs target views with ground-truth images (scene `target_images`, or frames), \
+             not --orbit, --orbit-frames or --pose"
+        );
     }
     let outputs = Outputs { rgb: true, logdepth: args.logdepth };
     let request = Request { outputs, region: args.region };
@@ -214,7 +223,9 @@ fn run(args: &Args) -> Result<()> {
     check_outputs(args, &shots)?;
     let progress = if args.orbit_frames.is_some() {
         let bar = ProgressBar::new(shots.len() as u64);
-        bar.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"));
+        bar.set_style(
+            ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"),
+        );
         bar
     } else {
         ProgressBar::hidden()
@@ -260,7 +271,8 @@ fn run(args: &Args) -> Result<()> {
 
     let k = model.patch_size();
     let first = &images[0];
-    let region = request.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
+    let region =
+        request.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
     println!(
         "rendered {} view(s) of {}x{}{region} from {} input view(s) with {} ({}, k={k}, {:.2}M parameters) on {}",
         images.len(),
@@ -286,7 +298,12 @@ fn run(args: &Args) -> Result<()> {
         println!("{line}");
     }
     if args.timings {
-        println!("load {:.1} ms, encode {:.1} ms, first render {:.1} ms (plan built, pipelines compiled)", ms(load_time), ms(encode_time), ms(render_times[0]));
+        println!(
+            "load {:.1} ms, encode {:.1} ms, first render {:.1} ms (plan built, pipelines compiled)",
+            ms(load_time),
+            ms(encode_time),
+            ms(render_times[0])
+        );
         if render_times.len() > 1 {
             println!("later renders: {}", summary(&render_times[1..]));
         }
@@ -333,9 +350,15 @@ fn summary(times: &[Duration]) -> String {
 fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
     let folder = args.out.extension().is_none_or(|e| !e.eq_ignore_ascii_case("png"));
     let reference = &data.targets[views[0]].camera;
+    if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
+        bail!("--orbit {degrees}: expected a finite angle in degrees");
+    }
     let novel = |camera: Camera, label: String| Shot { camera, truth: None, label, png: PathBuf::new() };
     let (mut shots, folder_names): (Vec<Shot>, Vec<String>) = if let Some(path) = &args.pose {
-        (vec![novel(raypatch::load_pose(path, reference)?, format!("--pose {}", path.display()))], vec!["render".into()])
+        (
+            vec![novel(raypatch::load_pose(path, reference)?, format!("--pose {}", path.display()))],
+            vec!["render".into()],
+        )
     } else if let Some(n) = args.orbit_frames {
         if n == 0 {
             bail!("--orbit-frames 0: expected at least one frame");
@@ -345,9 +368,6 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
         let shots = (0..n).map(|i| novel(reference.orbited(turn(i)), format!("turntable frame {i} ({:.1}°)", turn(i))));
         (shots.collect(), (0..n).map(|i| format!("frame_{i:03}")).collect())
     } else if let Some(degrees) = args.orbit {
-        if !degrees.is_finite() {
-            bail!("--orbit {degrees}: expected a finite angle in degrees");
-        }
         (vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"))], vec!["render".into()])
     } else {
         let shots = views.iter().map(|&v| Shot {
@@ -375,7 +395,8 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
 /// Fails before any GPU work when an output cannot be written: the folder must exist (or be creatable, for
 /// an --out folder) and accept a new file.
 fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
-    let folder_of = |path: &Path| path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
+    let folder_of =
+        |path: &Path| path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
     let mut checks: Vec<(String, PathBuf)> = shots.iter().map(|s| ("--out".to_string(), folder_of(&s.png))).collect();
     if let Some(path) = &args.out_raw {
         checks.push(("--out-raw".into(), folder_of(path)));
@@ -383,7 +404,8 @@ fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
     checks.dedup();
     for (flag, dir) in checks {
         if flag == "--out" && dir == args.out && !dir.exists() {
-            std::fs::create_dir_all(&dir).with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
         }
         if !dir.is_dir() {
             bail!("{flag}: folder {} does not exist", dir.display());
@@ -405,7 +427,10 @@ fn metrics_report(shots: &[Shot], images: &[Image], region: Option<Region>) -> R
             Some(r) => truth.crop(r)?,
             None => truth.clone(),
         };
-        let (p, s) = (metrics::psnr(image, &truth)?, metrics::ssim(image, &truth).with_context(|| format!("--metrics: {}", shot.label))?);
+        let (p, s) = (
+            metrics::psnr(image, &truth)?,
+            metrics::ssim(image, &truth).with_context(|| format!("--metrics: {}", shot.label))?,
+        );
         lines.push(format!("{}: PSNR {p:.3} dB, SSIM {s:.4}", shot.label));
         psnr_sum += p;
         ssim_sum += s;
@@ -420,7 +445,7 @@ fn print_profile(what: &str, ops: &OpTimes) {
     let total: f64 = ops.iter().map(|(_, t)| t.as_secs_f64()).sum();
     println!("{what}: {} ops, {:.1} ms run one by one; slowest:", ops.len(), total * 1e3);
     let mut sorted: Vec<_> = ops.iter().collect();
-    sorted.sort_by(|a, b| b.1.cmp(&a.1));
+    sorted.sort_by_key(|(_, t)| std::cmp::Reverse(*t));
     for (label, t) in sorted.iter().take(12) {
         println!("  {:8.2} ms {:5.1}%  {label}", ms(*t), 100.0 * t.as_secs_f64() / total);
     }
@@ -429,8 +454,11 @@ fn print_profile(what: &str, ops: &OpTimes) {
 /// Writes `rgb` [T,H,W,3] and, when given, `logdepth` [T,H,W] (one `Vec` per view).
 fn write_raw(path: &Path, images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Result<()> {
     let (h, w) = (images[0].height(), images[0].width());
-    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> =
-        vec![("rgb".into(), f32_bytes(images.iter().flat_map(|i| i.data().iter().copied())), vec![images.len(), h, w, 3])];
+    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![(
+        "rgb".into(),
+        f32_bytes(images.iter().flat_map(|i| i.data().iter().copied())),
+        vec![images.len(), h, w, 3],
+    )];
     if let Some(depths) = depths {
         tensors.push(("logdepth".into(), f32_bytes(depths.into_iter().flatten()), vec![images.len(), h, w]));
     }

@@ -132,12 +132,15 @@ fn no_arguments_renders_the_bundled_scene_into_render_png() {
 fn target_views_match_pytorch_with_metrics_and_raw_output() {
     let dir = TempDir::new().unwrap();
     let (model, scene) = (golden("rpsrt_k2", "model.safetensors"), golden("rpsrt_k2", "scene.safetensors"));
-    let args = ["--model", &model, "--scene", &scene, "--view", "all", "--out", "views", "--out-raw", "raw.safetensors"];
+    let args =
+        ["--model", &model, "--scene", &scene, "--view", "all", "--out", "views", "--out-raw", "raw.safetensors"];
     let r = run(dir.path(), &[&args[..], &["--metrics", "--timings"]].concat());
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("views/view_000.png")), (24, 16));
     assert_eq!(png_size(&dir.path().join("views/view_001.png")), (24, 16));
-    for text in ["target view 0: PSNR", "target view 1: PSNR", "mean over 2 view(s): PSNR", "SSIM", "planned peak GPU memory"] {
+    for text in
+        ["target view 0: PSNR", "target view 1: PSNR", "mean over 2 view(s): PSNR", "SSIM", "planned peak GPU memory"]
+    {
         assert!(r.stdout.contains(text), "no {text:?} in {}", r.stdout);
     }
     // The raw output is the model's: equal to PyTorch's within the golden tolerance.
@@ -148,7 +151,23 @@ fn target_views_match_pytorch_with_metrics_and_raw_output() {
     assert!(err <= 1e-4, "CLI rgb differs from PyTorch by {err}");
 
     // A region writes just that region, equal to the same pixels of the full render.
-    let r = run(dir.path(), &["--model", &model, "--scene", &scene, "--view", "1", "--region", "3,5,9,7", "--out", "part.png", "--out-raw", "part.safetensors"]);
+    let r = run(
+        dir.path(),
+        &[
+            "--model",
+            &model,
+            "--scene",
+            &scene,
+            "--view",
+            "1",
+            "--region",
+            "3,5,9,7",
+            "--out",
+            "part.png",
+            "--out-raw",
+            "part.safetensors",
+        ],
+    );
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("part.png")), (9, 7));
     let part = TensorFile::open(&dir.path().join("part.safetensors")).unwrap().f32("rgb").unwrap();
@@ -186,7 +205,10 @@ fn novel_views_turntables_poses_and_depth() {
     assert_eq!(png_size(&dir.path().join("posed.png")), (16, 8));
 
     let (model, scene) = (golden("srt_k1_depth", "model.safetensors"), golden("srt_k1_depth", "scene.safetensors"));
-    let r = run(dir.path(), &["--model", &model, "--scene", &scene, "--logdepth", "--out", "depth.png", "--out-raw", "depth.safetensors"]);
+    let r = run(
+        dir.path(),
+        &["--model", &model, "--scene", &scene, "--logdepth", "--out", "depth.png", "--out-raw", "depth.safetensors"],
+    );
     assert_eq!(r.code, 0, "{}", r.stderr);
     let raw = TensorFile::open(&dir.path().join("depth.safetensors")).unwrap();
     assert_eq!(raw.shape("logdepth"), Some(&[1usize, 16, 24][..]));
@@ -246,6 +268,7 @@ fn bad_flags_and_paths() {
     fails(d, &["--adapter", "no-such-gpu"], &["no adapter whose name contains \"no-such-gpu\""]);
     fails(d, &["--metrics"], &["--metrics", "ground-truth"]);
     fails(d, &["--orbit-frames", "0"], &["--orbit-frames 0"]);
+    fails(d, &["--orbit-frames", "2", "--orbit", "NaN"], &["--orbit NaN", "finite angle"]);
     fails(d, &["--logdepth", "--out-raw", "x.safetensors"], &["log-depth", "no depth channel"]);
     std::fs::write(d.join("plain-file"), b"").unwrap();
     fails(d, &["--out", "plain-file/render.png"], &["--out", "plain-file", "does not exist"]);
@@ -260,7 +283,11 @@ fn malformed_safetensors_files() {
     let model = golden("rpsrt_k4", "model.safetensors");
     let bytes = std::fs::read(&model).unwrap();
     std::fs::write(d.join("truncated.safetensors"), &bytes[..bytes.len() - 100]).unwrap();
-    fails(d, &["--model", "truncated.safetensors"], &["truncated.safetensors", "not a valid safetensors file", "truncated file?"]);
+    fails(
+        d,
+        &["--model", "truncated.safetensors"],
+        &["truncated.safetensors", "not a valid safetensors file", "truncated file?"],
+    );
     std::fs::write(d.join("short.safetensors"), &bytes[..5]).unwrap();
     fails(d, &["--model", "short.safetensors"], &["short.safetensors", "too short for the 8-byte header length"]);
     let mut huge = bytes.clone();
@@ -273,8 +300,13 @@ fn malformed_safetensors_files() {
     fails(d, &["--model", "past-end.safetensors"], &["past-end.safetensors", "header length", "is more than"]);
 
     let data = [0u8; 32];
-    let outside = raw_file(d, "outside.safetensors", r#"{"a":{"dtype":"F32","shape":[8],"data_offsets":[0,64]}}"#, &data);
-    fails(d, &["--scene", &outside], &["outside.safetensors", "`a` has data_offsets [0, 64] outside the 32-byte data section"]);
+    let outside =
+        raw_file(d, "outside.safetensors", r#"{"a":{"dtype":"F32","shape":[8],"data_offsets":[0,64]}}"#, &data);
+    fails(
+        d,
+        &["--scene", &outside],
+        &["outside.safetensors", "`a` has data_offsets [0, 64] outside the 32-byte data section"],
+    );
     let overlap = raw_file(
         d,
         "overlap.safetensors",
@@ -286,7 +318,8 @@ fn malformed_safetensors_files() {
     fails(d, &["--scene", &dtype], &["dtype.safetensors", "tensor `a` has unknown dtype \"F33\""]);
     let misfit = raw_file(d, "misfit.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,32]}}"#, &data);
     fails(d, &["--scene", &misfit], &["misfit.safetensors", "shape [4] of F32 does not fill data_offsets [0, 32]"]);
-    let trailing = raw_file(d, "trailing.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#, &data);
+    let trailing =
+        raw_file(d, "trailing.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#, &data);
     fails(d, &["--scene", &trailing], &["trailing.safetensors", "trailing bytes"]);
     let json = raw_file(d, "json.safetensors", r#"{"a":"#, &data);
     fails(d, &["--scene", &json], &["json.safetensors", "invalid JSON"]);
@@ -365,7 +398,8 @@ fn bad_cameras_and_frames() {
     fails(d, &["--pose", &inf], &["inf.json"]);
     let short = pose("short.json", r#"{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]]}"#);
     fails(d, &["--pose", &short], &["short.json", "4 rows of 4 finite numbers"]);
-    let odd = pose("odd.json", r#"{"w": 50, "h": 32, "transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]]}"#);
+    let odd =
+        pose("odd.json", r#"{"w": 50, "h": 32, "transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]]}"#);
     fails(d, &["--pose", &odd], &["50", "not divisible by the model's patch size k=4"]);
     fails(d, &["--pose", "absent.json"], &["absent.json", "cannot read"]);
 

@@ -584,7 +584,8 @@ impl Crop {
             return targets.rays.as_slice().into();
         }
         let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
-        let (y0, x0, h, w) = (self.y0 / per_ray, self.x0 / per_ray, self.grid.height / per_ray, self.grid.width / per_ray);
+        let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
+        let (h, w) = (self.grid.height / per_ray, self.grid.width / per_ray);
         cut_rows(&targets.rays, targets.count, rh, rw, 3, y0, x0, h, w).into()
     }
 

@@ -14,7 +14,9 @@ pub fn check_layout(bytes: &[u8]) -> Result<(), String> {
     let header_len = u64::from_le_bytes(len_bytes.try_into().expect("8 bytes"));
     let available = bytes.len() as u64 - 8;
     if header_len > available {
-        return Err(format!("header length {header_len} is more than the {available} bytes after it (truncated file?)"));
+        return Err(format!(
+            "header length {header_len} is more than the {available} bytes after it (truncated file?)"
+        ));
     }
     let header = &bytes[8..8 + header_len as usize];
     let data_len = available - header_len;
@@ -29,7 +31,9 @@ pub fn check_layout(bytes: &[u8]) -> Result<(), String> {
         let shape: Option<Vec<u64>> = info.get("shape").and_then(|s| serde_json::from_value(s.clone()).ok());
         let offsets: Option<[u64; 2]> = info.get("data_offsets").and_then(|o| serde_json::from_value(o.clone()).ok());
         let (Some(shape), Some([start, end])) = (shape, offsets) else {
-            return Err(format!("tensor `{name}`: expected a `shape` list and `data_offsets` [start, end] of integers"));
+            return Err(format!(
+                "tensor `{name}`: expected a `shape` list and `data_offsets` [start, end] of integers"
+            ));
         };
         if start > end || end > data_len {
             return Err(format!(
