@@ -217,9 +217,11 @@ fn run(args: &Args) -> Result<()> {
     let encode_time = start.elapsed();
     // Check every camera against the model and the request (this builds the render plans) before touching
     // any output.
+    let start = Instant::now();
     for shot in &shots {
         scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
     }
+    let plan_time = start.elapsed();
     check_outputs(args, &shots)?;
     let progress = if args.orbit_frames.is_some() {
         let bar = ProgressBar::new(shots.len() as u64);
@@ -299,9 +301,11 @@ fn run(args: &Args) -> Result<()> {
     }
     if args.timings {
         println!(
-            "load {:.1} ms, encode {:.1} ms, first render {:.1} ms (plan built, pipelines compiled)",
+            "load {:.1} ms, encode {:.1} ms, render plan {:.1} ms (buffers allocated, pipelines compiled), \
+             first render {:.1} ms",
             ms(load_time),
             ms(encode_time),
+            ms(plan_time),
             ms(render_times[0])
         );
         if render_times.len() > 1 {
