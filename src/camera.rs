@@ -10,8 +10,9 @@ use crate::error::{Error, Result};
 /// significant digits pass, a scaled or sheared matrix does not.
 pub const ROTATION_TOLERANCE: f64 = 1e-4;
 
-/// Focal length and sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
+/// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
 pub const MSN_FOCAL_LENGTH: f64 = 0.035;
+/// Sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
 pub const MSN_SENSOR_WIDTH: f64 = 0.032;
 
 /// Pinhole intrinsics in pixels, for an image of `width` × `height`. A pixel (column `j`, row `i`) has its
@@ -24,11 +25,17 @@ pub const MSN_SENSOR_WIDTH: f64 = 0.032;
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Intrinsics {
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// Horizontal focal length in pixels.
     pub fx: f64,
+    /// Vertical focal length in pixels.
     pub fy: f64,
+    /// Principal point, column coordinate (pixels from the left edge).
     pub cx: f64,
+    /// Principal point, row coordinate (pixels from the top edge).
     pub cy: f64,
 }
 
@@ -78,8 +85,11 @@ pub enum CameraAxes {
 /// Unit ray directions in the world frame, row-major, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RayGrid {
+    /// Rays per row.
     pub width: usize,
+    /// Rows of rays.
     pub height: usize,
+    /// `width * height` directions, row-major.
     pub directions: Vec<Vec3>,
 }
 

@@ -23,7 +23,9 @@ pub enum SceneSource {
 /// A camera to render, with its ground truth when known.
 #[derive(Clone, Debug)]
 pub struct TargetView {
+    /// The camera to render from.
     pub camera: Camera,
+    /// The ground truth, when the scene has it (`target_images`, or the frame's PNG).
     pub image: Option<Image>,
 }
 
@@ -38,8 +40,11 @@ pub struct TargetView {
 /// ```
 #[derive(Clone, Debug)]
 pub struct SceneData {
+    /// The file or folder the views were read from.
     pub source: SceneSource,
+    /// Posed images to encode.
     pub inputs: Vec<InputView>,
+    /// Cameras to render.
     pub targets: Vec<TargetView>,
 }
 

@@ -24,13 +24,30 @@ pub enum Error {
     Engine(raypatch_engine::EngineError),
     /// A file that could not be read or written.
     #[error("{path}: {action}: {source}")]
-    Io { path: String, action: &'static str, source: std::io::Error },
+    Io {
+        /// The file or folder.
+        path: String,
+        /// What was being done, e.g. "cannot read".
+        action: &'static str,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
     /// An image that could not be decoded or encoded.
     #[error("{path}: {reason}")]
-    Image { path: String, reason: String },
+    Image {
+        /// The image file (`image` for images built in memory).
+        path: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// A `transforms.json` or pose file that does not describe valid cameras.
     #[error("{path}: {reason}")]
-    Cameras { path: String, reason: String },
+    Cameras {
+        /// The JSON file.
+        path: String,
+        /// Which frame or key is wrong, and how.
+        reason: String,
+    },
     /// A camera that cannot be built: non-finite numbers, a rotation that is not orthonormal, a zero size.
     #[error("camera: {0}")]
     Camera(String),

@@ -74,10 +74,12 @@ impl Image {
         write_atomic(path, &png)
     }
 
+    /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width
     }
 
+    /// Height in pixels.
     pub fn height(&self) -> usize {
         self.height
     }

@@ -4,8 +4,9 @@
 use crate::error::{Error, Result};
 use crate::image::Image;
 
-/// Side of SSIM's Gaussian window, and its standard deviation.
+/// Side of SSIM's Gaussian window.
 pub const SSIM_WINDOW: usize = 11;
+/// Standard deviation of SSIM's Gaussian window.
 pub const SSIM_SIGMA: f64 = 1.5;
 /// SSIM's stabilising constants for a data range of 1: (0.01)² and (0.03)².
 const SSIM_C1: f64 = 0.01 * 0.01;

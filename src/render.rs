@@ -28,11 +28,13 @@ pub struct EngineOptions {
 /// A GPU adapter wgpu can see.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Adapter {
+    /// The device's name, as `--adapter` matches it.
     pub name: String,
     /// `DiscreteGpu`, `IntegratedGpu`, `VirtualGpu`, `Cpu` or `Other`.
     pub kind: String,
     /// `Vulkan`, `Metal`, `Dx12` or `Gl`.
     pub backend: String,
+    /// Driver name and version.
     pub driver: String,
 }
 
@@ -113,6 +115,7 @@ pub struct Model {
 /// A posed input image.
 #[derive(Clone, Debug)]
 pub struct InputView {
+    /// RGB in [0, 1].
     pub image: Image,
     /// A camera of the image's size, with one ray per pixel.
     pub camera: Camera,

@@ -67,9 +67,13 @@ impl Default for Outputs {
 /// A rectangle of the target image in pixels: columns `x..x + width`, rows `y..y + height` (row 0 = top).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Region {
+    /// First column.
     pub x: usize,
+    /// First row.
     pub y: usize,
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
 }
 
@@ -88,7 +92,9 @@ pub struct Region {
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Request {
+    /// What to compute.
     pub outputs: Outputs,
+    /// Where (the whole image when `None`).
     pub region: Option<Region>,
 }
 
@@ -101,9 +107,11 @@ impl From<Outputs> for Request {
 /// Rendered target views: the requested outputs over the requested region.
 #[derive(Clone, Debug)]
 pub struct Frame {
+    /// Number of target views.
     pub views: usize,
-    /// Size of the region rendered (the whole image when no region was asked for).
+    /// Rows of the region rendered (the whole image when no region was asked for).
     pub height: usize,
+    /// Columns of the region rendered.
     pub width: usize,
     /// Where the region lies in the target image.
     pub region: Region,
@@ -299,6 +307,7 @@ impl Model {
 }
 
 impl EncodedScene<'_> {
+    /// The model that encoded this scene.
     pub fn model(&self) -> &Model {
         self.model
     }
