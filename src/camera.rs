@@ -136,6 +136,20 @@ fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
 }
 
 impl Camera {
+    /// This camera as the engine's one-view render target (its position, rays and image size).
+    pub fn target_views(&self) -> raypatch_model::TargetViews {
+        let rays = self.rays();
+        raypatch_model::TargetViews {
+            count: 1,
+            camera_pos: self.position().as_vec3().to_array().to_vec(),
+            rays: rays.directions.iter().flat_map(|d| d.to_array()).collect(),
+            rays_height: rays.height,
+            rays_width: rays.width,
+            declared_size: Some((self.height(), self.width())),
+            images: None,
+        }
+    }
+
     /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
     /// must be 0 0 0 1) whose camera frame has the given axes. The rotation must be orthonormal and
     /// right-handed (within [`ROTATION_TOLERANCE`]): a scaled, sheared or mirrored pose is an error.

@@ -4,7 +4,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request};
-use raypatch_model::{InputViews, ModelConfig, TargetViews};
+use raypatch_model::{InputViews, ModelConfig};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -215,20 +215,6 @@ fn input_views(views: &[InputView]) -> Result<InputViews> {
     Ok(inputs)
 }
 
-/// The target of one render as the engine takes it.
-fn target_view(camera: &Camera) -> TargetViews {
-    let rays = camera.rays();
-    TargetViews {
-        count: 1,
-        camera_pos: camera.position().as_vec3().to_array().to_vec(),
-        rays: rays.directions.iter().flat_map(|d| d.to_array()).collect(),
-        rays_height: rays.height,
-        rays_width: rays.width,
-        declared_size: Some((camera.height(), camera.width())),
-        images: None,
-    }
-}
-
 /// A scene encoded by a model, rendered from any camera.
 pub struct Scene<'m> {
     inner: EncodedScene<'m>,
@@ -268,7 +254,7 @@ impl Scene<'_> {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
-        let frame = self.inner.render(&target_view(camera), *request)?;
+        let frame = self.inner.render(&camera.target_views(), *request)?;
         let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
         Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })
     }
@@ -276,12 +262,12 @@ impl Scene<'_> {
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
     /// (builds the plan if it does not exist yet).
     pub fn render_stats(&self, camera: &Camera, request: &Request) -> Result<RenderStats> {
-        Ok(self.inner.render_stats(&target_view(camera), *request)?)
+        Ok(self.inner.render_stats(&camera.target_views(), *request)?)
     }
 
     /// Renders op by op and returns each op's label and time (for profiling).
     pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
-        Ok(self.inner.profile_render(&target_view(camera), *request)?)
+        Ok(self.inner.profile_render(&camera.target_views(), *request)?)
     }
 
     /// Bytes the encode plan allocated for its intermediates (freed once encoded).

@@ -233,7 +233,7 @@ fn only_requested_outputs_are_computed() {
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
     let request = |rgb, logdepth| Request { outputs: Outputs { rgb, logdepth }, region: None };
-    let labels = |r: &Request| scene.engine_scene().render_op_labels(&target_of(camera), *r).unwrap();
+    let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
     let dispatches = |r: &Request| {
         scene.render(camera, r).unwrap(); // build and warm the plan
         let before = engine.counters().dispatches;
@@ -258,20 +258,6 @@ fn only_requested_outputs_are_computed() {
     assert!(err.contains("nothing to render"), "{err}");
 }
 
-/// The engine-level target of one camera (what `Scene::render` passes down).
-fn target_of(camera: &Camera) -> raypatch::raypatch_model::TargetViews {
-    let rays = camera.rays();
-    raypatch::raypatch_model::TargetViews {
-        count: 1,
-        camera_pos: camera.position().as_vec3().to_array().to_vec(),
-        rays: rays.directions.iter().flat_map(|d| d.to_array()).collect(),
-        rays_height: rays.height,
-        rays_width: rays.width,
-        declared_size: Some((camera.height(), camera.width())),
-        images: None,
-    }
-}
-
 #[test]
 fn rendering_reuses_the_encoded_scene_and_the_plan() {
     let engine = engine();
@@ -279,7 +265,7 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
-    let labels = scene.engine_scene().render_op_labels(&target_of(camera), Outputs::default()).unwrap();
+    let labels = scene.engine_scene().render_op_labels(&camera.target_views(), Outputs::default()).unwrap();
     assert!(
         labels.iter().all(|l| !l.starts_with("encoder.") && !l.contains("to_kv")),
         "a render plan re-encodes or re-projects keys/values"
