@@ -92,7 +92,7 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
 
         let model = engine_model(&loaded);
         let frame = model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap();
-        let engine_err = max_abs_diff(&frame.rgb, &want.rgb);
+        let engine_err = max_abs_diff(&frame.rgb.expect("rgb"), &want.rgb);
         let torch_err = max_abs_diff(&f32_tensor(&dir.join("expected.safetensors"), "rgb"), &want.rgb);
         let f32_vs_f64 = max_diff(&want.rgb, &f64_tensor(&dir.join("expected.safetensors"), "rgb_f64"));
         eprintln!(

@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
 use raypatch_engine::weights::{LoadOptions, WeightStorage};
-use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, Model, Outputs};
+use raypatch_engine::{AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request};
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
 use serde::Serialize;
 use serde_json::json;
@@ -188,9 +188,9 @@ fn decoder_name(k: usize) -> String {
 
 impl Bench {
     /// A render's wall time and, with timestamps, its GPU time.
-    fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, outputs: Outputs) -> Result<Sample> {
+    fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, request: Request) -> Result<Sample> {
         let start = Instant::now();
-        encoded.render(targets, outputs)?;
+        encoded.render(targets, request)?;
         let wall = start.elapsed();
         Ok(Sample { wall, gpu: self.gpu.take_timestamps()?.map(|t| t.total) })
     }
@@ -272,24 +272,26 @@ impl Bench {
         }
     }
 
-    /// Renders once (building the plan), then times repeated renders; fills the record's timing fields and
-    /// returns the first frame's rgb.
-    fn time_render(&self, s: &Subject, targets: &TargetViews, outputs: Outputs, record: &mut Record) -> Result<Vec<f32>> {
+    /// Renders once (building the plan), then times repeated renders; fills the record's timing, memory and
+    /// work fields and returns the first frame.
+    fn time_render(&self, s: &Subject, targets: &TargetViews, request: Request, record: &mut Record) -> Result<Frame> {
         let start = Instant::now();
-        let frame = s.encoded.render(targets, outputs)?;
+        let frame = s.encoded.render(targets, request)?;
         record.first_render_wall_ms = Some(start.elapsed().as_secs_f64() * 1e3);
         self.gpu.take_timestamps()?;
-        let (wall, gpu) = measure::repeat(self.repeats, || self.render_sample(&s.encoded, targets, outputs))?;
+        let (wall, gpu) = measure::repeat(self.repeats, || self.render_sample(&s.encoded, targets, request))?;
         set_times(record, wall, gpu);
-        record.render_peak_bytes = Some(s.encoded.render_peak_bytes(targets, outputs)?);
-        Ok(frame.rgb)
+        let stats = s.encoded.render_stats(targets, request)?;
+        (record.render_peak_bytes, record.dispatches, record.queries) = (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
+        Ok(frame)
     }
 
     /// Measures one render configuration of a subject. `truth`: PyTorch's rgb for these targets, if known.
     fn measure(&self, s: &Subject, targets: &TargetViews, truth: Option<&[f32]>, with_torch: bool) -> Result<Record> {
         let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        let rgb = self.time_render(s, targets, Outputs::default(), &mut record)?;
+        let frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
+        let rgb = frame.rgb.context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
         match s.references {
             Some((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
@@ -360,14 +362,19 @@ impl Bench {
         Ok(())
     }
 
-    /// Rendering the log-depth channel too, against rgb only (the skip of outputs not asked for).
+    /// Outputs not asked for are not computed: rgb only, rgb and log-depth, log-depth only.
     fn logdepth_skip(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
         let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
         let mut rows = Vec::new();
-        for (variant, outputs) in [("rgb only", Outputs::default()), ("rgb + log-depth", Outputs { logdepth: true })] {
+        let variants = [
+            ("outputs: rgb", Outputs { rgb: true, logdepth: false }),
+            ("outputs: rgb + log-depth", Outputs { rgb: true, logdepth: true }),
+            ("outputs: log-depth", Outputs { rgb: false, logdepth: true }),
+        ];
+        for (variant, outputs) in variants {
             let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
             record.group = "skips".into();
-            self.time_render(s, targets, outputs, &mut record)?;
+            self.time_render(s, targets, outputs.into(), &mut record)?;
             print_row(&record);
             rows.push(record);
         }
@@ -450,6 +457,8 @@ impl Bench {
             if f32_weights && name == "small" && k == 4 && size == (120, 160) {
                 records.extend(self.plan_and_encode_skips(s, &targets)?);
             }
+            // Free this size's plan (its buffers) before the next, larger one.
+            s.encoded.clear_render_plans();
         }
         Ok(measured)
     }
@@ -470,52 +479,66 @@ impl Bench {
     fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64) -> Result<Record> {
         let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        record.render_peak_bytes = Some(s.encoded.render_peak_bytes(targets, Outputs::default())?);
+        let stats = s.encoded.render_stats(targets, Outputs::default())?;
+        s.encoded.clear_render_plans();
+        (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches));
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
         Ok(record)
     }
 
-    /// The skips of the plan cache and of the per-scene encoding, on and off (wall clock, host to host).
+    /// The skips of the API, on and off: the plan cache, the per-scene encoding, and a region of interest.
     fn plan_and_encode_skips(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
-        let outputs = Outputs::default();
+        let full = Request::from(Outputs::default());
         let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
         let size = (grid.height, grid.width);
-        let row = |variant: &str, wall: Stats| {
+        let row = |variant: &str, wall: Stats, request: Request| -> Result<Record> {
             let mut record = self.record(s, targets.count, size, variant);
             record.group = "skips".into();
             record.timing = "wall clock".into();
             set_times(&mut record, wall, None);
+            let stats = s.encoded.render_stats(targets, request)?;
+            (record.render_peak_bytes, record.dispatches, record.queries) = (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
             print_row(&record);
-            record
+            Ok(record)
         };
-        let (cached, _) = measure::repeat(self.repeats, || self.render_sample(&s.encoded, targets, outputs))?;
-        let (build, _) = measure::repeat(self.repeats, || -> Result<Sample> {
-            let start = Instant::now();
-            s.encoded.render_peak_bytes(targets, outputs)?;
-            Ok(Sample { wall: start.elapsed(), gpu: None })
-        })?;
+        let wall = |f: &dyn Fn() -> Result<()>| {
+            measure::repeat(self.repeats, || -> Result<Sample> {
+                let start = Instant::now();
+                f()?;
+                self.gpu.take_timestamps()?;
+                Ok(Sample { wall: start.elapsed(), gpu: None })
+            })
+            .map(|(wall, _)| wall)
+        };
+        let cached = wall(&|| s.encoded.render(targets, full).map(drop).map_err(Into::into))?;
         // Without the plan cache every render builds its plan (buffers, params, bind groups) first.
-        let (rebuilt, _) = measure::repeat(self.repeats, || -> Result<Sample> {
-            let start = Instant::now();
-            s.encoded.render_peak_bytes(targets, outputs)?;
-            s.encoded.render(targets, outputs)?;
-            self.gpu.take_timestamps()?;
-            Ok(Sample { wall: start.elapsed(), gpu: None })
+        let rebuilt = wall(&|| {
+            s.encoded.clear_render_plans();
+            s.encoded.render(targets, full)?;
+            Ok(())
+        })?;
+        let build = wall(&|| {
+            s.encoded.clear_render_plans();
+            s.encoded.render_stats(targets, full)?;
+            Ok(())
         })?;
         // Without the per-scene encoding every render encodes the input views (latent, keys, values) again.
-        let (encode_each, _) = measure::repeat(self.repeats, || -> Result<Sample> {
-            let start = Instant::now();
+        let encode_each = wall(&|| {
             let encoded = s.model.encode(s.inputs)?;
             self.gpu.take_timestamps()?;
-            encoded.render(targets, outputs)?;
-            self.gpu.take_timestamps()?;
-            Ok(Sample { wall: start.elapsed(), gpu: None })
+            encoded.render(targets, full)?;
+            Ok(())
         })?;
+        // A region of interest: the top-left quarter of the image; only the patches it needs are decoded.
+        let quarter = Request { region: Some(Region { x: 0, y: 0, width: size.1 / 2, height: size.0 / 2 }), ..full };
+        s.encoded.render(targets, quarter)?;
+        let region = wall(&|| s.encoded.render(targets, quarter).map(drop).map_err(Into::into))?;
         Ok(vec![
-            row("plan cached, scene encoded once", cached),
-            row("plan rebuilt per render", rebuilt),
-            Record { fps: None, ..row("(plan build alone)", build) },
-            row("scene encoded per render", encode_each),
+            row("plan cached, scene encoded once", cached, full)?,
+            row("plan rebuilt per render", rebuilt, full)?,
+            Record { fps: None, ..row("(plan build alone)", build, full)? },
+            row("scene encoded per render", encode_each, full)?,
+            row("region: top-left quarter", region, quarter)?,
         ])
     }
 

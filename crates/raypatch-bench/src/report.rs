@@ -41,7 +41,10 @@ pub struct Record {
     pub target_views: usize,
     pub target_size: String,
     pub pixels: usize,
+    /// Decoder queries per render (one per pixel for SRT, per k×k patch for RP-SRT).
     pub queries: usize,
+    /// Kernel dispatches per render.
+    pub dispatches: Option<usize>,
     pub tokens: usize,
     /// `gpu timestamps` (GPU time of the plan's pass) or `wall clock`.
     pub timing: String,
@@ -273,7 +276,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
     out += "### Skips on and off (render time)\n\n";
     table(
         &mut out,
-        &["model", "decoder", "k", "target", "variant", "timing", "render ms"],
+        &["model", "decoder", "k", "target", "variant", "queries", "dispatches", "timing", "render ms"],
         records
             .iter()
             .filter(|r| r.group == "skips")
@@ -284,6 +287,8 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
                     r.k.to_string(),
                     r.target_size.clone(),
                     r.variant.clone(),
+                    r.queries.to_string(),
+                    r.dispatches.map_or("-".into(), |d| d.to_string()),
                     r.timing.clone(),
                     stats_text(r.render_ms),
                 ]

@@ -17,4 +17,4 @@ pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use tensor::GpuTensor;
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
 pub use wgpu;
-pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs};
+pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs, Region, RenderStats, Request};
