@@ -32,7 +32,8 @@ fn render_f16(loaded: &LoadedModel, case: &str) -> (Vec<KeptF32>, f64) {
     let scene = raypatch_model::load_scene(golden_case(case).join("scene.safetensors")).unwrap();
     let options = LoadOptions { weight_storage: WeightStorage::F16 };
     let model = Model::from_loaded_with(gpu(), loaded, &options).unwrap();
-    let rgb = model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
+    let rgb =
+        model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
     assert!(rgb.iter().all(|v| v.is_finite()), "{case}: non-finite rgb with f16 weights");
     let reference = ReferenceModel::new(loaded, Argument::RoundedToF32);
     let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
@@ -84,7 +85,8 @@ fn weights_beyond_f16_range_keep_their_layer_in_f32() {
     set(&mut tensors, "decoder_att.ray_predictor.input_mlp.0.weight", &dead_unit_0);
     set(&mut tensors, "decoder_att.ray_predictor.input_mlp.0.bias", &|_, b| bias(b));
     // Column 0 reads the dead unit.
-    let column_0 = |value: f32| move |shape: &[usize], w: &mut Vec<f32>| (0..shape[0]).for_each(|r| w[r * shape[1]] = value);
+    let column_0 =
+        |value: f32| move |shape: &[usize], w: &mut Vec<f32>| (0..shape[0]).for_each(|r| w[r * shape[1]] = value);
     set(&mut tensors, "encoder.transformer.layers.0.1.fn.net.3.weight", &column_0(65504.0));
     set(&mut tensors, "encoder.transformer.layers.1.1.fn.net.3.weight", &column_0(-65520.0));
     set(&mut tensors, "decoder_att.ray_predictor.input_mlp.2.weight", &column_0(1e5));
@@ -92,7 +94,10 @@ fn weights_beyond_f16_range_keep_their_layer_in_f32() {
     let (kept, err) = render_f16(&loaded, case);
     eprintln!("large weights: kept in f32 {kept:?}, rgb error {err:.1e}");
     let names: Vec<&str> = kept.iter().map(|k| k.tensor.as_str()).collect();
-    assert_eq!(names, ["encoder.transformer.layers.1.1.fn.net.3.weight", "decoder_att.ray_predictor.input_mlp.2.weight"]);
+    assert_eq!(
+        names,
+        ["encoder.transformer.layers.1.1.fn.net.3.weight", "decoder_att.ray_predictor.input_mlp.2.weight"]
+    );
     assert_eq!((kept[0].max_abs, kept[1].max_abs), (65520.0, 1e5));
     assert!(err <= F16_TOL, "rgb error {err:e} with f16 weights > {F16_TOL:e}");
 }

@@ -45,11 +45,18 @@ fn a_thousand_renders_are_identical_and_allocate_nothing() {
     let end = gpu.counters();
     assert_eq!(end.buffers_created, after_first.buffers_created, "buffers were created after the first render");
     assert_eq!(end.bytes_allocated, after_first.bytes_allocated, "bytes were allocated after the first render");
-    assert_eq!(end.pipelines_compiled, after_first.pipelines_compiled, "pipelines were compiled after the first render");
+    assert_eq!(
+        end.pipelines_compiled, after_first.pipelines_compiled,
+        "pipelines were compiled after the first render"
+    );
     assert_eq!(end.submits - after_first.submits, (RENDERS - 1) as u64, "a render is one submit");
     assert_eq!(encoded.cached_render_plans(), 1);
     if let (Some(before), Some(after)) = (rss_at_100, resident_bytes()) {
-        eprintln!("resident memory: {:.1} MiB at render 100, {:.1} MiB at render {RENDERS}", before as f64 / 1048576.0, after as f64 / 1048576.0);
+        eprintln!(
+            "resident memory: {:.1} MiB at render 100, {:.1} MiB at render {RENDERS}",
+            before as f64 / 1048576.0,
+            after as f64 / 1048576.0
+        );
         assert!(after <= before + RSS_SLACK_BYTES, "resident memory grew from {before} to {after} bytes");
     }
 }

@@ -37,7 +37,10 @@ fn f32_tensor(path: &Path, key: &str) -> Vec<f32> {
 /// max |a - b|, infinite if either holds a NaN or infinity.
 fn max_diff(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len(), "length mismatch");
-    a.iter().zip(b).map(|(x, y)| if x.is_finite() && y.is_finite() { (x - y).abs() } else { f64::INFINITY }).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| if x.is_finite() && y.is_finite() { (x - y).abs() } else { f64::INFINITY })
+        .fold(0.0, f64::max)
 }
 
 fn max_abs(v: &[f64]) -> f64 {

@@ -81,8 +81,11 @@ mod tests {
     #[test]
     fn official_decoder_per_query() {
         let cfg = ModelConfig::from_value("srt", official_srt_config()).unwrap();
-        let per_query: u64 = 2 * 180 * 360 + 2 * (180 * 768 + 2 * 300 * 768 + 768 * 180 + 2 * 180 * 1536)
-            + 180 * 1536 + 3 * 1536 * 1536 + 1536 * 3;
+        let per_query: u64 = 2 * 180 * 360
+            + 2 * (180 * 768 + 2 * 300 * 768 + 768 * 180 + 2 * 180 * 1536)
+            + 180 * 1536
+            + 3 * 1536 * 1536
+            + 1536 * 3;
         assert_eq!(render_macs(&cfg, 1, 60, 80, 300), 4800 * per_query);
         assert_eq!(tokens(&cfg, 1, 120, 160), 300);
         let rp = ModelConfig::from_value("rpsrt", official_rpsrt_config(2)).unwrap();

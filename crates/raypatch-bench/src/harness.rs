@@ -99,7 +99,8 @@ struct Subject<'a> {
 }
 
 pub fn run(options: &Options) -> Result<()> {
-    std::fs::create_dir_all(&options.out).with_context(|| format!("{}: cannot create the output folder", options.out.display()))?;
+    std::fs::create_dir_all(&options.out)
+        .with_context(|| format!("{}: cannot create the output folder", options.out.display()))?;
     let scratch = options.out.join("scratch");
     std::fs::create_dir_all(&scratch).with_context(|| format!("{}: cannot create", scratch.display()))?;
     let adapter = options.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
@@ -117,7 +118,11 @@ pub fn run(options: &Options) -> Result<()> {
         gpu,
         timestamps,
         repeats: Repeats { warmup: 0, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
-        max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick { 1.5 } else { 120.0 })),
+        max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick {
+            1.5
+        } else {
+            120.0
+        })),
         reference_macs: if options.quick { 2_000_000_000 } else { 40_000_000_000 },
         torch,
         scratch,
@@ -125,7 +130,13 @@ pub fn run(options: &Options) -> Result<()> {
         env,
     };
     let timing = if bench.timestamps { "gpu timestamps" } else { "wall clock" };
-    println!("raypatch-bench{} on {} ({}, {})", if options.quick { " --quick" } else { "" }, bench.env.adapter, bench.env.backend, bench.env.driver);
+    println!(
+        "raypatch-bench{} on {} ({}, {})",
+        if options.quick { " --quick" } else { "" },
+        bench.env.adapter,
+        bench.env.backend,
+        bench.env.driver
+    );
     println!("machine: {}; timing: {timing}", bench.env.machine);
     match &bench.torch {
         Ok(version) => println!("PyTorch {version}: timing tools/raypatch_reference.py on the same inputs"),
@@ -282,7 +293,8 @@ impl Bench {
         let (wall, gpu) = measure::repeat(self.repeats, || self.render_sample(&s.encoded, targets, request))?;
         set_times(record, wall, gpu);
         let stats = s.encoded.render_stats(targets, request)?;
-        (record.render_peak_bytes, record.dispatches, record.queries) = (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
+        (record.render_peak_bytes, record.dispatches, record.queries) =
+            (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
         Ok(frame)
     }
 
@@ -317,7 +329,9 @@ impl Bench {
     }
 
     fn time_pytorch(&self, s: &Subject, targets: &TargetViews, rgb: &[f32], record: &mut Record) -> Result<()> {
-        let (Ok(_), Some(file)) = (&self.torch, s.file) else { return Ok(()) };
+        let (Ok(_), Some(file)) = (&self.torch, s.file) else {
+            return Ok(());
+        };
         let model_path = self.scratch.join(format!("{}-k{}.safetensors", s.name, record.k));
         if !model_path.exists() {
             report::write_file(&model_path, file)?;
@@ -352,8 +366,16 @@ impl Bench {
             let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?.f32("rgb")?.data;
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let references = self.references(&loaded, &scene.inputs)?;
-            let subject =
-                self.subject(name, "golden", &loaded, None, &model, WeightStorage::F32, &scene.inputs, references.as_ref())?;
+            let subject = self.subject(
+                name,
+                "golden",
+                &loaded,
+                None,
+                &model,
+                WeightStorage::F32,
+                &scene.inputs,
+                references.as_ref(),
+            )?;
             records.push(self.measure(&subject, &scene.targets, Some(&truth), false)?);
             if loaded.config.image_channels() == 4 {
                 records.extend(self.logdepth_skip(&subject, &scene.targets)?);
@@ -404,11 +426,21 @@ impl Bench {
             if f16 && (name == "small" || !self.quick) {
                 storages.push(WeightStorage::F16);
             }
-            let mut sizes: Vec<(usize, usize)> = sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
+            let mut sizes: Vec<(usize, usize)> =
+                sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
             for storage in storages {
-                let model = Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
-                let subject =
-                    self.subject(name.to_string(), "sweep", &loaded, Some(&file), &model, storage, &inputs, references.as_ref())?;
+                let model =
+                    Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
+                let subject = self.subject(
+                    name.to_string(),
+                    "sweep",
+                    &loaded,
+                    Some(&file),
+                    &model,
+                    storage,
+                    &inputs,
+                    references.as_ref(),
+                )?;
                 let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
                 // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
                 let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
@@ -437,7 +469,11 @@ impl Bench {
             if let Some(rate) = rate {
                 let predicted = macs as f64 / rate;
                 if predicted > self.max_render.as_secs_f64() {
-                    println!("  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render", decoder_name(k), size_text(size));
+                    println!(
+                        "  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render",
+                        decoder_name(k),
+                        size_text(size)
+                    );
                     records.push(self.skipped(s, &targets, predicted)?);
                     continue;
                 }
@@ -446,7 +482,8 @@ impl Bench {
             let mut record = self.measure(s, &targets, None, with_torch)?;
             if !s.model.weights_kept_f32().is_empty() {
                 let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
-                record.note = format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
+                record.note =
+                    format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
             }
             rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
             records.push(record);
@@ -497,7 +534,8 @@ impl Bench {
             record.timing = "wall clock".into();
             set_times(&mut record, wall, None);
             let stats = s.encoded.render_stats(targets, request)?;
-            (record.render_peak_bytes, record.dispatches, record.queries) = (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
+            (record.render_peak_bytes, record.dispatches, record.queries) =
+                (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
             print_row(&record);
             Ok(record)
         };
@@ -556,7 +594,14 @@ impl Bench {
         let Some(times) = times? else { bail!("no timestamps came back") };
         let k = s.loaded.config.patch_size();
         let grid = targets.grid(k, "target views")?;
-        let config = format!("{} {} k={k} {}x{} {}", s.name, decoder_name(k), grid.height, grid.width, precision_name(s.storage));
+        let config = format!(
+            "{} {} k={k} {}x{} {}",
+            s.name,
+            decoder_name(k),
+            grid.height,
+            grid.width,
+            precision_name(s.storage)
+        );
         Ok(crate::kernels::fold(&config, &times))
     }
 
@@ -575,8 +620,16 @@ impl Bench {
             let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
             let references = self.references(&loaded, &inputs)?;
             let name = path.display().to_string();
-            let subject =
-                self.subject(name, "model", &loaded, Some(&file), &model, WeightStorage::F32, &inputs, references.as_ref())?;
+            let subject = self.subject(
+                name,
+                "model",
+                &loaded,
+                Some(&file),
+                &model,
+                WeightStorage::F32,
+                &inputs,
+                references.as_ref(),
+            )?;
             records.push(self.measure(&subject, &targets, None, true)?);
         }
         Ok(())
@@ -632,6 +685,11 @@ fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>> {
         ("target_rays".to_string(), vec![t, th, tw, 3], targets.rays.clone()),
     ];
     let metadata = json!({"format": "raypatch-scene/1"});
-    let metadata = metadata.as_object().expect("object").iter().map(|(k, v)| (k.clone(), v.as_str().unwrap_or_default().to_string())).collect();
+    let metadata = metadata
+        .as_object()
+        .expect("object")
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_str().unwrap_or_default().to_string()))
+        .collect();
     synthetic::serialize(&tensors, metadata).map_err(anyhow::Error::msg)
 }

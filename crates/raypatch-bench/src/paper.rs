@@ -26,7 +26,12 @@ const TABLE_1: [((usize, usize), usize, f64, f64); 6] = [
 fn official(records: &[Record], size: (usize, usize), k: usize) -> Option<&Record> {
     let size = format!("{}x{}", size.0, size.1);
     records.iter().find(|r| {
-        r.group == "sweep" && r.model == "official" && r.k == k && r.target_size == size && r.precision == "f32" && r.fps.is_some()
+        r.group == "sweep"
+            && r.model == "official"
+            && r.k == k
+            && r.target_size == size
+            && r.precision == "f32"
+            && r.fps.is_some()
     })
 }
 
@@ -84,11 +89,17 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
     });
     for k in [1, 16] {
         let size = format!("{}x{}", 960, 1280);
-        if let Some(r) = records.iter().find(|r| r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep") {
+        if let Some(r) =
+            records.iter().find(|r| r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep")
+        {
             rows.push(Comparison {
                 what: format!("official {} 960x1280: materialised scores vs the engine's planned peak", name(k)),
                 paper: "-".into(),
-                ours: format!("{} vs {}", bytes(r.attention_scores_bytes), r.render_peak_bytes.map_or("-".into(), bytes)),
+                ours: format!(
+                    "{} vs {}",
+                    bytes(r.attention_scores_bytes),
+                    r.render_peak_bytes.map_or("-".into(), bytes)
+                ),
             });
         }
     }

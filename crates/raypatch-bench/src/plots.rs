@@ -30,9 +30,8 @@ const COLORS: [RGBColor; 12] = [
 
 fn font() -> Result<()> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        register_font(FONT, FontStyle::Normal, include_bytes!("../assets/DejaVuSansMono.ttf")).is_ok()
-    });
+    let ok = *REGISTERED
+        .get_or_init(|| register_font(FONT, FontStyle::Normal, include_bytes!("../assets/DejaVuSansMono.ttf")).is_ok());
     if ok {
         Ok(())
     } else {
@@ -75,7 +74,14 @@ fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
 }
 
 /// A log-log line plot with markers, written to `path`. `front` is drawn as a thick grey line behind.
-fn draw(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series], front: Option<&[(f64, f64)]>) -> Result<()> {
+fn draw(
+    path: &Path,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[Series],
+    front: Option<&[(f64, f64)]>,
+) -> Result<()> {
     font()?;
     let (w, h) = SIZE;
     let mut pixels = vec![0u8; (w * h * 3) as usize];
@@ -85,7 +91,9 @@ fn draw(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
         root.fill(&WHITE).map_err(err)?;
         match bounds(series) {
             None => root.draw(&Text::new(format!("{title}: no data"), (20, h as i32 / 2), (FONT, 20))).map_err(err)?,
-            Some(((x0, x1), (y0, y1))) => chart(&root, title, x_desc, y_desc, series, front, (x0..x1, y0..y1)).map_err(err)?,
+            Some(((x0, x1), (y0, y1))) => {
+                chart(&root, title, x_desc, y_desc, series, front, (x0..x1, y0..y1)).map_err(err)?
+            }
         }
         root.present().map_err(err)?;
     }
@@ -137,7 +145,10 @@ fn chart(
             .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
         chart.draw_series(s.points.iter().map(|&p| Circle::new(p, 5, color.filled())))?;
         chart.draw_series(
-            s.points.iter().zip(&s.tags).map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&color))),
+            s.points
+                .iter()
+                .zip(&s.tags)
+                .map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&color))),
         )?;
     }
     chart
@@ -230,9 +241,12 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     let mut memory = by_config(records, |r| r.render_peak_bytes.map(|b| (r.pixels as f64, b as f64)));
     for k in [1, 16] {
         let scores = by_config(records, |r| {
-            (r.model == "official" && r.k == k && r.precision == "f32").then_some((r.pixels as f64, r.attention_scores_bytes as f64))
+            (r.model == "official" && r.k == k && r.precision == "f32")
+                .then_some((r.pixels as f64, r.attention_scores_bytes as f64))
         });
-        memory.extend(scores.into_iter().map(|s| Series { label: format!("{} (scores, if materialised)", s.label), ..s }));
+        memory.extend(
+            scores.into_iter().map(|s| Series { label: format!("{} (scores, if materialised)", s.label), ..s }),
+        );
     }
     draw(
         &out.join(FILES[2]),

@@ -205,7 +205,22 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
     let sweep: Vec<&Record> = records.iter().filter(|r| r.group == "sweep").collect();
     table(
         &mut out,
-        &["model", "decoder", "k", "precision", "target", "render ms", "fps", "encode ms", "render peak", "GFLOP render", "max err vs f64 ref", "vs f64 model", "vs PyTorch", "PyTorch / ours"],
+        &[
+            "model",
+            "decoder",
+            "k",
+            "precision",
+            "target",
+            "render ms",
+            "fps",
+            "encode ms",
+            "render peak",
+            "GFLOP render",
+            "max err vs f64 ref",
+            "vs f64 model",
+            "vs PyTorch",
+            "PyTorch / ours",
+        ],
         sweep
             .iter()
             .map(|r| {
@@ -240,7 +255,10 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
     }
     for (model, precision, size) in keys {
         let fps = |k: usize| {
-            sweep.iter().find(|r| r.model == model && r.precision == precision && r.target_size == size && r.k == k).and_then(|r| r.fps)
+            sweep
+                .iter()
+                .find(|r| r.model == model && r.precision == precision && r.target_size == size && r.k == k)
+                .and_then(|r| r.fps)
         };
         let Some(srt) = fps(1) else { continue };
         let mut row = vec![model.clone(), precision.clone(), size.clone(), format!("{srt:.2}")];
@@ -252,7 +270,18 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
     out += "### Golden cases (errors against PyTorch float32, the float64 reference and the float64 model)\n\n";
     table(
         &mut out,
-        &["case", "decoder", "k", "target", "render ms", "encode ms", "max err vs PyTorch", "vs f64 ref", "vs f64 model", "PSNR dB"],
+        &[
+            "case",
+            "decoder",
+            "k",
+            "target",
+            "render ms",
+            "encode ms",
+            "max err vs PyTorch",
+            "vs f64 ref",
+            "vs f64 model",
+            "PSNR dB",
+        ],
         records
             .iter()
             .filter(|r| r.group == "golden")
@@ -301,7 +330,11 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
     for config in configs {
         out += &format!("### Where the render time goes: {config} (GPU timestamps between ops)\n\n");
         let rows: Vec<&KernelTime> = kernels.iter().filter(|k| k.config == config).collect();
-        let family = rows.iter().filter(|k| k.op == "*").map(|k| format!("{} {:.0}%", k.kernel, 100.0 * k.share)).collect::<Vec<_>>();
+        let family = rows
+            .iter()
+            .filter(|k| k.op == "*")
+            .map(|k| format!("{} {:.0}%", k.kernel, 100.0 * k.share))
+            .collect::<Vec<_>>();
         out += &format!("By kernel: {}.\n\n", family.join(", "));
         table(
             &mut out,
@@ -309,12 +342,24 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
             rows.iter()
                 .filter(|k| k.op != "*")
                 .take(12)
-                .map(|k| vec![format!("`{}`", k.op), k.kernel.clone(), k.dispatches.to_string(), format!("{:.2}", k.ms), format!("{:.1}%", 100.0 * k.share)])
+                .map(|k| {
+                    vec![
+                        format!("`{}`", k.op),
+                        k.kernel.clone(),
+                        k.dispatches.to_string(),
+                        format!("{:.2}", k.ms),
+                        format!("{:.1}%", 100.0 * k.share),
+                    ]
+                })
                 .collect(),
         );
     }
 
     out += "### The paper's figures beside ours\n\n";
-    table(&mut out, &["", "paper", "ours"], comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect());
+    table(
+        &mut out,
+        &["", "paper", "ours"],
+        comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect(),
+    );
     out
 }

@@ -96,7 +96,11 @@ pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tenso
 }
 
 /// A model from its config and tensors, through a safetensors file in memory (returned too).
-pub fn model_from_tensors(config: &Value, tensors: &[Tensor], name: &str) -> Result<(LoadedModel, Vec<u8>), ModelError> {
+pub fn model_from_tensors(
+    config: &Value,
+    tensors: &[Tensor],
+    name: &str,
+) -> Result<(LoadedModel, Vec<u8>), ModelError> {
     let metadata = [
         ("format".to_string(), MODEL_FORMAT.to_string()),
         ("config".to_string(), config.to_string()),
@@ -124,10 +128,7 @@ fn unit_gain(key: &str) -> bool {
 }
 
 /// A safetensors file of f32 tensors (name, shape, data) with metadata.
-pub fn serialize(
-    tensors: &[Tensor],
-    metadata: std::collections::HashMap<String, String>,
-) -> Result<Vec<u8>, String> {
+pub fn serialize(tensors: &[Tensor], metadata: std::collections::HashMap<String, String>) -> Result<Vec<u8>, String> {
     let bytes: Vec<(&str, Vec<usize>, &[u8])> =
         tensors.iter().map(|(k, s, d)| (k.as_str(), s.clone(), bytemuck::cast_slice(d))).collect();
     let views = bytes
@@ -154,9 +155,8 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
     let c = position.map(f64::from);
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     let scale = |v: [f64; 3], s: f64| v.map(|x| x * s);
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    };
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
     let dir = scale(c, -1.0 / norm(c));
     let horizontal = cross(dir, [0.0, 0.0, 1.0]);
     if norm(horizontal) < 1e-9 {
@@ -186,7 +186,14 @@ pub fn structured_image(height: usize, width: usize, rng: &mut Rng) -> Vec<f32> 
     let waves: Vec<(f64, f64, f64)> =
         (0..3).map(|_| (rng.uniform(0.3, 1.2), rng.uniform(0.3, 1.2), rng.uniform(0.0, 6.3))).collect();
     let discs: Vec<(f64, f64, f64, [f64; 3])> = (0..3)
-        .map(|_| (rng.uniform(0.15, 0.85), rng.uniform(0.15, 0.85), rng.uniform(0.08, 0.25), [rng.unit(), rng.unit(), rng.unit()]))
+        .map(|_| {
+            (
+                rng.uniform(0.15, 0.85),
+                rng.uniform(0.15, 0.85),
+                rng.uniform(0.08, 0.25),
+                [rng.unit(), rng.unit(), rng.unit()],
+            )
+        })
         .collect();
     let mut image = Vec::with_capacity(height * width * 3);
     for y in 0..height {
@@ -229,7 +236,11 @@ pub fn synthetic_scene(
 ) -> Result<(InputViews, TargetViews), String> {
     let mut rng = Rng::new(seed);
     let camera = |rng: &mut Rng| {
-        look_at_position(rng.uniform(0.0, 360.0), rng.uniform(rig.distance.0, rig.distance.1), rng.uniform(rig.elevation.0, rig.elevation.1))
+        look_at_position(
+            rng.uniform(0.0, 360.0),
+            rng.uniform(rig.distance.0, rig.distance.1),
+            rng.uniform(rig.elevation.0, rig.elevation.1),
+        )
     };
     let (h, w) = input_size;
     let (mut images, mut positions, mut rays) = (Vec::new(), Vec::new(), Vec::new());

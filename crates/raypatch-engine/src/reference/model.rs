@@ -16,8 +16,8 @@ use super::conv::conv3x3;
 use super::elementwise::map_columns;
 use super::matmul::linear;
 use super::norm::layernorm;
-pub use super::posenc::Argument;
 use super::posenc::fourier_encode_with;
+pub use super::posenc::Argument;
 use super::resize::{bilinear, linear_source};
 use crate::kernels::elementwise::Map;
 use crate::kernels::{posenc::multipliers, Activation};
@@ -154,7 +154,8 @@ impl ReferenceModel {
             let n = w.shape[0];
             Dense { w: f64s(&w.data), b: bias.then(|| get(&format!("{prefix}.bias"))), n, k: w.data.len() / n }
         };
-        let norm = |prefix: &str| Norm { gamma: get(&format!("{prefix}.weight")), beta: get(&format!("{prefix}.bias")) };
+        let norm =
+            |prefix: &str| Norm { gamma: get(&format!("{prefix}.weight")), beta: get(&format!("{prefix}.bias")) };
         // BatchNorm (eval): y = (conv(x) + b - μ)·γ/√(σ²+ε) + β, folded into the weights and bias.
         let conv = |weight: &str, bias: Option<&str>, batch_norm: Option<&str>| {
             let shape = &model.weight(weight).shape;
@@ -331,7 +332,10 @@ impl ReferenceModel {
                 let mut skip = bilinear(&first, views, h, w, channels, 2 * h, 2 * w);
                 let mut x = features;
                 for (i, (feature_conv, to_rgb)) in blocks.iter().enumerate() {
-                    x = leaky_relu(feature_conv.apply(&x, (views, h, w), 1, true, Activation::None, None), CONV_DECODER_SLOPE);
+                    x = leaky_relu(
+                        feature_conv.apply(&x, (views, h, w), 1, true, Activation::None, None),
+                        CONV_DECODER_SLOPE,
+                    );
                     (h, w) = (2 * h, 2 * w);
                     skip = to_rgb.apply(&x, (views, h, w), 1, false, Activation::None, Some(&skip));
                     if i + 1 < blocks.len() {
@@ -352,7 +356,14 @@ impl ReferenceModel {
 
     /// `SRTDecoder` on query rows `[start, start + rays.len()/3)`: encodings, input_mlp, the cross-attention
     /// layers, out_mlp. Returns `[rows, out_dims]`.
-    fn decode(&self, scene: &ReferenceScene, positions: &[f64], per_view: usize, start: usize, rays: &[f64]) -> Vec<f64> {
+    fn decode(
+        &self,
+        scene: &ReferenceScene,
+        positions: &[f64],
+        per_view: usize,
+        start: usize,
+        rays: &[f64],
+    ) -> Vec<f64> {
         let d = &self.config.decoder;
         let rows = rays.len() / 3;
         let pos = self.encoding(positions, per_view, start, rows, &d.pos_octaves);
