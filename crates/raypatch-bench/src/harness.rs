@@ -117,7 +117,7 @@ pub fn run(options: &Options) -> Result<()> {
     let bench = Bench {
         gpu,
         timestamps,
-        repeats: Repeats { warmup: 0, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
+        repeats: Repeats { warmup: 1, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
         max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick {
             1.5
         } else {
@@ -143,7 +143,7 @@ pub fn run(options: &Options) -> Result<()> {
         Err(why) => println!("PyTorch not timed: {why}"),
     }
 
-    let started = Instant::now();
+    let started = started();
     let mut records = Vec::new();
     let mut kernels = Vec::new();
     bench.golden(&mut records)?;
@@ -290,7 +290,9 @@ impl Bench {
         let frame = s.encoded.render(targets, request)?;
         record.first_render_wall_ms = Some(start.elapsed().as_secs_f64() * 1e3);
         self.gpu.take_timestamps()?;
-        let (wall, gpu) = measure::repeat(self.repeats, || self.render_sample(&s.encoded, targets, request))?;
+        // The first render was the warm-up (it built the plan).
+        let repeats = Repeats { warmup: 0, ..self.repeats };
+        let (wall, gpu) = measure::repeat(repeats, || self.render_sample(&s.encoded, targets, request))?;
         set_times(record, wall, gpu);
         let stats = s.encoded.render_stats(targets, request)?;
         (record.render_peak_bytes, record.dispatches, record.queries) =
@@ -637,6 +639,12 @@ impl Bench {
     }
 }
 
+/// When the run started, for the progress lines.
+fn started() -> Instant {
+    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    *START.get_or_init(Instant::now)
+}
+
 /// Fills the render timing fields: GPU time when there is one, else wall time.
 fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
     let render = gpu.unwrap_or(wall);
@@ -647,7 +655,8 @@ fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
 
 fn print_row(r: &Record) {
     println!(
-        "  {:<12} {:<7} k={:<2} {} {:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
+        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
+        started().elapsed().as_secs_f64(),
         r.model,
         r.decoder,
         r.k,
