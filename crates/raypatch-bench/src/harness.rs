@@ -9,7 +9,9 @@ use anyhow::{bail, Context, Result};
 use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
 use raypatch_engine::weights::{LoadOptions, WeightStorage};
-use raypatch_engine::{AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request};
+use raypatch_engine::{
+    AdapterChoice, EncodedScene, EngineError, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request,
+};
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
 use serde::Serialize;
 use serde_json::json;
@@ -324,7 +326,10 @@ impl Bench {
             record.psnr_db = Some(measure::psnr(&rgb, images));
         }
         if with_torch {
-            self.time_pytorch(s, targets, &rgb, &mut record)?;
+            // PyTorch failing (e.g. out of memory at a large size) is reported in the record, not fatal.
+            if let Err(e) = self.time_pytorch(s, targets, &rgb, &mut record) {
+                record.note = format!("{} PyTorch failed: {e:#}", record.note).trim().to_string();
+            }
         }
         print_row(&record);
         Ok(record)
@@ -481,7 +486,19 @@ impl Bench {
                 }
             }
             let with_torch = f32_weights && self.torch_config(name, k, size);
-            let mut record = self.measure(s, &targets, None, with_torch)?;
+            let mut record = match self.measure(s, &targets, None, with_torch) {
+                Ok(record) => record,
+                // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
+                Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
+                    println!("  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}", decoder_name(k), size_text(size));
+                    let mut record = self.record(s, targets.count, size, "");
+                    record.note = format!("does not fit: {e}");
+                    records.push(record);
+                    s.encoded.clear_render_plans();
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             if !s.model.weights_kept_f32().is_empty() {
                 let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
                 record.note =
@@ -519,10 +536,15 @@ impl Bench {
     fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64) -> Result<Record> {
         let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        let stats = s.encoded.render_stats(targets, Outputs::default())?;
-        s.encoded.clear_render_plans();
-        (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches));
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
+        match s.encoded.render_stats(targets, Outputs::default()) {
+            Ok(stats) => {
+                (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches))
+            }
+            Err(e @ EngineError::TooLarge { .. }) => record.note += &format!("; does not fit: {e}"),
+            Err(e) => return Err(e.into()),
+        }
+        s.encoded.clear_render_plans();
         Ok(record)
     }
 
