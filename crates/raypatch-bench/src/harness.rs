@@ -13,7 +13,7 @@ use raypatch_engine::{
     AdapterChoice, EncodedScene, EngineError, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request,
 };
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use crate::flops;
@@ -70,16 +70,29 @@ struct Bench {
 }
 
 /// The results file.
-#[derive(Serialize)]
-struct Results<'a> {
-    command: &'a str,
+#[derive(Serialize, Deserialize)]
+struct Results {
+    command: String,
     date_unix: u64,
-    environment: &'a Environment,
-    timing: &'a str,
+    environment: Environment,
+    timing: String,
     pytorch: String,
-    results: &'a [Record],
-    kernels: &'a [KernelTime],
-    paper_comparison: &'a [paper::Comparison],
+    results: Vec<Record>,
+    kernels: Vec<KernelTime>,
+    paper_comparison: Vec<paper::Comparison>,
+}
+
+/// Writes tables.md and the plots again from a results.json (e.g. after changing how they are drawn).
+pub fn replot(results: &Path, out: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(results).with_context(|| format!("{}: cannot read", results.display()))?;
+    let results: Results =
+        serde_json::from_str(&text).with_context(|| format!("{}: not a raypatch-bench results.json", results.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create the output folder", out.display()))?;
+    let tables = report::markdown(&results.results, &results.kernels, &results.paper_comparison);
+    report::write_file(&out.join("tables.md"), tables.as_bytes())?;
+    plots::draw_all(&results.results, out)?;
+    println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
+    Ok(())
 }
 
 /// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
@@ -156,24 +169,24 @@ pub fn run(options: &Options) -> Result<()> {
     let tables = report::markdown(&records, &kernels, &comparison);
     println!("\n{tables}");
     let results = Results {
-        command: &options.command,
+        command: options.command.clone(),
         date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
-        environment: &bench.env,
-        timing,
+        environment: bench.env.clone(),
+        timing: timing.to_string(),
         pytorch: match &bench.torch {
             Ok(v) => format!("torch {v}"),
             Err(why) => format!("not timed: {why}"),
         },
-        results: &records,
-        kernels: &kernels,
-        paper_comparison: &comparison,
+        results: records,
+        kernels,
+        paper_comparison: comparison,
     };
     let json = serde_json::to_string_pretty(&results)?;
     report::write_file(&options.out.join("results.json"), json.as_bytes())?;
-    report::write_csv(&options.out.join("results.csv"), &records)?;
-    report::write_csv(&options.out.join("kernels.csv"), &kernels)?;
+    report::write_csv(&options.out.join("results.csv"), &results.results)?;
+    report::write_csv(&options.out.join("kernels.csv"), &results.kernels)?;
     report::write_file(&options.out.join("tables.md"), tables.as_bytes())?;
-    plots::draw_all(&records, &options.out)?;
+    plots::draw_all(&results.results, &options.out)?;
     std::fs::remove_dir_all(&bench.scratch).ok();
     println!(
         "wrote results.json, results.csv, kernels.csv, tables.md and {} in {} ({:.0} s)",

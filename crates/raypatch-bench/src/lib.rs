@@ -13,4 +13,4 @@ pub mod pytorch;
 pub mod report;
 pub mod synthetic;
 
-pub use harness::{run, Options};
+pub use harness::{replot, run, Options};

@@ -33,6 +33,9 @@ struct Args {
     /// The scene for --model files (default: a synthetic 120x160 scene).
     #[arg(long)]
     scene: Option<PathBuf>,
+    /// Measure nothing: write tables.md and the plots into --out again from this results.json.
+    #[arg(long, value_name = "RESULTS_JSON")]
+    replot: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -40,6 +43,15 @@ fn main() -> ExitCode {
     if args.repeats == Some(0) {
         eprintln!("raypatch-bench: --repeats must be at least 1");
         return ExitCode::from(2);
+    }
+    if let Some(results) = &args.replot {
+        return match raypatch_bench::replot(results, &args.out) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("raypatch-bench: {e:#}");
+                ExitCode::from(2)
+            }
+        };
     }
     let options = raypatch_bench::Options {
         quick: args.quick,

@@ -1,12 +1,12 @@
 //! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, measured on an NVIDIA V100, and the
 //! attention-memory example of Section 5) beside ours where they apply.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::flops::attention_score_bytes;
 use crate::report::{bytes, Record};
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Comparison {
     pub what: String,
     pub paper: String,

@@ -11,7 +11,7 @@ use plotters::style::{register_font, FontStyle};
 use crate::report::Record;
 
 pub const FILES: [&str; 3] = ["pareto.png", "fps_vs_resolution.png", "memory_vs_resolution.png"];
-const SIZE: (u32, u32) = (960, 640);
+const SIZE: (u32, u32) = (1200, 640);
 const FONT: &str = "sans-serif";
 const COLORS: [RGBColor; 12] = [
     RGBColor(31, 119, 180),
@@ -39,11 +39,20 @@ fn font() -> Result<()> {
     }
 }
 
-/// One line (or point set) of a plot: its label, points and, optionally, a tag per point.
+/// One line (or point set) of a plot: its label, points, colour and, optionally, a tag per point.
 struct Series {
     label: String,
     points: Vec<(f64, f64)>,
+    /// Per-point tags make a point set (no line through the points).
     tags: Vec<String>,
+    color: RGBColor,
+    dashed: bool,
+}
+
+impl Series {
+    fn new(label: String, color: RGBColor) -> Series {
+        Series { label, points: Vec::new(), tags: Vec::new(), color, dashed: false }
+    }
 }
 
 /// Compact axis labels: 3 significant digits with an SI suffix (1.2k, 19.2k, 1.23M) or a short exponent.
@@ -73,15 +82,9 @@ fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
     Some((span(points.iter().map(|p| p.0).collect()), span(points.iter().map(|p| p.1).collect())))
 }
 
-/// A log-log line plot with markers, written to `path`. `front` is drawn as a thick grey line behind.
-fn draw(
-    path: &Path,
-    title: &str,
-    x_desc: &str,
-    y_desc: &str,
-    series: &[Series],
-    front: Option<&[(f64, f64)]>,
-) -> Result<()> {
+/// A log-log plot written to `path`: the chart on the left, the legend in a column on the right. `fronts`
+/// are drawn as thick grey lines behind the series.
+fn draw(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series], fronts: &[Vec<(f64, f64)>]) -> Result<()> {
     font()?;
     let (w, h) = SIZE;
     let mut pixels = vec![0u8; (w * h * 3) as usize];
@@ -89,19 +92,48 @@ fn draw(
         let root = BitMapBackend::with_buffer(&mut pixels, SIZE).into_drawing_area();
         let err = |e: DrawingAreaErrorKind<_>| anyhow!("drawing {}: {e}", path.display());
         root.fill(&WHITE).map_err(err)?;
+        let (plot, legend_area) = root.split_horizontally(w - LEGEND_WIDTH);
         match bounds(series) {
-            None => root.draw(&Text::new(format!("{title}: no data"), (20, h as i32 / 2), (FONT, 20))).map_err(err)?,
+            None => plot.draw(&Text::new(format!("{title}: no data"), (20, h as i32 / 2), (FONT, 20))).map_err(err)?,
             Some(((x0, x1), (y0, y1))) => {
-                chart(&root, title, x_desc, y_desc, series, front, (x0..x1, y0..y1)).map_err(err)?
+                chart(&plot, title, x_desc, y_desc, series, fronts, (x0..x1, y0..y1)).map_err(err)?
             }
         }
+        legend(&legend_area, series, !fronts.is_empty()).map_err(err)?;
         root.present().map_err(err)?;
     }
     save(path, pixels)
 }
 
+const LEGEND_WIDTH: u32 = 330;
+
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 type DrawResult = std::result::Result<(), DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>>;
+
+fn legend(area: &Area, series: &[Series], front: bool) -> DrawResult {
+    let grey = RGBColor(190, 190, 190);
+    let mut y = 60;
+    let mut entry = |label: &str, color: RGBColor, dashed: bool, thick: bool| -> DrawResult {
+        let style = color.stroke_width(if thick { 8 } else { 2 });
+        if dashed {
+            area.draw(&PathElement::new(vec![(8, y), (14, y)], style))?;
+            area.draw(&PathElement::new(vec![(20, y), (26, y)], style))?;
+        } else {
+            area.draw(&PathElement::new(vec![(8, y), (26, y)], style))?;
+            area.draw(&Circle::new((17, y), 4, color.filled()))?;
+        }
+        area.draw(&Text::new(label.to_string(), (34, y - 7), (FONT, 13)))?;
+        y += 20;
+        Ok(())
+    };
+    if front {
+        entry("Pareto front (per model)", grey, false, true)?;
+    }
+    for s in series {
+        entry(&s.label, s.color, s.dashed, false)?;
+    }
+    Ok(())
+}
 
 fn chart(
     root: &Area,
@@ -109,11 +141,11 @@ fn chart(
     x_desc: &str,
     y_desc: &str,
     series: &[Series],
-    front: Option<&[(f64, f64)]>,
+    fronts: &[Vec<(f64, f64)>],
     (x, y): (std::ops::Range<f64>, std::ops::Range<f64>),
 ) -> DrawResult {
     let mut chart = ChartBuilder::on(root)
-        .caption(title, (FONT, 20))
+        .caption(title, (FONT, 18))
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(80)
@@ -128,36 +160,21 @@ fn chart(
         .x_label_formatter(&si)
         .y_label_formatter(&si)
         .draw()?;
-    if let Some(front) = front {
-        let grey = RGBColor(190, 190, 190).stroke_width(8);
-        chart
-            .draw_series(LineSeries::new(front.iter().copied(), grey))?
-            .label("Pareto front")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey));
+    for front in fronts {
+        chart.draw_series(LineSeries::new(front.iter().copied(), RGBColor(190, 190, 190).stroke_width(8)))?;
     }
-    for (i, s) in series.iter().enumerate() {
-        let color = COLORS[i % COLORS.len()];
-        // Tagged series are point sets (their order means nothing); the others are lines.
-        let line = if s.tags.is_empty() { s.points.clone() } else { Vec::new() };
-        chart
-            .draw_series(LineSeries::new(line, color.stroke_width(2)))?
-            .label(s.label.clone())
-            .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
-        chart.draw_series(s.points.iter().map(|&p| Circle::new(p, 5, color.filled())))?;
-        chart.draw_series(
-            s.points
-                .iter()
-                .zip(&s.tags)
-                .map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&color))),
-        )?;
+    for s in series {
+        let style = s.color.stroke_width(2);
+        if s.dashed {
+            chart.draw_series(DashedLineSeries::new(s.points.iter().copied(), 6, 6, style))?;
+        } else {
+            let line = if s.tags.is_empty() { s.points.clone() } else { Vec::new() };
+            chart.draw_series(LineSeries::new(line, style))?;
+            chart.draw_series(s.points.iter().map(|&p| Circle::new(p, 5, s.color.filled())))?;
+        }
+        let tags = s.points.iter().zip(&s.tags);
+        chart.draw_series(tags.map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&s.color))))?;
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
     Ok(())
 }
 
@@ -173,15 +190,17 @@ fn config_label(r: &Record) -> String {
     format!("{} {decoder} {}", r.model, r.precision)
 }
 
-/// Series per (model, k, precision) over the sweep records, x and y taken by `point`.
+/// Lines per (model, k) over the f32 sweep records (f16 scales the same way; it is in the Pareto plot),
+/// x and y taken by `point`, sorted by x.
 fn by_config(records: &[Record], point: impl Fn(&Record) -> Option<(f64, f64)>) -> Vec<Series> {
     let mut series: Vec<Series> = Vec::new();
-    for r in records.iter().filter(|r| r.group == "sweep") {
+    for r in records.iter().filter(|r| r.group == "sweep" && r.precision == "f32") {
         let Some(p) = point(r) else { continue };
         let label = config_label(r);
+        let next = COLORS[series.len() % COLORS.len()];
         match series.iter_mut().find(|s| s.label == label) {
             Some(s) => s.points.push(p),
-            None => series.push(Series { label, points: vec![p], tags: Vec::new() }),
+            None => series.push(Series { points: vec![p], ..Series::new(label, next) }),
         }
     }
     series.iter_mut().for_each(|s| s.points.sort_by(|a, b| a.0.total_cmp(&b.0)));
@@ -210,51 +229,62 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
             let label = format!("{} {}", r.model, r.precision);
             let tag = if r.k == 1 { " SRT".to_string() } else { format!(" k={}", r.k) };
             let p = (t.median_ms, e.max(1e-9));
-            match pareto.iter_mut().find(|s| s.label == label) {
-                Some(s) => {
-                    s.points.push(p);
-                    s.tags.push(tag);
+            let next = COLORS[pareto.len() % COLORS.len()];
+            let s = match pareto.iter_mut().position(|s| s.label == label) {
+                Some(i) => &mut pareto[i],
+                None => {
+                    pareto.push(Series::new(label, next));
+                    pareto.last_mut().expect("just pushed")
                 }
-                None => pareto.push(Series { label, points: vec![p], tags: vec![tag] }),
-            }
+            };
+            s.points.push(p);
+            s.tags.push(tag);
         }
     }
-    let all: Vec<(f64, f64)> = pareto.iter().flat_map(|s| s.points.iter().copied()).collect();
+    // One front per model: the choices (k, precision) for a given model.
+    let mut models: Vec<&str> = pareto.iter().filter_map(|s| s.label.split(' ').next()).collect();
+    models.dedup();
+    let fronts: Vec<Vec<(f64, f64)>> = models
+        .iter()
+        .map(|m| {
+            let points: Vec<(f64, f64)> =
+                pareto.iter().filter(|s| s.label.starts_with(&format!("{m} "))).flat_map(|s| s.points.clone()).collect();
+            pareto_front(&points)
+        })
+        .collect();
     draw(
         &out.join(FILES[0]),
-        &format!("Render time against error at {size}, over k and precision"),
+        &format!("Render time against error at {size}"),
         "render time (ms)",
         "max |rgb - float64 reference|",
         &pareto,
-        Some(&pareto_front(&all)),
+        &fronts,
     )?;
     draw(
         &out.join(FILES[1]),
-        "Frames per second against resolution (1 target view)",
-        "pixels per frame",
+        "Frames per second against resolution",
+        "pixels per frame (1 target view)",
         "frames per second",
         &by_config(records, |r| r.fps.map(|f| (r.pixels as f64, f))),
-        None,
+        &[],
     )?;
-    // Beside the engine's planned peaks, what the official SRT and RP-SRT k=16 would hold in softmax scores
-    // if they materialised them (the paper's Figure 2a).
+    // Beside the engine's planned peaks (solid), what the official SRT and RP-SRT k=16 would hold in softmax
+    // scores if they materialised them (dashed, the paper's Figure 2a quantity).
     let mut memory = by_config(records, |r| r.render_peak_bytes.map(|b| (r.pixels as f64, b as f64)));
-    for k in [1, 16] {
-        let scores = by_config(records, |r| {
-            (r.model == "official" && r.k == k && r.precision == "f32")
-                .then_some((r.pixels as f64, r.attention_scores_bytes as f64))
-        });
-        memory.extend(
-            scores.into_iter().map(|s| Series { label: format!("{} (scores, if materialised)", s.label), ..s }),
-        );
+    let scores = by_config(records, |r| {
+        (r.model == "official" && (r.k == 1 || r.k == 16)).then_some((r.pixels as f64, r.attention_scores_bytes as f64))
+    });
+    for s in scores {
+        let color = memory.iter().find(|m| m.label == s.label).map_or(s.color, |m| m.color);
+        memory.push(Series { label: format!("{}: scores", s.label), color, dashed: true, ..s });
     }
     draw(
         &out.join(FILES[2]),
-        "Planned peak GPU memory of a render against resolution",
-        "pixels per frame",
+        "Planned peak GPU memory of a render",
+        "pixels per frame (1 target view)",
         "bytes",
         &memory,
-        None,
+        &[],
     )
 }
 

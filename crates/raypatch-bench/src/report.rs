@@ -5,13 +5,13 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::measure::Stats;
 
 /// Where the numbers were measured; repeated in every record.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Environment {
     pub adapter: String,
     pub backend: String,
@@ -20,7 +20,7 @@ pub struct Environment {
 }
 
 /// One measured configuration.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Record {
     /// `golden` (assets/golden), `sweep` (random-weight models), `skips`, `model` (a file given with --model).
     pub group: String,
@@ -85,7 +85,7 @@ pub struct Record {
 }
 
 /// GPU time per kernel of one render, from timestamps between the ops.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct KernelTime {
     /// The configuration, e.g. `official RP-SRT k=8 120x160 f32`.
     pub config: String,
