@@ -85,8 +85,8 @@ struct Results {
 /// Writes tables.md and the plots again from a results.json (e.g. after changing how they are drawn).
 pub fn replot(results: &Path, out: &Path) -> Result<()> {
     let text = std::fs::read_to_string(results).with_context(|| format!("{}: cannot read", results.display()))?;
-    let results: Results =
-        serde_json::from_str(&text).with_context(|| format!("{}: not a raypatch-bench results.json", results.display()))?;
+    let results: Results = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a raypatch-bench results.json", results.display()))?;
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create the output folder", out.display()))?;
     let tables = report::markdown(&results.results, &results.kernels, &results.paper_comparison);
     report::write_file(&out.join("tables.md"), tables.as_bytes())?;

@@ -84,7 +84,14 @@ fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
 
 /// A log-log plot written to `path`: the chart on the left, the legend in a column on the right. `fronts`
 /// are drawn as thick grey lines behind the series.
-fn draw(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series], fronts: &[Vec<(f64, f64)>]) -> Result<()> {
+fn draw(
+    path: &Path,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[Series],
+    fronts: &[Vec<(f64, f64)>],
+) -> Result<()> {
     font()?;
     let (w, h) = SIZE;
     let mut pixels = vec![0u8; (w * h * 3) as usize];
@@ -247,8 +254,11 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     let fronts: Vec<Vec<(f64, f64)>> = models
         .iter()
         .map(|m| {
-            let points: Vec<(f64, f64)> =
-                pareto.iter().filter(|s| s.label.starts_with(&format!("{m} "))).flat_map(|s| s.points.clone()).collect();
+            let points: Vec<(f64, f64)> = pareto
+                .iter()
+                .filter(|s| s.label.starts_with(&format!("{m} ")))
+                .flat_map(|s| s.points.clone())
+                .collect();
             pareto_front(&points)
         })
         .collect();
