@@ -1,6 +1,6 @@
 """Checks of the scene generator, the metrics and the training loop.
 
-    python3 -m unittest tools/test_scenes.py     (about 30 s)
+    python3 -m unittest tools/test_scenes.py     (10 to 35 s)
 
 Geometry is checked against signed distance functions written independently of the ray-shape intersections.
 """
@@ -179,7 +179,8 @@ def naive_ssim(pred, target):
             var_a, var_b = (w * a * a).sum((0, 1)) - mu_a ** 2, (w * b * b).sum((0, 1)) - mu_b ** 2
             cov = (w * a * b).sum((0, 1)) - mu_a * mu_b
             c1, c2 = 0.01 ** 2, 0.03 ** 2
-            values.append((2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2)))
+            values.append((2 * mu_a * mu_b + c1) * (2 * cov + c2)
+                          / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2)))
     return np.mean(values)
 
 
@@ -193,6 +194,24 @@ class MetricTests(unittest.TestCase):
         self.assertAlmostEqual(evaluate.ssim(torch.from_numpy(target), torch.from_numpy(target))[0].item(), 1.0, 12)
         psnr = evaluate.psnr(torch.from_numpy(pred), torch.from_numpy(target)).numpy()
         np.testing.assert_allclose(psnr, -10 * np.log10(((pred - target) ** 2).mean((1, 2, 3))), rtol=1e-12)
+
+    def test_metrics_equal_torchmetrics_0_9_3(self):
+        """The official code's metrics. Runs where torchmetrics 0.9.3 can be imported (see tools/README.md)."""
+        try:
+            import torchmetrics
+        except ImportError:
+            self.skipTest("torchmetrics is not installed")
+        if torchmetrics.__version__ != "0.9.3":
+            self.skipTest(f"torchmetrics {torchmetrics.__version__} is not 0.9.3")
+        generator = torch.Generator().manual_seed(0)
+        for shape in ((4, 60, 80, 3), (3, 17, 23, 3), (2, 120, 160, 3)):
+            target = torch.rand(shape, generator=generator)
+            pred = (target * 0.8 + 0.2 * torch.rand(shape, generator=generator)).clamp(0, 1)
+            nchw = pred.permute(0, 3, 1, 2), target.permute(0, 3, 1, 2)
+            ssim = torchmetrics.StructuralSimilarityIndexMeasure(data_range=1.0)(*nchw)
+            psnr = torchmetrics.PeakSignalNoiseRatio(data_range=1.0, dim=(1, 2, 3))(*nchw)
+            self.assertEqual(evaluate.ssim(pred, target).mean().item(), ssim.item())
+            self.assertEqual(evaluate.psnr(pred, target).mean().item(), psnr.item())
 
 
 class TrainingTests(unittest.TestCase):
