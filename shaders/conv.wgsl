@@ -32,7 +32,7 @@ struct Params {
     stride: u32,
     // 1 when the input is upsampled 2× (nearest) before the convolution, else 0: a shift of the coordinates.
     up: u32,
-    // 0 none, 1 relu, 2 leaky relu (slope).
+    // activation code and slope (shaders/activation.wgsl).
     act: u32,
     slope: f32,
     has_bias: u32,
@@ -66,16 +66,6 @@ struct Acc {
     m11: mat4x4<f32>,
 }
 
-fn activate(v: vec4<f32>) -> vec4<f32> {
-    if (p.act == 1u) {
-        return max(v, vec4<f32>(0.0));
-    }
-    if (p.act == 2u) {
-        return select(v * p.slope, v, v >= vec4<f32>(0.0));
-    }
-    return v;
-}
-
 // Starts in w of the rows of channel quad j of this tile; channels past cout reuse the last row (their
 // results are dropped when storing).
 fn weight_rows(col0: u32, j: u32) -> vec4<u32> {
@@ -103,7 +93,7 @@ fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
         let pix = pix0 + i * WG;
         if (pix < p.npix) {
             let o = pix * p.cout4 + col;
-            var v = select(vec4<f32>(0.0), activate(m[i] + b), real);
+            var v = select(vec4<f32>(0.0), activate(m[i] + b, p.act, p.slope), real);
             if (p.accumulate != 0u) {
                 v += out[o];
             }

@@ -1,1 +1,48 @@
-pub use raypatch_engine; pub use raypatch_model;
+//! # raypatch
+//!
+//! Novel-view rendering with Light Field Transformers (SRT, and RP-SRT with Ray-Patch querying) on
+//! hand-written WGSL compute shaders, on any GPU through wgpu, or on the CPU through Mesa lavapipe.
+//!
+//! An [`Engine`] picks an adapter; [`Engine::load`] reads a model file; [`Model::encode`] turns posed input
+//! images into a [`Scene`] (the latent tokens and the decoder's keys and values, computed once);
+//! [`Scene::render`] renders it from any [`Camera`], computing only the outputs and the region the
+//! [`Request`] asks for.
+//!
+//! ```
+//! use glam::DVec3;
+//! use raypatch::{Camera, Engine, EngineOptions, Request, SceneData};
+//!
+//! let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
+//! let engine = Engine::new(EngineOptions::default())?; // a real GPU first, lavapipe otherwise
+//! let model = engine.load(format!("{golden}/model.safetensors"))?;
+//! let data = SceneData::load(format!("{golden}/scene.safetensors"))?;
+//! let scene = model.encode(&data.inputs)?;
+//!
+//! // A MultiShapeNet-style camera: looks at the origin, z up; 48x32 pixels (Ray-Patch k=4 divides both).
+//! let camera = Camera::msn(DVec3::new(7.0, -2.0, 3.0), 48, 32)?;
+//! let rendered = scene.render(&camera, &Request::default())?;
+//! let rgb = rendered.rgb.expect("rgb is rendered by default");
+//! rgb.save_png(std::env::temp_dir().join("raypatch-doc-view.png"))?;
+//! assert_eq!((rgb.width(), rgb.height()), (48, 32));
+//! # Ok::<(), raypatch::Error>(())
+//! ```
+//!
+//! The crates underneath are re-exported for tools that need more: [`raypatch_model`] (config, file
+//! formats) and [`raypatch_engine`] (GPU context, plans, kernels).
+
+mod camera;
+mod dataset;
+mod error;
+mod image;
+pub mod metrics;
+mod render;
+
+pub use camera::{Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE};
+pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
+pub use error::{Error, Result};
+pub use image::{write_atomic, Image};
+pub use raypatch_engine::{AdapterChoice, OpTimes, Outputs, Region, RenderStats, Request};
+pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
+
+pub use raypatch_engine;
+pub use raypatch_model;

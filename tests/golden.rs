@@ -39,7 +39,7 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     let latent_err = max_abs(&latent, &want_latent.data) / scale;
 
     // Render twice: the second render reuses the plan and must give the same bytes.
-    let outputs = Outputs { logdepth: expected.contains("logdepth") };
+    let outputs = Outputs { logdepth: expected.contains("logdepth"), ..Outputs::default() };
     let start = Instant::now();
     let frame = encoded.render(&scene.targets, outputs).unwrap_or_else(|e| panic!("{name}: {e}"));
     let first_render = start.elapsed();
@@ -51,7 +51,7 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
 
     let want_rgb = expected.f32("rgb").unwrap();
     assert_eq!(want_rgb.shape, vec![frame.views, frame.height, frame.width, 3], "{name}: rgb shape");
-    let rgb_err = max_abs(&frame.rgb, &want_rgb.data);
+    let rgb_err = max_abs(frame.rgb.as_deref().expect("rgb requested"), &want_rgb.data);
     // Log-depth is the raw pre-sigmoid channel: compare it relative to its magnitude like the latent.
     let depth_err = outputs.logdepth.then(|| {
         let want = expected.f32("logdepth").unwrap();
@@ -65,7 +65,7 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
         encode_time.as_secs_f64() * 1e3,
         warm_render.as_secs_f64() * 1e3,
         first_render.as_secs_f64() * 1e3,
-        encoded.render_peak_bytes(&scene.targets, outputs).unwrap() as f64 / (1 << 20) as f64
+        encoded.render_stats(&scene.targets, outputs).unwrap().peak_bytes as f64 / (1 << 20) as f64
     );
     let mut failures = Vec::new();
     if let Some(err) = depth_err.filter(|&e| e > LATENT_MAX_REL) {

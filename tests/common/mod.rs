@@ -3,8 +3,11 @@
 
 use std::sync::OnceLock;
 
+use std::ops::Range;
+
 use raypatch_engine::plan::{Plan, PlanBuilder};
-use raypatch_engine::{Gpu, GpuOptions};
+use raypatch_engine::tensor::padded_cols;
+use raypatch_engine::{Gpu, GpuOptions, GpuTensor};
 
 pub use raypatch_engine::reference::Rng;
 
@@ -41,4 +44,33 @@ pub fn assert_close(what: &str, gpu: &[f32], reference: &[f64], atol: f64, rtol:
     let err = max_abs_diff(gpu, reference);
     let tol = atol + rtol * scale;
     assert!(err <= tol, "{what}: max abs error {err:e} > tolerance {tol:e} (max |ref| {scale:e})");
+}
+
+pub fn to_f64(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&a| f64::from(a)).collect()
+}
+
+/// A `[rows, cols]` output tensor filled with `sentinel` everywhere, padding included, so that a test can see
+/// which elements a kernel wrote.
+pub fn sentinel_tensor(rows: usize, cols: usize, sentinel: f32) -> GpuTensor {
+    let ld = padded_cols(cols);
+    let t = gpu().upload("out", rows, ld, &vec![sentinel; rows * ld]).expect("upload");
+    GpuTensor { cols, ..t }
+}
+
+/// Reads back a [`sentinel_tensor`] after a kernel wrote rows `view`: asserts that the view's padding is zero
+/// and that every other row still holds the sentinel, and returns the view's rows without padding.
+pub fn read_written_rows(out: &GpuTensor, view: Range<usize>, sentinel: f32) -> Vec<f32> {
+    let (cols, ld) = (out.cols, padded_cols(out.cols));
+    let padded = gpu().read_rows(&out.buffer, 0, out.rows, ld).expect("read");
+    let mut got = Vec::with_capacity(view.len() * cols);
+    for (r, row) in padded.chunks(ld).enumerate() {
+        if view.contains(&r) {
+            got.extend_from_slice(&row[..cols]);
+            assert!(row[cols..].iter().all(|&v| v == 0.0), "row {r}: padding not zeroed");
+        } else {
+            assert!(row.iter().all(|&v| v == sentinel), "row {r} outside the view was written");
+        }
+    }
+    got
 }

@@ -65,10 +65,6 @@ impl Placed {
     }
 }
 
-pub fn to_f64(v: &[f32]) -> Vec<f64> {
-    v.iter().map(|&a| f64::from(a)).collect()
-}
-
 /// One convolution case: every option chosen by the caller, data random.
 struct Case {
     n: usize,

@@ -5,8 +5,6 @@ use std::ops::Range;
 use raypatch_engine::kernels::elementwise::{map_columns, Map};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::elementwise as reference;
-use raypatch_engine::tensor::padded_cols;
-use raypatch_engine::GpuTensor;
 
 use crate::common::*;
 
@@ -26,30 +24,14 @@ fn run_map(
 ) -> Vec<f32> {
     let gpu = gpu();
     let (rows, cols) = (x_rows.len(), columns.len());
-    let ld = padded_cols(cols);
     let xt = gpu.upload("x", x.len() / cols_x, cols_x, x).unwrap();
-    let out = gpu.upload("out", out_total, ld, &vec![SENTINEL; out_total * ld]).unwrap();
-    let out = GpuTensor { cols, ..out };
+    let out = sentinel_tensor(out_total, cols, SENTINEL);
     let mut b = PlanBuilder::new();
     let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
     let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
     map_columns(&mut b, "map", xv, columns.start, ov, f);
     run(b);
-    let padded = gpu.read_rows(&out.buffer, 0, out_total, ld).unwrap();
-    let mut got = Vec::with_capacity(rows * cols);
-    for (r, row) in padded.chunks(ld).enumerate() {
-        if (out_start..out_start + rows).contains(&r) {
-            got.extend_from_slice(&row[..cols]);
-            assert!(row[cols..].iter().all(|&v| v == 0.0), "row {r}: padding not zeroed");
-        } else {
-            assert!(row.iter().all(|&v| v == SENTINEL), "row {r} outside the view was written");
-        }
-    }
-    got
-}
-
-fn f64s(v: &[f32]) -> Vec<f64> {
-    v.iter().map(|&v| v as f64).collect()
+    read_written_rows(&out, out_start..out_start + rows, SENTINEL)
 }
 
 /// Sigmoid error: exp is within a few ulp of its result (WGSL allows 3 + 2|x| ulp, relative to the tiny
@@ -78,7 +60,7 @@ fn map_columns_random_shapes_and_views() {
             out_start,
             f,
         );
-        let want = reference::map_columns(&f64s(&x[x_start * cols_x..(x_start + rows) * cols_x]), cols_x, col, cols, f);
+        let want = reference::map_columns(&to_f64(&x[x_start * cols_x..(x_start + rows) * cols_x]), cols_x, col, cols, f);
         let what = format!("{f:?} of columns {col}..{} of {rows}x{cols_x} from rows {x_start}/{out_start}", col + cols);
         // Identity is a copy: bit exact.
         assert_close(&what, &got, &want, if f == Map::Identity { 0.0 } else { SIGMOID_TOL }, 0.0);
@@ -91,7 +73,7 @@ fn sigmoid_extremes() {
     let magnitudes = [0.0f32, 1e-8, 0.5, 15.0, 17.0, 20.0, 88.0, 88.8, 100.0, 1e30, f32::MAX, f32::INFINITY];
     let x: Vec<f32> = magnitudes.iter().flat_map(|&v| [v, -v]).collect();
     let got = run_map(&x, 1, 0..x.len(), 0..1, x.len(), 0, Map::Sigmoid);
-    let want = reference::map_columns(&f64s(&x), 1, 0, 1, Map::Sigmoid);
+    let want = reference::map_columns(&to_f64(&x), 1, 0, 1, Map::Sigmoid);
     assert_close("sigmoid of extreme inputs", &got, &want, SIGMOID_TOL, 0.0);
     // The tail keeps its relative accuracy (e^x / (1 + e^x), not 1 - 1 / (1 + e^-x)).
     for (i, (&g, &w)) in got.iter().zip(&want).enumerate().filter(|(_, (_, &w))| (1e-30..1e-6).contains(&w)) {
@@ -106,6 +88,6 @@ fn map_columns_grid_spill() {
     let rows = 65535 * 64 + 1000;
     let x = rng.vec_f32(rows * 2, -1.0, 1.0);
     let got = run_map(&x, 2, 0..rows, 1..2, rows, 0, Map::Identity);
-    let want = reference::map_columns(&f64s(&x), 2, 1, 1, Map::Identity);
+    let want = reference::map_columns(&to_f64(&x), 2, 1, 1, Map::Identity);
     assert_close("identity over 4.2M rows", &got, &want, 0.0, 0.0);
 }

@@ -20,10 +20,6 @@ struct Case {
     view: bool,
 }
 
-fn to_f64(v: &[f32]) -> Vec<f64> {
-    v.iter().map(|&a| f64::from(a)).collect()
-}
-
 /// Runs one case and checks the values, the zeroed padding of out, and that rows outside the view of
 /// out are untouched.
 fn check(case: &Case, rng: &mut Rng) {
@@ -179,7 +175,7 @@ fn gelu_erf_accuracy() {
     // erf(a) in float64 from the reference GELU at v = a·√2.
     let erf = |a: f64| {
         let v = a * std::f64::consts::SQRT_2;
-        2.0 * reference::activation(v, Activation::Gelu) / v - 1.0
+        2.0 * raypatch_engine::reference::activation(v, Activation::Gelu) / v - 1.0
     };
     let mut erf_err = 0.0f64;
     for (&v, &g) in v.iter().zip(&gelu) {
@@ -193,7 +189,7 @@ fn gelu_erf_accuracy() {
     assert!(erf_err < 2e-7, "erf max abs error {erf_err:e}");
 
     // GELU itself, on both sides: the erf error scaled by |v|/2, plus f32 rounding of the result.
-    let expected: Vec<f64> = v.iter().map(|&v| reference::activation(f64::from(v), Activation::Gelu)).collect();
+    let expected: Vec<f64> = v.iter().map(|&v| raypatch_engine::reference::activation(f64::from(v), Activation::Gelu)).collect();
     for ((&v, &g), &e) in v.iter().zip(&gelu).zip(&expected) {
         let tol = 0.5 * f64::from(v).abs() * 2e-7 + 2.0 * e.abs() * f64::from(f32::EPSILON);
         assert!((f64::from(g) - e).abs() <= tol, "gelu({v}) = {g}, expected {e}");

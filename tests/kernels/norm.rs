@@ -5,7 +5,6 @@ use std::ops::Range;
 use raypatch_engine::kernels::norm::layernorm;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::norm as reference;
-use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
 
 use crate::common::*;
@@ -28,9 +27,7 @@ fn run_layernorm(
 ) -> Vec<f32> {
     let gpu = gpu();
     let (cols, rows) = (x.cols, x_rows.len());
-    let ld = padded_cols(cols);
-    let out = gpu.upload("out", out_total, ld, &vec![SENTINEL; out_total * ld]).unwrap();
-    let out = GpuTensor { cols, ..out };
+    let out = sentinel_tensor(out_total, cols, SENTINEL);
     let gamma = gpu.upload("gamma", 1, cols, gamma).unwrap();
     let beta = gpu.upload("beta", 1, cols, beta).unwrap();
     let mut b = PlanBuilder::new();
@@ -39,17 +36,7 @@ fn run_layernorm(
     let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
     layernorm(&mut b, "ln", xv, gi, bi, ov, eps);
     run(b);
-    let padded = gpu.read_rows(&out.buffer, 0, out_total, ld).unwrap();
-    let mut got = Vec::with_capacity(rows * cols);
-    for (r, row) in padded.chunks(ld).enumerate() {
-        if (out_start..out_start + rows).contains(&r) {
-            got.extend_from_slice(&row[..cols]);
-            assert!(row[cols..].iter().all(|&v| v == 0.0), "row {r}: padding not zeroed");
-        } else {
-            assert!(row.iter().all(|&v| v == SENTINEL), "row {r} outside the view was written");
-        }
-    }
-    got
+    read_written_rows(&out, out_start..out_start + rows, SENTINEL)
 }
 
 fn normals(rng: &mut Rng, n: usize, mean: f64, std: f64) -> Vec<f32> {

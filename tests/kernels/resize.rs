@@ -5,7 +5,7 @@ use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::resize as reference;
 
 use crate::common::*;
-use crate::conv::{to_f64, Placed};
+use crate::conv::Placed;
 
 /// Resizes random data `[n*hi*wi, c]` to `ho × wo` on the GPU and checks it against the reference.
 #[allow(clippy::too_many_arguments)]

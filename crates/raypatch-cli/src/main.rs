@@ -1,48 +1,117 @@
-//! render-frame: render the target views of a scene with an SRT or RP-SRT model.
+//! render-frame: render novel views of a scene with an SRT or RP-SRT model, from the shell.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use raypatch_engine::{AdapterChoice, Frame, Gpu, GpuOptions, Model, Outputs};
+use indicatif::{ProgressBar, ProgressStyle};
+use raypatch::{
+    metrics, write_atomic, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs, Region, Request,
+    SceneData, SceneSource,
+};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 
-/// The bundled model and scene rendered when none is given.
+/// The bundled model and scene rendered when none is given (a golden parity case until trained models ship),
+/// relative to the repository root.
 const DEFAULT_MODEL: &str = "assets/golden/rpsrt_k4/model.safetensors";
 const DEFAULT_SCENE: &str = "assets/golden/rpsrt_k4/scene.safetensors";
+const DEFAULT_OUT: &str = "render.png";
+
+/// A bundled file: relative to the current folder when run from the repository root, else in the repository
+/// this binary was built from.
+fn bundled(relative: &str) -> PathBuf {
+    let here = PathBuf::from(relative);
+    if here.exists() {
+        return here;
+    }
+    let root =
+        Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).expect("crates/raypatch-cli is two levels deep");
+    root.join(relative)
+}
 
 #[derive(Parser, Debug)]
-#[command(name = "render-frame", version, about = "Render novel views with an SRT / RP-SRT model on the GPU")]
+#[command(
+    name = "render-frame",
+    version,
+    about = "Render novel views of a scene with an SRT / RP-SRT model on the GPU",
+    after_help = "With no arguments, renders target view 0 of the bundled scene with the bundled model into render.png."
+)]
 struct Args {
-    /// Model file (safetensors with the official key names and the config in its metadata).
-    #[arg(long, default_value = DEFAULT_MODEL)]
-    model: PathBuf,
-    /// Scene file (safetensors: input views and target cameras, see docs/FORMATS.md).
-    #[arg(long, default_value = DEFAULT_SCENE)]
-    scene: PathBuf,
-    /// Folder to write one PNG per target view into.
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Safetensors file to write the raw output into: `rgb` [T,H,W,3] f32 after the sigmoid.
-    #[arg(long)]
+    /// Model file (safetensors with the official key names and the config in its metadata) [default: the
+    /// bundled assets/golden/rpsrt_k4/model.safetensors].
+    #[arg(long, value_name = "FILE")]
+    model: Option<PathBuf>,
+    /// Scene: a scene safetensors file (docs/FORMATS.md), or a folder of PNGs with a NeRF-style transforms.json
+    /// [default: the bundled assets/golden/rpsrt_k4/scene.safetensors].
+    #[arg(long, value_name = "PATH")]
+    scene: Option<PathBuf>,
+    /// Input views to encode: comma-separated indices or `all` [default: all of a scene file's inputs; for a
+    /// folder, every frame that is not a --view target].
+    #[arg(long, value_name = "LIST")]
+    input_views: Option<String>,
+    /// Target views to render: comma-separated indices or `all` [default: 0 for a scene file, the last frame
+    /// for a folder].
+    #[arg(long, value_name = "LIST")]
+    view: Option<String>,
+    /// Render the first target camera turned by DEG degrees about the world z axis (a novel view).
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, conflicts_with = "pose")]
+    orbit: Option<f64>,
+    /// Render from the camera in FILE: JSON with a 4x4 camera-to-world `transform_matrix` (NeRF axes) and
+    /// optional intrinsics (`camera_angle_x` or `fl_x`/`fl_y`/`cx`/`cy`, `w`/`h`).
+    #[arg(long, value_name = "FILE")]
+    pose: Option<PathBuf>,
+    /// Render a turntable of N frames (360/N degrees apart, about the world z axis) of the first target camera.
+    #[arg(long, value_name = "N", conflicts_with = "pose")]
+    orbit_frames: Option<usize>,
+    /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder (view_000.png
+    /// per target view, frame_000.png per turntable frame, render.png for one novel view).
+    #[arg(long, default_value = DEFAULT_OUT)]
+    out: PathBuf,
+    /// Safetensors file to write the raw outputs into: `rgb` [T,H,W,3] f32 after the sigmoid, and `logdepth`
+    /// [T,H,W] with --logdepth.
+    #[arg(long, value_name = "FILE")]
     out_raw: Option<PathBuf>,
+    /// Also compute the log-depth (models with 4 output channels) and write it into --out-raw.
+    #[arg(long, requires = "out_raw")]
+    logdepth: bool,
+    /// Print PSNR and SSIM of each target view against the scene's target images, and their means.
+    #[arg(long)]
+    metrics: bool,
+    /// Render only this region (pixels; X,Y = top-left corner): only the patches it needs are computed.
+    #[arg(long, value_name = "X,Y,W,H", value_parser = parse_region)]
+    region: Option<Region>,
     /// Adapter to use: the first whose name contains this text (default: a real GPU, else lavapipe).
     #[arg(long)]
     adapter: Option<String>,
-    /// Print encode and render times and the planned peak memory.
+    /// List the adapters and exit.
+    #[arg(long)]
+    list_adapters: bool,
+    /// Print load, encode and render times and the planned peak GPU memory.
     #[arg(long)]
     timings: bool,
+    /// Render this many times more after the first render and report the median (with --timings).
+    #[arg(long, default_value_t = 0)]
+    repeat: usize,
     /// Time every op of the encode and render plans (run one by one) and print the slowest.
     #[arg(long)]
     profile: bool,
-    /// Render this many times after the first (warm) render and report the median (with --timings).
-    #[arg(long, default_value_t = 0)]
-    repeat: usize,
+}
+
+fn parse_region(text: &str) -> Result<Region, String> {
+    let parts: Vec<usize> = text
+        .split(',')
+        .map(|p| p.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{text:?} is not X,Y,W,H (four non-negative integers)"))?;
+    match parts[..] {
+        [x, y, width, height] if width > 0 && height > 0 => Ok(Region { x, y, width, height }),
+        [_, _, _, _] => Err(format!("{text:?}: width and height must be positive")),
+        _ => Err(format!("{text:?} is not X,Y,W,H (four non-negative integers)")),
+    }
 }
 
 fn main() -> ExitCode {
@@ -50,124 +119,352 @@ fn main() -> ExitCode {
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("render-frame: error: {e:#}");
+            eprintln!("render-frame: error: {}", one_line(&e));
             ExitCode::from(2)
         }
     }
 }
 
+/// The error and its causes on one line, leaving out causes that an outer message already quotes.
+fn one_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string().replace('\n', " ");
+        if !line.contains(&text) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&text);
+        }
+    }
+    line
+}
+
+/// Indices picked by `--FLAG LIST` among `count` items (`all`, or comma-separated indices).
+fn pick(flag: &str, list: &str, count: usize, what: &str) -> Result<Vec<usize>> {
+    if list.trim() == "all" {
+        return Ok((0..count).collect());
+    }
+    let mut picked = Vec::new();
+    for part in list.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let i: usize = part.parse().with_context(|| format!("--{flag} {list:?}: {part:?} is not an index or `all`"))?;
+        if i >= count {
+            bail!("--{flag} {i}: the scene has {count} {what} (0 to {})", count.saturating_sub(1));
+        }
+        picked.push(i);
+    }
+    if picked.is_empty() {
+        bail!("--{flag} {list:?}: no {what} selected");
+    }
+    Ok(picked)
+}
+
+/// One image to render and where its PNG goes.
+struct Shot {
+    camera: Camera,
+    /// The target view's ground truth, for --metrics.
+    truth: Option<Image>,
+    label: String,
+    png: PathBuf,
+}
+
 fn run(args: &Args) -> Result<()> {
-    let options = GpuOptions {
-        adapter: args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains),
-    };
-    let gpu = Arc::new(Gpu::new(&options)?);
-    let scene_file = raypatch_model::load_scene(&args.scene)?;
+    if args.list_adapters {
+        for adapter in Engine::adapters() {
+            println!("{adapter}");
+        }
+        return Ok(());
+    }
+    let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    let engine = Engine::new(EngineOptions { adapter }).context("--adapter")?;
+    let model_path = args.model.clone().unwrap_or_else(|| bundled(DEFAULT_MODEL));
+    let scene_path = args.scene.clone().unwrap_or_else(|| bundled(DEFAULT_SCENE));
     let start = Instant::now();
-    let model = Model::load(gpu.clone(), &args.model)?;
+    let model = engine.load(&model_path)?;
     let load_time = start.elapsed();
-    scene_file.inputs.check_for(&model.config, &scene_file.path)?;
-    scene_file.targets.grid(model.config.patch_size(), &scene_file.path)?;
-    check_output_paths(args)?;
+    let data = SceneData::load(&scene_path)?;
+
+    let frames = matches!(data.source, SceneSource::Frames(_));
+    let default_view = if frames { data.targets.len() - 1 } else { 0 };
+    let views = match &args.view {
+        Some(list) => pick("view", list, data.targets.len(), "target views")?,
+        None => vec![default_view],
+    };
+    let inputs = match &args.input_views {
+        Some(list) => pick("input-views", list, data.inputs.len(), "input views")?,
+        None if frames => (0..data.inputs.len()).filter(|i| !views.contains(i)).collect(),
+        None => (0..data.inputs.len()).collect(),
+    };
+    if inputs.is_empty() {
+        bail!(
+            "{}: no input view left to encode (every frame is a target; choose inputs with --input-views)",
+            scene_path.display()
+        );
+    }
+    let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
+    let shots = shots(args, &data, &views)?;
+    if args.metrics && shots.iter().any(|s| s.truth.is_none()) {
+        bail!(
+            "--metrics: needs target views with ground-truth images (scene `target_images`, or frames), \
+             not --orbit, --orbit-frames or --pose"
+        );
+    }
+    let outputs = Outputs { rgb: true, logdepth: args.logdepth };
+    let request = Request { outputs, region: args.region };
 
     let start = Instant::now();
-    let scene = model.encode(&scene_file.inputs)?;
+    let scene = model.encode(&inputs)?;
     let encode_time = start.elapsed();
+    // Check every camera against the model and the request (this builds the render plans) before touching
+    // any output.
     let start = Instant::now();
-    let frame = scene.render(&scene_file.targets, Outputs::default())?;
-    let first_render = start.elapsed();
-    let mut renders = Vec::with_capacity(args.repeat);
+    for shot in &shots {
+        scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
+    }
+    let plan_time = start.elapsed();
+    check_outputs(args, &shots)?;
+    let progress = if args.orbit_frames.is_some() {
+        let bar = ProgressBar::new(shots.len() as u64);
+        bar.set_style(
+            ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"),
+        );
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+    let mut rendered = Vec::with_capacity(shots.len());
+    let mut render_times = Vec::with_capacity(shots.len());
+    for shot in &shots {
+        let start = Instant::now();
+        rendered.push(scene.render(&shot.camera, &request).with_context(|| shot.label.clone())?);
+        render_times.push(start.elapsed());
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    let mut repeats = Vec::with_capacity(args.repeat);
     for _ in 0..args.repeat {
         let start = Instant::now();
-        scene.render(&scene_file.targets, Outputs::default())?;
-        renders.push(start.elapsed().as_secs_f64());
+        scene.render(&shots[0].camera, &request)?;
+        repeats.push(start.elapsed());
     }
 
-    if let Some(path) = &args.out_raw {
-        write_raw(path, &frame)?;
-    }
-    if let Some(dir) = &args.out {
-        write_pngs(dir, &frame)?;
-    }
-    let k = model.config.patch_size();
-    println!(
-        "rendered {} view(s) of {}x{} with {} ({}, k={k}, {:.1}M parameters) on {}",
-        frame.views,
-        frame.height,
-        frame.width,
-        model.path,
-        if k == 1 { "SRT" } else { "RP-SRT" },
-        model.parameter_count as f64 / 1e6,
-        gpu.describe()
-    );
-    if args.timings {
-        let mib = |b: u64| b as f64 / (1 << 20) as f64;
-        println!("load {:.1} ms, encode {:.1} ms, first render {:.1} ms (plan built, pipelines compiled)",
-            load_time.as_secs_f64() * 1e3, encode_time.as_secs_f64() * 1e3, first_render.as_secs_f64() * 1e3);
-        if !renders.is_empty() {
-            renders.sort_by(f64::total_cmp);
-            println!(
-                "render: median {:.1} ms, min {:.1} ms, max {:.1} ms over {} runs",
-                renders[renders.len() / 2] * 1e3,
-                renders[0] * 1e3,
-                renders[renders.len() - 1] * 1e3,
-                renders.len()
-            );
+    let images: Vec<Image> = rendered.iter().map(|r| r.rgb.clone().expect("rgb is always requested")).collect();
+    let metric_lines = if args.metrics { metrics_report(&shots, &images, request.region)? } else { Vec::new() };
+    let mut written = Vec::new();
+    let write_all = |written: &mut Vec<PathBuf>| -> Result<()> {
+        for (shot, image) in shots.iter().zip(&images) {
+            image.save_png(&shot.png)?;
+            written.push(shot.png.clone());
         }
+        if let Some(path) = &args.out_raw {
+            let depths = rendered.iter().map(|r| r.logdepth.clone()).collect::<Option<Vec<_>>>();
+            write_raw(path, &images, depths)?;
+            written.push(path.clone());
+        }
+        Ok(())
+    };
+    if let Err(e) = write_all(&mut written) {
+        // Leave nothing of a run that failed half-way.
+        for path in &written {
+            let _ = std::fs::remove_file(path);
+        }
+        return Err(e);
+    }
+
+    let k = model.patch_size();
+    let first = &images[0];
+    let region =
+        request.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
+    println!(
+        "rendered {} view(s) of {}x{}{region} from {} input view(s) with {} ({}, k={k}, {:.2}M parameters) on {}",
+        images.len(),
+        shots[0].camera.width(),
+        shots[0].camera.height(),
+        inputs.len(),
+        model.path(),
+        if k == 1 { "SRT" } else { "RP-SRT" },
+        model.parameter_count() as f64 / 1e6,
+        engine.adapter()
+    );
+    let total: Duration = render_times.iter().sum();
+    println!(
+        "encode {:.1} ms, render {:.1} ms ({} image(s) of {}x{}); wrote {}",
+        ms(encode_time),
+        ms(total),
+        images.len(),
+        first.width(),
+        first.height(),
+        written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+    );
+    for line in &metric_lines {
+        println!("{line}");
+    }
+    if args.timings {
         println!(
-            "planned peak GPU memory: render {:.2} MiB, encode {:.2} MiB; weights {:.2} MiB; scene cache {:.2} MiB",
-            mib(scene.render_peak_bytes(&scene_file.targets, Outputs::default())?),
-            mib(scene.encode_peak_bytes),
+            "load {:.1} ms, encode {:.1} ms, render plan {:.1} ms (buffers allocated, pipelines compiled), \
+             first render {:.1} ms",
+            ms(load_time),
+            ms(encode_time),
+            ms(plan_time),
+            ms(render_times[0])
+        );
+        if render_times.len() > 1 {
+            println!("later renders: {}", summary(&render_times[1..]));
+        }
+        if !repeats.is_empty() {
+            println!("repeated render: {}", summary(&repeats));
+        }
+        let stats = scene.render_stats(&shots[0].camera, &request)?;
+        let mib = |b: u64| b as f64 / (1 << 20) as f64;
+        println!(
+            "planned peak GPU memory: render {:.2} MiB ({} queries, {} dispatches), encode {:.2} MiB; weights {:.2} MiB; scene cache {:.2} MiB",
+            mib(stats.peak_bytes),
+            stats.queries,
+            stats.dispatches,
+            mib(scene.encode_peak_bytes()),
             mib(model.weight_bytes()),
-            mib(scene.latent.bytes() + scene.keys_values.iter().map(|t| t.bytes()).sum::<u64>())
+            mib(scene.cache_bytes())
         );
     }
     if args.profile {
-        let (_, encode_ops) = model.encode_profiled(&scene_file.inputs)?;
-        print_profile("encode", &encode_ops);
-        print_profile("render", &scene.profile_render(&scene_file.targets, Outputs::default())?);
+        print_profile("encode", &model.profile_encode(&inputs)?);
+        print_profile("render", &scene.profile_render(&shots[0].camera, &request)?);
     }
     Ok(())
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// "median M ms, min A ms, max B ms over N runs".
+fn summary(times: &[Duration]) -> String {
+    let mut sorted = times.to_vec();
+    sorted.sort();
+    format!(
+        "median {:.1} ms, min {:.1} ms, max {:.1} ms over {} runs",
+        ms(sorted[sorted.len() / 2]),
+        ms(sorted[0]),
+        ms(sorted[sorted.len() - 1]),
+        sorted.len()
+    )
+}
+
+/// The images to render: the chosen target views, or novel cameras made from the first of them.
+fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
+    let folder = args.out.extension().is_none_or(|e| !e.eq_ignore_ascii_case("png"));
+    let reference = &data.targets[views[0]].camera;
+    if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
+        bail!("--orbit {degrees}: expected a finite angle in degrees");
+    }
+    let novel = |camera: Camera, label: String| Shot { camera, truth: None, label, png: PathBuf::new() };
+    let (mut shots, folder_names): (Vec<Shot>, Vec<String>) = if let Some(path) = &args.pose {
+        (
+            vec![novel(raypatch::load_pose(path, reference)?, format!("--pose {}", path.display()))],
+            vec!["render".into()],
+        )
+    } else if let Some(n) = args.orbit_frames {
+        if n == 0 {
+            bail!("--orbit-frames 0: expected at least one frame");
+        }
+        let start = args.orbit.unwrap_or(0.0);
+        let turn = |i: usize| start + 360.0 * i as f64 / n as f64;
+        let shots = (0..n).map(|i| novel(reference.orbited(turn(i)), format!("turntable frame {i} ({:.1}°)", turn(i))));
+        (shots.collect(), (0..n).map(|i| format!("frame_{i:03}")).collect())
+    } else if let Some(degrees) = args.orbit {
+        (vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"))], vec!["render".into()])
+    } else {
+        let shots = views.iter().map(|&v| Shot {
+            camera: data.targets[v].camera.clone(),
+            truth: data.targets[v].image.clone(),
+            label: format!("target view {v}"),
+            png: PathBuf::new(),
+        });
+        (shots.collect(), views.iter().map(|v| format!("view_{v:03}")).collect())
+    };
+    let single = shots.len() == 1;
+    for (i, (shot, name)) in shots.iter_mut().zip(folder_names).enumerate() {
+        shot.png = if folder {
+            args.out.join(format!("{name}.png"))
+        } else if single {
+            args.out.clone()
+        } else {
+            let stem = args.out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            args.out.with_file_name(format!("{stem}_{i:03}.png"))
+        };
+    }
+    Ok(shots)
+}
+
+/// Fails before any GPU work when an output cannot be written: the folder must exist (or be creatable, for
+/// an --out folder) and accept a new file.
+fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
+    let folder_of =
+        |path: &Path| path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
+    let mut checks: Vec<(String, PathBuf)> = shots.iter().map(|s| ("--out".to_string(), folder_of(&s.png))).collect();
+    if let Some(path) = &args.out_raw {
+        checks.push(("--out-raw".into(), folder_of(path)));
+    }
+    checks.dedup();
+    for (flag, dir) in checks {
+        if flag == "--out" && dir == args.out && !dir.exists() {
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
+        }
+        if !dir.is_dir() {
+            bail!("{flag}: folder {} does not exist", dir.display());
+        }
+        let probe = dir.join(format!(".render-frame-probe-{}", std::process::id()));
+        std::fs::write(&probe, b"").with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
+        std::fs::remove_file(&probe).with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
+    }
+    Ok(())
+}
+
+/// PSNR and SSIM of each rendered view against its ground truth (cropped to the region), and their means.
+fn metrics_report(shots: &[Shot], images: &[Image], region: Option<Region>) -> Result<Vec<String>> {
+    let mut lines = Vec::new();
+    let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
+    for (shot, image) in shots.iter().zip(images) {
+        let truth = shot.truth.as_ref().expect("checked before rendering");
+        let truth = match region {
+            Some(r) => truth.crop(r)?,
+            None => truth.clone(),
+        };
+        let (p, s) = (
+            metrics::psnr(image, &truth)?,
+            metrics::ssim(image, &truth).with_context(|| format!("--metrics: {}", shot.label))?,
+        );
+        lines.push(format!("{}: PSNR {p:.3} dB, SSIM {s:.4}", shot.label));
+        psnr_sum += p;
+        ssim_sum += s;
+    }
+    let n = shots.len() as f64;
+    lines.push(format!("mean over {} view(s): PSNR {:.3} dB, SSIM {:.4}", shots.len(), psnr_sum / n, ssim_sum / n));
+    Ok(lines)
 }
 
 /// The slowest ops of a plan, with their share of the plan's total.
-fn print_profile(what: &str, ops: &[(String, std::time::Duration)]) {
+fn print_profile(what: &str, ops: &OpTimes) {
     let total: f64 = ops.iter().map(|(_, t)| t.as_secs_f64()).sum();
     println!("{what}: {} ops, {:.1} ms run one by one; slowest:", ops.len(), total * 1e3);
     let mut sorted: Vec<_> = ops.iter().collect();
-    sorted.sort_by(|a, b| b.1.cmp(&a.1));
+    sorted.sort_by_key(|(_, t)| std::cmp::Reverse(*t));
     for (label, t) in sorted.iter().take(12) {
-        let ms = t.as_secs_f64() * 1e3;
-        println!("  {ms:8.2} ms {:5.1}%  {label}", 100.0 * t.as_secs_f64() / total);
+        println!("  {:8.2} ms {:5.1}%  {label}", ms(*t), 100.0 * t.as_secs_f64() / total);
     }
 }
 
-/// Fails before any work is done when an output cannot be written.
-fn check_output_paths(args: &Args) -> Result<()> {
-    if let Some(path) = &args.out_raw {
-        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        if !dir.is_dir() {
-            bail!("--out-raw {}: folder {} does not exist", path.display(), dir.display());
-        }
-    }
-    if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
-    }
-    Ok(())
-}
-
-/// Writes `bytes` to `path` through a temporary file and a rename, so no partial file is left behind.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp"));
-    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", path.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
-}
-
-fn write_raw(path: &Path, frame: &Frame) -> Result<()> {
-    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> =
-        vec![("rgb".into(), f32_bytes(&frame.rgb), vec![frame.views, frame.height, frame.width, 3])];
-    if let Some(d) = &frame.logdepth {
-        tensors.push(("logdepth".into(), f32_bytes(d), vec![frame.views, frame.height, frame.width]));
+/// Writes `rgb` [T,H,W,3] and, when given, `logdepth` [T,H,W] (one `Vec` per view).
+fn write_raw(path: &Path, images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Result<()> {
+    let (h, w) = (images[0].height(), images[0].width());
+    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![(
+        "rgb".into(),
+        f32_bytes(images.iter().flat_map(|i| i.data().iter().copied())),
+        vec![images.len(), h, w, 3],
+    )];
+    if let Some(depths) = depths {
+        tensors.push(("logdepth".into(), f32_bytes(depths.into_iter().flatten()), vec![images.len(), h, w]));
     }
     let views = tensors
         .iter()
@@ -175,24 +472,9 @@ fn write_raw(path: &Path, frame: &Frame) -> Result<()> {
         .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
     let metadata = HashMap::from([("format".to_string(), "raypatch-frame/1".to_string())]);
     let bytes = safetensors::serialize(views, Some(metadata))?;
-    write_atomic(path, &bytes)
+    Ok(write_atomic(path, &bytes)?)
 }
 
-fn f32_bytes(values: &[f32]) -> Vec<u8> {
-    values.iter().flat_map(|v| v.to_le_bytes()).collect()
-}
-
-fn write_pngs(dir: &Path, frame: &Frame) -> Result<()> {
-    let pixels = frame.height * frame.width;
-    for v in 0..frame.views {
-        let rgb: Vec<u8> = frame.rgb[v * pixels * 3..(v + 1) * pixels * 3]
-            .iter()
-            .map(|&x| (x.clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect();
-        let img = image::RgbImage::from_raw(frame.width as u32, frame.height as u32, rgb).context("image size")?;
-        let mut png = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
-        write_atomic(&dir.join(format!("view_{v:03}.png")), &png)?;
-    }
-    Ok(())
+fn f32_bytes(values: impl Iterator<Item = f32>) -> Vec<u8> {
+    values.flat_map(|v| v.to_le_bytes()).collect()
 }

@@ -15,4 +15,4 @@ pub mod weights;
 pub use error::{EngineError, Result};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use tensor::GpuTensor;
-pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs};
+pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs, Region, RenderStats, Request};

@@ -3,8 +3,9 @@
 //! `RayPatchDecoder` (conv upsampler with RGB skips) for Ray-Patch; then the sigmoid.
 //!
 //! A scene is encoded once ([`Model::encode`]); the decoder's keys and values are projected from z then,
-//! once per layer, and kept. Rendering ([`EncodedScene::render`]) builds a plan per (target count, size,
-//! outputs) on first use and reuses it.
+//! once per layer, and kept. Rendering ([`EncodedScene::render`]) builds a plan per (target count, computed
+//! size, outputs) on first use and reuses it; it computes only the requested outputs, and for a region of
+//! interest only the patches that region depends on.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -42,23 +43,95 @@ pub struct Model {
     weights: SrtWeights,
 }
 
-/// What to compute when rendering. RGB is always produced.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+/// Which outputs a render computes. Only these are computed: without `rgb` the sigmoid is not run, without
+/// `logdepth` the log-depth channel is not copied out.
+///
+/// ```
+/// use raypatch_engine::Outputs;
+/// assert_eq!(Outputs::default(), Outputs { rgb: true, logdepth: false });
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Outputs {
+    /// The colour image, after the sigmoid.
+    pub rgb: bool,
     /// The log-depth channel of models with 4 output channels.
     pub logdepth: bool,
 }
 
-/// Rendered target views.
+impl Default for Outputs {
+    fn default() -> Self {
+        Outputs { rgb: true, logdepth: false }
+    }
+}
+
+/// A rectangle of the target image in pixels: columns `x..x + width`, rows `y..y + height` (row 0 = top).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Region {
+    /// First column.
+    pub x: usize,
+    /// First row.
+    pub y: usize,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+/// What a render computes: the outputs, and the region of the image (the whole image when `None`).
+///
+/// Only the patches (one query each; pixels for SRT) that the region's pixels depend on are decoded: for
+/// Ray-Patch, the region plus the halo the conv decoder's receptive field needs, so the region's pixels
+/// equal those of a full render. Everything else is not computed.
+///
+/// ```
+/// use raypatch_engine::{Outputs, Region, Request};
+/// let full: Request = Outputs::default().into();
+/// assert_eq!(full.region, None);
+/// let corner = Request { region: Some(Region { x: 0, y: 0, width: 8, height: 8 }), ..full };
+/// assert!(corner.outputs.rgb);
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Request {
+    /// What to compute.
+    pub outputs: Outputs,
+    /// Where (the whole image when `None`).
+    pub region: Option<Region>,
+}
+
+impl From<Outputs> for Request {
+    fn from(outputs: Outputs) -> Self {
+        Request { outputs, region: None }
+    }
+}
+
+/// Rendered target views: the requested outputs over the requested region.
 #[derive(Clone, Debug)]
 pub struct Frame {
+    /// Number of target views.
     pub views: usize,
+    /// Rows of the region rendered (the whole image when no region was asked for).
     pub height: usize,
+    /// Columns of the region rendered.
     pub width: usize,
-    /// `[views, height, width, 3]`, after the sigmoid.
-    pub rgb: Vec<f32>,
+    /// Where the region lies in the target image.
+    pub region: Region,
+    /// `[views, height, width, 3]` after the sigmoid, when requested.
+    pub rgb: Option<Vec<f32>>,
     /// `[views, height, width]` when requested.
     pub logdepth: Option<Vec<f32>>,
+}
+
+/// What a render plan computes, for checking what work is skipped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RenderStats {
+    /// Decoder queries (one per patch for Ray-Patch, one per pixel for SRT), over all views.
+    pub queries: usize,
+    /// Pixels the plan produces per view (the region plus its halo, rounded out to whole patches).
+    pub pixels: usize,
+    /// Kernel dispatches per render.
+    pub dispatches: usize,
+    /// Bytes the plan allocated (intermediates, inputs, outputs, params).
+    pub peak_bytes: u64,
 }
 
 /// A scene encoded by a model: the latent tokens and, per decoder layer, their keys and values.
@@ -73,10 +146,12 @@ pub struct EncodedScene<'m> {
     render_plans: Mutex<HashMap<RenderKey, Arc<RenderGraph>>>,
 }
 
+/// A render plan is built per target count, computed image size (the whole image, or a region with its
+/// halo), ray resolution and outputs; the region's position only changes which rays are uploaded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 struct RenderKey {
     views: usize,
-    grid: (usize, usize, bool),
+    grid: TargetGrid,
     outputs: Outputs,
 }
 
@@ -84,8 +159,22 @@ struct RenderGraph {
     plan: Plan,
     target_pos: TensorId,
     target_rays: TensorId,
-    rgb: TensorId,
+    rgb: Option<TensorId>,
     logdepth: Option<TensorId>,
+    queries: usize,
+}
+
+/// The part of a target image a render computes: whole patches covering the region and its halo.
+#[derive(Clone, Copy, Debug)]
+struct Crop {
+    /// The full image and how its rays are given.
+    image: TargetGrid,
+    /// The requested region, inside the image.
+    region: Region,
+    /// The computed pixels, patch-aligned: rows `y0..y0 + grid.height`, columns `x0..x0 + grid.width`.
+    y0: usize,
+    x0: usize,
+    grid: TargetGrid,
 }
 
 impl Model {
@@ -218,61 +307,119 @@ impl Model {
 }
 
 impl EncodedScene<'_> {
+    /// The model that encoded this scene.
     pub fn model(&self) -> &Model {
         self.model
     }
 
-    /// Renders the target views. The plan for this (view count, size, outputs) is built on first use and
-    /// reused afterwards: no allocation, no pipeline compilation, one submit. Waits for the GPU.
-    pub fn render(&self, targets: &TargetViews, outputs: Outputs) -> Result<Frame> {
-        let (graph, grid) = self.prepare(targets, outputs)?;
+    /// Renders the target views: the requested outputs over the requested region (see [`Request`]). The plan
+    /// for this (view count, computed size, outputs) is built on first use and reused afterwards: no
+    /// allocation, no pipeline compilation, one submit. Waits for the GPU.
+    pub fn render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
+        let request = request.into();
+        let (graph, crop) = self.prepare(targets, &request)?;
         let gpu = self.model.gpu();
         graph.plan.execute(gpu);
-        let rgb = gpu.read(&graph.plan.tensor(graph.rgb))?;
-        let logdepth = graph.logdepth.map(|id| gpu.read(&graph.plan.tensor(id))).transpose()?;
-        Ok(Frame { views: targets.count, height: grid.height, width: grid.width, rgb, logdepth })
+        let read = |id: Option<TensorId>| id.map(|id| gpu.read(&graph.plan.tensor(id))).transpose();
+        let (rgb, logdepth) = (read(graph.rgb)?, read(graph.logdepth)?);
+        let region = crop.region;
+        Ok(Frame {
+            views: targets.count,
+            height: region.height,
+            width: region.width,
+            region,
+            rgb: rgb.map(|v| crop.cut(&v, targets.count, 3)),
+            logdepth: logdepth.map(|v| crop.cut(&v, targets.count, 1)),
+        })
     }
 
     /// Runs the render plan op by op, timing each (slower than [`render`](Self::render); for profiling).
-    pub fn profile_render(&self, targets: &TargetViews, outputs: Outputs) -> Result<OpTimes> {
-        let (graph, _) = self.prepare(targets, outputs)?;
+    pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
+        let (graph, _) = self.prepare(targets, &request.into())?;
         graph.plan.profile(self.model.gpu())
     }
 
-    /// The cached (or new) render plan for these targets, with their cameras and rays uploaded.
-    fn prepare(&self, targets: &TargetViews, outputs: Outputs) -> Result<(Arc<RenderGraph>, TargetGrid)> {
+    /// What the render plan for these targets and this request computes (building the plan if needed).
+    pub fn render_stats(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<RenderStats> {
+        let request = request.into();
+        let crop = self.crop(targets, &request)?;
+        let graph = self.graph(targets.count, &crop, request.outputs)?;
+        Ok(RenderStats {
+            queries: graph.queries,
+            pixels: crop.grid.height * crop.grid.width,
+            dispatches: graph.plan.dispatch_count(),
+            peak_bytes: graph.plan.peak_bytes(),
+        })
+    }
+
+    /// Labels of the render plan's ops, in order (building the plan if needed).
+    pub fn render_op_labels(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<String>> {
+        let request = request.into();
+        let crop = self.crop(targets, &request)?;
+        Ok(self.graph(targets.count, &crop, request.outputs)?.plan.op_labels().map(String::from).collect())
+    }
+
+    /// Number of render plans built so far (one per distinct target count, computed size and outputs).
+    pub fn cached_render_plans(&self) -> usize {
+        self.render_plans.lock().expect("render plan cache poisoned").len()
+    }
+
+    /// Checks the request against the model and the targets and works out which pixels to compute.
+    fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
         let cfg = &self.model.config;
-        let grid = targets.grid(cfg.patch_size(), "target views")?;
+        let k = cfg.patch_size();
+        let image = targets.grid(k, "target views")?;
+        let outputs = request.outputs;
+        if !outputs.rgb && !outputs.logdepth {
+            return Err(EngineError::Request("nothing to render: ask for rgb, log-depth or both".into()));
+        }
         if outputs.logdepth && cfg.image_channels() != 4 {
             return Err(EngineError::Request("log-depth was requested but this model has no depth channel".into()));
         }
-        let key = RenderKey { views: targets.count, grid: (grid.height, grid.width, grid.rays_are_patches), outputs };
-        let graph = {
-            let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
-            match plans.get(&key) {
-                Some(g) => g.clone(),
-                None => {
-                    let g = Arc::new(self.build_render(targets.count, grid, outputs)?);
-                    plans.insert(key, g.clone());
-                    g
-                }
-            }
+        let full = Region { x: 0, y: 0, width: image.width, height: image.height };
+        let region = request.region.unwrap_or(full);
+        if region.width == 0
+            || region.height == 0
+            || region.x + region.width > image.width
+            || region.y + region.height > image.height
+        {
+            return Err(EngineError::Request(format!(
+                "region x={} y={} width={} height={} is empty or not inside the {}x{} (width x height) image",
+                region.x, region.y, region.width, region.height, image.width, image.height
+            )));
+        }
+        let upsample = cfg.ray_patch.as_ref().map_or(0, |rp| rp.upsample);
+        let (py0, py1) = patch_span(region.y, region.y + region.height - 1, upsample, image.height / k);
+        let (px0, px1) = patch_span(region.x, region.x + region.width - 1, upsample, image.width / k);
+        let grid = TargetGrid {
+            height: (py1 + 1 - py0) * k,
+            width: (px1 + 1 - px0) * k,
+            rays_are_patches: image.rays_are_patches,
         };
+        Ok(Crop { image, region, y0: py0 * k, x0: px0 * k, grid })
+    }
+
+    /// The cached (or new) render plan for this many views of this crop.
+    fn graph(&self, views: usize, crop: &Crop, outputs: Outputs) -> Result<Arc<RenderGraph>> {
+        let key = RenderKey { views, grid: crop.grid, outputs };
+        let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
+        if let Some(g) = plans.get(&key) {
+            return Ok(g.clone());
+        }
+        let g = Arc::new(self.build_render(views, crop.grid, outputs)?);
+        plans.insert(key, g.clone());
+        Ok(g)
+    }
+
+    /// The render plan for these targets, with their cameras and the crop's rays uploaded.
+    fn prepare(&self, targets: &TargetViews, request: &Request) -> Result<(Arc<RenderGraph>, Crop)> {
+        let crop = self.crop(targets, request)?;
+        let graph = self.graph(targets.count, &crop, request.outputs)?;
         let gpu = self.model.gpu();
         gpu.write(&graph.plan.tensor(graph.target_pos), &targets.camera_pos);
-        gpu.write(&graph.plan.tensor(graph.target_rays), &targets.rays);
-        Ok((graph, grid))
-    }
-
-    /// Planned peak bytes of the render plan for these targets (building it if needed).
-    pub fn render_peak_bytes(&self, targets: &TargetViews, outputs: Outputs) -> Result<u64> {
-        let grid = targets.grid(self.model.config.patch_size(), "target views")?;
-        Ok(self.build_render(targets.count, grid, outputs)?.plan.peak_bytes())
-    }
-
-    /// Number of render plans built so far (one per distinct target count, size and outputs).
-    pub fn cached_render_plans(&self) -> usize {
-        self.render_plans.lock().expect("render plan cache poisoned").len()
+        let k = if crop.image.rays_are_patches { self.model.config.patch_size() } else { 1 };
+        gpu.write(&graph.plan.tensor(graph.target_rays), &crop.rays(targets, k));
+        Ok((graph, crop))
     }
 
     fn build_render(&self, views: usize, grid: TargetGrid, outputs: Outputs) -> Result<RenderGraph> {
@@ -323,9 +470,12 @@ impl EncodedScene<'_> {
             Some(rp) => ray_patch_decoder(&mut b, rp, features, views, ph, pw, channels),
         };
         let pixels = views * grid.height * grid.width;
-        let rgb = b.output("rgb", pixels, 3);
-        let (src, dst) = (b.all(image), b.all(rgb));
-        map_columns(&mut b, "sigmoid", src, 0, dst, Map::Sigmoid);
+        let rgb = outputs.rgb.then(|| {
+            let rgb = b.output("rgb", pixels, 3);
+            let (src, dst) = (b.all(image), b.all(rgb));
+            map_columns(&mut b, "sigmoid", src, 0, dst, Map::Sigmoid);
+            rgb
+        });
         let logdepth = outputs.logdepth.then(|| {
             let depth = b.output("logdepth", pixels, 1);
             let (src, dst) = (b.all(image), b.all(depth));
@@ -333,7 +483,7 @@ impl EncodedScene<'_> {
             depth
         });
         let plan = b.build(model.gpu())?;
-        Ok(RenderGraph { plan, target_pos, target_rays, rgb, logdepth })
+        Ok(RenderGraph { plan, target_pos, target_rays, rgb, logdepth, queries })
     }
 
     /// `SRTDecoder` on one chunk of ray queries: encode, input_mlp, cross-attention layers, out_mlp.
@@ -433,6 +583,76 @@ fn ray_patch_decoder(
         (x, h, w) = (up, h2, w2);
     }
     skip
+}
+
+impl Crop {
+    /// The rays of the computed pixels; `per_ray` is the number of pixels along each axis one ray covers
+    /// (1 for full-resolution rays, k for patch rays).
+    fn rays<'t>(&self, targets: &'t TargetViews, per_ray: usize) -> std::borrow::Cow<'t, [f32]> {
+        if self.grid == self.image {
+            return targets.rays.as_slice().into();
+        }
+        let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
+        let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
+        let (h, w) = (self.grid.height / per_ray, self.grid.width / per_ray);
+        cut_rows(&targets.rays, targets.count, rh, rw, 3, y0, x0, h, w).into()
+    }
+
+    /// The region's pixels out of a computed `[views, grid.height, grid.width, channels]` image.
+    fn cut(&self, computed: &[f32], views: usize, channels: usize) -> Vec<f32> {
+        let r = &self.region;
+        let (y, x) = (r.y - self.y0, r.x - self.x0);
+        cut_rows(computed, views, self.grid.height, self.grid.width, channels, y, x, r.height, r.width)
+    }
+}
+
+/// The `h`×`w` window at row `y`, column `x` of each of `views` NHWC images of `height`×`width`×`channels`.
+#[allow(clippy::too_many_arguments)]
+fn cut_rows(
+    data: &[f32],
+    views: usize,
+    height: usize,
+    width: usize,
+    channels: usize,
+    y: usize,
+    x: usize,
+    h: usize,
+    w: usize,
+) -> Vec<f32> {
+    let mut out = Vec::with_capacity(views * h * w * channels);
+    for v in 0..views {
+        for row in y..y + h {
+            let start = ((v * height + row) * width + x) * channels;
+            out.extend_from_slice(&data[start..start + w * channels]);
+        }
+    }
+    out
+}
+
+/// The patches `first..=last` along an axis of `patches` patches whose decoder features the output pixels
+/// `lo..=hi` depend on, through the `RayPatchDecoder` with `upsample` 2× blocks (k = 2^upsample): a 3×3 conv
+/// reads one pixel further each side, and each 2× step (the nearest upsampling before a block's conv, the
+/// bilinear rgb skip) reads source pixels `floor((lo-1)/2) ..= floor((hi+1)/2)`. Reads past the image edge
+/// are padding in a full render too, so spans are clipped there. With these patches decoded, the pixels
+/// equal those of a full render. For SRT (`upsample` 0) a patch is a pixel and nothing more is needed.
+fn patch_span(lo: usize, hi: usize, upsample: usize, patches: usize) -> (usize, usize) {
+    type Span = (isize, isize);
+    let clip = |(lo, hi): Span, level: usize| (lo.max(0), hi.min(((patches << level) - 1) as isize));
+    let grow = |(lo, hi): Span| (lo - 1, hi + 1);
+    let half = |(lo, hi): Span| ((lo - 1).div_euclid(2), (hi + 1).div_euclid(2));
+    let hull = |a: Span, b: Span| (a.0.min(b.0), a.1.max(b.1));
+    if upsample == 0 {
+        return (lo, hi);
+    }
+    // At each level: the skip (rgb) pixels needed, and the feature pixels needed (`x` of the next block's
+    // conv, and the input of this level's to-rgb conv, which writes the skip).
+    let mut skip: Span = (lo as isize, hi as isize);
+    let mut features = clip(grow(skip), upsample);
+    for level in (0..upsample).rev() {
+        skip = clip(half(skip), level);
+        features = clip(hull(half(features), grow(skip)), level);
+    }
+    (features.0 as usize, features.1 as usize)
 }
 
 /// The official multipliers of a Fourier encoding.

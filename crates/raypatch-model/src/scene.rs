@@ -33,7 +33,7 @@ pub struct TargetViews {
 }
 
 /// How a target ray grid maps onto the image to render, for a given patch size.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TargetGrid {
     pub height: usize,
     pub width: usize,

@@ -37,10 +37,12 @@ impl TensorFile {
         Self::parse(&shown, &bytes)
     }
 
-    /// Parses file contents; `path` names the file in errors. The safetensors crate checks the header
-    /// length, the JSON, and that the tensors' byte ranges tile the data section exactly.
+    /// Parses file contents; `path` names the file in errors. [`check_layout`](crate::layout::check_layout)
+    /// and the safetensors crate check the header length, the JSON, the dtypes, and that the tensors' byte
+    /// ranges tile the data section exactly.
     pub fn parse(path: &str, bytes: &[u8]) -> Result<TensorFile, ModelError> {
         let format_err = |reason: String| ModelError::Format { path: path.to_string(), reason };
+        crate::layout::check_layout(bytes).map_err(format_err)?;
         let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| format_err(e.to_string()))?;
         let st = SafeTensors::deserialize(bytes).map_err(|e| format_err(e.to_string()))?;
         let metadata = header.metadata().clone().unwrap_or_default();

@@ -34,7 +34,7 @@ pub fn pack_conv3x3(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
 /// out += act(conv + bias) when `accumulate`.
 ///
 /// `weight` is [`pack_conv3x3`]'s `[cout, 9 * padded_cols(cin)]` matrix, `bias` a `[1, cout]` tensor. `act` is
-/// None, Relu or LeakyRelu (GELU is not supported here). The padding columns of `out` are written with zeros
+/// any [`Activation`]. The padding columns of `out` are written with zeros
 /// (or stay zero when accumulating). `out` must not overlap `x`.
 #[allow(clippy::too_many_arguments)]
 pub fn conv3x3(
@@ -56,7 +56,6 @@ pub fn conv3x3(
 ) {
     assert!(n > 0 && h > 0 && w > 0 && cin > 0 && cout > 0, "{label}: empty convolution");
     assert!(stride == 1 || stride == 2, "{label}: stride {stride} is not 1 or 2");
-    assert!(act != Activation::Gelu, "{label}: conv3x3 does not fuse GELU");
     assert_eq!(x.rows, n * h * w, "{label}: x has {} rows, not n*h*w = {n}*{h}*{w}", x.rows);
     assert_eq!(plan.cols(x.id), cin, "{label}: x has {} columns, not cin = {cin}", plan.cols(x.id));
     let (wrows, wcols) = (plan.rows(weight), plan.cols(weight));

@@ -40,18 +40,25 @@ impl Activation {
     }
 }
 
+/// A shader from `shaders/NAME.wgsl`, optionally preceded by shared WGSL files (WGSL has no includes).
 macro_rules! shader {
-    ($name:literal) => {
-        Shader { name: $name, source: include_str!(concat!("../../../../shaders/", $name, ".wgsl")) }
+    ($name:literal $(, $prelude:literal)*) => {
+        Shader {
+            name: $name,
+            source: concat!(
+                $(include_str!(concat!("../../../../shaders/", $prelude, ".wgsl")), "\n",)*
+                include_str!(concat!("../../../../shaders/", $name, ".wgsl"))
+            ),
+        }
     };
 }
 
-pub static MATMUL: Shader = shader!("matmul");
+pub static MATMUL: Shader = shader!("matmul", "activation");
 pub static ATTENTION: Shader = shader!("attention");
 pub static LAYERNORM: Shader = shader!("layernorm");
 pub static POSENC: Shader = shader!("posenc");
 pub static RESIZE: Shader = shader!("resize");
-pub static CONV: Shader = shader!("conv");
+pub static CONV: Shader = shader!("conv", "activation");
 pub static ELEMENTWISE: Shader = shader!("elementwise");
 
 /// Every shader, for validation tests and pipeline warm-up.

@@ -2,22 +2,7 @@
 //! preceded by `nn.Upsample(scale_factor=2, mode='nearest')`) with a fused activation, on NHWC images.
 
 use crate::kernels::Activation;
-
-/// The activations a convolution can fuse: identity, ReLU, LeakyReLU (`x` if `x >= 0`, else `slope · x`).
-pub fn activation(x: f64, act: Activation) -> f64 {
-    match act {
-        Activation::None => x,
-        Activation::Relu => x.max(0.0),
-        Activation::LeakyRelu(slope) => {
-            if x >= 0.0 {
-                x
-            } else {
-                f64::from(slope) * x
-            }
-        }
-        Activation::Gelu => panic!("reference::conv::activation: convolutions do not fuse GELU"),
-    }
-}
+use crate::reference::activation;
 
 /// `act(conv3x3(up(x), weight) + bias) + residual`, zero padding 1, stride `stride`.
 ///

@@ -1,22 +1,7 @@
 //! Float64 reference of the linear layer (`kernels::matmul::linear`).
 
 use crate::kernels::Activation;
-
-/// The activation in float64; GELU is the exact erf form x · Φ(x) (PyTorch's default `nn.GELU`).
-pub fn activation(x: f64, act: Activation) -> f64 {
-    match act {
-        Activation::None => x,
-        Activation::Relu => x.max(0.0),
-        Activation::LeakyRelu(slope) => {
-            if x >= 0.0 {
-                x
-            } else {
-                f64::from(slope) * x
-            }
-        }
-        Activation::Gelu => 0.5 * x * (1.0 + libm::erf(x / std::f64::consts::SQRT_2)),
-    }
-}
+use crate::reference::activation;
 
 /// `act(x · wᵀ + bias) (+ residual)` for x `[m, k]`, w `[n, k]` (nn.Linear layout), bias `[n]`,
 /// residual `[m, n]`; returns `[m, n]`. The activation is applied before the residual add.

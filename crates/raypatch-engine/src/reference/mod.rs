@@ -9,6 +9,25 @@ pub mod norm;
 pub mod posenc;
 pub mod resize;
 
+use crate::kernels::Activation;
+
+/// The activation in float64; GELU is the exact erf form x · Φ(x) (PyTorch's default `nn.GELU`).
+pub fn activation(x: f64, act: Activation) -> f64 {
+    match act {
+        Activation::None => x,
+        Activation::Relu => x.max(0.0),
+        Activation::LeakyRelu(slope) => {
+            if x >= 0.0 {
+                x
+            } else {
+                f64::from(slope) * x
+            }
+        }
+        Activation::Gelu => 0.5 * x * (1.0 + libm::erf(x / std::f64::consts::SQRT_2)),
+    }
+}
+
+
 /// A small deterministic generator (splitmix64) for test and benchmark inputs.
 #[derive(Clone, Debug)]
 pub struct Rng(u64);

@@ -1,0 +1,330 @@
+//! Cameras: pinhole intrinsics with a camera-to-world pose, the MultiShapeNet look-at convention, and explicit
+//! ray grids. The model sees a camera as its centre and one unit ray direction (world frame) per pixel
+//! centre, row 0 at the top; cameras that describe the same view give the same rays.
+
+use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
+
+use crate::error::{Error, Result};
+
+/// Largest |RᵀR − I| entry (and |det R − 1|) accepted for a rotation: poses stored as text with 6–7
+/// significant digits pass, a scaled or sheared matrix does not.
+pub const ROTATION_TOLERANCE: f64 = 1e-4;
+
+/// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
+pub const MSN_FOCAL_LENGTH: f64 = 0.035;
+/// Sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
+pub const MSN_SENSOR_WIDTH: f64 = 0.032;
+
+/// Pinhole intrinsics in pixels, for an image of `width` × `height`. A pixel (column `j`, row `i`) has its
+/// centre at `(j + 0.5, i + 0.5)`; the principal point `(cx, cy)` is in the same coordinates.
+///
+/// ```
+/// use raypatch::Intrinsics;
+/// let k = Intrinsics::msn(160, 120);
+/// assert!((k.fx - 175.0).abs() < 1e-9 && k.fx == k.fy && (k.cx, k.cy) == (80.0, 60.0));
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+    /// Horizontal focal length in pixels.
+    pub fx: f64,
+    /// Vertical focal length in pixels.
+    pub fy: f64,
+    /// Principal point, column coordinate (pixels from the left edge).
+    pub cx: f64,
+    /// Principal point, row coordinate (pixels from the top edge).
+    pub cy: f64,
+}
+
+impl Intrinsics {
+    /// Square pixels and a centred principal point, from a focal length and sensor width in the same unit.
+    pub fn from_sensor(focal_length: f64, sensor_width: f64, width: usize, height: usize) -> Intrinsics {
+        let f = focal_length / sensor_width * width as f64;
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
+    }
+
+    /// The MultiShapeNet cameras: focal length 0.035, sensor width 0.032.
+    pub fn msn(width: usize, height: usize) -> Intrinsics {
+        Intrinsics::from_sensor(MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, width, height)
+    }
+
+    /// Square pixels and a centred principal point, from the horizontal field of view in radians (NeRF's
+    /// `camera_angle_x`).
+    pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
+        let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 {
+            return Err(Error::Camera(format!("image size {}x{} is empty", self.width, self.height)));
+        }
+        let values = [self.fx, self.fy, self.cx, self.cy];
+        if values.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
+            return Err(Error::Camera(format!(
+                "intrinsics fx={} fy={} cx={} cy={}: expected finite values and positive focal lengths",
+                self.fx, self.fy, self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The axes of a camera frame, for poses given as camera-to-world matrices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CameraAxes {
+    /// x right, y down, the camera looks along +z (OpenCV, COLMAP; the MultiShapeNet look-at frame).
+    OpenCv,
+    /// x right, y up, the camera looks along −z (OpenGL, NeRF's `transforms.json`, Blender).
+    OpenGl,
+}
+
+/// Unit ray directions in the world frame, row-major, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RayGrid {
+    /// Rays per row.
+    pub width: usize,
+    /// Rows of rays.
+    pub height: usize,
+    /// `width * height` directions, row-major.
+    pub directions: Vec<Vec3>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+enum Projection {
+    /// Rotation camera → world with OpenCV axes (columns: right, down, forward).
+    Pinhole { intrinsics: Intrinsics, rotation: DMat3 },
+    /// Rays given as such: one per pixel, or one per `per_ray` × `per_ray` patch.
+    Rays { grid: RayGrid, per_ray: usize },
+}
+
+/// A camera: where it is, the image it sees (`width` × `height`), and the rays through that image's pixels.
+///
+/// The three ways to make one agree: an MSN look-at camera, the same camera as intrinsics and a pose, and its
+/// rays given explicitly all render the same image.
+///
+/// ```
+/// use glam::DVec3;
+/// use raypatch::{Camera, CameraAxes};
+/// let msn = Camera::msn(DVec3::new(4.0, -3.0, 2.5), 48, 32)?;
+/// let (intrinsics, pose) = msn.as_pinhole().unwrap();
+/// let pinhole = Camera::pinhole(intrinsics, pose, CameraAxes::OpenCv)?;
+/// let explicit = Camera::from_rays(msn.position(), msn.rays())?;
+/// for (a, b) in msn.rays().directions.iter().zip(&pinhole.rays().directions) {
+///     assert!((*a - *b).abs().max_element() < 1e-6);
+/// }
+/// assert_eq!(explicit.rays(), msn.rays());
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    position: DVec3,
+    width: usize,
+    height: usize,
+    projection: Projection,
+}
+
+fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(Error::Camera(format!("{what} {v} is not finite")))
+    }
+}
+
+impl Camera {
+    /// This camera as the engine's one-view render target (its position, rays and image size).
+    pub fn target_views(&self) -> raypatch_model::TargetViews {
+        let rays = self.rays();
+        raypatch_model::TargetViews {
+            count: 1,
+            camera_pos: self.position().as_vec3().to_array().to_vec(),
+            rays: rays.directions.iter().flat_map(|d| d.to_array()).collect(),
+            rays_height: rays.height,
+            rays_width: rays.width,
+            declared_size: Some((self.height(), self.width())),
+            images: None,
+        }
+    }
+
+    /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
+    /// must be 0 0 0 1) whose camera frame has the given axes. The rotation must be orthonormal and
+    /// right-handed (within [`ROTATION_TOLERANCE`]): a scaled, sheared or mirrored pose is an error.
+    pub fn pinhole(intrinsics: Intrinsics, camera_to_world: DMat4, axes: CameraAxes) -> Result<Camera> {
+        intrinsics.check()?;
+        let m = camera_to_world;
+        if !m.is_finite() {
+            return Err(Error::Camera(format!("pose {:?} holds NaN or infinity", m.to_cols_array_2d())));
+        }
+        if (m.row(3) - DVec4::W).abs().max_element() > ROTATION_TOLERANCE {
+            return Err(Error::Camera(format!("pose bottom row is {}, expected 0 0 0 1", m.row(3))));
+        }
+        let r = DMat3::from_mat4(m);
+        let error = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |e, v| e.max(v.abs()));
+        if error > ROTATION_TOLERANCE || (r.determinant() - 1.0).abs() > ROTATION_TOLERANCE {
+            return Err(Error::Camera(format!(
+                "pose rotation is not orthonormal and right-handed \
+                 (max |RᵀR − I| = {error:.2e}, det = {:.6}, tolerance {ROTATION_TOLERANCE:e})",
+                r.determinant()
+            )));
+        }
+        let rotation = match axes {
+            CameraAxes::OpenCv => r,
+            CameraAxes::OpenGl => DMat3::from_cols(r.x_axis, -r.y_axis, -r.z_axis),
+        };
+        Ok(Camera {
+            position: m.w_axis.truncate(),
+            width: intrinsics.width,
+            height: intrinsics.height,
+            projection: Projection::Pinhole { intrinsics, rotation },
+        })
+    }
+
+    /// A pinhole camera at `eye` looking at `target`, with `up` pointing up in the image (the MSN convention:
+    /// image right = forward × up, image down = forward × right).
+    pub fn look_at(eye: DVec3, target: DVec3, up: DVec3, intrinsics: Intrinsics) -> Result<Camera> {
+        intrinsics.check()?;
+        let (eye, target, up) = (finite_vec(eye, "eye")?, finite_vec(target, "target")?, finite_vec(up, "up")?);
+        let forward =
+            (target - eye).try_normalize().ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;
+        let right = forward
+            .cross(up)
+            .try_normalize()
+            .ok_or_else(|| Error::Camera(format!("camera at {eye} looks along the up axis {up}")))?;
+        let down = forward.cross(right).normalize();
+        Ok(Camera {
+            position: eye,
+            width: intrinsics.width,
+            height: intrinsics.height,
+            projection: Projection::Pinhole { intrinsics, rotation: DMat3::from_cols(right, down, forward) },
+        })
+    }
+
+    /// A MultiShapeNet camera (the official `get_camera_rays`): at `position`, looking at the world origin
+    /// with +z up, focal length 0.035 and sensor width 0.032, square pixels.
+    pub fn msn(position: DVec3, width: usize, height: usize) -> Result<Camera> {
+        Camera::look_at(position, DVec3::ZERO, DVec3::Z, Intrinsics::msn(width, height))
+    }
+
+    /// A camera given by its centre and one ray per pixel (the image size is the grid's). Rays must be finite
+    /// and non-zero; they are used as given (a scene file's rays are already unit length).
+    pub fn from_rays(position: DVec3, grid: RayGrid) -> Result<Camera> {
+        Camera::from_patch_rays(position, grid, 1)
+    }
+
+    /// A camera given by its centre and one ray per `k` × `k` patch (the patch rays a Ray-Patch model with
+    /// patch size `k` queries); the image is `k` times the grid in each dimension.
+    pub fn from_patch_rays(position: DVec3, grid: RayGrid, k: usize) -> Result<Camera> {
+        let position = finite_vec(position, "position")?;
+        if grid.width == 0 || grid.height == 0 || k == 0 {
+            return Err(Error::Camera(format!("ray grid {}x{} (k={k}) is empty", grid.width, grid.height)));
+        }
+        if grid.directions.len() != grid.width * grid.height {
+            return Err(Error::Camera(format!(
+                "ray grid has {} rays, expected width x height = {}x{}",
+                grid.directions.len(),
+                grid.width,
+                grid.height
+            )));
+        }
+        if let Some(i) = grid.directions.iter().position(|d| !d.is_finite() || d.length() < 1e-6) {
+            return Err(Error::Camera(format!(
+                "ray {i} is {}: expected a finite, non-zero direction",
+                grid.directions[i]
+            )));
+        }
+        let (width, height) = (grid.width * k, grid.height * k);
+        Ok(Camera { position, width, height, projection: Projection::Rays { grid, per_ray: k } })
+    }
+
+    /// The camera centre in the world frame.
+    pub fn position(&self) -> DVec3 {
+        self.position
+    }
+
+    /// Width of the image in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height of the image in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// The intrinsics and the camera-to-world pose (OpenCV axes) of a pinhole camera; `None` for cameras
+    /// given by rays.
+    pub fn as_pinhole(&self) -> Option<(Intrinsics, DMat4)> {
+        match &self.projection {
+            Projection::Pinhole { intrinsics, rotation } => Some((
+                *intrinsics,
+                DMat4::from_cols(
+                    rotation.x_axis.extend(0.0),
+                    rotation.y_axis.extend(0.0),
+                    rotation.z_axis.extend(0.0),
+                    self.position.extend(1.0),
+                ),
+            )),
+            Projection::Rays { .. } => None,
+        }
+    }
+
+    /// Pixels per ray along each axis: 1, or `k` for cameras made with [`from_patch_rays`](Self::from_patch_rays).
+    pub fn pixels_per_ray(&self) -> usize {
+        match &self.projection {
+            Projection::Pinhole { .. } => 1,
+            Projection::Rays { per_ray, .. } => *per_ray,
+        }
+    }
+
+    /// The camera's rays: unit directions through the pixel centres (computed in f64, rounded to f32), or the
+    /// grid it was given.
+    pub fn rays(&self) -> RayGrid {
+        match &self.projection {
+            Projection::Rays { grid, .. } => grid.clone(),
+            Projection::Pinhole { intrinsics: k, rotation } => {
+                let mut directions = Vec::with_capacity(self.width * self.height);
+                for i in 0..self.height {
+                    for j in 0..self.width {
+                        let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
+                        directions.push((*rotation * camera).normalize().as_vec3());
+                    }
+                }
+                RayGrid { width: self.width, height: self.height, directions }
+            }
+        }
+    }
+
+    /// This camera turned by `degrees` about the world z axis through the origin: a turntable step for z-up
+    /// scenes centred on the origin (MultiShapeNet, NeRF's Blender scenes). Positive angles turn from +x
+    /// towards +y.
+    ///
+    /// ```
+    /// use glam::DVec3;
+    /// use raypatch::Camera;
+    /// let a = Camera::msn(DVec3::new(5.0, 0.0, 2.0), 32, 32)?;
+    /// let b = a.orbited(90.0);
+    /// assert!((b.position() - DVec3::new(0.0, 5.0, 2.0)).length() < 1e-12);
+    /// let c = Camera::msn(DVec3::new(0.0, 5.0, 2.0), 32, 32)?;
+    /// for (x, y) in b.rays().directions.iter().zip(&c.rays().directions) {
+    ///     assert!((*x - *y).abs().max_element() < 1e-6);
+    /// }
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn orbited(&self, degrees: f64) -> Camera {
+        let turn = DMat3::from_rotation_z(degrees.to_radians());
+        let projection = match &self.projection {
+            Projection::Pinhole { intrinsics, rotation } => {
+                Projection::Pinhole { intrinsics: *intrinsics, rotation: turn * *rotation }
+            }
+            Projection::Rays { grid, per_ray } => {
+                let directions = grid.directions.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
+                Projection::Rays { grid: RayGrid { directions, ..*grid }, per_ray: *per_ray }
+            }
+        };
+        Camera { position: turn * self.position, projection, ..*self }
+    }
+}

@@ -1,0 +1,253 @@
+//! Posed views from disk: raypatch scene files (safetensors) and folders of PNGs with a NeRF-style
+//! `transforms.json`.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat4, Vec3};
+use serde_json::Value;
+
+use crate::camera::{Camera, CameraAxes, Intrinsics, RayGrid};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::render::InputView;
+
+/// Where a [`SceneData`] came from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SceneSource {
+    /// A scene safetensors file (docs/FORMATS.md): separate input and target views.
+    File(PathBuf),
+    /// A folder with `transforms.json`: every frame is both an input and a target candidate.
+    Frames(PathBuf),
+}
+
+/// A camera to render, with its ground truth when known.
+#[derive(Clone, Debug)]
+pub struct TargetView {
+    /// The camera to render from.
+    pub camera: Camera,
+    /// The ground truth, when the scene has it (`target_images`, or the frame's PNG).
+    pub image: Option<Image>,
+}
+
+/// Posed views read from disk.
+///
+/// ```
+/// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k2");
+/// let data = raypatch::SceneData::load(format!("{golden}/scene.safetensors"))?;
+/// assert_eq!((data.inputs.len(), data.targets.len()), (1, 2));
+/// assert!(data.targets[0].image.is_some());
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct SceneData {
+    /// The file or folder the views were read from.
+    pub source: SceneSource,
+    /// Posed images to encode.
+    pub inputs: Vec<InputView>,
+    /// Cameras to render.
+    pub targets: Vec<TargetView>,
+}
+
+impl SceneData {
+    /// Reads a scene safetensors file, or a folder holding `transforms.json` and its images.
+    pub fn load(path: impl AsRef<Path>) -> Result<SceneData> {
+        let path = path.as_ref();
+        if path.is_dir() {
+            SceneData::from_frames(path)
+        } else {
+            SceneData::from_file(path)
+        }
+    }
+
+    /// Reads a scene safetensors file: input images, camera centres and rays; target centres and rays (one per
+    /// pixel, or one per patch with the image size in `target_images` or the `target_size` metadata).
+    pub fn from_file(path: impl AsRef<Path>) -> Result<SceneData> {
+        let path = path.as_ref();
+        let file = raypatch_model::load_scene(path)?;
+        let (n, h, w) = (file.inputs.count, file.inputs.height, file.inputs.width);
+        let position = |pos: &[f32], i: usize| Vec3::from_slice(&pos[3 * i..3 * i + 3]).as_dvec3();
+        let grid = |rays: &[f32], i: usize, gh: usize, gw: usize| RayGrid {
+            width: gw,
+            height: gh,
+            directions: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3].chunks_exact(3).map(Vec3::from_slice).collect(),
+        };
+        let inputs = (0..n)
+            .map(|i| {
+                let pixels = file.inputs.images[i * h * w * 3..(i + 1) * h * w * 3].to_vec();
+                Ok(InputView {
+                    image: Image::new(w, h, pixels)?,
+                    camera: Camera::from_rays(position(&file.inputs.camera_pos, i), grid(&file.inputs.rays, i, h, w))?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let t = &file.targets;
+        let (gh, gw) = (t.rays_height, t.rays_width);
+        let (th, tw) = t.declared_size.unwrap_or((gh, gw));
+        // Rays per pixel, or per k×k patch when the declared image is k times the ray grid.
+        let per_ray = if (th, tw) == (gh, gw) {
+            1
+        } else if th % gh == 0 && tw % gw == 0 && th / gh == tw / gw {
+            th / gh
+        } else {
+            return Err(Error::Model(raypatch_model::ModelError::Value {
+                path: file.path.clone(),
+                key: "target_rays".into(),
+                reason: format!(
+                    "ray grid {gh}x{gw} is neither the target size {th}x{tw} nor that size divided by a patch size"
+                ),
+            }));
+        };
+        let targets = (0..t.count)
+            .map(|i| {
+                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)?;
+                let image = t
+                    .images
+                    .as_ref()
+                    .map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
+                Ok(TargetView { camera, image: image.transpose()? })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(SceneData { source: SceneSource::File(path.to_path_buf()), inputs, targets })
+    }
+
+    /// Reads a folder with a NeRF-style `transforms.json`: intrinsics as `camera_angle_x` (and optionally
+    /// `camera_angle_y`) or `fl_x`/`fl_y`/`cx`/`cy` (top level or per frame; `w`/`h` are checked against the
+    /// images), and per frame a `file_path` (relative to the folder, `.png` added when missing) and a 4×4
+    /// camera-to-world `transform_matrix` with OpenGL axes (x right, y up, looking along −z). All images must
+    /// have the same size. Every frame becomes both an input view and a target view (with its image).
+    pub fn from_frames(dir: impl AsRef<Path>) -> Result<SceneData> {
+        let dir = dir.as_ref();
+        let json_path = dir.join("transforms.json");
+        let shown = json_path.display().to_string();
+        let err = |reason: String| Error::Cameras { path: shown.clone(), reason };
+        let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, "cannot read", e))?;
+        let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+        let frames = root.get("frames").and_then(Value::as_array).ok_or_else(|| err("no `frames` list".into()))?;
+        if frames.is_empty() {
+            return Err(err("`frames` is empty: the scene has no view".into()));
+        }
+        let mut inputs: Vec<InputView> = Vec::with_capacity(frames.len());
+        for (i, frame) in frames.iter().enumerate() {
+            let name = frame
+                .get("file_path")
+                .and_then(Value::as_str)
+                .ok_or_else(|| err(format!("frame {i}: no `file_path`")))?;
+            let image = Image::load_png(frame_image_path(dir, name))?;
+            if let Some(first) = inputs.first() {
+                let (w, h) = (first.image.width(), first.image.height());
+                if (image.width(), image.height()) != (w, h) {
+                    return Err(err(format!(
+                        "frame {i} ({name}) is {}x{}, frame 0 is {w}x{h}: all images must have the same size",
+                        image.width(),
+                        image.height()
+                    )));
+                }
+            }
+            let camera = nerf_camera(&root, frame, image.width(), image.height())
+                .map_err(|reason| err(format!("frame {i} ({name}): {reason}")))?;
+            inputs.push(InputView { image, camera });
+        }
+        let targets =
+            inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
+        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets })
+    }
+}
+
+fn frame_image_path(dir: &Path, name: &str) -> PathBuf {
+    let path = dir.join(name);
+    if path.extension().is_none() && !path.exists() {
+        path.with_extension("png")
+    } else {
+        path
+    }
+}
+
+/// Reads a camera-to-world pose file: JSON with a 4×4 `transform_matrix` (OpenGL axes, as in
+/// `transforms.json`) and optionally intrinsics and `w`/`h` in the same keys; without intrinsics the camera
+/// takes those of `like` when it is a pinhole camera, else MultiShapeNet's at `like`'s size.
+///
+/// ```
+/// use glam::DVec3;
+/// let path = std::env::temp_dir().join("raypatch-doc-pose.json");
+/// std::fs::write(&path, r#"{"camera_angle_x": 0.8,
+///     "transform_matrix": [[1,0,0,0], [0,0,-1,-6], [0,1,0,1], [0,0,0,1]]}"#).unwrap();
+/// let like = raypatch::Camera::msn(DVec3::new(5.0, 0.0, 1.0), 32, 24)?;
+/// let camera = raypatch::load_pose(&path, &like)?;
+/// assert_eq!((camera.position(), camera.width()), (DVec3::new(0.0, -6.0, 1.0), 32));
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
+    let path = path.as_ref();
+    let err = |reason: String| Error::Cameras { path: path.display().to_string(), reason };
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "cannot read", e))?;
+    let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+    let has_intrinsics = ["camera_angle_x", "fl_x"].iter().any(|k| root.get(k).is_some());
+    let (w, h) = (number(&root, &root, "w").map_err(&err)?, number(&root, &root, "h").map_err(&err)?);
+    let (width, height) = (w.map_or(like.width(), |v| v as usize), h.map_or(like.height(), |v| v as usize));
+    let camera = if has_intrinsics {
+        nerf_camera(&root, &root, width, height)
+    } else {
+        let intrinsics = match like.as_pinhole() {
+            Some((k, _)) if (k.width, k.height) == (width, height) => k,
+            _ => Intrinsics::msn(width, height),
+        };
+        pose(&root).and_then(|m| Camera::pinhole(intrinsics, m, CameraAxes::OpenGl).map_err(|e| e.to_string()))
+    };
+    camera.map_err(err)
+}
+
+/// A number under `key`, from the frame or else the top level.
+fn number(root: &Value, frame: &Value, key: &str) -> std::result::Result<Option<f64>, String> {
+    match frame.get(key).or_else(|| root.get(key)) {
+        None | Some(Value::Null) => Ok(None),
+        Some(v) => match v.as_f64() {
+            Some(x) if x.is_finite() => Ok(Some(x)),
+            _ => Err(format!("`{key}` is {v}, expected a finite number")),
+        },
+    }
+}
+
+/// The camera of one `transforms.json` frame on an image of `width` × `height`.
+fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std::result::Result<Camera, String> {
+    let get = |key| number(root, frame, key);
+    for (key, actual) in [("w", width), ("h", height)] {
+        if let Some(v) = get(key)? {
+            if v != actual as f64 {
+                return Err(format!("`{key}` is {v} but the image is {width}x{height}"));
+            }
+        }
+    }
+    let focal_from_angle = |angle: f64, size: usize| 0.5 * size as f64 / (0.5 * angle).tan();
+    let fx = match (get("fl_x")?, get("camera_angle_x")?) {
+        (Some(f), _) => f,
+        (None, Some(angle)) => focal_from_angle(angle, width),
+        (None, None) => return Err("no intrinsics: expected `camera_angle_x` or `fl_x`".into()),
+    };
+    let fy = match (get("fl_y")?, get("camera_angle_y")?) {
+        (Some(f), _) => f,
+        (None, Some(angle)) => focal_from_angle(angle, height),
+        (None, None) => fx,
+    };
+    let cx = get("cx")?.unwrap_or(width as f64 / 2.0);
+    let cy = get("cy")?.unwrap_or(height as f64 / 2.0);
+    let intrinsics = Intrinsics { width, height, fx, fy, cx, cy };
+    Camera::pinhole(intrinsics, pose(frame)?, CameraAxes::OpenGl).map_err(|e| e.to_string())
+}
+
+/// The `transform_matrix` of a frame: 4 rows of 4 finite numbers.
+fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
+    let bad = || "`transform_matrix` must be 4 rows of 4 finite numbers".to_string();
+    let rows = frame.get("transform_matrix").and_then(Value::as_array).ok_or_else(bad)?;
+    if rows.len() != 4 {
+        return Err(bad());
+    }
+    let mut m = [[0.0f64; 4]; 4];
+    for (r, row) in rows.iter().enumerate() {
+        let row = row.as_array().filter(|row| row.len() == 4).ok_or_else(bad)?;
+        for (c, v) in row.iter().enumerate() {
+            m[r][c] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(bad)?;
+        }
+    }
+    // The JSON is row-major; glam builds from columns.
+    Ok(DMat4::from_cols_array_2d(&m).transpose())
+}

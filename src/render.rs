@@ -1,0 +1,292 @@
+//! The engine, models, encoded scenes and renders.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request};
+use raypatch_model::{InputViews, ModelConfig};
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::Region;
+
+/// How to set up the [`Engine`].
+///
+/// ```
+/// use raypatch::{AdapterChoice, EngineOptions};
+/// let on_lavapipe = EngineOptions { adapter: AdapterChoice::NameContains("llvmpipe".into()) };
+/// assert!(matches!(EngineOptions::default().adapter, AdapterChoice::Auto));
+/// # let _ = on_lavapipe;
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct EngineOptions {
+    /// Which adapter to run on: by default a real GPU when there is one, else a CPU one such as lavapipe.
+    pub adapter: AdapterChoice,
+}
+
+/// A GPU adapter wgpu can see.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Adapter {
+    /// The device's name, as `--adapter` matches it.
+    pub name: String,
+    /// `DiscreteGpu`, `IntegratedGpu`, `VirtualGpu`, `Cpu` or `Other`.
+    pub kind: String,
+    /// `Vulkan`, `Metal`, `Dx12` or `Gl`.
+    pub backend: String,
+    /// Driver name and version.
+    pub driver: String,
+}
+
+impl std::fmt::Display for Adapter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({}, {}, {})", self.name, self.kind, self.backend, self.driver)
+    }
+}
+
+/// The GPU context: an adapter, its device, and the compiled kernels, shared by every model loaded on it.
+///
+/// ```
+/// use raypatch::{Engine, EngineOptions};
+/// let engine = Engine::new(EngineOptions::default())?;
+/// println!("rendering on {}", engine.adapter());
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+pub struct Engine {
+    gpu: Arc<Gpu>,
+}
+
+impl Engine {
+    /// Opens the adapter the options ask for.
+    pub fn new(options: EngineOptions) -> Result<Engine> {
+        Ok(Engine { gpu: Arc::new(Gpu::new(&GpuOptions { adapter: options.adapter })?) })
+    }
+
+    /// Every adapter wgpu can see, in the order [`AdapterChoice::Auto`] prefers them.
+    ///
+    /// ```
+    /// for adapter in raypatch::Engine::adapters() {
+    ///     println!("{adapter}");
+    /// }
+    /// ```
+    pub fn adapters() -> Vec<Adapter> {
+        raypatch_engine::gpu::list_adapters()
+            .into_iter()
+            .map(|info| Adapter {
+                name: info.name,
+                kind: format!("{:?}", info.device_type),
+                backend: format!("{:?}", info.backend),
+                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+            })
+            .collect()
+    }
+
+    /// The adapter in use, as "name (backend, driver)".
+    pub fn adapter(&self) -> String {
+        self.gpu.describe()
+    }
+
+    /// Loads a model file (safetensors with the official key names and the config in its metadata, see
+    /// docs/FORMATS.md) and uploads its weights. Every tensor is checked by name, shape and dtype.
+    ///
+    /// ```
+    /// # let engine = raypatch::Engine::new(Default::default())?;
+    /// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
+    /// let model = engine.load(format!("{golden}/model.safetensors"))?;
+    /// assert_eq!(model.patch_size(), 4);
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn load(&self, path: impl AsRef<Path>) -> Result<Model> {
+        Ok(Model { inner: raypatch_engine::Model::load(self.gpu.clone(), path)? })
+    }
+
+    /// What the GPU has done so far (pipelines compiled, buffers created, submits, dispatches): for checking
+    /// that work is skipped or reused.
+    pub fn counters(&self) -> raypatch_engine::gpu::CounterSnapshot {
+        self.gpu.counters()
+    }
+}
+
+/// A model with its weights on the GPU.
+pub struct Model {
+    inner: raypatch_engine::Model,
+}
+
+/// A posed input image.
+#[derive(Clone, Debug)]
+pub struct InputView {
+    /// RGB in [0, 1].
+    pub image: Image,
+    /// A camera of the image's size, with one ray per pixel.
+    pub camera: Camera,
+}
+
+impl Model {
+    /// The resolved config (every dimension, with the official defaults filled in).
+    pub fn config(&self) -> &ModelConfig {
+        &self.inner.config
+    }
+
+    /// The file the model was loaded from.
+    pub fn path(&self) -> &str {
+        &self.inner.path
+    }
+
+    /// Ray-Patch's k (pixels per patch side); 1 for SRT.
+    pub fn patch_size(&self) -> usize {
+        self.inner.config.patch_size()
+    }
+
+    /// Whether the model predicts log-depth (4 output channels).
+    pub fn has_depth(&self) -> bool {
+        self.inner.config.image_channels() == 4
+    }
+
+    /// Number of parameters in the file (BatchNorm statistics included).
+    pub fn parameter_count(&self) -> usize {
+        self.inner.parameter_count
+    }
+
+    /// Bytes of GPU memory the weights take.
+    pub fn weight_bytes(&self) -> u64 {
+        self.inner.weight_bytes()
+    }
+
+    /// Encodes posed input images into a [`Scene`]: the latent tokens and each decoder layer's keys and
+    /// values, computed once and kept for every render. All views must have the same size, divisible by the
+    /// encoder's downsampling (2^conv blocks), values in [0, 1], and cameras of that size with one ray per
+    /// pixel.
+    ///
+    /// ```
+    /// # let engine = raypatch::Engine::new(Default::default())?;
+    /// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
+    /// let model = engine.load(format!("{golden}/model.safetensors"))?;
+    /// let data = raypatch::SceneData::load(format!("{golden}/scene.safetensors"))?;
+    /// let scene = model.encode(&data.inputs)?;
+    /// assert!(model.encode(&[]).is_err());
+    /// # let _ = scene;
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
+        Ok(Scene { inner: self.inner.encode(&input_views(views)?)? })
+    }
+
+    /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
+    pub fn profile_encode(&self, views: &[InputView]) -> Result<OpTimes> {
+        Ok(self.inner.encode_profiled(&input_views(views)?)?.1)
+    }
+}
+
+fn input_views(views: &[InputView]) -> Result<InputViews> {
+    let first = views.first().ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
+    let (width, height) = (first.image.width(), first.image.height());
+    let mut inputs = InputViews {
+        count: views.len(),
+        height,
+        width,
+        images: Vec::with_capacity(views.len() * width * height * 3),
+        camera_pos: Vec::with_capacity(views.len() * 3),
+        rays: Vec::with_capacity(views.len() * width * height * 3),
+    };
+    for (i, view) in views.iter().enumerate() {
+        let (image, camera) = (&view.image, &view.camera);
+        if (image.width(), image.height()) != (width, height) {
+            return Err(Error::Views(format!(
+                "view {i} is {}x{}, view 0 is {width}x{height}: all input views must have the same size",
+                image.width(),
+                image.height()
+            )));
+        }
+        if (camera.width(), camera.height()) != (width, height) || camera.pixels_per_ray() != 1 {
+            return Err(Error::Views(format!(
+                "view {i}: the camera is for a {}x{} image with one ray per {} pixel(s), the image is {width}x{height}",
+                camera.width(),
+                camera.height(),
+                camera.pixels_per_ray()
+            )));
+        }
+        if let Some(v) = image.data().iter().position(|v| !(0.0..=1.0).contains(v)) {
+            return Err(Error::Views(format!("view {i}: value {v} is {}, expected [0, 1]", image.data()[v])));
+        }
+        inputs.images.extend_from_slice(image.data());
+        inputs.camera_pos.extend(camera.position().as_vec3().to_array());
+        inputs.rays.extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
+    }
+    Ok(inputs)
+}
+
+/// A scene encoded by a model, rendered from any camera.
+pub struct Scene<'m> {
+    inner: EncodedScene<'m>,
+}
+
+/// The outputs of one render, over the requested region.
+#[derive(Clone, Debug)]
+pub struct Rendered {
+    /// Where the pixels lie in the camera's image.
+    pub region: Region,
+    /// The colour image (region-sized), when requested.
+    pub rgb: Option<Image>,
+    /// Log-depth, `[height, width]` row-major, when requested.
+    pub logdepth: Option<Vec<f32>>,
+}
+
+impl Scene<'_> {
+    /// Renders the view of `camera`: the outputs the request asks for, over its region (the whole image by
+    /// default). The first render of a size builds a plan; later renders of that size (any camera, any
+    /// region position of the same computed size) reuse it with no allocation and no compilation.
+    ///
+    /// ```
+    /// use glam::DVec3;
+    /// use raypatch::{Camera, Outputs, Region, Request};
+    /// # let engine = raypatch::Engine::new(Default::default())?;
+    /// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
+    /// let model = engine.load(format!("{golden}/model.safetensors"))?;
+    /// let scene = model.encode(&raypatch::SceneData::load(format!("{golden}/scene.safetensors"))?.inputs)?;
+    ///
+    /// let camera = Camera::msn(DVec3::new(6.0, 4.0, 3.0), 48, 32)?;
+    /// let full = scene.render(&camera, &Request::default())?;
+    /// let corner = Region { x: 40, y: 0, width: 8, height: 8 };
+    /// let part = scene.render(&camera, &Request { region: Some(corner), ..Request::default() })?;
+    /// let (full, part) = (full.rgb.unwrap(), part.rgb.unwrap());
+    /// assert_eq!((full.width(), full.height(), part.width()), (48, 32, 8));
+    /// assert!(full.crop(corner)?.data().iter().zip(part.data()).all(|(a, b)| (a - b).abs() < 1e-6));
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
+        let frame = self.inner.render(&camera.target_views(), *request)?;
+        let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
+        Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })
+    }
+
+    /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
+    /// (builds the plan if it does not exist yet).
+    pub fn render_stats(&self, camera: &Camera, request: &Request) -> Result<RenderStats> {
+        Ok(self.inner.render_stats(&camera.target_views(), *request)?)
+    }
+
+    /// Renders op by op and returns each op's label and time (for profiling).
+    pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
+        Ok(self.inner.profile_render(&camera.target_views(), *request)?)
+    }
+
+    /// Bytes the encode plan allocated for its intermediates (freed once encoded).
+    pub fn encode_peak_bytes(&self) -> u64 {
+        self.inner.encode_peak_bytes
+    }
+
+    /// Bytes the scene keeps on the GPU: the latent tokens and the decoder's keys and values.
+    pub fn cache_bytes(&self) -> u64 {
+        self.inner.latent.bytes() + self.inner.keys_values.iter().map(|t| t.bytes()).sum::<u64>()
+    }
+
+    /// Render plans built so far.
+    pub fn cached_plans(&self) -> usize {
+        self.inner.cached_render_plans()
+    }
+
+    /// The engine-level scene (latent, keys and values, plan labels), for tools that look inside.
+    pub fn engine_scene(&self) -> &EncodedScene<'_> {
+        &self.inner
+    }
+}

@@ -1,0 +1,393 @@
+//! The embedded API on the golden cases: cameras agree with each other and with the official ray code; a
+//! region renders exactly the full render's pixels while decoding only the patches it needs; only the
+//! requested outputs are computed; rendering never re-encodes and reuses its plan; bad input is an error.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DMat4, DVec3, Vec3};
+use raypatch::metrics::{psnr, ssim};
+use raypatch::{
+    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs, RayGrid, Region, Request,
+    SceneData,
+};
+
+/// Largest difference allowed between two ray directions that describe the same camera: both are rounded
+/// from f64 to f32 (half an ulp, 6e-8) after f64 maths whose rounding differs by a few 1e-16.
+const RAY_TOLERANCE: f32 = 1e-6;
+
+fn golden(case: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(case)
+}
+
+fn engine() -> Engine {
+    Engine::new(EngineOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)")
+}
+
+fn max_ray_diff(a: &RayGrid, b: &RayGrid) -> f32 {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    a.directions.iter().zip(&b.directions).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max)
+}
+
+/// The official `get_camera_rays` (tools/cameras.py), written out on the sensor plane in f64.
+fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
+    let (focal, sensor_width) = (0.035, 0.032);
+    let c_dir = -c_pos / c_pos.length();
+    let horizontal = c_dir.cross(DVec3::Z).normalize();
+    let vertical = c_dir.cross(horizontal).normalize();
+    let sensor_height = sensor_width / width as f64 * height as f64;
+    let midpoint = |i: usize, n: usize, size: f64| {
+        let edge = |e: usize| (-1.0 + 2.0 * e as f64 / n as f64) * size / 2.0;
+        (edge(i) + edge(i + 1)) / 2.0
+    };
+    let mut directions = Vec::new();
+    for i in 0..height {
+        for j in 0..width {
+            let plane = c_dir * focal
+                + midpoint(j, width, sensor_width) * horizontal
+                + midpoint(i, height, sensor_height) * vertical;
+            directions.push(plane.normalize().as_vec3());
+        }
+    }
+    RayGrid { width, height, directions }
+}
+
+#[test]
+fn msn_cameras_give_the_official_rays() {
+    // The golden scenes' target rays were written by tools/cameras.py (numpy, f64 then f32).
+    for case in ["srt_k1", "rpsrt_k4", "rpsrt_k16"] {
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        for target in &data.targets {
+            let c = &target.camera;
+            let msn = Camera::msn(c.position(), c.width(), c.height()).unwrap();
+            let err = max_ray_diff(&msn.rays(), &c.rays());
+            assert!(err <= RAY_TOLERANCE, "{case}: MSN camera rays differ from tools/cameras.py by {err:e}");
+        }
+    }
+    for (pos, w, h) in [(DVec3::new(3.0, -4.0, 2.0), 7, 5), (DVec3::new(-1.5, 0.2, 9.0), 160, 120)] {
+        let err = max_ray_diff(&Camera::msn(pos, w, h).unwrap().rays(), &official_msn_rays(pos, w, h));
+        assert!(err <= RAY_TOLERANCE, "{w}x{h}: {err:e}");
+    }
+}
+
+#[test]
+fn one_camera_three_ways_gives_the_same_rays() {
+    let pos = DVec3::new(5.0, 2.0, -1.5);
+    let msn = Camera::msn(pos, 24, 16).unwrap();
+    let official = official_msn_rays(pos, 24, 16);
+
+    // The same camera as intrinsics and a pose, built here from the MSN look-at definition.
+    let forward = (-pos).normalize();
+    let right = forward.cross(DVec3::Z).normalize();
+    let down = forward.cross(right);
+    let opencv = DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), pos.extend(1.0));
+    let intrinsics =
+        Intrinsics { width: 24, height: 16, fx: 0.035 / 0.032 * 24.0, fy: 0.035 / 0.032 * 24.0, cx: 12.0, cy: 8.0 };
+    let pinhole_cv = Camera::pinhole(intrinsics, opencv, CameraAxes::OpenCv).unwrap();
+    // OpenGL axes: y up and z backwards, i.e. the OpenCV y and z columns negated.
+    let opengl = DMat4::from_cols(right.extend(0.0), (-down).extend(0.0), (-forward).extend(0.0), pos.extend(1.0));
+    let pinhole_gl = Camera::pinhole(intrinsics, opengl, CameraAxes::OpenGl).unwrap();
+    let explicit = Camera::from_rays(pos, official.clone()).unwrap();
+
+    for (name, camera) in
+        [("msn", &msn), ("pinhole OpenCV", &pinhole_cv), ("pinhole OpenGL", &pinhole_gl), ("rays", &explicit)]
+    {
+        let err = max_ray_diff(&camera.rays(), &official);
+        assert!(err <= RAY_TOLERANCE, "{name}: rays differ from the official ones by {err:e}");
+        assert_eq!(camera.position(), pos);
+        assert_eq!((camera.width(), camera.height()), (24, 16));
+    }
+    let (k, pose) = msn.as_pinhole().unwrap();
+    assert!((pose - opencv).abs().to_cols_array().iter().all(|d| *d < 1e-12));
+    assert_eq!(k, intrinsics);
+}
+
+#[test]
+fn bad_cameras_are_errors() {
+    let k = Intrinsics::msn(8, 8);
+    let pose = DMat4::from_translation(DVec3::new(0.0, 0.0, 5.0));
+    let scaled = pose * DMat4::from_scale(DVec3::splat(1.1));
+    let mirrored = pose * DMat4::from_scale(DVec3::new(1.0, 1.0, -1.0));
+    let sheared = DMat4::from_mat3(DMat3::from_cols(DVec3::X, DVec3::new(0.3, 1.0, 0.0), DVec3::Z));
+    for (what, m) in [("scaled", scaled), ("mirrored", mirrored), ("sheared", sheared)] {
+        let err = Camera::pinhole(k, m, CameraAxes::OpenGl).unwrap_err().to_string();
+        assert!(err.contains("not orthonormal"), "{what}: {err}");
+    }
+    let mut nan = pose;
+    nan.w_axis.x = f64::NAN;
+    assert!(Camera::pinhole(k, nan, CameraAxes::OpenCv).unwrap_err().to_string().contains("NaN"));
+    assert!(Camera::msn(DVec3::new(0.0, 0.0, 3.0), 8, 8).unwrap_err().to_string().contains("up axis"));
+    assert!(Camera::msn(DVec3::ZERO, 8, 8).is_err());
+    assert!(Camera::msn(DVec3::X, 0, 8).unwrap_err().to_string().contains("empty"));
+    let grid = RayGrid { width: 2, height: 1, directions: vec![Vec3::X, Vec3::new(f32::INFINITY, 0.0, 0.0)] };
+    assert!(Camera::from_rays(DVec3::X, grid).unwrap_err().to_string().contains("ray 1"));
+    let short = RayGrid { width: 2, height: 2, directions: vec![Vec3::X] };
+    assert!(Camera::from_rays(DVec3::X, short).is_err());
+}
+
+/// Patches each side of a region that the Ray-Patch conv decoder's receptive field can reach, at most.
+const HALO: usize = 3;
+
+/// Regions of a `width`×`height` image: single pixels in the corners, strips along each border, interior
+/// boxes that do not start on a patch boundary, and the whole image.
+fn regions(width: usize, height: usize) -> Vec<Region> {
+    let r = |x, y, w, h| Region { x, y, width: w, height: h };
+    vec![
+        r(0, 0, 1, 1),
+        r(width - 1, height - 1, 1, 1),
+        r(width - 1, 0, 1, 1),
+        r(0, height - 3, width, 3),
+        r(width - 5, 0, 5, height),
+        r(width / 3 + 1, height / 2 - 1, 5, 3),
+        r(width / 2, height / 4, width / 2 - 3, height / 2),
+        r(0, 0, width, height),
+    ]
+}
+
+fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+#[test]
+fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
+    let engine = engine();
+    let cases = ["srt_k1", "srt_k1_depth", "rpsrt_k2", "rpsrt_k4", "rpsrt_k4_patchrays", "rpsrt_k8", "rpsrt_k16"];
+    for case in cases {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        let (width, height, k) = (camera.width(), camera.height(), model.patch_size());
+        let outputs = Outputs { rgb: true, logdepth: model.has_depth() };
+        let full_request = Request { outputs, region: None };
+        let full = scene.render(camera, &full_request).unwrap();
+        let full_rgb = full.rgb.unwrap();
+        let full_stats = scene.render_stats(camera, &full_request).unwrap();
+        assert_eq!(full_stats.queries, width * height / (k * k), "{case}: one query per patch");
+
+        for region in regions(width, height) {
+            let request = Request { outputs, region: Some(region) };
+            let part = scene.render(camera, &request).unwrap();
+            assert_eq!(part.region, region);
+            // The conv decoder sums in the same order wherever a pixel lies, so the pixels are equal; allow
+            // one f32 rounding of the largest value in case a driver reassociates.
+            let err = max_diff(part.rgb.as_ref().unwrap().data(), full_rgb.crop(region).unwrap().data());
+            assert!(err <= 1e-6, "{case} {region:?}: region rgb differs from the full render by {err:e}");
+            if let (Some(d), Some(full_d)) = (&part.logdepth, &full.logdepth) {
+                let rows = (region.y..region.y + region.height)
+                    .flat_map(|y| full_d[y * width + region.x..y * width + region.x + region.width].iter().copied());
+                assert_eq!(max_diff(d, &rows.collect::<Vec<_>>()), 0.0, "{case} {region:?}: log-depth");
+            }
+
+            // What was decoded: for SRT exactly the region's pixels; for Ray-Patch the covering patches
+            // plus at most HALO patches each side (the conv decoder's receptive field), clipped to the image.
+            let stats = scene.render_stats(camera, &request).unwrap();
+            let span = |start: usize, len: usize, size: usize| {
+                let (first, last) = (start / k, (start + len - 1) / k);
+                let (lo, hi) =
+                    if k == 1 { (first, last) } else { (first.saturating_sub(HALO), (last + HALO).min(size / k - 1)) };
+                hi + 1 - lo
+            };
+            let most = span(region.x, region.width, width) * span(region.y, region.height, height);
+            assert!(stats.queries <= most, "{case} {region:?}: {} queries, at most {most} needed", stats.queries);
+            assert!(stats.queries >= region.width.div_ceil(k) * region.height.div_ceil(k), "{case} {region:?}");
+            assert!(stats.pixels == stats.queries * k * k && stats.queries <= full_stats.queries);
+            if k == 1 {
+                assert_eq!(stats.queries, region.width * region.height, "{case} {region:?}");
+            }
+        }
+        // The corner pixel decodes fewer patches than the image has, once the image is more than a halo wide.
+        if (width / k).max(height / k) > HALO + 1 {
+            let corner = Request { outputs, region: Some(Region { x: 0, y: 0, width: 1, height: 1 }) };
+            assert!(scene.render_stats(camera, &corner).unwrap().queries < full_stats.queries, "{case}");
+        }
+    }
+}
+
+#[test]
+fn the_halo_is_needed() {
+    // Without the halo the region's border pixels would see the conv decoder's zero padding: check that a
+    // region render does differ from a full render of the region's own patches taken as an image.
+    let engine = engine();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
+    let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let scene = model.encode(&data.inputs).unwrap();
+    let camera = &data.targets[0].camera;
+    let region = Region { x: 16, y: 8, width: 16, height: 16 };
+    let full = scene.render(camera, &Request::default()).unwrap().rgb.unwrap().crop(region).unwrap();
+    // The region's patches alone: a camera whose rays are exactly those of the region.
+    let rays = camera.rays();
+    let directions = (region.y..region.y + region.height)
+        .flat_map(|y| rays.directions[y * rays.width + region.x..y * rays.width + region.x + region.width].to_vec())
+        .collect();
+    let alone = Camera::from_rays(camera.position(), RayGrid { width: 16, height: 16, directions }).unwrap();
+    let no_halo = scene.render(&alone, &Request::default()).unwrap().rgb.unwrap();
+    assert!(max_diff(no_halo.data(), full.data()) > 1e-3, "the region's patches alone already give its pixels");
+}
+
+#[test]
+fn only_requested_outputs_are_computed() {
+    let engine = engine();
+    let model = engine.load(golden("srt_k1_depth").join("model.safetensors")).unwrap();
+    let data = SceneData::load(golden("srt_k1_depth").join("scene.safetensors")).unwrap();
+    let scene = model.encode(&data.inputs).unwrap();
+    let camera = &data.targets[0].camera;
+    let request = |rgb, logdepth| Request { outputs: Outputs { rgb, logdepth }, region: None };
+    let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
+    let dispatches = |r: &Request| {
+        scene.render(camera, r).unwrap(); // build and warm the plan
+        let before = engine.counters().dispatches;
+        let out = scene.render(camera, r).unwrap();
+        (engine.counters().dispatches - before, out)
+    };
+
+    let (rgb_only, rgb_out) = dispatches(&request(true, false));
+    let (both, both_out) = dispatches(&request(true, true));
+    let (depth_only, depth_out) = dispatches(&request(false, true));
+    assert_eq!(both, rgb_only + 1, "log-depth costs one dispatch");
+    assert_eq!(depth_only, rgb_only, "dropping rgb drops the sigmoid");
+    let has = |r: &Request, op: &str| labels(r).iter().any(|l| l == op);
+    assert!(has(&request(true, false), "sigmoid") && !has(&request(true, false), "logdepth"));
+    assert!(!has(&request(false, true), "sigmoid") && has(&request(false, true), "logdepth"));
+    assert!(rgb_out.logdepth.is_none() && depth_out.rgb.is_none());
+    assert_eq!(rgb_out.rgb, both_out.rgb);
+    assert_eq!(depth_out.logdepth, both_out.logdepth);
+    let stats = scene.render_stats(camera, &request(true, false)).unwrap();
+    assert_eq!(stats.dispatches as u64, rgb_only, "a render runs its plan's dispatches and nothing else");
+    let err = scene.render(camera, &request(false, false)).unwrap_err().to_string();
+    assert!(err.contains("nothing to render"), "{err}");
+}
+
+#[test]
+fn rendering_reuses_the_encoded_scene_and_the_plan() {
+    let engine = engine();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
+    let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let scene = model.encode(&data.inputs).unwrap();
+    let camera = &data.targets[0].camera;
+    let labels = scene.engine_scene().render_op_labels(&camera.target_views(), Outputs::default()).unwrap();
+    assert!(
+        labels.iter().all(|l| !l.starts_with("encoder.") && !l.contains("to_kv")),
+        "a render plan re-encodes or re-projects keys/values"
+    );
+
+    let interior = |x| Request { region: Some(Region { x, y: 12, width: 6, height: 6 }), ..Request::default() };
+    scene.render(camera, &Request::default()).unwrap();
+    scene.render(camera, &interior(17)).unwrap();
+    let (plans, before) = (scene.cached_plans(), engine.counters());
+    // Another camera of the same size, and the same-sized region elsewhere: the same two plans.
+    let other = Camera::msn(DVec3::new(-6.0, 5.0, 2.0), camera.width(), camera.height()).unwrap();
+    scene.render(&other, &Request::default()).unwrap();
+    scene.render(camera, &interior(21)).unwrap();
+    let after = engine.counters();
+    assert_eq!(scene.cached_plans(), plans);
+    assert_eq!(after.buffers_created, before.buffers_created, "a same-size render created buffers");
+    assert_eq!(after.pipelines_compiled, before.pipelines_compiled, "a same-size render compiled pipelines");
+    assert_eq!(after.submits, before.submits + 2, "each render is one submit");
+}
+
+#[test]
+fn bad_requests_and_views_are_errors() {
+    let engine = engine();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
+    let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let scene = model.encode(&data.inputs).unwrap();
+    fn message<T>(r: raypatch::Result<T>) -> String {
+        r.err().expect("bad input accepted").to_string()
+    }
+
+    assert!(message(model.encode(&[])).contains("no input view"));
+    let small = InputView {
+        image: Image::new(16, 8, vec![0.5; 16 * 8 * 3]).unwrap(),
+        camera: Camera::msn(DVec3::new(5.0, 0.0, 1.0), 16, 8).unwrap(),
+    };
+    let mixed = [data.inputs[0].clone(), small.clone()];
+    assert!(message(model.encode(&mixed)).contains("same size"));
+    let mismatched = InputView { camera: data.inputs[0].camera.clone(), ..small.clone() };
+    assert!(message(model.encode(&[mismatched])).contains("camera is for a 32x24 image"));
+    let bright = InputView { image: Image::new(16, 8, vec![1.5; 16 * 8 * 3]).unwrap(), ..small };
+    assert!(message(model.encode(&[bright])).contains("expected [0, 1]"));
+    assert!(matches!(Image::new(1, 1, vec![0.0, f32::NAN, 0.0]), Err(Error::Image { .. })));
+
+    let camera = &data.targets[0].camera;
+    let outside = Request { region: Some(Region { x: 40, y: 0, width: 9, height: 4 }), ..Request::default() };
+    assert!(message(scene.render(camera, &outside)).contains("not inside the 48x32"));
+    let odd = Camera::msn(DVec3::new(5.0, 1.0, 2.0), 50, 32).unwrap();
+    assert!(message(scene.render(&odd, &Request::default())).contains("not divisible by the model's patch size k=4"));
+    let depth = Request { outputs: Outputs { rgb: true, logdepth: true }, region: None };
+    assert!(message(scene.render(camera, &depth)).contains("no depth channel"));
+}
+
+#[test]
+fn frames_folders_read_nerf_cameras() {
+    // Two frames whose poses are MSN cameras written with NeRF's OpenGL axes.
+    let dir = std::env::temp_dir().join(format!("raypatch-api-frames-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h) = (32usize, 24usize);
+    let positions = [DVec3::new(6.0, 1.0, 2.0), DVec3::new(-3.0, 5.0, 1.0)];
+    let mut frames = Vec::new();
+    for (i, pos) in positions.iter().enumerate() {
+        let (_, cv) = Camera::msn(*pos, w, h).unwrap().as_pinhole().unwrap();
+        let gl = DMat4::from_cols(cv.x_axis, -cv.y_axis, -cv.z_axis, cv.w_axis);
+        let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
+        frames.push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
+        // Multiples of 1/255 survive the 8-bit PNG exactly.
+        let pixels: Vec<f32> = (0..w * h * 3).map(|v| (40 * (v % 7)) as f32 / 255.0).collect();
+        Image::new(w, h, pixels).unwrap().save_png(dir.join(format!("r_{i}.png"))).unwrap();
+    }
+    let fov_x = 2.0 * (0.016f64 / 0.035).atan();
+    let transforms = serde_json::json!({ "camera_angle_x": fov_x, "frames": frames });
+    std::fs::write(dir.join("transforms.json"), transforms.to_string()).unwrap();
+
+    let data = SceneData::load(&dir).unwrap();
+    assert_eq!((data.inputs.len(), data.targets.len()), (2, 2));
+    for (view, pos) in data.inputs.iter().zip(positions) {
+        let err = max_ray_diff(&view.camera.rays(), &official_msn_rays(pos, w, h));
+        assert!(err <= RAY_TOLERANCE, "NeRF pose rays differ from the MSN camera's by {err:e}");
+        assert_eq!(view.image.pixel(1, 0), [120.0 / 255.0, 160.0 / 255.0, 200.0 / 255.0]);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn metrics_match_torchmetrics() {
+    // Values from torchmetrics 1.9 on these images, as float64 tensors (data_range=1.0): the functional
+    // structural_similarity_index_measure, and PeakSignalNoiseRatio, computed once with
+    //   a[c,i,j] = ((7i + 13j + 5c) % 17) / 16;  b = 0.6 a + 0.4 ((3i + 11j + 2c) % 19) / 18  (rounded to f32)
+    const SSIM: f64 = 0.7905090211217978;
+    const PSNR: f64 = 15.29788875579834;
+    let (w, h) = (23, 17);
+    let mut a = Vec::new();
+    let mut b = Vec::new();
+    for i in 0..h {
+        for j in 0..w {
+            for c in 0..3 {
+                let x = ((i * 7 + j * 13 + c * 5) % 17) as f64 / 16.0;
+                a.push(x as f32);
+                b.push((0.6 * x + 0.4 * (((i * 3 + j * 11 + c * 2) % 19) as f64 / 18.0)) as f32);
+            }
+        }
+    }
+    let (a, b) = (Image::new(w, h, a).unwrap(), Image::new(w, h, b).unwrap());
+    let s = ssim(&b, &a).unwrap();
+    assert!((s - SSIM).abs() < 1e-12, "SSIM {s} vs torchmetrics {SSIM}");
+    // torchmetrics returns PSNR as float32.
+    let p = psnr(&b, &a).unwrap();
+    assert!((p - PSNR).abs() < 1e-5, "PSNR {p} vs torchmetrics {PSNR}");
+    assert!(psnr(&a, &a).unwrap().is_infinite());
+    let tiny = Image::new(4, 4, vec![0.0; 48]).unwrap();
+    assert!(ssim(&tiny, &tiny).unwrap_err().to_string().contains("at least 6x6"));
+    assert!(psnr(&a, &tiny).unwrap_err().to_string().contains("different sizes"));
+}
+
+#[test]
+fn orbits_turn_explicit_rays_like_pinhole_cameras() {
+    let data = SceneData::load(golden("srt_k1").join("scene.safetensors")).unwrap();
+    let given = &data.targets[0].camera;
+    let msn = Camera::msn(given.position(), given.width(), given.height()).unwrap();
+    for degrees in [30.0, 90.0, 200.0] {
+        let (a, b) = (given.orbited(degrees), msn.orbited(degrees));
+        assert!((a.position() - b.position()).length() < 1e-12);
+        assert!(max_ray_diff(&a.rays(), &b.rays()) <= 2.0 * RAY_TOLERANCE, "{degrees}°");
+    }
+}
