@@ -3,11 +3,13 @@
     python3 tools/evaluate.py --model MODEL.safetensors --scenes /work/data/scenes-test [--json OUT.json]
 
 Renders both target views of every scene from its input view, and prints a markdown row in the layout of the
-paper's Table 1: PSNR and SSIM (means over target images; the definitions of torchmetrics 0.9.3, which the
-official code used: PeakSignalNoiseRatio(data_range=1, dim=(1,2,3)), StructuralSimilarityIndexMeasure(data_range=1):
-Gaussian window 11, sigma 1.5, reflect padding, the 5-pixel border excluded from the mean), giga multiply-adds to
-encode one input view and render one target view (what the paper calls FLOPs: it gives 48.2 G for the official
-SRT at 60x80, where this count gives 49.4 G), parameters, and the training time recorded in the model's metadata.
+paper's Table 1: PSNR and SSIM (means over target images, data range 1: PSNR as torchmetrics
+PeakSignalNoiseRatio(data_range=1, dim=(1,2,3)), per image then the mean; SSIM as torchmetrics
+StructuralSimilarityIndexMeasure(data_range=1), Gaussian window 11, sigma 1.5, in the definition of torchmetrics 1.x
+like render-frame --metrics, or with --ssim torchmetrics-0.9.3 the one the official code used, which leaves the
+5-pixel border out of the mean), giga multiply-adds to encode one input view and render one target view (what the
+paper calls FLOPs: it gives 48.2 G for the official SRT at 60x80, where this count gives 49.4 G), parameters, and
+the training time recorded in the model's metadata.
 """
 
 import argparse
@@ -30,6 +32,10 @@ from raypatch_reference import SRT  # noqa: E402
 
 SSIM_SIGMA = 1.5
 SSIM_K1, SSIM_K2 = 0.01, 0.03
+# torchmetrics StructuralSimilarityIndexMeasure(data_range=1) of two eras: 1.x (what render-frame --metrics
+# computes) averages the SSIM map over the whole image and clamps the variances at 0; 0.9.3 (what the official code
+# pinned) leaves the window radius (5 pixels) at each border out of the mean and does not clamp.
+SSIM_DEFINITIONS = ("torchmetrics-1", "torchmetrics-0.9.3")
 
 
 def psnr(pred, target):
@@ -38,8 +44,11 @@ def psnr(pred, target):
     return 10 * torch.log10(1 / mse)
 
 
-def ssim(pred, target):
-    """Per-image SSIM [n] of images [n, H, W, C] in [0, 1] (torchmetrics 0.9.3, data_range 1)."""
+def ssim(pred, target, definition="torchmetrics-1"):
+    """Per-image SSIM [n] of images [n, H, W, C] in [0, 1]: Gaussian window 11, sigma 1.5, data range 1, the image
+    extended by reflection (without repeating the edge), averaged over channels and pixels (SSIM_DEFINITIONS)."""
+    if definition not in SSIM_DEFINITIONS:
+        raise ValueError(f"SSIM definition {definition!r}, expected one of {SSIM_DEFINITIONS}")
     pred, target = pred.permute(0, 3, 1, 2), target.permute(0, 3, 1, 2)
     channels, dtype = pred.shape[1], pred.dtype
     size = int(3.5 * SSIM_SIGMA + 0.5) * 2 + 1  # 11
@@ -54,11 +63,16 @@ def ssim(pred, target):
     mu_pred, mu_target, pred_sq, target_sq, pred_target = F.conv2d(stacked, kernel, groups=channels).split(
         pred.shape[0])
     mu_pred_sq, mu_target_sq, mu_pred_target = mu_pred.pow(2), mu_target.pow(2), mu_pred * mu_target
+    var_pred, var_target = pred_sq - mu_pred_sq, target_sq - mu_target_sq
+    if definition == "torchmetrics-1":
+        var_pred, var_target = var_pred.clamp(min=0), var_target.clamp(min=0)
     c1, c2 = SSIM_K1 ** 2, SSIM_K2 ** 2
     upper = 2 * (pred_target - mu_pred_target) + c2
-    lower = (pred_sq - mu_pred_sq) + (target_sq - mu_target_sq) + c2
+    lower = var_pred + var_target + c2
     index = ((2 * mu_pred_target + c1) * upper) / ((mu_pred_sq + mu_target_sq + c1) * lower)
-    return index[..., pad:-pad, pad:-pad].flatten(1).mean(1)
+    if definition == "torchmetrics-0.9.3":
+        index = index[..., pad:-pad, pad:-pad]
+    return index.flatten(1).mean(1)
 
 
 def load_model(path, device="cpu"):
@@ -100,18 +114,20 @@ def render_targets(model, batch):
     return model.render_views(z, batch["target_camera_pos"], batch["target_rays"])[0]
 
 
-def evaluate(model, images, camera_pos, batch_size=8, device="cpu", with_ssim=True):
-    """Mean PSNR and SSIM over all target images of the scenes, each rendered from its view 0."""
+def evaluate(model, images, camera_pos, batch_size=8, device="cpu", ssim_definition="torchmetrics-1"):
+    """Mean PSNR and SSIM (None when ssim_definition is None) over all target images of the scenes, each rendered
+    from its view 0."""
     psnrs, ssims = [], []
     for start in range(0, len(images), batch_size):
         scenes = np.arange(start, min(start + batch_size, len(images)))
         batch = scene_batch(images, camera_pos, scenes, np.zeros(len(scenes), int), device)
-        pred = render_targets(model, batch).flatten(0, 1)
-        target = batch["target_images"].flatten(0, 1)
+        # Metrics in float64, as render-frame --metrics computes them.
+        pred = render_targets(model, batch).flatten(0, 1).double()
+        target = batch["target_images"].flatten(0, 1).double()
         psnrs.append(psnr(pred, target))
-        if with_ssim:
-            ssims.append(ssim(pred, target))
-    return torch.cat(psnrs).mean().item(), (torch.cat(ssims).mean().item() if with_ssim else None)
+        if ssim_definition:
+            ssims.append(ssim(pred, target, ssim_definition))
+    return torch.cat(psnrs).mean().item(), (torch.cat(ssims).mean().item() if ssim_definition else None)
 
 
 def multiply_adds_per_frame(model_cfg, height, width):
@@ -143,6 +159,8 @@ def main(argv=None):
     parser.add_argument("--limit", type=int, help="evaluate only the first N scenes")
     parser.add_argument("--batch", type=int, default=8, help="scenes rendered together")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--ssim", choices=SSIM_DEFINITIONS, default=SSIM_DEFINITIONS[0],
+                        help="SSIM definition (default: torchmetrics-1, as render-frame --metrics)")
     parser.add_argument("--json", type=Path, help="also write the results as JSON here")
     args = parser.parse_args(argv)
     try:
@@ -154,7 +172,7 @@ def main(argv=None):
     if args.limit:
         images, camera_pos, seeds = images[:args.limit], camera_pos[:args.limit], seeds[:args.limit]
     start = time.perf_counter()
-    psnr_value, ssim_value = evaluate(model, images, camera_pos, args.batch, args.device)
+    psnr_value, ssim_value = evaluate(model, images, camera_pos, args.batch, args.device, args.ssim)
     seconds = time.perf_counter() - start
     height, width = images.shape[2:4]
     multiply_adds = multiply_adds_per_frame(model_cfg, height, width)
@@ -169,7 +187,8 @@ def main(argv=None):
     if args.json:
         args.json.write_text(json.dumps({
             "model": str(args.model), "name": name, "k": model.patch_size, "scenes": str(args.scenes),
-            "scene_count": len(images), "psnr": psnr_value, "ssim": ssim_value, "multiply_adds": multiply_adds,
+            "scene_count": len(images), "psnr": psnr_value, "ssim": ssim_value, "ssim_definition": args.ssim,
+            "multiply_adds": multiply_adds,
             "parameters": parameters, "training_hours": hours}, indent=2) + "\n")
     return 0
 

@@ -161,23 +161,22 @@ class SceneTests(unittest.TestCase):
             self.assertEqual(list(Path(folder).iterdir()), [])
 
 
-def naive_ssim(pred, target):
-    """SSIM of [H, W, C] float64 images, written from the definition (Gaussian 11x11, sigma 1.5, reflect padding,
-    border of 5 excluded)."""
+def naive_ssim(pred, target, border):
+    """SSIM of [H, W, C] float64 images, written from the definition: Gaussian 11x11 window, sigma 1.5, reflect
+    padding, the mean over all pixels or over those at least 5 pixels from the border."""
     offsets = np.arange(11) - 5
     window = np.exp(-(offsets / 1.5) ** 2 / 2)
-    window = np.outer(window, window) / window.sum() ** 2
-    height, width, channels = pred.shape
-    pad = lambda x: np.pad(x, ((5, 5), (5, 5), (0, 0)), mode="reflect")  # noqa: E731
-    pred_p, target_p = pad(pred), pad(target)
+    window = (np.outer(window, window) / window.sum() ** 2)[..., None]
+    height, width, _ = pred.shape
+    padded = [np.pad(x, ((5, 5), (5, 5), (0, 0)), mode="reflect") for x in (pred, target)]
+    skip = 5 if border else 0
     values = []
-    for i in range(5, height - 5):
-        for j in range(5, width - 5):
-            a, b = pred_p[i:i + 11, j:j + 11], target_p[i:i + 11, j:j + 11]
-            w = window[..., None]
-            mu_a, mu_b = (w * a).sum((0, 1)), (w * b).sum((0, 1))
-            var_a, var_b = (w * a * a).sum((0, 1)) - mu_a ** 2, (w * b * b).sum((0, 1)) - mu_b ** 2
-            cov = (w * a * b).sum((0, 1)) - mu_a * mu_b
+    for i in range(skip, height - skip):
+        for j in range(skip, width - skip):
+            a, b = (x[i:i + 11, j:j + 11] for x in padded)
+            mu_a, mu_b = (window * a).sum((0, 1)), (window * b).sum((0, 1))
+            var_a, var_b = (window * a * a).sum((0, 1)) - mu_a ** 2, (window * b * b).sum((0, 1)) - mu_b ** 2
+            cov = (window * a * b).sum((0, 1)) - mu_a * mu_b
             c1, c2 = 0.01 ** 2, 0.03 ** 2
             values.append((2 * mu_a * mu_b + c1) * (2 * cov + c2)
                           / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2)))
@@ -189,29 +188,33 @@ class MetricTests(unittest.TestCase):
         rng = np.random.default_rng(3)
         target = rng.uniform(size=(2, 24, 30, 3))
         pred = np.clip(target * 0.8 + 0.2 * rng.uniform(size=target.shape), 0, 1)
-        ssim = evaluate.ssim(torch.from_numpy(pred), torch.from_numpy(target)).numpy()
-        np.testing.assert_allclose(ssim, [naive_ssim(p, t) for p, t in zip(pred, target)], rtol=0, atol=1e-10)
-        self.assertAlmostEqual(evaluate.ssim(torch.from_numpy(target), torch.from_numpy(target))[0].item(), 1.0, 12)
+        for definition, border in (("torchmetrics-1", False), ("torchmetrics-0.9.3", True)):
+            ssim = evaluate.ssim(torch.from_numpy(pred), torch.from_numpy(target), definition).numpy()
+            np.testing.assert_allclose(ssim, [naive_ssim(p, t, border) for p, t in zip(pred, target)], atol=1e-10)
+            same = evaluate.ssim(torch.from_numpy(target), torch.from_numpy(target), definition)
+            np.testing.assert_allclose(same.numpy(), 1, atol=1e-12)
         psnr = evaluate.psnr(torch.from_numpy(pred), torch.from_numpy(target)).numpy()
         np.testing.assert_allclose(psnr, -10 * np.log10(((pred - target) ** 2).mean((1, 2, 3))), rtol=1e-12)
 
-    def test_metrics_equal_torchmetrics_0_9_3(self):
-        """The official code's metrics. Runs where torchmetrics 0.9.3 can be imported (see tools/README.md)."""
+    def test_metrics_equal_torchmetrics(self):
+        """Runs where torchmetrics can be imported (see tools/README.md): 0.9.3 (the official code's) or 1.x."""
         try:
             import torchmetrics
+            from torchmetrics.image import PeakSignalNoiseRatio, StructuralSimilarityIndexMeasure
         except ImportError:
             self.skipTest("torchmetrics is not installed")
-        if torchmetrics.__version__ != "0.9.3":
-            self.skipTest(f"torchmetrics {torchmetrics.__version__} is not 0.9.3")
+        definition = "torchmetrics-0.9.3" if torchmetrics.__version__ == "0.9.3" else "torchmetrics-1"
+        if definition == "torchmetrics-1" and not torchmetrics.__version__.startswith("1."):
+            self.skipTest(f"torchmetrics {torchmetrics.__version__} is neither 0.9.3 nor 1.x")
         generator = torch.Generator().manual_seed(0)
         for shape in ((4, 60, 80, 3), (3, 17, 23, 3), (2, 120, 160, 3)):
             target = torch.rand(shape, generator=generator)
             pred = (target * 0.8 + 0.2 * torch.rand(shape, generator=generator)).clamp(0, 1)
             nchw = pred.permute(0, 3, 1, 2), target.permute(0, 3, 1, 2)
-            ssim = torchmetrics.StructuralSimilarityIndexMeasure(data_range=1.0)(*nchw)
-            psnr = torchmetrics.PeakSignalNoiseRatio(data_range=1.0, dim=(1, 2, 3))(*nchw)
-            self.assertEqual(evaluate.ssim(pred, target).mean().item(), ssim.item())
-            self.assertEqual(evaluate.psnr(pred, target).mean().item(), psnr.item())
+            ssim = StructuralSimilarityIndexMeasure(data_range=1.0)(*nchw)
+            psnr = PeakSignalNoiseRatio(data_range=1.0, dim=(1, 2, 3))(*nchw)
+            self.assertAlmostEqual(evaluate.ssim(pred, target, definition).mean().item(), ssim.item(), delta=1e-6)
+            self.assertAlmostEqual(evaluate.psnr(pred, target).mean().item(), psnr.item(), delta=1e-5)
 
 
 class TrainingTests(unittest.TestCase):

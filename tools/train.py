@@ -206,7 +206,7 @@ def main(argv=None):
 
     def validate():
         model.eval()
-        value, _ = evaluate(model, val_images, val_pos, device=args.device, with_ssim=False)
+        value, _ = evaluate(model, val_images, val_pos, device=args.device, ssim_definition=None)
         model.train()
         return value
 
