@@ -2,7 +2,7 @@
 as the official tberriel/RayPatchQuerying training does, and exports a raypatch model file.
 
     python3 tools/train.py --k 4 --train /work/data/train --val /work/data/val --out target/runs/rpsrt-k4 \\
-        --steps 4000 --batch 16
+        --steps 3000 --batch 16
 
 What follows the official code (train.py, src/model.py, src/data/multishapenetEasy.py):
 - every (scene, input view) pair once per epoch in a shuffled order, the other two views as targets;

@@ -4,9 +4,9 @@
 #
 #   tools/train_all.sh              # all four models
 #   tools/train_all.sh 4            # only RP-SRT k=4 (arguments: patch sizes, 1 = SRT)
-#   PRESET=gpu STEPS=40000 BATCH=32 tools/train_all.sh    # on a CUDA machine (train.py picks cuda when present)
+#   PRESET=gpu STEPS=N BATCH=32 tools/train_all.sh   # on a CUDA machine (train.py picks cuda when present)
 #
-# Environment: DATA (scene sets, default /work/data/msn-like), RUNS (default target/runs), PRESET (cpu), STEPS (4000),
+# Environment: DATA (scene sets, default /work/data/msn-like), RUNS (default target/runs), PRESET (cpu), STEPS (3000),
 # BATCH (16), LR (1e-4, the official rate), THREADS (2), TRAIN_SCENES (50000).
 # A run that was interrupted resumes from its checkpoint when the same command is run again.
 set -euo pipefail
@@ -15,7 +15,7 @@ cd "$(dirname "$0")/.."
 DATA=${DATA:-/work/data/msn-like}
 RUNS=${RUNS:-target/runs}
 PRESET=${PRESET:-cpu}
-STEPS=${STEPS:-4000}
+STEPS=${STEPS:-3000}
 BATCH=${BATCH:-16}
 LR=${LR:-1e-4}
 THREADS=${THREADS:-2}
