@@ -1,7 +1,8 @@
 // Linear layer: out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when accumulating.
 //
-// x: [M, K] rows, w: [N, K] rows (nn.Linear layout), both padded with zeros to ld(K), so the K loop runs
-// over whole vec4s. Each invocation computes a 4x8 block of out: per vec4 step along K it loads 4 vec4s
+// x: [M, K] rows, w: [N, K] rows (nn.Linear layout), both padded with zeros to whole vec4s, so the K loop
+// runs over whole vec4s. w is f32, or f16 in the matmul_f16 variant (kernels/mod.rs replaces the WeightVec
+// alias below), widened to f32 as it is loaded: the arithmetic is f32 either way. Each invocation computes a 4x8 block of out: per vec4 step along K it loads 4 vec4s
 // of x (4 rows) and 8 of w (8 rows) and takes 32 dot products; the block is written back as two vec4s
 // per row, padding columns included (as zeros).
 //
@@ -25,11 +26,15 @@ struct Params {
     slope: f32,
     has_bias: u32,
     accumulate: u32,
+    // vec4s per row of w: k4 for f32 weights; f16 rows are padded to 8 halves, so k4 or k4 + 1.
+    w_ld4: u32,
 }
+
+alias WeightVec = vec4<f32>;
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> w: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> w: array<WeightVec>;
 // [1, N]; when there is no bias the wrapper binds w here and has_bias is 0.
 @group(0) @binding(3) var<storage, read> bias: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
@@ -71,14 +76,14 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     let x2 = min(row0 + 2u, last_m) * p.k4;
     let x3 = min(row0 + 3u, last_m) * p.k4;
     let col0 = 8u * tile;
-    let w0 = min(col0, last_n) * p.k4;
-    let w1 = min(col0 + 1u, last_n) * p.k4;
-    let w2 = min(col0 + 2u, last_n) * p.k4;
-    let w3 = min(col0 + 3u, last_n) * p.k4;
-    let w4 = min(col0 + 4u, last_n) * p.k4;
-    let w5 = min(col0 + 5u, last_n) * p.k4;
-    let w6 = min(col0 + 6u, last_n) * p.k4;
-    let w7 = min(col0 + 7u, last_n) * p.k4;
+    let w0 = min(col0, last_n) * p.w_ld4;
+    let w1 = min(col0 + 1u, last_n) * p.w_ld4;
+    let w2 = min(col0 + 2u, last_n) * p.w_ld4;
+    let w3 = min(col0 + 3u, last_n) * p.w_ld4;
+    let w4 = min(col0 + 4u, last_n) * p.w_ld4;
+    let w5 = min(col0 + 5u, last_n) * p.w_ld4;
+    let w6 = min(col0 + 6u, last_n) * p.w_ld4;
+    let w7 = min(col0 + 7u, last_n) * p.w_ld4;
     // acc<row><half>: columns 0..3 (half 0) and 4..7 (half 1) of the block.
     var acc00 = vec4<f32>(0.0);
     var acc01 = vec4<f32>(0.0);
@@ -89,14 +94,14 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     var acc30 = vec4<f32>(0.0);
     var acc31 = vec4<f32>(0.0);
     for (var k = 0u; k < p.k4; k++) {
-        let b0 = w[w0 + k];
-        let b1 = w[w1 + k];
-        let b2 = w[w2 + k];
-        let b3 = w[w3 + k];
-        let b4 = w[w4 + k];
-        let b5 = w[w5 + k];
-        let b6 = w[w6 + k];
-        let b7 = w[w7 + k];
+        let b0 = vec4<f32>(w[w0 + k]);
+        let b1 = vec4<f32>(w[w1 + k]);
+        let b2 = vec4<f32>(w[w2 + k]);
+        let b3 = vec4<f32>(w[w3 + k]);
+        let b4 = vec4<f32>(w[w4 + k]);
+        let b5 = vec4<f32>(w[w5 + k]);
+        let b6 = vec4<f32>(w[w6 + k]);
+        let b7 = vec4<f32>(w[w7 + k]);
         let a0 = x[x0 + k];
         let a1 = x[x1 + k];
         let a2 = x[x2 + k];

@@ -66,7 +66,7 @@ impl Case {
         let ld = padded_cols(inner);
         let out_rows = self.out_row + self.nq + 1;
         let padded_out = gpu.upload("out", out_rows, ld, &vec![GARBAGE; out_rows * ld]).unwrap();
-        let out_tensor = GpuTensor { buffer: padded_out.buffer.clone(), rows: out_rows, cols: inner };
+        let out_tensor = GpuTensor { rows: out_rows, cols: inner, ..padded_out.clone() };
 
         let mut plan = PlanBuilder::new();
         let ids: Vec<_> = self
@@ -363,6 +363,23 @@ fn attention_long_kv() {
     let (_, peak_bytes) = case.run_gpu();
     assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
     case.check();
+}
+
+/// 16384 keys with exact logits up to ~±1e4 (integer q and k as in `attention_large_exact_logits`), and 16384
+/// keys with a flat row (q = 0: the output is the mean of v).
+#[test]
+fn attention_long_kv_large_logits() {
+    let mut rng = Rng::new(0x4001);
+    let mut large = random_case(&mut rng, Layout::CachedKv, 9, 16384, 2, 64);
+    for h in large.tensors.iter_mut() {
+        h.data.iter_mut().for_each(|x| *x = (*x * 8.0).round());
+    }
+    large.scale = 2.0;
+    large.check();
+
+    let mut flat = random_case(&mut rng, Layout::CachedKv, 9, 16384, 2, 64);
+    flat.heads_mut(flat.q).for_each(|row| row.fill(0.0));
+    flat.check();
 }
 
 #[test]

@@ -5,7 +5,7 @@ use raypatch_engine::kernels::matmul::linear;
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::matmul as reference;
-use raypatch_engine::tensor::padded_cols;
+use raypatch_engine::tensor::{padded_cols, Dtype};
 
 use crate::common::*;
 
@@ -23,6 +23,12 @@ struct Case {
 /// Runs one case and checks the values, the zeroed padding of out, and that rows outside the view of
 /// out are untouched.
 fn check(case: &Case, rng: &mut Rng) {
+    check_with(case, rng, Dtype::F32);
+}
+
+/// [`check`] with the weights stored as `weights` (f16 weights: the reference uses the f16-rounded
+/// weights, since the kernel computes with exactly those in f32).
+fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let Case { m, k, n, act, .. } = *case;
     let gpu = gpu();
     let (x_start, out_start, extra) = if case.view { (64, 128, 3) } else { (0, 0, 0) };
@@ -51,7 +57,14 @@ fn check(case: &Case, rng: &mut Rng) {
     }
 
     let x_t = gpu.upload("x", x_rows, k, &x_all).unwrap();
-    let w_t = gpu.upload("w", n, k, &w).unwrap();
+    let w_t = match weights {
+        Dtype::F32 => gpu.upload("w", n, k, &w).unwrap(),
+        Dtype::F16 => gpu.upload_f16("w", n, k, &w).unwrap(),
+    };
+    let w: Vec<f32> = match weights {
+        Dtype::F32 => w,
+        Dtype::F16 => w.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect(),
+    };
     let bias_t = bias.as_ref().map(|b| gpu.upload("bias", 1, n, b).unwrap());
     let out_t = gpu.upload("out", out_rows, n, &vec![0.0; out_rows * n]).unwrap();
     let out_bytes: Vec<u8> = out_init.iter().flat_map(|v| v.to_le_bytes()).collect();
@@ -123,6 +136,30 @@ fn linear_random_shapes() {
             view: rng.range(0, 1) == 1,
         };
         check(&case, &mut rng);
+    }
+}
+
+/// f16 weights (the `matmul_f16` variant), where the adapter has shader-f16: random shapes, every option,
+/// and K not a multiple of 8 (f16 rows are padded to 8 halves, so their stride differs from x's).
+#[test]
+fn linear_f16_weights() {
+    if !gpu().features.contains(raypatch_engine::wgpu::Features::SHADER_F16) {
+        eprintln!("{} has no shader-f16: f16 weights not tested", gpu().describe());
+        return;
+    }
+    let mut rng = Rng::new(4);
+    for i in 0..16 {
+        let k = if i < 4 { [1, 4, 5, 9][i] } else { rng.range(1, 300) };
+        let case = Case {
+            m: rng.range(1, 300),
+            k,
+            n: rng.range(1, 100),
+            act: ACTIVATIONS[i % 4],
+            bias: (i / 4) % 2 == 1,
+            accumulate: (i / 8) % 2 == 1,
+            view: i % 3 == 0,
+        };
+        check_with(&case, &mut rng, Dtype::F16);
     }
 }
 

@@ -12,8 +12,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 use crate::error::{EngineError, Result};
-use crate::gpu::{storage_usage, Gpu, Shader};
-use crate::tensor::{padded_cols, GpuTensor};
+use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
+use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
 const MAX_GROUPS_PER_DIM: u32 = 65535;
@@ -78,12 +78,17 @@ struct TensorInfo {
     name: String,
     rows: usize,
     cols: usize,
+    /// F32 for everything the plan allocates; externals (weights) may be F16.
+    dtype: Dtype,
     storage: Storage,
 }
 
 impl TensorInfo {
+    fn row_bytes(&self) -> u64 {
+        self.dtype.row_bytes(self.cols) as u64
+    }
     fn bytes(&self) -> u64 {
-        (self.rows * padded_cols(self.cols) * 4) as u64
+        self.rows as u64 * self.row_bytes()
     }
 }
 
@@ -98,23 +103,23 @@ impl PlanBuilder {
         Self::default()
     }
 
-    fn add(&mut self, name: &str, rows: usize, cols: usize, storage: Storage) -> TensorId {
-        self.tensors.push(TensorInfo { name: name.to_string(), rows, cols, storage });
+    fn add(&mut self, name: &str, rows: usize, cols: usize, dtype: Dtype, storage: Storage) -> TensorId {
+        self.tensors.push(TensorInfo { name: name.to_string(), rows, cols, dtype, storage });
         TensorId(self.tensors.len() - 1)
     }
 
     /// An intermediate tensor; its buffer is shared with tensors whose lifetimes do not overlap.
     pub fn transient(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
-        self.add(name, rows, cols, Storage::Transient)
+        self.add(name, rows, cols, Dtype::F32, Storage::Transient)
     }
     pub fn input(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
-        self.add(name, rows, cols, Storage::Input)
+        self.add(name, rows, cols, Dtype::F32, Storage::Input)
     }
     pub fn output(&mut self, name: &str, rows: usize, cols: usize) -> TensorId {
-        self.add(name, rows, cols, Storage::Output)
+        self.add(name, rows, cols, Dtype::F32, Storage::Output)
     }
     pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
-        self.add(name, tensor.rows, tensor.cols, Storage::External(tensor.clone()))
+        self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::External(tensor.clone()))
     }
 
     pub fn rows(&self, id: TensorId) -> usize {
@@ -123,8 +128,13 @@ impl PlanBuilder {
     pub fn cols(&self, id: TensorId) -> usize {
         self.tensors[id.0].cols
     }
+    /// Row stride in elements (floats, or halves for an F16 tensor).
     pub fn ld(&self, id: TensorId) -> usize {
-        padded_cols(self.tensors[id.0].cols)
+        let t = &self.tensors[id.0];
+        t.dtype.ld(t.cols)
+    }
+    pub fn dtype(&self, id: TensorId) -> Dtype {
+        self.tensors[id.0].dtype
     }
     pub fn name(&self, id: TensorId) -> &str {
         &self.tensors[id.0].name
@@ -254,7 +264,7 @@ impl PlanBuilder {
             }];
             for (b, (view, _)) in op.bindings.iter().enumerate() {
                 let info = &tensors[view.id.0];
-                let row_bytes = (padded_cols(info.cols) * 4) as u64;
+                let row_bytes = info.row_bytes();
                 let offset = view.row_start as u64 * row_bytes;
                 if !offset.is_multiple_of(storage_align) {
                     return Err(EngineError::Request(format!(
@@ -282,16 +292,26 @@ impl PlanBuilder {
                 .filter(|(_, a)| *a != Access::Read)
                 .map(|(v, _)| *v)
                 .collect();
-            planned.push(PlannedOp { label: op.label.clone(), pipeline, bind_group, workgroups: op.workgroups, written });
+            planned.push(PlannedOp {
+                label: op.label.clone(),
+                shader: op.shader.name,
+                entry: op.entry,
+                pipeline,
+                bind_group,
+                workgroups: op.workgroups,
+                written,
+            });
         }
 
-        let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols)).collect();
+        let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols, t.dtype)).collect();
         Ok(Plan { ops: planned, buffers, infos, peak_bytes, _uniforms: uniforms })
     }
 }
 
 struct PlannedOp {
     label: String,
+    shader: &'static str,
+    entry: &'static str,
     pipeline: Arc<wgpu::ComputePipeline>,
     bind_group: wgpu::BindGroup,
     workgroups: [u32; 3],
@@ -302,7 +322,7 @@ struct PlannedOp {
 pub struct Plan {
     ops: Vec<PlannedOp>,
     buffers: Vec<Arc<wgpu::Buffer>>,
-    infos: Vec<(String, usize, usize)>,
+    infos: Vec<(String, usize, usize, Dtype)>,
     peak_bytes: u64,
     _uniforms: wgpu::Buffer,
 }
@@ -333,21 +353,56 @@ impl Plan {
 
     /// The buffer of an input or output tensor, as a [`GpuTensor`] the host can write or read.
     pub fn tensor(&self, id: TensorId) -> GpuTensor {
-        let (_, rows, cols) = self.infos[id.0];
-        GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols }
+        let (_, rows, cols, dtype) = self.infos[id.0];
+        GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols, dtype }
     }
 
+    /// Records `ops` into one compute pass and submits it, with GPU timestamps when the Gpu's
+    /// [`TimestampMode`] asks for them: at the pass's start and end, or also between every two ops.
     fn record(&self, gpu: &Gpu, ops: &[PlannedOp]) {
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let mut timestamps = gpu.timestamps.lock().expect("timestamps poisoned");
+        let mode = timestamps.mode;
+        let queries = match mode {
+            TimestampMode::Off => 0,
+            TimestampMode::Plan => 2,
+            TimestampMode::Ops => ops.len() as u32 + 1,
+        };
+        timestamps.reserve(&gpu.device, queries);
         {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            for op in ops {
+            let pass_writes = (mode == TimestampMode::Plan).then(|| {
+                let (query_set, _) = timestamps.slot(0);
+                wgpu::ComputePassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: Some(0),
+                    end_of_pass_write_index: Some(1),
+                }
+            });
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: pass_writes });
+            for (i, op) in ops.iter().enumerate() {
+                if mode == TimestampMode::Ops {
+                    let (set, index) = timestamps.slot(i as u32);
+                    pass.write_timestamp(set, index);
+                }
                 pass.set_pipeline(&op.pipeline);
                 pass.set_bind_group(0, &op.bind_group, &[]);
                 let [x, y, z] = op.workgroups;
                 pass.dispatch_workgroups(x, y, z);
             }
+            if mode == TimestampMode::Ops {
+                let (set, index) = timestamps.slot(ops.len() as u32);
+                pass.write_timestamp(set, index);
+            }
         }
+        if mode != TimestampMode::Off {
+            let names = match mode {
+                TimestampMode::Ops => ops.iter().map(|o| (o.label.clone(), format!("{}.{}", o.shader, o.entry))).collect(),
+                _ => Vec::new(),
+            };
+            timestamps.resolve(&mut encoder, queries, names);
+        }
+        drop(timestamps);
         gpu.queue.submit([encoder.finish()]);
         gpu.counters.submits.fetch_add(1, Ordering::Relaxed);
         gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
@@ -377,7 +432,7 @@ impl Plan {
         for op in &self.ops {
             self.record(gpu, std::slice::from_ref(op));
             for view in &op.written {
-                let (name, _, cols) = &self.infos[view.id.0];
+                let (name, _, cols, _) = &self.infos[view.id.0];
                 let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
                 outputs.push(OpOutput { op: op.label.clone(), tensor: name.clone(), rows: view.rows, cols: *cols, data });
             }

@@ -19,7 +19,7 @@ use crate::kernels::elementwise::{map_columns, Map};
 use crate::kernels::{attention::attention, conv::conv3x3, matmul::linear, norm::layernorm, posenc, resize, Activation};
 use crate::plan::{Plan, PlanBuilder, TensorId, View};
 use crate::tensor::{padded_cols, GpuTensor};
-use crate::weights::{Conv3x3, LayerNorm, Linear, SrtWeights};
+use crate::weights::{Conv3x3, KeptF32, LayerNorm, Linear, LoadOptions, SrtWeights};
 
 /// LayerNorm eps of every official transformer.
 const LAYER_NORM_EPS: f32 = 1e-5;
@@ -184,7 +184,12 @@ impl Model {
     }
 
     pub fn from_loaded(gpu: Arc<Gpu>, loaded: &LoadedModel) -> Result<Model> {
-        let weights = SrtWeights::upload(&gpu, loaded)?;
+        Model::from_loaded_with(gpu, loaded, &LoadOptions::default())
+    }
+
+    /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
+    pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
+        let weights = SrtWeights::upload(&gpu, loaded, options)?;
         Ok(Model {
             gpu,
             config: loaded.config.clone(),
@@ -201,6 +206,11 @@ impl Model {
     /// Bytes of GPU memory the weights take.
     pub fn weight_bytes(&self) -> u64 {
         self.weights.bytes
+    }
+
+    /// Linear layers kept in f32 under f16 weight storage (a weight beyond f16's range).
+    pub fn weights_kept_f32(&self) -> &[KeptF32] {
+        &self.weights.kept_f32
     }
 
     /// Encodes posed input views into latent tokens and the decoder's keys and values. Waits for the GPU.
@@ -362,6 +372,11 @@ impl EncodedScene<'_> {
     /// Number of render plans built so far (one per distinct target count, computed size and outputs).
     pub fn cached_render_plans(&self) -> usize {
         self.render_plans.lock().expect("render plan cache poisoned").len()
+    }
+
+    /// Drops the cached render plans and their buffers; the next render builds its plan again.
+    pub fn clear_render_plans(&self) {
+        self.render_plans.lock().expect("render plan cache poisoned").clear();
     }
 
     /// Checks the request against the model and the targets and works out which pixels to compute.

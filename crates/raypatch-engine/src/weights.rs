@@ -4,13 +4,38 @@
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
-use crate::error::Result;
+use crate::error::{EngineError, Result};
 use crate::gpu::Gpu;
 use crate::kernels::conv::pack_conv3x3;
 use crate::tensor::GpuTensor;
 
 /// PyTorch's BatchNorm2d default.
 const BATCH_NORM_EPS: f64 = 1e-5;
+
+/// How the linear layers' weights are stored on the GPU (they are most of the bytes and of the time).
+/// Everything else (convolutions, biases, norms, activations) stays f32, and all arithmetic is f32.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum WeightStorage {
+    #[default]
+    F32,
+    /// f16 (needs the adapter's `SHADER_F16`). A layer with a weight beyond f16's range (|w| > 65504,
+    /// which f16 would turn into infinity) stays f32 and is listed in [`SrtWeights::kept_f32`].
+    F16,
+}
+
+/// Options for putting a model on the GPU.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LoadOptions {
+    pub weight_storage: WeightStorage,
+}
+
+/// A linear layer that stays f32 under [`WeightStorage::F16`], and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeptF32 {
+    pub tensor: String,
+    /// The largest |weight|, beyond f16's range.
+    pub max_abs: f32,
+}
 
 /// nn.Linear: weight [out, in], optional bias stored as a [1, out] row.
 pub struct Linear {
@@ -82,12 +107,16 @@ pub struct SrtWeights {
     pub ray_patch: Option<RayPatchWeights>,
     /// Bytes of GPU memory the weights take.
     pub bytes: u64,
+    /// Linear layers kept in f32 under [`WeightStorage::F16`] because a weight is beyond f16's range.
+    pub kept_f32: Vec<KeptF32>,
 }
 
 struct Uploader<'a> {
     gpu: &'a Gpu,
     model: &'a LoadedModel,
+    storage: WeightStorage,
     bytes: u64,
+    kept_f32: Vec<KeptF32>,
 }
 
 impl Uploader<'_> {
@@ -107,7 +136,19 @@ impl Uploader<'_> {
         let w = self.model.weight(&key);
         // Linear weights are [out, in]; the 1×1 per_patch_linear conv is [out, in, 1, 1].
         let (rows, cols) = (w.shape[0], w.data.len() / w.shape[0]);
-        let weight = self.tensor(&key, rows, cols, &w.data)?;
+        let max_abs = w.data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let weight = match self.storage {
+            WeightStorage::F16 if half::f16::from_f32(max_abs).is_finite() => {
+                let t = self.gpu.upload_f16(&key, rows, cols, &w.data)?;
+                self.bytes += t.bytes();
+                t
+            }
+            WeightStorage::F16 => {
+                self.kept_f32.push(KeptF32 { tensor: key.clone(), max_abs });
+                self.tensor(&key, rows, cols, &w.data)?
+            }
+            WeightStorage::F32 => self.tensor(&key, rows, cols, &w.data)?,
+        };
         let bias = if bias { Some(self.row(&format!("{prefix}.bias"))?) } else { None };
         Ok(Linear { weight, bias })
     }
@@ -148,9 +189,12 @@ impl Uploader<'_> {
 }
 
 impl SrtWeights {
-    pub fn upload(gpu: &Gpu, model: &LoadedModel) -> Result<SrtWeights> {
+    pub fn upload(gpu: &Gpu, model: &LoadedModel, options: &LoadOptions) -> Result<SrtWeights> {
         let config: &ModelConfig = &model.config;
-        let mut up = Uploader { gpu, model, bytes: 0 };
+        if options.weight_storage == WeightStorage::F16 && !gpu.features.contains(wgpu::Features::SHADER_F16) {
+            return Err(EngineError::Request(format!("f16 weights need shader-f16, which {} does not have", gpu.info.name)));
+        }
+        let mut up = Uploader { gpu, model, storage: options.weight_storage, bytes: 0, kept_f32: Vec::new() };
         let bn = |on: bool, key: String| on.then_some(key);
 
         let e = &config.encoder;
@@ -216,6 +260,6 @@ impl SrtWeights {
                 Some(RayPatchWeights { conv_0, blocks })
             }
         };
-        Ok(SrtWeights { encoder, decoder, ray_patch, bytes: up.bytes })
+        Ok(SrtWeights { encoder, decoder, ray_patch, bytes: up.bytes, kept_f32: up.kept_f32 })
     }
 }

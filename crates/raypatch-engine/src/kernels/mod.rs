@@ -49,17 +49,31 @@ macro_rules! shader {
                 $(include_str!(concat!("../../../../shaders/", $prelude, ".wgsl")), "\n",)*
                 include_str!(concat!("../../../../shaders/", $name, ".wgsl"))
             ),
+            prefix: "",
+            replace: &[],
+            features: wgpu::Features::empty(),
         }
     };
 }
 
 pub static MATMUL: Shader = shader!("matmul", "activation");
+/// `matmul` with f16 weights: the same source with the weights' vector type replaced (f32 arithmetic).
+pub static MATMUL_F16: Shader = Shader {
+    name: "matmul_f16",
+    prefix: "enable f16;\n",
+    replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
+    features: wgpu::Features::SHADER_F16,
+    ..shader!("matmul", "activation")
+};
 pub static ATTENTION: Shader = shader!("attention");
 pub static LAYERNORM: Shader = shader!("layernorm");
 pub static POSENC: Shader = shader!("posenc");
 pub static RESIZE: Shader = shader!("resize");
 pub static CONV: Shader = shader!("conv", "activation");
 pub static ELEMENTWISE: Shader = shader!("elementwise");
+
+/// Variants of the shaders above that need optional features.
+pub static VARIANTS: [&Shader; 1] = [&MATMUL_F16];
 
 /// Every shader, for validation tests and pipeline warm-up.
 pub static ALL_SHADERS: [&Shader; 7] = [&MATMUL, &ATTENTION, &LAYERNORM, &POSENC, &RESIZE, &CONV, &ELEMENTWISE];

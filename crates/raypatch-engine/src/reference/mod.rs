@@ -5,6 +5,7 @@ pub mod attention;
 pub mod conv;
 pub mod elementwise;
 pub mod matmul;
+pub mod model;
 pub mod norm;
 pub mod posenc;
 pub mod resize;

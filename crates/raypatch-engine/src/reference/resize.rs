@@ -3,8 +3,9 @@
 //! exactly as PyTorch does (they decide which pixels are read); the interpolation itself runs in f64.
 
 /// PyTorch's `align_corners=False` linear source of output index `dst`: the two input indices and the
-/// weight λ of the second (`area_pixel_compute_source_index` and `guard_index_and_lambda`).
-fn linear_source(dst: usize, in_size: usize, out_size: usize) -> (usize, usize, f64) {
+/// weight λ of the second (`area_pixel_compute_source_index` and `guard_index_and_lambda`). λ is an f32
+/// value (computed in f32 as PyTorch does), returned exactly as f64.
+pub fn linear_source(dst: usize, in_size: usize, out_size: usize) -> (usize, usize, f64) {
     let scale = in_size as f32 / out_size as f32;
     let src = (scale * (dst as f32 + 0.5) - 0.5).max(0.0);
     let i0 = (src.floor() as usize).min(in_size - 1);

@@ -1,0 +1,27 @@
+//! `cargo bench`: the benchmark harness's quick mode (`raypatch-bench --quick`), results in
+//! target/bench-quick. The full sweep is `cargo run --release -p raypatch-bench -- --out DIR`.
+
+use std::path::Path;
+use std::process::ExitCode;
+
+fn main() -> ExitCode {
+    let out = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-quick");
+    let options = raypatch_bench::Options {
+        quick: true,
+        out,
+        adapter: None,
+        repeats: None,
+        max_render_seconds: None,
+        pytorch: true,
+        models: Vec::new(),
+        scene: None,
+        command: "cargo bench".into(),
+    };
+    match raypatch_bench::run(&options) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("raypatch-bench: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,365 @@
+//! The results: one [`Record`] per measured configuration, written as `results.json` and `results.csv`
+//! (nested fields flattened to `a.b` columns), and the per-kernel GPU time breakdowns as `kernels.csv`.
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::measure::Stats;
+
+/// Where the numbers were measured; repeated in every record.
+#[derive(Clone, Debug, Serialize)]
+pub struct Environment {
+    pub adapter: String,
+    pub backend: String,
+    pub driver: String,
+    pub machine: String,
+}
+
+/// One measured configuration.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Record {
+    /// `golden` (assets/golden), `sweep` (random-weight models), `skips`, `model` (a file given with --model).
+    pub group: String,
+    /// `small` (random, the golden cases' structure at width 32), `official` (random, official MSN-Easy
+    /// size), a golden case's name, or a model file.
+    pub model: String,
+    /// `SRT` or `RP-SRT`.
+    pub decoder: String,
+    pub k: usize,
+    /// Weight storage: `f32`, or `f16` (f32 arithmetic).
+    pub precision: String,
+    /// For the skips group: what is skipped or not.
+    pub variant: String,
+    pub parameters: usize,
+    pub weight_bytes: u64,
+    pub input_views: usize,
+    pub input_size: String,
+    pub target_views: usize,
+    pub target_size: String,
+    pub pixels: usize,
+    /// Decoder queries per render (one per pixel for SRT, per k×k patch for RP-SRT).
+    pub queries: usize,
+    /// Kernel dispatches per render.
+    pub dispatches: Option<usize>,
+    pub tokens: usize,
+    /// `gpu timestamps` (GPU time of the plan's pass) or `wall clock`.
+    pub timing: String,
+    pub encode_ms: Option<Stats>,
+    pub encode_wall_ms: Option<Stats>,
+    /// The first render: builds the plan and compiles what it needs.
+    pub first_render_wall_ms: Option<f64>,
+    pub render_ms: Option<Stats>,
+    /// Host to host: uploads the target cameras, runs the plan, reads the image back.
+    pub render_wall_ms: Option<Stats>,
+    /// Frames per second of one target view, from the median `render_ms`.
+    pub fps: Option<f64>,
+    pub encode_peak_bytes: Option<u64>,
+    /// Planned peak bytes of the render plan (intermediates, inputs, outputs, params; weights and the
+    /// scene's keys/values are counted in `weight_bytes` and not here).
+    pub render_peak_bytes: Option<u64>,
+    /// What a decoder that materialised its softmax would hold (the paper's Figure 2a quantity).
+    pub attention_scores_bytes: u64,
+    pub encode_gflop: f64,
+    pub render_gflop: f64,
+    /// max |rgb − reference| against the float64 CPU reference with the encoding arguments rounded to f32
+    /// as torch float32 rounds them: the engine's arithmetic error.
+    pub max_err_f64_reference: Option<f64>,
+    pub rms_err_f64_reference: Option<f64>,
+    /// max |rgb − reference| against the float64 model (float64 encoding arguments).
+    pub max_err_f64_model: Option<f64>,
+    /// max |rgb − PyTorch float32| (the golden files, or PyTorch run by this harness).
+    pub max_err_pytorch: Option<f64>,
+    /// PSNR against the scene's ground truth.
+    pub psnr_db: Option<f64>,
+    pub pytorch_encode_ms: Option<Stats>,
+    pub pytorch_render_ms: Option<Stats>,
+    /// PyTorch's median render wall time over ours.
+    pub pytorch_over_ours: Option<f64>,
+    pub note: String,
+    #[serde(flatten)]
+    pub env: Option<Environment>,
+}
+
+/// GPU time per kernel of one render, from timestamps between the ops.
+#[derive(Clone, Debug, Serialize)]
+pub struct KernelTime {
+    /// The configuration, e.g. `official RP-SRT k=8 120x160 f32`.
+    pub config: String,
+    /// The op's label with layer indices and query-chunk ranges folded (e.g.
+    /// `decoder_att.ray_predictor.transformer.layers.*.0.fn.to_q`), or a kernel family.
+    pub op: String,
+    pub kernel: String,
+    pub dispatches: usize,
+    pub ms: f64,
+    pub share: f64,
+}
+
+/// Flattens nested objects into `a.b` keys (arrays are not used by the records).
+fn flatten(prefix: &str, value: &Value, out: &mut Vec<(String, Value)>) {
+    match value {
+        Value::Object(map) => {
+            for (k, v) in map {
+                let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                flatten(&key, v, out);
+            }
+        }
+        _ => out.push((prefix.to_string(), value.clone())),
+    }
+}
+
+fn csv_field(value: &Value) -> String {
+    let text = match value {
+        Value::Null => String::new(),
+        Value::String(s) => s.clone(),
+        other => other.to_string(),
+    };
+    if text.contains([',', '"', '\n']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text
+    }
+}
+
+/// Writes `rows` (serialisable structs) as CSV, the columns in order of first appearance.
+pub fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
+    let flat: Vec<Vec<(String, Value)>> = rows
+        .iter()
+        .map(|r| {
+            let mut out = Vec::new();
+            flatten("", &serde_json::to_value(r).expect("records serialise"), &mut out);
+            out
+        })
+        .collect();
+    let mut columns: Vec<String> = Vec::new();
+    for row in &flat {
+        for (k, _) in row {
+            if !columns.contains(k) {
+                columns.push(k.clone());
+            }
+        }
+    }
+    let mut text = columns.join(",") + "\n";
+    for row in &flat {
+        let fields: Vec<String> = columns
+            .iter()
+            .map(|c| row.iter().find(|(k, _)| k == c).map_or(String::new(), |(_, v)| csv_field(v)))
+            .collect();
+        text += &(fields.join(",") + "\n");
+    }
+    write_file(path, text.as_bytes())
+}
+
+/// Writes through a temporary file and a rename, so that no partial file is left behind.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("partial");
+    let mut file = std::fs::File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
+    file.write_all(bytes).with_context(|| format!("{}: cannot write", tmp.display()))?;
+    drop(file);
+    std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// Human-readable byte counts.
+pub fn bytes(b: u64) -> String {
+    let b = b as f64;
+    if b >= (1u64 << 30) as f64 {
+        format!("{:.2} GiB", b / (1u64 << 30) as f64)
+    } else if b >= (1 << 20) as f64 {
+        format!("{:.1} MiB", b / (1 << 20) as f64)
+    } else {
+        format!("{:.0} KiB", b / 1024.0)
+    }
+}
+
+pub fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "-".to_string(), |v| format!("{v:.digits$}"))
+}
+
+pub fn sci(v: Option<f64>) -> String {
+    v.map_or_else(|| "-".to_string(), |v| format!("{v:.1e}"))
+}
+
+fn stats_text(s: Option<Stats>) -> String {
+    s.map_or_else(|| "-".into(), |s| format!("{:.2} [{:.2}–{:.2}]", s.median_ms, s.min_ms, s.max_ms))
+}
+
+fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
+    *out += &format!("| {} |\n|{}\n", header.join(" | "), "---|".repeat(header.len()));
+    for row in rows {
+        *out += &format!("| {} |\n", row.join(" | "));
+    }
+    out.push('\n');
+}
+
+/// The results as Markdown tables (printed, and written to `tables.md` for docs/PERFORMANCE.md).
+pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate::paper::Comparison]) -> String {
+    let mut out = String::new();
+    if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
+        out += &format!("Adapter: {} ({}, {}). Machine: {}.\n\n", env.adapter, env.backend, env.driver, env.machine);
+    }
+    let timing = records.first().map_or("", |r| r.timing.as_str());
+    out += &format!("### Sweep (random weights; render time: {timing}, median [min–max] ms)\n\n");
+    let sweep: Vec<&Record> = records.iter().filter(|r| r.group == "sweep").collect();
+    table(
+        &mut out,
+        &[
+            "model",
+            "decoder",
+            "k",
+            "precision",
+            "target",
+            "render ms",
+            "fps",
+            "encode ms",
+            "render peak",
+            "GFLOP render",
+            "max err vs f64 ref",
+            "vs f64 model",
+            "vs PyTorch",
+            "PyTorch / ours",
+        ],
+        sweep
+            .iter()
+            .map(|r| {
+                vec![
+                    r.model.clone(),
+                    r.decoder.clone(),
+                    r.k.to_string(),
+                    r.precision.clone(),
+                    r.target_size.clone(),
+                    if r.render_ms.is_some() { stats_text(r.render_ms) } else { r.note.clone() },
+                    opt(r.fps, 2),
+                    opt(r.encode_ms.map(|e| e.median_ms), 1),
+                    r.render_peak_bytes.map_or("-".into(), bytes),
+                    format!("{:.2}", r.render_gflop),
+                    sci(r.max_err_f64_reference),
+                    sci(r.max_err_f64_model),
+                    sci(r.max_err_pytorch),
+                    opt(r.pytorch_over_ours, 1),
+                ]
+            })
+            .collect(),
+    );
+
+    out += "### RP-SRT speed-up over SRT (fps ratio, same model and target size)\n\n";
+    let mut rows = Vec::new();
+    let mut keys: Vec<(String, String, String)> = Vec::new();
+    for r in &sweep {
+        let key = (r.model.clone(), r.precision.clone(), r.target_size.clone());
+        if !keys.contains(&key) {
+            keys.push(key);
+        }
+    }
+    for (model, precision, size) in keys {
+        let fps = |k: usize| {
+            sweep
+                .iter()
+                .find(|r| r.model == model && r.precision == precision && r.target_size == size && r.k == k)
+                .and_then(|r| r.fps)
+        };
+        let Some(srt) = fps(1) else { continue };
+        let mut row = vec![model.clone(), precision.clone(), size.clone(), format!("{srt:.2}")];
+        row.extend([2, 4, 8, 16].iter().map(|&k| fps(k).map_or("-".into(), |f| format!("{:.1}x", f / srt))));
+        rows.push(row);
+    }
+    table(&mut out, &["model", "precision", "target", "SRT fps", "k=2", "k=4", "k=8", "k=16"], rows);
+
+    out += "### Golden cases (errors against PyTorch float32, the float64 reference and the float64 model)\n\n";
+    table(
+        &mut out,
+        &[
+            "case",
+            "decoder",
+            "k",
+            "target",
+            "render ms",
+            "encode ms",
+            "max err vs PyTorch",
+            "vs f64 ref",
+            "vs f64 model",
+            "PSNR dB",
+        ],
+        records
+            .iter()
+            .filter(|r| r.group == "golden")
+            .map(|r| {
+                vec![
+                    r.model.clone(),
+                    r.decoder.clone(),
+                    r.k.to_string(),
+                    format!("{}x{}", r.target_views, r.target_size),
+                    stats_text(r.render_ms),
+                    opt(r.encode_ms.map(|e| e.median_ms), 2),
+                    sci(r.max_err_pytorch),
+                    sci(r.max_err_f64_reference),
+                    sci(r.max_err_f64_model),
+                    opt(r.psnr_db, 2),
+                ]
+            })
+            .collect(),
+    );
+
+    out += "### Skips on and off (render time)\n\n";
+    table(
+        &mut out,
+        &["model", "decoder", "k", "target", "variant", "queries", "dispatches", "timing", "render ms"],
+        records
+            .iter()
+            .filter(|r| r.group == "skips")
+            .map(|r| {
+                vec![
+                    r.model.clone(),
+                    r.decoder.clone(),
+                    r.k.to_string(),
+                    r.target_size.clone(),
+                    r.variant.clone(),
+                    r.queries.to_string(),
+                    r.dispatches.map_or("-".into(), |d| d.to_string()),
+                    r.timing.clone(),
+                    stats_text(r.render_ms),
+                ]
+            })
+            .collect(),
+    );
+
+    let mut configs: Vec<&str> = kernels.iter().map(|k| k.config.as_str()).collect();
+    configs.dedup();
+    for config in configs {
+        out += &format!("### Where the render time goes: {config} (GPU timestamps between ops)\n\n");
+        let rows: Vec<&KernelTime> = kernels.iter().filter(|k| k.config == config).collect();
+        let family = rows
+            .iter()
+            .filter(|k| k.op == "*")
+            .map(|k| format!("{} {:.0}%", k.kernel, 100.0 * k.share))
+            .collect::<Vec<_>>();
+        out += &format!("By kernel: {}.\n\n", family.join(", "));
+        table(
+            &mut out,
+            &["op (layers folded)", "kernel", "dispatches", "ms", "share"],
+            rows.iter()
+                .filter(|k| k.op != "*")
+                .take(12)
+                .map(|k| {
+                    vec![
+                        format!("`{}`", k.op),
+                        k.kernel.clone(),
+                        k.dispatches.to_string(),
+                        format!("{:.2}", k.ms),
+                        format!("{:.1}%", 100.0 * k.share),
+                    ]
+                })
+                .collect(),
+        );
+    }
+
+    out += "### The paper's figures beside ours\n\n";
+    table(
+        &mut out,
+        &["", "paper", "ours"],
+        comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect(),
+    );
+    out
+}

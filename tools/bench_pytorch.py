@@ -1,0 +1,107 @@
+"""Times the PyTorch reference (tools/raypatch_reference.py) on a raypatch model file and scene file, for
+raypatch-bench, which runs it on the same weights and inputs as the engine in the same run:
+
+    python3 tools/bench_pytorch.py --model M.safetensors --scene S.safetensors [--repeats N] [--threads T]
+                                   [--out-rgb O.safetensors]
+
+Prints one JSON object: the torch version, its thread count, and the wall times in ms (median, min, max over the
+runs after one warm-up) of encoding the input views and of rendering the target views, as the official model
+computes them in float32 on the CPU. With --out-rgb it also writes the rendered `rgb` [T, Ht, Wt, 3]. Exit code 3
+when PyTorch cannot be imported, 2 on a bad input.
+"""
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+try:
+    import torch
+    from safetensors import safe_open
+except ImportError as error:
+    print(f"PyTorch is not available: {error}", file=sys.stderr)
+    sys.exit(3)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from raypatch_reference import SRT  # noqa: E402
+from safetensors_io import save_safetensors  # noqa: E402
+
+
+def read(path):
+    with safe_open(str(path), "pt") as file:
+        return {name: file.get_tensor(name) for name in file.keys()}, file.metadata() or {}
+
+
+def load_model(path):
+    tensors, metadata = read(path)
+    if "config" not in metadata:
+        raise ValueError(f"{path}: no `config` entry in the safetensors metadata")
+    model = SRT.from_config(json.loads(metadata["config"])).eval()
+    result = model.load_state_dict(tensors, strict=False)
+    missing = [key for key in result.missing_keys if not key.endswith("num_batches_tracked")]
+    if missing or result.unexpected_keys:
+        raise ValueError(f"{path}: missing tensors {missing}, unexpected tensors {result.unexpected_keys}")
+    return model
+
+
+def target_size(scene, metadata):
+    if "target_images" in scene:
+        return tuple(scene["target_images"].shape[1:3])
+    if "target_size" in metadata:
+        height, width = metadata["target_size"].split("x")
+        return int(height), int(width)
+    return tuple(scene["target_rays"].shape[1:3])
+
+
+def timed(function, repeats):
+    """(result, [wall ms per run]) after one warm-up run."""
+    function()
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        times.append((time.perf_counter() - start) * 1e3)
+    return result, times
+
+
+def summary(times):
+    return {"median_ms": statistics.median(times), "min_ms": min(times), "max_ms": max(times), "runs": len(times)}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", required=True, type=Path)
+    parser.add_argument("--scene", required=True, type=Path)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--out-rgb", type=Path, default=None)
+    args = parser.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        model = load_model(args.model)
+        scene, metadata = read(args.scene)
+        size = target_size(scene, metadata)
+    except (OSError, ValueError, KeyError) as error:
+        print(f"bench_pytorch: {error}", file=sys.stderr)
+        return 2
+
+    def batch(name):
+        return scene[name][None]
+
+    with torch.no_grad():
+        z, encode_times = timed(lambda: model.encode(batch("input_images").permute(0, 1, 4, 2, 3),
+                                                     batch("input_camera_pos"), batch("input_rays")), args.repeats)
+        (rgb, _), render_times = timed(lambda: model.render_views(z, batch("target_camera_pos"), batch("target_rays"),
+                                                                  size), args.repeats)
+    if args.out_rgb is not None:
+        save_safetensors(args.out_rgb, {"rgb": rgb[0]}, {"format": "raypatch-bench-pytorch/1"})
+    print(json.dumps({"torch_version": torch.__version__, "threads": torch.get_num_threads(),
+                      "encode": summary(encode_times), "render": summary(render_times)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
