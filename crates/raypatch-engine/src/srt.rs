@@ -383,7 +383,7 @@ impl EncodedScene<'_> {
     fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
         let cfg = &self.model.config;
         let k = cfg.patch_size();
-        let image = targets.grid(k, cfg.resizes_output(), "target views")?;
+        let image = cfg.target_grid(targets, "target views")?;
         let outputs = request.outputs;
         if !outputs.rgb && !outputs.logdepth {
             return Err(EngineError::Request("nothing to render: ask for rgb, log-depth or both".into()));

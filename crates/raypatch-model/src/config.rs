@@ -5,6 +5,7 @@
 use serde_json::Value;
 
 use crate::error::ModelError;
+use crate::scene::{TargetGrid, TargetViews};
 
 /// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
 /// from `start` to `end` when `end` is set (the DeFiNe form).
@@ -299,6 +300,11 @@ impl ModelConfig {
     /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
     pub fn resizes_output(&self) -> bool {
         self.ray_patch.as_ref().is_some_and(|rp| rp.resize_out.is_some())
+    }
+
+    /// The image size and ray resolution of target views for this model (see [`TargetViews::grid`]).
+    pub fn target_grid(&self, targets: &TargetViews, path: &str) -> Result<TargetGrid, ModelError> {
+        targets.grid(self.patch_size(), self.resizes_output(), path)
     }
 
     /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.
