@@ -1,12 +1,14 @@
-// Bilinear resize as PyTorch's F.interpolate (align_corners=False, antialias=False) on NHWC images:
-// x [n*hi*wi, c] -> out [n*ho*wo, c].
+// Image resizes as PyTorch's F.interpolate (antialias=False) on NHWC images: x [n*hi*wi, c] -> out [n*ho*wo, c]:
+// bilinear (align_corners=False) for the patch rays and the rgb skips, nearest for the official output resize.
 //
 // One invocation per (output pixel, vec4 of channels). Input padding columns are zero, so the interpolated
 // padding is zero too and whole vec4s are written.
 //
 // Source indices follow PyTorch's CPU and CUDA kernels, with scale = in/out computed in f32 by the host
-// (a GPU division need not be correctly rounded): src = max(scale·(dst+0.5) − 0.5, 0),
-// i0 = min(floor(src), in−1), i1 = min(i0+1, in−1), λ = clamp(src − i0, 0, 1).
+// (a GPU division need not be correctly rounded):
+// - bilinear: src = max(scale·(dst+0.5) − 0.5, 0), i0 = min(floor(src), in−1), i1 = min(i0+1, in−1),
+//   λ = clamp(src − i0, 0, 1);
+// - nearest: src = min(floor(dst·scale), in−1).
 
 struct Params {
     hi: u32,
@@ -19,7 +21,7 @@ struct Params {
     total: u32,
     scale_h: f32,
     scale_w: f32,
-    // out += result instead of out = result.
+    // bilinear only: out += result instead of out = result.
     accumulate: u32,
 }
 
@@ -78,6 +80,8 @@ fn bilinear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
     // multiplied first. The official loader resizes the ray grid as a permuted (channels-last) tensor, and
     // the top ray octave (2^14·π) turns a 1-ulp difference in a patch ray into a visible one in the image;
     // with k a power of two the weights are powers of two, so this order reproduces PyTorch bit for bit.
+    // (Other ratios, as for a target size k does not divide, have weights whose products round: PyTorch's
+    // x86 build fuses them into fmas there, which WGSL cannot promise, so those patch rays may differ by an ulp.)
     var v = pixel(t.b, ys.i0, xs.i0, t.c) * (h0 * w0) + pixel(t.b, ys.i0, xs.i1, t.c) * (h0 * w1);
     v = v + pixel(t.b, ys.i1, xs.i0, t.c) * (h1 * w0);
     v = v + pixel(t.b, ys.i1, xs.i1, t.c) * (h1 * w1);
@@ -85,4 +89,17 @@ fn bilinear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
         v += out[index];
     }
     out[index] = v;
+}
+
+@compute @workgroup_size(64)
+fn nearest(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) lid: u32) {
+    let index = (wid.x + wid.y * nwg.x) * WG + lid;
+    if (index >= p.total) {
+        return;
+    }
+    let t = locate(index);
+    let y = min(u32(floor(f32(t.oy) * p.scale_h)), p.hi - 1u);
+    let xx = min(u32(floor(f32(t.ox) * p.scale_w)), p.wi - 1u);
+    out[index] = pixel(t.b, y, xx, t.c);
 }

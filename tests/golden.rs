@@ -95,7 +95,7 @@ fn golden_cases_match_pytorch() {
     cases.sort();
     let names: Vec<String> = cases.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     // The issue asks for SRT, every k, and a two-view case; make sure the assets still have them.
-    for required in ["srt_k1", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k16"] {
+    for required in ["srt_k1", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k8_resize", "rpsrt_k16"] {
         assert!(names.iter().any(|n| n == required), "golden case {required} is missing from assets/golden");
     }
     let failures: Vec<String> = cases.iter().flat_map(|dir| check_case(&gpu, dir)).collect();

@@ -82,6 +82,10 @@ def golden_cases():
                       rp_kwargs=dict(upsample=2, h_in=30, w_in=40, conv_features=16, norm="Batch"))
     k8 = small_config("featurefield", encoder_norm=None, width=16,
                       rp_kwargs=dict(upsample=3, h_in=4, w_in=6, h_out=32, w_out=48, conv_features=16, norm="Batch"))
+    # The old repo's k=8 at 60x80: 60 rows are 7 patches (56 pixels), nearest-resized to 60 (h_out/w_out).
+    k8_resize = small_config("featurefield", width=16,
+                             rp_kwargs=dict(upsample=3, h_in=7, w_in=10, h_out=60, w_out=80, conv_features=16,
+                                            norm="Batch"))
     k16 = small_config("featurefield", width=16,
                        rp_kwargs=dict(upsample=4, h_in=2, w_in=4, conv_features=32, norm="Batch"))
     return [
@@ -98,6 +102,11 @@ def golden_cases():
                          "and target_size metadata: the same expected rgb"),
         Case("rpsrt_k8", 5, k8, (24, 32), (32, 48), num_targets=1,
              description="Ray-Patch k=8, encoder without norm, rp h_out/w_out set (identity resize)"),
+        # Patch rays given: for a ratio that is not a power of two PyTorch's bilinear weights round, and its
+        # x86 build fuses them into fmas, which the engine's kernel cannot promise to reproduce bit for bit.
+        Case("rpsrt_k8_resize", 8, k8_resize, (24, 32), (60, 80), num_targets=1, patch_rays=True,
+             description="Ray-Patch k=8 at 60x80 (not divisible by k): 7x10 patches (rays given), output "
+                         "nearest-resized to 60x80 as rp h_out/w_out ask"),
         Case("rpsrt_k16", 6, k16, (24, 32), (32, 64), num_targets=1,
              description="Ray-Patch k=16, conv_features 32"),
     ]

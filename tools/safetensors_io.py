@@ -13,11 +13,11 @@ from pathlib import Path
 
 import torch
 
-DTYPE_NAMES = {torch.float32: "F32", torch.float64: "F64"}
+DTYPE_NAMES = {torch.float32: "F32", torch.float64: "F64", torch.uint8: "U8"}
 
 
 def save_safetensors(path, tensors, metadata):
-    """Writes tensors (float32 or float64) and string metadata to path atomically (temporary file, then rename)."""
+    """Writes float32, float64 or uint8 tensors and string metadata to path atomically (temporary file, rename)."""
     header = {"__metadata__": dict(sorted(metadata.items()))}
     chunks, offset = [], 0
     for name in sorted(tensors):

@@ -1,6 +1,6 @@
-//! Bilinear resize against the float64 reference.
+//! Bilinear and nearest resizes against the float64 reference.
 
-use raypatch_engine::kernels::resize::bilinear;
+use raypatch_engine::kernels::resize::{bilinear, nearest};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::resize as reference;
 
@@ -83,4 +83,29 @@ fn bilinear_many_workgroups() {
     let (ho, wo): (usize, usize) = (1024, 4200);
     assert!((ho * wo).div_ceil(64) > 65535);
     check(&mut rng, false, 1, ho / 4, wo / 4, 3, ho, wo);
+}
+
+#[test]
+fn nearest_matches_reference_exactly() {
+    // PyTorch's mode='nearest' copies source pixels: the result must be exact. Arbitrary ratios, the 2×
+    // and k× special cases, and the official output resize (56×80 from a 7×10 patch grid at k=8 → 60×80).
+    let mut rng = Rng::new(15);
+    let mut cases: Vec<(usize, usize, usize, usize, usize)> =
+        vec![(7, 5, 14, 10, 3), (40, 48, 10, 6, 5), (56, 80, 60, 80, 3), (56, 80, 60, 80, 4)];
+    for _ in 0..12 {
+        cases.push((rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), CHANNELS[rng.range(0, 2)]));
+    }
+    for (hi, wi, ho, wo, c) in cases {
+        let n = rng.range(1, 2);
+        let what = format!("nearest {n}x{hi}x{wi}x{c} -> {ho}x{wo}");
+        let x = rng.vec_f32(n * hi * wi * c, -1.0, 1.0);
+        let xp = Placed::new(&mut rng, "x", &x, c, 0.0);
+        let op = Placed::new(&mut rng, "out", &vec![0.0; n * ho * wo * c], c, f32::NAN);
+        let mut plan = PlanBuilder::new();
+        let (xv, ov) = (xp.view(&mut plan, "x"), op.view(&mut plan, "out"));
+        nearest(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo);
+        run(plan);
+        let got = op.read_view(&what);
+        assert_close(&what, &got, &reference::nearest(&to_f64(&x), n, hi, wi, c, ho, wo), 0.0, 0.0);
+    }
 }

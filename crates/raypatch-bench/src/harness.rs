@@ -317,7 +317,7 @@ impl Bench {
 
     /// Measures one render configuration of a subject. `truth`: PyTorch's rgb for these targets, if known.
     fn measure(&self, s: &Subject, targets: &TargetViews, truth: Option<&[f32]>, with_torch: bool) -> Result<Record> {
-        let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
+        let grid = s.loaded.config.target_grid(targets, "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
         let frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
         let rgb = frame.rgb.context("a default render has rgb")?;
@@ -406,7 +406,7 @@ impl Bench {
 
     /// Outputs not asked for are not computed: rgb only, rgb and log-depth, log-depth only.
     fn logdepth_skip(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
-        let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
+        let grid = s.loaded.config.target_grid(targets, "target views")?;
         let mut rows = Vec::new();
         let variants = [
             ("outputs: rgb", Outputs { rgb: true, logdepth: false }),
@@ -547,7 +547,7 @@ impl Bench {
 
     /// A size not rendered: its FLOPs and planned memory (the plan is built, not run) with the prediction.
     fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64) -> Result<Record> {
-        let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
+        let grid = s.loaded.config.target_grid(targets, "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
         match s.encoded.render_stats(targets, Outputs::default()) {
@@ -564,7 +564,7 @@ impl Bench {
     /// The skips of the API, on and off: the plan cache, the per-scene encoding, and a region of interest.
     fn plan_and_encode_skips(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
         let full = Request::from(Outputs::default());
-        let grid = targets.grid(s.loaded.config.patch_size(), "target views")?;
+        let grid = s.loaded.config.target_grid(targets, "target views")?;
         let size = (grid.height, grid.width);
         let row = |variant: &str, wall: Stats, request: Request| -> Result<Record> {
             let mut record = self.record(s, targets.count, size, variant);
@@ -631,7 +631,7 @@ impl Bench {
         self.gpu.set_timestamps(TimestampMode::Plan)?;
         let Some(times) = times? else { bail!("no timestamps came back") };
         let k = s.loaded.config.patch_size();
-        let grid = targets.grid(k, "target views")?;
+        let grid = s.loaded.config.target_grid(targets, "target views")?;
         let config = format!(
             "{} {} k={k} {}x{} {}",
             s.name,

@@ -383,7 +383,7 @@ impl EncodedScene<'_> {
     fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
         let cfg = &self.model.config;
         let k = cfg.patch_size();
-        let image = targets.grid(k, "target views")?;
+        let image = cfg.target_grid(targets, "target views")?;
         let outputs = request.outputs;
         if !outputs.rgb && !outputs.logdepth {
             return Err(EngineError::Request("nothing to render: ask for rgb, log-depth or both".into()));
@@ -402,6 +402,11 @@ impl EncodedScene<'_> {
                 "region x={} y={} width={} height={} is empty or not inside the {}x{} (width x height) image",
                 region.x, region.y, region.width, region.height, image.width, image.height
             )));
+        }
+        if !image.height.is_multiple_of(k) || !image.width.is_multiple_of(k) {
+            // The decoder's output is resized to the image, which mixes every patch into every pixel's
+            // position: compute the whole image.
+            return Ok(Crop { image, region, y0: 0, x0: 0, grid: image });
         }
         let upsample = cfg.ray_patch.as_ref().map_or(0, |rp| rp.upsample);
         let (py0, py1) = patch_span(region.y, region.y + region.height - 1, upsample, image.height / k);
@@ -480,10 +485,17 @@ impl EncodedScene<'_> {
         }
 
         let channels = cfg.image_channels();
-        let image = match &model.weights.ray_patch {
+        let mut image = match &model.weights.ray_patch {
             None => features,
             Some(rp) => ray_patch_decoder(&mut b, rp, features, views, ph, pw, channels),
         };
+        if (ph * k, pw * k) != (grid.height, grid.width) {
+            // The official RayPatchDecoder's F.interpolate(output, (h_out, w_out)): nearest, to the target size.
+            let resized = b.transient("decoder_rp.resize_out", views * grid.height * grid.width, channels);
+            let (src, dst) = (b.all(image), b.all(resized));
+            resize::nearest(&mut b, "decoder_rp.resize_out", src, views, ph * k, pw * k, dst, grid.height, grid.width);
+            image = resized;
+        }
         let pixels = views * grid.height * grid.width;
         let rgb = outputs.rgb.then(|| {
             let rgb = b.output("rgb", pixels, 3);

@@ -5,6 +5,7 @@
 use serde_json::Value;
 
 use crate::error::ModelError;
+use crate::scene::{TargetGrid, TargetViews};
 
 /// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
 /// from `start` to `end` when `end` is set (the DeFiNe form).
@@ -55,7 +56,9 @@ pub struct RayPatchConfig {
     pub batch_norm: bool,
     /// 3 (rgb) or 4 (rgb + log-depth).
     pub out_dims: usize,
-    /// Output size the official decoder nearest-resizes to, when set (h_out, w_out).
+    /// (h_out, w_out) when set: the official decoder nearest-resizes its output to this size. The engine
+    /// resizes to the target size instead (the official runs set h_out × w_out to their image size), which
+    /// lets such a model render sizes that k does not divide (the old repo's k=8 at 60×80).
     pub resize_out: Option<(usize, usize)>,
     /// The patch grid the model was configured with (h_in, w_in); informational.
     pub grid_in: (usize, usize),
@@ -281,20 +284,6 @@ impl ModelConfig {
                         format!("`rp_kwargs.conv_features` {} must stay above 1 after {} halvings", rp.conv_features, rp.upsample),
                     ));
                 }
-                // The official decoder nearest-resizes its output to (h_out, w_out); that is the identity
-                // when they equal the patch grid times k, the only case this engine runs.
-                if let Some((ho, wo)) = rp.resize_out {
-                    let k = 1 << rp.upsample;
-                    if (ho, wo) != (rp.grid_in.0 * k, rp.grid_in.1 * k) {
-                        return Err(config_err(
-                            path,
-                            format!(
-                                "`rp_kwargs.h_out/w_out` {ho}x{wo} differ from h_in/w_in {}x{} times k={k}: an output resize is not supported",
-                                rp.grid_in.0, rp.grid_in.1
-                            ),
-                        ));
-                    }
-                }
                 if rp.out_dims != 3 && rp.out_dims != 4 {
                     return Err(config_err(path, format!("`rp_kwargs.out_dims` must be 3 or 4, found {}", rp.out_dims)));
                 }
@@ -306,6 +295,16 @@ impl ModelConfig {
             }
         }
         Ok(())
+    }
+
+    /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
+    pub fn resizes_output(&self) -> bool {
+        self.ray_patch.as_ref().is_some_and(|rp| rp.resize_out.is_some())
+    }
+
+    /// The image size and ray resolution of target views for this model (see [`TargetViews::grid`]).
+    pub fn target_grid(&self, targets: &TargetViews, path: &str) -> Result<TargetGrid, ModelError> {
+        targets.grid(self.patch_size(), self.resizes_output(), path)
     }
 
     /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.

@@ -163,16 +163,21 @@ impl InputViews {
 
 impl TargetViews {
     /// Resolves the image size and whether the rays are per patch, for patch size `k` (docs/FORMATS.md).
-    pub fn grid(&self, k: usize, path: &str) -> Result<TargetGrid, ModelError> {
+    /// A model that resizes its output (the official `rp_kwargs.h_out/w_out`) renders sizes that `k` does not
+    /// divide: it decodes the `(height / k) × (width / k)` patch grid and resizes the result.
+    pub fn grid(&self, k: usize, resizes_output: bool, path: &str) -> Result<TargetGrid, ModelError> {
         let (rh, rw) = (self.rays_height, self.rays_width);
         let (height, width) = self.declared_size.unwrap_or((rh, rw));
         let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
-        if height % k != 0 || width % k != 0 {
+        if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
             return Err(err(format!("target size {height}x{width} is not divisible by the model's patch size k={k}")));
+        }
+        if height < k || width < k {
+            return Err(err(format!("target size {height}x{width} is smaller than one patch (k={k})")));
         }
         let rays_are_patches = if (rh, rw) == (height, width) {
             false
-        } else if (rh * k, rw * k) == (height, width) {
+        } else if (rh, rw) == (height / k, width / k) {
             true
         } else {
             return Err(err(format!(

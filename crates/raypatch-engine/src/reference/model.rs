@@ -18,7 +18,7 @@ use super::matmul::linear;
 use super::norm::layernorm;
 use super::posenc::fourier_encode_with;
 pub use super::posenc::Argument;
-use super::resize::{bilinear, linear_source};
+use super::resize::{bilinear, linear_source, nearest};
 use crate::kernels::elementwise::Map;
 use crate::kernels::{posenc::multipliers, Activation};
 
@@ -302,7 +302,7 @@ impl ReferenceModel {
     pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
         let cfg = &self.config;
         let k = cfg.patch_size();
-        let grid = targets.grid(k, "target views")?;
+        let grid = cfg.target_grid(targets, "target views")?;
         let (views, ph, pw) = (targets.count, grid.height / k, grid.width / k);
         let (rh, rw) = (targets.rays_height, targets.rays_width);
         let rays = if k > 1 && !grid.rays_are_patches {
@@ -344,6 +344,12 @@ impl ReferenceModel {
                 }
                 skip
             }
+        };
+        // The official output resize (rp_kwargs h_out/w_out) when k does not divide the target size.
+        let image = if (ph * k, pw * k) == (grid.height, grid.width) {
+            image
+        } else {
+            nearest(&image, views, ph * k, pw * k, channels, grid.height, grid.width)
         };
         Ok(ReferenceFrame {
             views,

@@ -1,0 +1,275 @@
+"""Trains SRT or RP-SRT (tools/raypatch_reference.py, the official architecture) on scenes of tools/make_scenes.py,
+as the official tberriel/RayPatchQuerying training does, and exports a raypatch model file.
+
+    python3 tools/train.py --k 4 --train /work/data/train --val /work/data/val --out target/runs/rpsrt-k4 \\
+        --steps 3000 --batch 16
+
+What follows the official code (train.py, src/model.py, src/data/multishapenetEasy.py):
+- every (scene, input view) pair once per epoch in a shuffled order, the other two views as targets;
+- loss: MSE on RGB. SRT (k = 1) decodes --num-points rays sampled without replacement from the pooled pixels of
+  both target views (official: 8192 of 2·120·160; the default keeps that fraction); RP-SRT decodes the whole patch
+  grid (the official --full-scale) with patch rays made by the official bilinear resize;
+- Adam, the official linear schedule: warmup from 0, then linear decay towards 0 at decay_it. The official run
+  (2.5k warmup steps, decay_it 500k, 300k steps, ending at 0.4 of the peak rate) is scaled to --steps.
+- BatchNorm in the encoder and the Ray-Patch decoder (the official "MDBN" runs).
+Differences: widths (--preset; raypatch config extensions, docs/FORMATS.md) and 2 conv blocks for 60x80 inputs
+(15x20 tokens, as the official 3 blocks give at 120x160; the engine needs sizes divisible by 2^blocks).
+
+The run folder holds checkpoint.pt (written every --checkpoint-every steps; a run restarts from it), curve.csv
+(step, training seconds, learning rate, mean training loss since the previous row, validation PSNR) and, at the end,
+model.safetensors: the weights, the config and a `training` JSON record in the metadata.
+"""
+
+import argparse
+import csv
+import functools
+import json
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from convert_checkpoint import inference_tensors, write_model  # noqa: E402
+from evaluate import evaluate, scene_batch  # noqa: E402
+from make_scenes import load_views  # noqa: E402
+from raypatch_reference import SRT  # noqa: E402
+
+# Official run: 300k steps, warmup 2.5k, decay_it 500k, lr 1e-4, batch 32, 8192 sampled rays of 2·120·160.
+OFFICIAL_STEPS, OFFICIAL_WARMUP, OFFICIAL_DECAY_IT = 300_000, 2_500, 500_000
+OFFICIAL_POINTS_FRACTION = 8192 / (2 * 120 * 160)
+
+# Widths (raypatch config extensions). token_dim is the encoder token width and the decoder latent_dim. At 60x80:
+# cpu 0.46-0.49 M parameters, gpu 2.2-2.3 M (all four gpu models together 35 MB, within the assets budget).
+PRESETS = {
+    "cpu": {"token_dim": 64, "heads": 4, "conv_hidden": 16, "encoder_layers": 3, "decoder_layers": 2,
+            "input_mlp_hidden": 180, "out_mlp_hidden": 128, "conv_features": 64},
+    "gpu": {"token_dim": 160, "heads": 5, "conv_hidden": 32, "encoder_layers": 5, "decoder_layers": 2,
+            "input_mlp_hidden": 360, "out_mlp_hidden": 320, "conv_features": 128},
+}
+CURVE_FIELDS = ("step", "train_seconds", "lr", "loss", "val_psnr")
+
+
+def model_config(k, preset, height, width, lr, warmup, decay_it):
+    """A config.yaml model section: the official MSN-Easy structure (MDBN runs) at the preset's widths."""
+    p = PRESETS[preset]
+    conv_blocks = 3 if height % 8 == 0 and width % 8 == 0 else 2
+    if height % 2**conv_blocks or width % 2**conv_blocks:
+        raise ValueError(f"image size {height}x{width} must be divisible by 4")
+    cfg = {
+        "base": "srt",
+        "encoder_kwargs": {"pos_start_octave": -5, "num_att_blocks": p["encoder_layers"],
+                           "num_conv_blocks": conv_blocks, "norm": "Batch", "latent_dim": p["token_dim"],
+                           "conv_hidden": p["conv_hidden"], "token_dim": p["token_dim"], "heads": p["heads"],
+                           "dim_head": p["token_dim"] // p["heads"]},
+        "decoder": "lightfield" if k == 1 else "featurefield",
+        "decoder_kwargs": {"num_att_blocks": p["decoder_layers"], "pos_octaves": 15, "ray_octaves": 15,
+                           "pos_start_octave": -5, "pos_end_octave": None, "ray_start_octave": 0,
+                           "ray_end_octave": None, "latent_dim": p["token_dim"], "mode": "efficient",
+                           "heads": p["heads"], "input_mlp_hidden": p["input_mlp_hidden"],
+                           "out_mlp_hidden": p["out_mlp_hidden"]},
+        "lr_config": "linear", "gamma": None, "lr": lr, "decay_it": decay_it, "lr_warmup": warmup,
+    }
+    if k == 1:
+        cfg["decoder_kwargs"]["out_dims"] = 3
+    else:
+        cfg["rp_kwargs"] = {"upsample": int(math.log2(k)), "h_in": height // k, "w_in": width // k,
+                            "conv_features": p["conv_features"], "norm": "Batch"}
+        if height % k or width % k:
+            # The official way to train a patch grid that does not tile the image: nearest resize of the output.
+            cfg["rp_kwargs"].update(h_out=height, w_out=width)
+    return cfg
+
+
+def linear_schedule(optimizer, warmup, decay_it):
+    """The official get_linear_schedule_with_warmup (gamma None)."""
+    def factor(step):
+        if step < warmup:
+            return step / max(1, warmup)
+        return max(0.0, (decay_it - step) / max(1, decay_it - warmup))
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+
+
+def training_loss(model, batch, num_points, rng):
+    """MSE on RGB: sampled rays of the pooled target pixels for SRT, whole target views for RP-SRT."""
+    z = model.encode(batch["input_images"], batch["input_camera_pos"], batch["input_rays"])
+    if model.patch_size > 1:
+        pred = model.render_views(z, batch["target_camera_pos"], batch["target_rays"])[0]
+        return F.mse_loss(pred, batch["target_images"])
+    b, t, h, w, _ = batch["target_rays"].shape
+    chosen = torch.from_numpy(np.stack([rng.choice(t * h * w, num_points, replace=num_points > t * h * w)
+                                        for _ in range(b)])).to(z.device)
+    rays = batch["target_rays"].reshape(b, -1, 3)
+    positions = batch["target_camera_pos"][:, :, None].expand(b, t, h * w, 3).reshape(b, -1, 3)
+    pixels = batch["target_images"].reshape(b, -1, 3)
+
+    def pick(x):
+        return torch.gather(x, 1, chosen[..., None].expand(b, num_points, 3))
+
+    pred, _ = model.decode(z, pick(positions), pick(rays))
+    return F.mse_loss(pred, pick(pixels))
+
+
+@functools.lru_cache(maxsize=1)
+def epoch_order(seed, epoch, scenes, views):
+    """(scene, input view) pairs of one epoch, shuffled; a pure function so that a resumed run continues it."""
+    order = np.random.default_rng([seed, epoch]).permutation(scenes * views)
+    return order // views, order % views
+
+
+def write_curve(path, rows):
+    with open(path, "w", newline="") as file:
+        writer = csv.DictWriter(file, CURVE_FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def save_checkpoint(path, state):
+    temporary = path.with_suffix(".tmp")
+    torch.save(state, temporary)
+    temporary.replace(path)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--k", type=int, choices=(1, 2, 4, 8, 16), required=True,
+                        help="patch size: 1 = SRT (pixel queries), else RP-SRT")
+    parser.add_argument("--train", type=Path, required=True, help="training scenes (shards or scene files)")
+    parser.add_argument("--val", type=Path, required=True, help="validation scenes")
+    parser.add_argument("--out", type=Path, required=True, help="run folder (created; an existing run resumes)")
+    parser.add_argument("--steps", type=int, required=True, help="optimizer steps")
+    parser.add_argument("--batch", type=int, default=16, help="scenes per step (official: 32)")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="model widths")
+    parser.add_argument("--lr", type=float, default=1e-4, help="peak learning rate (official: 1e-4)")
+    parser.add_argument("--warmup", type=int, help="warmup steps (default: the official fraction of --steps)")
+    parser.add_argument("--decay-it", type=int, help="step where the rate would reach 0 (default: scaled)")
+    parser.add_argument("--num-points", type=int, help="SRT rays per scene and step (default: official fraction)")
+    parser.add_argument("--val-scenes", type=int, default=32, help="validation scenes used (first N)")
+    parser.add_argument("--val-every", type=int, default=500, help="steps between validations")
+    parser.add_argument("--log-every", type=int, default=50, help="steps between curve rows")
+    parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints")
+    parser.add_argument("--seed", type=int, default=0, help="weights, data order and ray sampling")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--threads", type=int, default=2, help="CPU threads for PyTorch")
+    args = parser.parse_args(argv)
+    command = "python3 tools/train.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+
+    torch.set_num_threads(args.threads)
+    try:
+        train_images, train_pos, train_seeds = load_views(args.train)
+        val_images, val_pos, val_seeds = load_views(args.val)
+        if args.steps < 1 or args.batch < 1 or args.batch > len(train_images) * train_images.shape[1]:
+            raise ValueError(f"--steps must be >= 1 and --batch between 1 and the {len(train_images)} scenes' "
+                             f"{len(train_images) * train_images.shape[1]} (scene, view) pairs")
+        if train_images.shape[1:] != val_images.shape[1:]:
+            raise ValueError(f"training views {train_images.shape[1:4]} and validation views "
+                             f"{val_images.shape[1:4]} differ in count or size")
+        height, width = train_images.shape[2:4]
+        warmup = args.warmup if args.warmup is not None else round(args.steps * OFFICIAL_WARMUP / OFFICIAL_STEPS)
+        decay_it = args.decay_it or round(args.steps * OFFICIAL_DECAY_IT / OFFICIAL_STEPS)
+        model_cfg = model_config(args.k, args.preset, height, width, args.lr, warmup, decay_it)
+        args.out.mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError, KeyError) as error:
+        print(f"train: error: {error}", file=sys.stderr)
+        return 2
+    views = train_images.shape[1]
+    num_points = args.num_points or round(OFFICIAL_POINTS_FRACTION * (views - 1) * height * width)
+    val_images, val_pos = val_images[:args.val_scenes], val_pos[:args.val_scenes]
+
+    torch.manual_seed(args.seed)
+    model = SRT.from_config(model_cfg).to(args.device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
+    scheduler = linear_schedule(optimizer, warmup, decay_it)
+    checkpoint_path = args.out / "checkpoint.pt"
+    step, train_seconds, curve = 0, 0.0, []
+    if checkpoint_path.exists():
+        state = torch.load(checkpoint_path, map_location=args.device, weights_only=False)
+        if state["config"] != model_cfg:
+            print(f"train: error: {checkpoint_path} was trained with another config; use another --out",
+                  file=sys.stderr)
+            return 2
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        step, train_seconds, curve = state["step"], state["train_seconds"], state["curve"]
+        print(f"resuming {checkpoint_path} at step {step}")
+
+    def checkpoint():
+        save_checkpoint(checkpoint_path, {"model": model.state_dict(), "optimizer": optimizer.state_dict(),
+                                          "scheduler": scheduler.state_dict(), "step": step,
+                                          "train_seconds": train_seconds, "curve": curve, "config": model_cfg})
+
+    def validate():
+        model.eval()
+        value, _ = evaluate(model, val_images, val_pos, device=args.device, ssim_definition=None)
+        model.train()
+        return value
+
+    parameters = sum(p.numel() for p in model.parameters())
+    print(f"k={args.k} preset {args.preset}: {parameters / 1e6:.3f} M parameters; {len(train_images)} training "
+          f"scenes, {len(val_images)} validation scenes, {height}x{width}; batch {args.batch}, {args.steps} steps, "
+          f"lr {args.lr} (warmup {warmup}, decay_it {decay_it})" + (f", {num_points} rays" if args.k == 1 else "")
+          + f" on {args.device}")
+    batches_per_epoch = len(train_images) * views // args.batch
+    model.train()
+    losses = []
+    cpu_seconds = 0.0  # this session's process CPU time in steps: less sensitive to other load than wall time
+    steps_this_session = 0
+    while step < args.steps:
+        start, cpu_start = time.perf_counter(), time.process_time()
+        epoch, position = divmod(step, batches_per_epoch)
+        scenes, input_views = epoch_order(args.seed, epoch, len(train_images), views)
+        chosen = slice(position * args.batch, (position + 1) * args.batch)
+        batch = scene_batch(train_images, train_pos, scenes[chosen], input_views[chosen], args.device)
+        loss = training_loss(model, batch, num_points, np.random.default_rng([args.seed, step]))
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        lr = optimizer.param_groups[0]["lr"]
+        optimizer.step()
+        scheduler.step()
+        if args.device.startswith("cuda"):
+            torch.cuda.synchronize()
+        train_seconds += time.perf_counter() - start
+        cpu_seconds += time.process_time() - cpu_start
+        losses.append(loss.item())
+        step += 1
+        steps_this_session += 1
+        if step % args.log_every == 0 or step % args.val_every == 0 or step == args.steps:
+            val_psnr = validate() if step % args.val_every == 0 or step == args.steps else None
+            curve.append({"step": step, "train_seconds": round(train_seconds, 2), "lr": lr,
+                          "loss": float(np.mean(losses)), "val_psnr": val_psnr})
+            losses = []
+            write_curve(args.out / "curve.csv", curve)
+            print(f"step {step}: loss {curve[-1]['loss']:.5f}, lr {lr:.2e}, {train_seconds:.0f} s, "
+                  f"{step / max(train_seconds, 1e-9):.2f} steps/s, {cpu_seconds / steps_this_session:.2f} CPU s/step"
+                  + (f", val PSNR {val_psnr:.2f} dB" if val_psnr is not None else ""), flush=True)
+        if step % args.checkpoint_every == 0 or step == args.steps:
+            checkpoint()
+
+    validated = [row for row in curve if row["val_psnr"] is not None]
+    record = {
+        "generator": command, "k": args.k, "preset": args.preset, "steps": step, "batch_size": args.batch,
+        "optimizer": "Adam", "lr": args.lr, "lr_warmup": warmup, "decay_it": decay_it, "loss": "MSE on RGB",
+        "rays_per_scene": num_points if args.k == 1 else "all patches", "train_scenes": len(train_images),
+        "train_seeds": [int(train_seeds.min()), int(train_seeds.max())], "val_scenes": len(val_images),
+        "val_seeds": [int(val_seeds.min()), int(val_seeds[:args.val_scenes].max())], "size": [height, width],
+        "train_seconds": round(train_seconds, 1), "device": args.device, "threads": args.threads,
+        "seed": args.seed, "final_val_psnr": validated[-1]["val_psnr"] if validated else None,
+        "curve": [[row["step"], row["train_seconds"], round(row["loss"], 6), round(row["val_psnr"], 3)]
+                  for row in validated],
+    }
+    model_path = args.out / "model.safetensors"
+    write_model(model_path, inference_tensors(model.state_dict()), model_cfg,
+                {"source": f"trained by tools/train.py (run {args.out.name})", "training": json.dumps(record)})
+    print(f"wrote {model_path} ({parameters / 1e6:.3f} M parameters, final validation PSNR "
+          f"{record['final_val_psnr']:.2f} dB, {train_seconds / 60:.1f} min of training)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
