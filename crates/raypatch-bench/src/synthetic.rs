@@ -20,19 +20,16 @@ pub fn official_srt_config() -> Value {
     })
 }
 
-/// The official MSN-Easy `rpsrt_MDBN_4_32` run with patch size `k` (a power of two; the official run has 4).
+/// The official MSN-Easy `rpsrt_MDBN_4_32` run with patch size `k` (a power of two; the official run has 4): the
+/// `srt_MDBN_32` model with the Ray-Patch decoder, whose feature width the checkpoint stores as `out_dims`.
 pub fn official_rpsrt_config(k: usize) -> Value {
     assert!(k.is_power_of_two() && k > 1, "Ray-Patch k must be a power of two above 1");
-    json!({
-        "base": "srt",
-        "encoder_kwargs": {"pos_start_octave": -5, "num_att_blocks": 5, "num_conv_blocks": 3, "norm": "Batch"},
-        "decoder": "featurefield",
-        "decoder_kwargs": {"pos_octaves": 15, "ray_octaves": 15, "pos_start_octave": -5, "pos_end_octave": null,
-                           "ray_start_octave": 0, "ray_end_octave": null, "latent_dim": 768, "mode": "efficient",
-                           "out_dims": 128},
-        "rp_kwargs": {"upsample": k.trailing_zeros(), "h_in": 120 / k, "w_in": 160 / k, "conv_features": 128,
-                      "norm": "Batch"},
-    })
+    let mut cfg = official_srt_config();
+    cfg["decoder"] = json!("featurefield");
+    cfg["decoder_kwargs"]["out_dims"] = json!(128);
+    cfg["rp_kwargs"] = json!({"upsample": k.trailing_zeros(), "h_in": 120 / k, "w_in": 160 / k,
+                              "conv_features": 128, "norm": "Batch"});
+    cfg
 }
 
 /// The official structure at small widths, as `tools/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2
