@@ -3,7 +3,9 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request};
+use raypatch_engine::{
+    AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request,
+};
 use raypatch_model::{InputViews, ModelConfig};
 
 use crate::camera::Camera;
@@ -15,7 +17,7 @@ use crate::Region;
 ///
 /// ```
 /// use raypatch::{AdapterChoice, EngineOptions};
-/// let on_lavapipe = EngineOptions { adapter: AdapterChoice::NameContains("llvmpipe".into()) };
+/// let on_lavapipe = EngineOptions { adapter: AdapterChoice::NameContains("llvmpipe".into()), ..Default::default() };
 /// assert!(matches!(EngineOptions::default().adapter, AdapterChoice::Auto));
 /// # let _ = on_lavapipe;
 /// ```
@@ -23,6 +25,9 @@ use crate::Region;
 pub struct EngineOptions {
     /// Which adapter to run on: by default a real GPU when there is one, else a CPU one such as lavapipe.
     pub adapter: AdapterChoice,
+    /// The largest GPU buffer the engine may use, in bytes, when below the adapter's own limit (`None`: the
+    /// adapter's limit). Renders that would need larger buffers run in row bands (same pixels).
+    pub max_buffer_bytes: Option<u64>,
 }
 
 /// A GPU adapter wgpu can see.
@@ -40,7 +45,11 @@ pub struct Adapter {
 
 impl std::fmt::Display for Adapter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} ({}, {}, {})", self.name, self.kind, self.backend, self.driver)
+        write!(
+            f,
+            "{} ({}, {}, {})",
+            self.name, self.kind, self.backend, self.driver
+        )
     }
 }
 
@@ -59,7 +68,12 @@ pub struct Engine {
 impl Engine {
     /// Opens the adapter the options ask for.
     pub fn new(options: EngineOptions) -> Result<Engine> {
-        Ok(Engine { gpu: Arc::new(Gpu::new(&GpuOptions { adapter: options.adapter })?) })
+        Ok(Engine {
+            gpu: Arc::new(Gpu::new(&GpuOptions {
+                adapter: options.adapter,
+                max_buffer_bytes: options.max_buffer_bytes,
+            })?),
+        })
     }
 
     /// Every adapter wgpu can see, in the order [`AdapterChoice::Auto`] prefers them.
@@ -76,7 +90,9 @@ impl Engine {
                 name: info.name,
                 kind: format!("{:?}", info.device_type),
                 backend: format!("{:?}", info.backend),
-                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+                driver: format!("{} {}", info.driver, info.driver_info)
+                    .trim()
+                    .to_string(),
             })
             .collect()
     }
@@ -97,7 +113,9 @@ impl Engine {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn load(&self, path: impl AsRef<Path>) -> Result<Model> {
-        Ok(Model { inner: raypatch_engine::Model::load(self.gpu.clone(), path)? })
+        Ok(Model {
+            inner: raypatch_engine::Model::load(self.gpu.clone(), path)?,
+        })
     }
 
     /// What the GPU has done so far (pipelines compiled, buffers created, submits, dispatches): for checking
@@ -168,7 +186,9 @@ impl Model {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
-        Ok(Scene { inner: self.inner.encode(&input_views(views)?)? })
+        Ok(Scene {
+            inner: self.inner.encode(&input_views(views)?)?,
+        })
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
@@ -178,7 +198,9 @@ impl Model {
 }
 
 fn input_views(views: &[InputView]) -> Result<InputViews> {
-    let first = views.first().ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
+    let first = views
+        .first()
+        .ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
     let (width, height) = (first.image.width(), first.image.height());
     let mut inputs = InputViews {
         count: views.len(),
@@ -206,11 +228,18 @@ fn input_views(views: &[InputView]) -> Result<InputViews> {
             )));
         }
         if let Some(v) = image.data().iter().position(|v| !(0.0..=1.0).contains(v)) {
-            return Err(Error::Views(format!("view {i}: value {v} is {}, expected [0, 1]", image.data()[v])));
+            return Err(Error::Views(format!(
+                "view {i}: value {v} is {}, expected [0, 1]",
+                image.data()[v]
+            )));
         }
         inputs.images.extend_from_slice(image.data());
-        inputs.camera_pos.extend(camera.position().as_vec3().to_array());
-        inputs.rays.extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
+        inputs
+            .camera_pos
+            .extend(camera.position().as_vec3().to_array());
+        inputs
+            .rays
+            .extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
     }
     Ok(inputs)
 }
@@ -255,8 +284,15 @@ impl Scene<'_> {
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
         let frame = self.inner.render(&camera.target_views(), *request)?;
-        let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
-        Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })
+        let rgb = frame
+            .rgb
+            .map(|rgb| Image::new(frame.width, frame.height, rgb))
+            .transpose()?;
+        Ok(Rendered {
+            region: frame.region,
+            rgb,
+            logdepth: frame.logdepth,
+        })
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
@@ -267,7 +303,9 @@ impl Scene<'_> {
 
     /// Renders op by op and returns each op's label and time (for profiling).
     pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
-        Ok(self.inner.profile_render(&camera.target_views(), *request)?)
+        Ok(self
+            .inner
+            .profile_render(&camera.target_views(), *request)?)
     }
 
     /// Bytes the encode plan allocated for its intermediates (freed once encoded).
@@ -277,7 +315,13 @@ impl Scene<'_> {
 
     /// Bytes the scene keeps on the GPU: the latent tokens and the decoder's keys and values.
     pub fn cache_bytes(&self) -> u64 {
-        self.inner.latent.bytes() + self.inner.keys_values.iter().map(|t| t.bytes()).sum::<u64>()
+        self.inner.latent.bytes()
+            + self
+                .inner
+                .keys_values
+                .iter()
+                .map(|t| t.bytes())
+                .sum::<u64>()
     }
 
     /// Render plans built so far.

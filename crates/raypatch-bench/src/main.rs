@@ -7,7 +7,10 @@ use std::process::ExitCode;
 use clap::Parser;
 
 #[derive(Parser)]
-#[command(version, about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots")]
+#[command(
+    version,
+    about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots"
+)]
 struct Args {
     /// The smoke-test subset: small models, a few sizes, one official-size configuration (< 2 min on lavapipe).
     #[arg(long)]

@@ -6,7 +6,7 @@ pub enum EngineError {
     NoAdapter(String),
     #[error("GPU device error: {0}")]
     Device(String),
-    #[error("{what} needs {bytes} bytes in one buffer, more than this adapter's limit of {max} bytes")]
+    #[error("{what} needs {bytes} bytes in one buffer, more than the {max} bytes one buffer may have on this engine")]
     TooLarge { what: String, bytes: u64, max: u64 },
     #[error(transparent)]
     Model(#[from] raypatch_model::ModelError),

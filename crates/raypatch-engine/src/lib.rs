@@ -14,7 +14,7 @@ pub mod weights;
 
 pub use error::{EngineError, Result};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
+pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs, Region, RenderStats, Request};
 pub use tensor::GpuTensor;
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
 pub use wgpu;
-pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs, Region, RenderStats, Request};

@@ -28,7 +28,6 @@ pub fn activation(x: f64, act: Activation) -> f64 {
     }
 }
 
-
 /// A small deterministic generator (splitmix64) for test and benchmark inputs.
 #[derive(Clone, Debug)]
 pub struct Rng(u64);
