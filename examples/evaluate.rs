@@ -59,7 +59,15 @@ fn main() -> ExitCode {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut args = Args { scenes: PathBuf::new(), models: vec![], limit: None, json: None, sheet: None, sheet_scenes: 4, sheet_scale: 3 };
+    let mut args = Args {
+        scenes: PathBuf::new(),
+        models: vec![],
+        limit: None,
+        json: None,
+        sheet: None,
+        sheet_scenes: 4,
+        sheet_scale: 3,
+    };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
@@ -67,15 +75,29 @@ fn parse_args() -> Result<Args, String> {
             "--scenes" => args.scenes = value()?.into(),
             "--model" => {
                 let v = value()?;
-                let (name, path) = v.split_once('=').ok_or_else(|| format!("--model {v}: expected NAME=PATH"))?;
+                let (name, path) = v
+                    .rsplit_once('=')
+                    .ok_or_else(|| format!("--model {v}: expected NAME=PATH"))?;
                 args.models.push((name.to_string(), path.into()));
             }
             "--limit" => args.limit = Some(value()?.parse().map_err(|e| format!("--limit: {e}"))?),
             "--json" => args.json = Some(value()?.into()),
             "--sheet" => args.sheet = Some(value()?.into()),
-            "--sheet-scenes" => args.sheet_scenes = value()?.parse().map_err(|e| format!("--sheet-scenes: {e}"))?,
-            "--sheet-scale" => args.sheet_scale = value()?.parse().map_err(|e| format!("--sheet-scale: {e}"))?,
-            _ => return Err(format!("unknown argument {flag} (see the header of examples/evaluate.rs)")),
+            "--sheet-scenes" => {
+                args.sheet_scenes = value()?
+                    .parse()
+                    .map_err(|e| format!("--sheet-scenes: {e}"))?
+            }
+            "--sheet-scale" => {
+                args.sheet_scale = value()?
+                    .parse()
+                    .map_err(|e| format!("--sheet-scale: {e}"))?
+            }
+            _ => {
+                return Err(format!(
+                    "unknown argument {flag} (see the header of examples/evaluate.rs)"
+                ))
+            }
         }
     }
     if args.scenes.as_os_str().is_empty() || args.models.is_empty() {
@@ -86,7 +108,11 @@ fn parse_args() -> Result<Args, String> {
 
 fn io_error(path: &Path, action: &'static str) -> impl FnOnce(std::io::Error) -> Error {
     let path = path.display().to_string();
-    move |source| Error::Io { path, action, source }
+    move |source| Error::Io {
+        path,
+        action,
+        source,
+    }
 }
 
 fn scene_files(dir: &Path, limit: Option<usize>) -> raypatch::Result<Vec<PathBuf>> {
@@ -120,7 +146,14 @@ fn mean(values: &[f64]) -> f64 {
     values.iter().sum::<f64>() / values.len() as f64
 }
 
-fn evaluate(engine: &Engine, name: &str, path: &Path, scenes: &[SceneData], files: &[PathBuf], sheet_scenes: usize) -> raypatch::Result<Evaluation> {
+fn evaluate(
+    engine: &Engine,
+    name: &str,
+    path: &Path,
+    scenes: &[SceneData],
+    files: &[PathBuf],
+    sheet_scenes: usize,
+) -> raypatch::Result<Evaluation> {
     let model = engine.load(path)?;
     let mut e = Evaluation {
         name: name.to_string(),
@@ -138,10 +171,16 @@ fn evaluate(engine: &Engine, name: &str, path: &Path, scenes: &[SceneData], file
         e.encode_ms.push(start.elapsed().as_secs_f64() * 1e3);
         for (t, target) in data.targets.iter().enumerate() {
             let start = Instant::now();
-            let rgb = scene.render(&target.camera, &Request::default())?.rgb.expect("rgb was requested");
+            let rgb = scene
+                .render(&target.camera, &Request::default())?
+                .rgb
+                .expect("rgb was requested");
             e.render_ms.push(start.elapsed().as_secs_f64() * 1e3);
             let truth = target.image.as_ref().ok_or_else(|| {
-                Error::Views(format!("{}: target view {t} has no target image to compare with", file.display()))
+                Error::Views(format!(
+                    "{}: target view {t} has no target image to compare with",
+                    file.display()
+                ))
             })?;
             e.psnr.push(psnr(&rgb, truth)?);
             e.ssim.push(ssim(&rgb, truth)?);
@@ -181,15 +220,34 @@ fn sheet(rows: &[Vec<&Image>], scale: usize) -> raypatch::Result<Image> {
 
 fn run(args: &Args) -> raypatch::Result<()> {
     let files = scene_files(&args.scenes, args.limit)?;
-    let scenes = files.iter().map(SceneData::load).collect::<raypatch::Result<Vec<_>>>()?;
+    let scenes = files
+        .iter()
+        .map(SceneData::load)
+        .collect::<raypatch::Result<Vec<_>>>()?;
     let engine = Engine::new(EngineOptions::default())?;
     let targets: usize = scenes.iter().map(|s| s.targets.len()).sum();
-    println!("{} scenes ({targets} target views) from {} on {}", scenes.len(), args.scenes.display(), engine.adapter());
+    println!(
+        "{} scenes ({targets} target views) from {} on {}",
+        scenes.len(),
+        args.scenes.display(),
+        engine.adapter()
+    );
     println!("| model | k | PSNR (dB) | SSIM | encode ms (median) | render ms per view (median) |");
     println!("|---|---|---|---|---|---|");
     let mut results = Vec::new();
     for (name, path) in &args.models {
-        let e = evaluate(&engine, name, path, &scenes, &files, if args.sheet.is_some() { args.sheet_scenes } else { 0 })?;
+        let e = evaluate(
+            &engine,
+            name,
+            path,
+            &scenes,
+            &files,
+            if args.sheet.is_some() {
+                args.sheet_scenes
+            } else {
+                0
+            },
+        )?;
         println!(
             "| {} | {} | {:.2} | {:.3} | {:.1} | {:.1} |",
             e.name,
@@ -221,7 +279,10 @@ fn run(args: &Args) -> raypatch::Result<()> {
         let shown = args.sheet_scenes.min(scenes.len());
         let rows: Vec<Vec<&Image>> = (0..shown)
             .map(|i| {
-                let truth = scenes[i].targets[0].image.as_ref().expect("checked while evaluating");
+                let truth = scenes[i].targets[0]
+                    .image
+                    .as_ref()
+                    .expect("checked while evaluating");
                 let mut row = vec![&scenes[i].inputs[0].image, truth];
                 row.extend(results.iter().map(|e| &e.sheet_images[i]));
                 row
@@ -229,7 +290,11 @@ fn run(args: &Args) -> raypatch::Result<()> {
             .collect();
         sheet(&rows, args.sheet_scale.max(1))?.save_png(path)?;
         let names: Vec<&str> = results.iter().map(|e| e.name.as_str()).collect();
-        println!("wrote {} (columns: input | target | {})", path.display(), names.join(" | "));
+        println!(
+            "wrote {} (columns: input | target | {})",
+            path.display(),
+            names.join(" | ")
+        );
     }
     Ok(())
 }

@@ -15,10 +15,10 @@ use raypatch::{
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 
-/// The bundled model and scene rendered when none is given (a golden parity case until trained models ship),
-/// relative to the repository root.
-const DEFAULT_MODEL: &str = "assets/golden/rpsrt_k4/model.safetensors";
-const DEFAULT_SCENE: &str = "assets/golden/rpsrt_k4/scene.safetensors";
+/// The bundled model and scene rendered when none is given (the trained RP-SRT k=4 and a held-out test scene,
+/// see docs/QUALITY.md), relative to the repository root.
+const DEFAULT_MODEL: &str = "assets/models/rpsrt_k4.safetensors";
+const DEFAULT_SCENE: &str = "assets/scenes/scene-2000000.safetensors";
 const DEFAULT_OUT: &str = "render.png";
 
 /// A bundled file: relative to the current folder when run from the repository root, else in the repository

@@ -167,9 +167,9 @@ fn no_arguments_renders_the_bundled_scene_into_render_png() {
     let dir = TempDir::new().unwrap();
     let r = run(dir.path(), &[]);
     assert_eq!(r.code, 0, "{}", r.stderr);
-    assert_eq!(png_size(&dir.path().join("render.png")), (48, 32));
+    assert_eq!(png_size(&dir.path().join("render.png")), (80, 60));
     assert!(
-        r.stdout.contains("rendered 1 view(s) of 48x32") && r.stdout.contains("k=4"),
+        r.stdout.contains("rendered 1 view(s) of 80x60") && r.stdout.contains("k=4"),
         "{}",
         r.stdout
     );
@@ -275,14 +275,14 @@ fn novel_views_turntables_poses_and_depth() {
     let dir = TempDir::new().unwrap();
     let r = run(dir.path(), &["--orbit", "-30", "--out", "orbit.png"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
-    assert_eq!(png_size(&dir.path().join("orbit.png")), (48, 32));
+    assert_eq!(png_size(&dir.path().join("orbit.png")), (80, 60));
 
     let r = run(dir.path(), &["--orbit-frames", "3", "--out", "turntable"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     for i in 0..3 {
         assert_eq!(
             png_size(&dir.path().join(format!("turntable/frame_{i:03}.png"))),
-            (48, 32)
+            (80, 60)
         );
     }
     assert!(r.stdout.contains("rendered 3 view(s)"), "{}", r.stdout);
@@ -407,8 +407,8 @@ fn bad_flags_and_paths() {
     fails(d, &["--region", "1,2,3"], &["--region", "X,Y,W,H"]);
     fails(
         d,
-        &["--region", "40,0,9,4"],
-        &["region", "not inside the 48x32"],
+        &["--region", "76,0,9,4"],
+        &["region", "not inside the 80x60"],
     );
     fails(d, &["--view", "9"], &["--view 9", "2 target views"]);
     fails(
@@ -422,7 +422,22 @@ fn bad_flags_and_paths() {
         &["--adapter", "no-such-gpu"],
         &["no adapter whose name contains \"no-such-gpu\""],
     );
-    fails(d, &["--metrics"], &["--metrics", "ground-truth"]);
+    let (golden_model, golden_scene) = (
+        golden("rpsrt_k4", "model.safetensors"),
+        golden("rpsrt_k4", "scene.safetensors"),
+    );
+    fails(
+        d,
+        &[
+            "--model",
+            &golden_model,
+            "--scene",
+            &golden_scene,
+            "--metrics",
+        ],
+        &["--metrics", "ground-truth"],
+    );
+    fails(d, &["--max-buffer-mib", "0"], &["--max-buffer-mib", "0"]);
     fails(d, &["--orbit-frames", "0"], &["--orbit-frames 0"]);
     fails(
         d,

@@ -188,12 +188,14 @@ impl ModelConfig {
         }
         match raw.get("base").and_then(Value::as_str) {
             Some("srt") => {}
-            Some(other) => return Err(config_err(
-                path,
-                format!(
+            Some(other) => {
+                return Err(config_err(
+                    path,
+                    format!(
                     "model base `{other}` is not supported (raypatch runs `srt`: SRT and RP-SRT)"
                 ),
-            )),
+                ))
+            }
             None => return Err(config_err(path, "missing `base` (expected \"srt\")".into())),
         }
         let ray_patch_decoder = match raw.get("decoder").and_then(Value::as_str) {
