@@ -15,6 +15,7 @@ fn main() -> ExitCode {
         pytorch: true,
         models: Vec::new(),
         scene: None,
+        only: Vec::new(),
         command: "cargo bench".into(),
     };
     match raypatch_bench::run(&options) {

@@ -40,6 +40,8 @@ pub struct Options {
     /// Model files to measure too (e.g. trained models), with `scene` (or a synthetic scene).
     pub models: Vec<PathBuf>,
     pub scene: Option<PathBuf>,
+    /// Measure only these sweep models, as (group, k), e.g. ("small", 2); no golden cases. Empty: all.
+    pub only: Vec<(String, usize)>,
     /// The command line, for the record.
     pub command: String,
 }
@@ -68,6 +70,7 @@ struct Bench {
     torch: std::result::Result<String, String>,
     scratch: PathBuf,
     quick: bool,
+    only: Vec<(String, usize)>,
 }
 
 /// The results file.
@@ -83,14 +86,54 @@ struct Results {
     paper_comparison: Vec<paper::Comparison>,
 }
 
-/// Writes tables.md and the plots again from a results.json (e.g. after changing how they are drawn).
-pub fn replot(results: &Path, out: &Path) -> Result<()> {
-    let text = std::fs::read_to_string(results)
-        .with_context(|| format!("{}: cannot read", results.display()))?;
-    let results: Results = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a raypatch-bench results.json", results.display()))?;
+/// Writes tables.md and the plots again from results.json files (e.g. after changing how they are drawn).
+/// With several files, later files' records replace earlier ones of the same configuration (model, decoder,
+/// k, precision, target size, variant) and the others are kept: a partial run (`--only`) updates a full one.
+/// The merged results.json, results.csv and kernels.csv are written into `out` too.
+pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
+    let mut merged: Option<Results> = None;
+    for file in files {
+        let text = std::fs::read_to_string(file)
+            .with_context(|| format!("{}: cannot read", file.display()))?;
+        let next: Results = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a raypatch-bench results.json", file.display()))?;
+        merged = Some(match merged {
+            None => next,
+            Some(mut all) => {
+                let key = |r: &Record| {
+                    (
+                        r.model.clone(),
+                        r.decoder.clone(),
+                        r.k,
+                        r.precision.clone(),
+                        r.target_size.clone(),
+                        r.variant.clone(),
+                    )
+                };
+                for record in next.results {
+                    match all.results.iter_mut().find(|r| key(r) == key(&record)) {
+                        Some(old) => *old = record,
+                        None => all.results.push(record),
+                    }
+                }
+                let configs: Vec<String> = next.kernels.iter().map(|k| k.config.clone()).collect();
+                all.kernels.retain(|k| !configs.contains(&k.config));
+                all.kernels.extend(next.kernels);
+                all.command = format!("{}\n{}", all.command, next.command);
+                all.paper_comparison = paper::compare(&all.results);
+                all
+            }
+        });
+    }
+    let results = merged.context("no results.json to replot")?;
     std::fs::create_dir_all(out)
         .with_context(|| format!("{}: cannot create the output folder", out.display()))?;
+    if files.len() > 1 {
+        let json = serde_json::to_string_pretty(&results)?;
+        report::write_file(&out.join("results.json"), json.as_bytes())?;
+        report::write_csv(&out.join("results.csv"), &results.results)?;
+        report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
+    }
     let tables = report::markdown(
         &results.results,
         &results.kernels,
@@ -179,6 +222,7 @@ pub fn run(options: &Options) -> Result<()> {
         torch,
         scratch,
         quick: options.quick,
+        only: options.only.clone(),
         env,
     };
     let timing = if bench.timestamps {
@@ -204,7 +248,9 @@ pub fn run(options: &Options) -> Result<()> {
     let started = started();
     let mut records = Vec::new();
     let mut kernels = Vec::new();
-    bench.golden(&mut records)?;
+    if options.only.is_empty() {
+        bench.golden(&mut records)?;
+    }
     bench.sweep(&mut records, &mut kernels)?;
     bench.model_files(options, &mut records)?;
     let comparison = paper::compare(&records);
@@ -611,6 +657,11 @@ impl Bench {
             .gpu
             .features
             .contains(raypatch_engine::wgpu::Features::SHADER_F16);
+        if !self.only.is_empty() {
+            specs.retain(|(name, k, _, _)| {
+                self.only.iter().any(|(n, only_k)| n == name && only_k == k)
+            });
+        }
         for (name, k, config, sizes) in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
             let (inputs, _) = scene(INPUT_SIZE)?;

@@ -36,9 +36,14 @@ struct Args {
     /// The scene for --model files (default: a synthetic 120x160 scene).
     #[arg(long)]
     scene: Option<PathBuf>,
-    /// Measure nothing: write tables.md and the plots into --out again from this results.json.
+    /// Measure only the sweep's random-weight model GROUP (small or official) with patch size K (1 = SRT),
+    /// at every size; repeatable. Skips the golden cases. Merge into a full run with --replot.
+    #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
+    only: Vec<(String, usize)>,
+    /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
+    /// later files' configurations replace earlier ones' (and the merged results are written too).
     #[arg(long, value_name = "RESULTS_JSON")]
-    replot: Option<PathBuf>,
+    replot: Vec<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -47,8 +52,8 @@ fn main() -> ExitCode {
         eprintln!("raypatch-bench: --repeats must be at least 1");
         return ExitCode::from(2);
     }
-    if let Some(results) = &args.replot {
-        return match raypatch_bench::replot(results, &args.out) {
+    if !args.replot.is_empty() {
+        return match raypatch_bench::replot(&args.replot, &args.out) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("raypatch-bench: {e:#}");
@@ -65,6 +70,7 @@ fn main() -> ExitCode {
         pytorch: !args.no_pytorch,
         models: args.models,
         scene: args.scene,
+        only: args.only,
         command: std::env::args().collect::<Vec<_>>().join(" "),
     };
     match raypatch_bench::run(&options) {
@@ -74,4 +80,20 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+fn parse_only(text: &str) -> Result<(String, usize), String> {
+    let (group, k) = text
+        .split_once(':')
+        .ok_or("expected GROUP:K, e.g. small:2")?;
+    if group != "small" && group != "official" {
+        return Err(format!("group {group:?}: expected small or official"));
+    }
+    let k: usize = k
+        .parse()
+        .map_err(|_| format!("k {k:?}: expected 1, 2, 4, 8 or 16"))?;
+    if ![1, 2, 4, 8, 16].contains(&k) {
+        return Err(format!("k {k}: expected 1, 2, 4, 8 or 16"));
+    }
+    Ok((group.to_string(), k))
 }
