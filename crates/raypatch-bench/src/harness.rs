@@ -494,7 +494,7 @@ impl Bench {
             record.max_err_pytorch = Some(max_abs_f32(&rgb, truth));
         }
         if let Some(images) = &targets.images {
-            record.psnr_db = Some(measure::psnr(&rgb, images));
+            record.psnr_db = Some(measure::psnr(&rgb, images, targets.count));
         }
         if with_torch {
             // PyTorch failing (e.g. out of memory at a large size) is reported in the record, not fatal.
@@ -518,9 +518,15 @@ impl Bench {
         let (Ok(_), Some(file)) = (&self.torch, s.file) else {
             return Ok(());
         };
+        // Model-file subjects are named by their path: keep the scratch file name flat.
+        let flat: String = s
+            .name
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
         let model_path = self
             .scratch
-            .join(format!("{}-k{}.safetensors", s.name, record.k));
+            .join(format!("{flat}-k{}.safetensors", record.k));
         if !model_path.exists() {
             report::write_file(&model_path, file)?;
         }

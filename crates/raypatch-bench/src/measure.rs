@@ -102,11 +102,19 @@ pub fn rms_error(a: &[f32], b: &[f64]) -> f64 {
     }
 }
 
-/// PSNR in dB of an image in [0, 1] against ground truth (the paper's metric).
-pub fn psnr(image: &[f32], truth: &[f32]) -> f64 {
-    let truth: Vec<f64> = truth.iter().map(|&v| v as f64).collect();
-    let mse = rms_error(image, &truth).powi(2);
-    -10.0 * mse.log10()
+/// PSNR in dB of `views` images in [0, 1] against their ground truth: per image, then the mean over images
+/// (the paper's metric, as torchmetrics and `render-frame --metrics` compute it).
+pub fn psnr(images: &[f32], truth: &[f32], views: usize) -> f64 {
+    let per_view = images.len() / views.max(1);
+    let total: f64 = images
+        .chunks(per_view)
+        .zip(truth.chunks(per_view))
+        .map(|(image, truth)| {
+            let truth: Vec<f64> = truth.iter().map(|&v| v as f64).collect();
+            -10.0 * rms_error(image, &truth).powi(2).log10()
+        })
+        .sum();
+    total / views.max(1) as f64
 }
 
 /// The machine, for the record: CPU model and threads, memory, OS.

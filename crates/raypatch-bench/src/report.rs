@@ -361,6 +361,47 @@ pub fn markdown(
             .collect(),
     );
 
+    let files: Vec<&Record> = records.iter().filter(|r| r.group == "model").collect();
+    if !files.is_empty() {
+        out += "### Model files (--model; PSNR against the scene's target images)\n\n";
+        table(
+            &mut out,
+            &[
+                "model",
+                "decoder",
+                "k",
+                "target",
+                "render ms",
+                "fps",
+                "encode ms",
+                "render peak",
+                "max err vs f64 ref",
+                "vs PyTorch",
+                "PyTorch / ours",
+                "PSNR dB",
+            ],
+            files
+                .iter()
+                .map(|r| {
+                    vec![
+                        r.model.clone(),
+                        r.decoder.clone(),
+                        r.k.to_string(),
+                        format!("{}x{}", r.target_views, r.target_size),
+                        stats_text(r.render_ms),
+                        opt(r.fps, 2),
+                        opt(r.encode_ms.map(|e| e.median_ms), 1),
+                        r.render_peak_bytes.map_or("-".into(), bytes),
+                        sci(r.max_err_f64_reference),
+                        sci(r.max_err_pytorch),
+                        opt(r.pytorch_over_ours, 1),
+                        opt(r.psnr_db, 2),
+                    ]
+                })
+                .collect(),
+        );
+    }
+
     out += "### Skips on and off (render time)\n\n";
     table(
         &mut out,
