@@ -224,6 +224,17 @@ fn regions(width: usize, height: usize) -> Vec<Region> {
     ]
 }
 
+/// The `region` of a row-major single-channel map `width` columns wide.
+fn crop_map(map: &[f32], width: usize, region: Region) -> Vec<f32> {
+    (region.y..region.y + region.height)
+        .flat_map(|y| {
+            map[y * width + region.x..y * width + region.x + region.width]
+                .iter()
+                .copied()
+        })
+        .collect()
+}
+
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
@@ -285,16 +296,8 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
                 "{case} {region:?}: region rgb differs from the full render by {err:e}"
             );
             if let (Some(d), Some(full_d)) = (&part.logdepth, &full.logdepth) {
-                let rows = (region.y..region.y + region.height).flat_map(|y| {
-                    full_d[y * width + region.x..y * width + region.x + region.width]
-                        .iter()
-                        .copied()
-                });
-                assert_eq!(
-                    max_diff(d, &rows.collect::<Vec<_>>()),
-                    0.0,
-                    "{case} {region:?}: log-depth"
-                );
+                let want = crop_map(full_d, width, region);
+                assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
             }
 
             // What was decoded: for SRT exactly the region's pixels; for Ray-Patch the covering patches
@@ -734,17 +737,8 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
                 "{case} {region:?}: banded rgb differs from one render by {err:e}"
             );
             if let (Some(d), Some(full_d)) = (&banded.logdepth, &full.logdepth) {
-                let w = camera.width();
-                let rows = (region.y..region.y + region.height).flat_map(|y| {
-                    full_d[y * w + region.x..y * w + region.x + region.width]
-                        .iter()
-                        .copied()
-                });
-                assert_eq!(
-                    max_diff(d, &rows.collect::<Vec<_>>()),
-                    0.0,
-                    "{case} {region:?}: log-depth"
-                );
+                let want = crop_map(full_d, camera.width(), region);
+                assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
             }
         }
     }
