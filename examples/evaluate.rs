@@ -75,29 +75,15 @@ fn parse_args() -> Result<Args, String> {
             "--scenes" => args.scenes = value()?.into(),
             "--model" => {
                 let v = value()?;
-                let (name, path) = v
-                    .rsplit_once('=')
-                    .ok_or_else(|| format!("--model {v}: expected NAME=PATH"))?;
+                let (name, path) = v.rsplit_once('=').ok_or_else(|| format!("--model {v}: expected NAME=PATH"))?;
                 args.models.push((name.to_string(), path.into()));
             }
             "--limit" => args.limit = Some(value()?.parse().map_err(|e| format!("--limit: {e}"))?),
             "--json" => args.json = Some(value()?.into()),
             "--sheet" => args.sheet = Some(value()?.into()),
-            "--sheet-scenes" => {
-                args.sheet_scenes = value()?
-                    .parse()
-                    .map_err(|e| format!("--sheet-scenes: {e}"))?
-            }
-            "--sheet-scale" => {
-                args.sheet_scale = value()?
-                    .parse()
-                    .map_err(|e| format!("--sheet-scale: {e}"))?
-            }
-            _ => {
-                return Err(format!(
-                    "unknown argument {flag} (see the header of examples/evaluate.rs)"
-                ))
-            }
+            "--sheet-scenes" => args.sheet_scenes = value()?.parse().map_err(|e| format!("--sheet-scenes: {e}"))?,
+            "--sheet-scale" => args.sheet_scale = value()?.parse().map_err(|e| format!("--sheet-scale: {e}"))?,
+            _ => return Err(format!("unknown argument {flag} (see the header of examples/evaluate.rs)")),
         }
     }
     if args.scenes.as_os_str().is_empty() || args.models.is_empty() {
@@ -108,11 +94,7 @@ fn parse_args() -> Result<Args, String> {
 
 fn io_error(path: &Path, action: &'static str) -> impl FnOnce(std::io::Error) -> Error {
     let path = path.display().to_string();
-    move |source| Error::Io {
-        path,
-        action,
-        source,
-    }
+    move |source| Error::Io { path, action, source }
 }
 
 fn scene_files(dir: &Path, limit: Option<usize>) -> raypatch::Result<Vec<PathBuf>> {
@@ -171,16 +153,10 @@ fn evaluate(
         e.encode_ms.push(start.elapsed().as_secs_f64() * 1e3);
         for (t, target) in data.targets.iter().enumerate() {
             let start = Instant::now();
-            let rgb = scene
-                .render(&target.camera, &Request::default())?
-                .rgb
-                .expect("rgb was requested");
+            let rgb = scene.render(&target.camera, &Request::default())?.rgb.expect("rgb was requested");
             e.render_ms.push(start.elapsed().as_secs_f64() * 1e3);
             let truth = target.image.as_ref().ok_or_else(|| {
-                Error::Views(format!(
-                    "{}: target view {t} has no target image to compare with",
-                    file.display()
-                ))
+                Error::Views(format!("{}: target view {t} has no target image to compare with", file.display()))
             })?;
             e.psnr.push(psnr(&rgb, truth)?);
             e.ssim.push(ssim(&rgb, truth)?);
@@ -220,34 +196,16 @@ fn sheet(rows: &[Vec<&Image>], scale: usize) -> raypatch::Result<Image> {
 
 fn run(args: &Args) -> raypatch::Result<()> {
     let files = scene_files(&args.scenes, args.limit)?;
-    let scenes = files
-        .iter()
-        .map(SceneData::load)
-        .collect::<raypatch::Result<Vec<_>>>()?;
+    let scenes = files.iter().map(SceneData::load).collect::<raypatch::Result<Vec<_>>>()?;
     let engine = Engine::new(EngineOptions::default())?;
     let targets: usize = scenes.iter().map(|s| s.targets.len()).sum();
-    println!(
-        "{} scenes ({targets} target views) from {} on {}",
-        scenes.len(),
-        args.scenes.display(),
-        engine.adapter()
-    );
+    println!("{} scenes ({targets} target views) from {} on {}", scenes.len(), args.scenes.display(), engine.adapter());
     println!("| model | k | PSNR (dB) | SSIM | encode ms (median) | render ms per view (median) |");
     println!("|---|---|---|---|---|---|");
     let mut results = Vec::new();
     for (name, path) in &args.models {
-        let e = evaluate(
-            &engine,
-            name,
-            path,
-            &scenes,
-            &files,
-            if args.sheet.is_some() {
-                args.sheet_scenes
-            } else {
-                0
-            },
-        )?;
+        let e =
+            evaluate(&engine, name, path, &scenes, &files, if args.sheet.is_some() { args.sheet_scenes } else { 0 })?;
         println!(
             "| {} | {} | {:.2} | {:.3} | {:.1} | {:.1} |",
             e.name,
@@ -279,10 +237,7 @@ fn run(args: &Args) -> raypatch::Result<()> {
         let shown = args.sheet_scenes.min(scenes.len());
         let rows: Vec<Vec<&Image>> = (0..shown)
             .map(|i| {
-                let truth = scenes[i].targets[0]
-                    .image
-                    .as_ref()
-                    .expect("checked while evaluating");
+                let truth = scenes[i].targets[0].image.as_ref().expect("checked while evaluating");
                 let mut row = vec![&scenes[i].inputs[0].image, truth];
                 row.extend(results.iter().map(|e| &e.sheet_images[i]));
                 row
@@ -290,11 +245,7 @@ fn run(args: &Args) -> raypatch::Result<()> {
             .collect();
         sheet(&rows, args.sheet_scale.max(1))?.save_png(path)?;
         let names: Vec<&str> = results.iter().map(|e| e.name.as_str()).collect();
-        println!(
-            "wrote {} (columns: input | target | {})",
-            path.display(),
-            names.join(" | ")
-        );
+        println!("wrote {} (columns: input | target | {})", path.display(), names.join(" | "));
     }
     Ok(())
 }

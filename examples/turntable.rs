@@ -25,15 +25,9 @@ fn main() -> ExitCode {
 fn run() -> raypatch::Result<()> {
     let golden = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden/rpsrt_k4");
     let mut args = std::env::args().skip(1);
-    let model_path = args
-        .next()
-        .map_or(golden.join("model.safetensors"), Into::into);
-    let scene_path = args
-        .next()
-        .map_or(golden.join("scene.safetensors"), Into::into);
-    let out_dir = args
-        .next()
-        .map_or("turntable".into(), std::path::PathBuf::from);
+    let model_path = args.next().map_or(golden.join("model.safetensors"), Into::into);
+    let scene_path = args.next().map_or(golden.join("scene.safetensors"), Into::into);
+    let out_dir = args.next().map_or("turntable".into(), std::path::PathBuf::from);
     let frames: usize = args.next().and_then(|n| n.parse().ok()).unwrap_or(12);
 
     let engine = Engine::new(EngineOptions::default())?;
@@ -58,10 +52,7 @@ fn run() -> raypatch::Result<()> {
     for i in 0..frames {
         // Every frame has the same size, so all but the first reuse the first frame's plan and buffers.
         let camera = first.orbited(360.0 * i as f64 / frames as f64);
-        let rgb = scene
-            .render(&camera, &Request::default())?
-            .rgb
-            .expect("rgb is rendered by default");
+        let rgb = scene.render(&camera, &Request::default())?.rgb.expect("rgb is rendered by default");
         rgb.save_png(out_dir.join(format!("frame_{i:03}.png")))?;
     }
     println!(

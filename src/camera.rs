@@ -41,21 +41,9 @@ pub struct Intrinsics {
 
 impl Intrinsics {
     /// Square pixels and a centred principal point, from a focal length and sensor width in the same unit.
-    pub fn from_sensor(
-        focal_length: f64,
-        sensor_width: f64,
-        width: usize,
-        height: usize,
-    ) -> Intrinsics {
+    pub fn from_sensor(focal_length: f64, sensor_width: f64, width: usize, height: usize) -> Intrinsics {
         let f = focal_length / sensor_width * width as f64;
-        Intrinsics {
-            width,
-            height,
-            fx: f,
-            fy: f,
-            cx: width as f64 / 2.0,
-            cy: height as f64 / 2.0,
-        }
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
     }
 
     /// The MultiShapeNet cameras: focal length 0.035, sensor width 0.032.
@@ -67,22 +55,12 @@ impl Intrinsics {
     /// `camera_angle_x`).
     pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
         let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
-        Intrinsics {
-            width,
-            height,
-            fx: f,
-            fy: f,
-            cx: width as f64 / 2.0,
-            cy: height as f64 / 2.0,
-        }
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
     }
 
     fn check(&self) -> Result<()> {
         if self.width == 0 || self.height == 0 {
-            return Err(Error::Camera(format!(
-                "image size {}x{} is empty",
-                self.width, self.height
-            )));
+            return Err(Error::Camera(format!("image size {}x{} is empty", self.width, self.height)));
         }
         let values = [self.fx, self.fy, self.cx, self.cy];
         if values.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
@@ -118,10 +96,7 @@ pub struct RayGrid {
 #[derive(Clone, Debug, PartialEq)]
 enum Projection {
     /// Rotation camera → world with OpenCV axes (columns: right, down, forward).
-    Pinhole {
-        intrinsics: Intrinsics,
-        rotation: DMat3,
-    },
+    Pinhole { intrinsics: Intrinsics, rotation: DMat3 },
     /// Rays given as such: one per pixel, or one per `per_ray` × `per_ray` patch.
     Rays { grid: RayGrid, per_ray: usize },
 }
@@ -178,30 +153,17 @@ impl Camera {
     /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
     /// must be 0 0 0 1) whose camera frame has the given axes. The rotation must be orthonormal and
     /// right-handed (within [`ROTATION_TOLERANCE`]): a scaled, sheared or mirrored pose is an error.
-    pub fn pinhole(
-        intrinsics: Intrinsics,
-        camera_to_world: DMat4,
-        axes: CameraAxes,
-    ) -> Result<Camera> {
+    pub fn pinhole(intrinsics: Intrinsics, camera_to_world: DMat4, axes: CameraAxes) -> Result<Camera> {
         intrinsics.check()?;
         let m = camera_to_world;
         if !m.is_finite() {
-            return Err(Error::Camera(format!(
-                "pose {:?} holds NaN or infinity",
-                m.to_cols_array_2d()
-            )));
+            return Err(Error::Camera(format!("pose {:?} holds NaN or infinity", m.to_cols_array_2d())));
         }
         if (m.row(3) - DVec4::W).abs().max_element() > ROTATION_TOLERANCE {
-            return Err(Error::Camera(format!(
-                "pose bottom row is {}, expected 0 0 0 1",
-                m.row(3)
-            )));
+            return Err(Error::Camera(format!("pose bottom row is {}, expected 0 0 0 1", m.row(3))));
         }
         let r = DMat3::from_mat4(m);
-        let error = (r.transpose() * r - DMat3::IDENTITY)
-            .to_cols_array()
-            .iter()
-            .fold(0.0f64, |e, v| e.max(v.abs()));
+        let error = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |e, v| e.max(v.abs()));
         if error > ROTATION_TOLERANCE || (r.determinant() - 1.0).abs() > ROTATION_TOLERANCE {
             return Err(Error::Camera(format!(
                 "pose rotation is not orthonormal and right-handed \
@@ -217,10 +179,7 @@ impl Camera {
             position: m.w_axis.truncate(),
             width: intrinsics.width,
             height: intrinsics.height,
-            projection: Projection::Pinhole {
-                intrinsics,
-                rotation,
-            },
+            projection: Projection::Pinhole { intrinsics, rotation },
         })
     }
 
@@ -228,38 +187,26 @@ impl Camera {
     /// image right = forward × up, image down = forward × right).
     pub fn look_at(eye: DVec3, target: DVec3, up: DVec3, intrinsics: Intrinsics) -> Result<Camera> {
         intrinsics.check()?;
-        let (eye, target, up) = (
-            finite_vec(eye, "eye")?,
-            finite_vec(target, "target")?,
-            finite_vec(up, "up")?,
-        );
-        let forward = (target - eye)
+        let (eye, target, up) = (finite_vec(eye, "eye")?, finite_vec(target, "target")?, finite_vec(up, "up")?);
+        let forward =
+            (target - eye).try_normalize().ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;
+        let right = forward
+            .cross(up)
             .try_normalize()
-            .ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;
-        let right = forward.cross(up).try_normalize().ok_or_else(|| {
-            Error::Camera(format!("camera at {eye} looks along the up axis {up}"))
-        })?;
+            .ok_or_else(|| Error::Camera(format!("camera at {eye} looks along the up axis {up}")))?;
         let down = forward.cross(right).normalize();
         Ok(Camera {
             position: eye,
             width: intrinsics.width,
             height: intrinsics.height,
-            projection: Projection::Pinhole {
-                intrinsics,
-                rotation: DMat3::from_cols(right, down, forward),
-            },
+            projection: Projection::Pinhole { intrinsics, rotation: DMat3::from_cols(right, down, forward) },
         })
     }
 
     /// A MultiShapeNet camera (the official `get_camera_rays`): at `position`, looking at the world origin
     /// with +z up, focal length 0.035 and sensor width 0.032, square pixels.
     pub fn msn(position: DVec3, width: usize, height: usize) -> Result<Camera> {
-        Camera::look_at(
-            position,
-            DVec3::ZERO,
-            DVec3::Z,
-            Intrinsics::msn(width, height),
-        )
+        Camera::look_at(position, DVec3::ZERO, DVec3::Z, Intrinsics::msn(width, height))
     }
 
     /// A camera given by its centre and one ray per pixel (the image size is the grid's). Rays must be finite
@@ -273,10 +220,7 @@ impl Camera {
     pub fn from_patch_rays(position: DVec3, grid: RayGrid, k: usize) -> Result<Camera> {
         let position = finite_vec(position, "position")?;
         if grid.width == 0 || grid.height == 0 || k == 0 {
-            return Err(Error::Camera(format!(
-                "ray grid {}x{} (k={k}) is empty",
-                grid.width, grid.height
-            )));
+            return Err(Error::Camera(format!("ray grid {}x{} (k={k}) is empty", grid.width, grid.height)));
         }
         if grid.directions.len() != grid.width * grid.height {
             return Err(Error::Camera(format!(
@@ -286,23 +230,14 @@ impl Camera {
                 grid.height
             )));
         }
-        if let Some(i) = grid
-            .directions
-            .iter()
-            .position(|d| !d.is_finite() || d.length() < 1e-6)
-        {
+        if let Some(i) = grid.directions.iter().position(|d| !d.is_finite() || d.length() < 1e-6) {
             return Err(Error::Camera(format!(
                 "ray {i} is {}: expected a finite, non-zero direction",
                 grid.directions[i]
             )));
         }
         let (width, height) = (grid.width * k, grid.height * k);
-        Ok(Camera {
-            position,
-            width,
-            height,
-            projection: Projection::Rays { grid, per_ray: k },
-        })
+        Ok(Camera { position, width, height, projection: Projection::Rays { grid, per_ray: k } })
     }
 
     /// The camera centre in the world frame.
@@ -324,10 +259,7 @@ impl Camera {
     /// given by rays.
     pub fn as_pinhole(&self) -> Option<(Intrinsics, DMat4)> {
         match &self.projection {
-            Projection::Pinhole {
-                intrinsics,
-                rotation,
-            } => Some((
+            Projection::Pinhole { intrinsics, rotation } => Some((
                 *intrinsics,
                 DMat4::from_cols(
                     rotation.x_axis.extend(0.0),
@@ -353,26 +285,15 @@ impl Camera {
     pub fn rays(&self) -> RayGrid {
         match &self.projection {
             Projection::Rays { grid, .. } => grid.clone(),
-            Projection::Pinhole {
-                intrinsics: k,
-                rotation,
-            } => {
+            Projection::Pinhole { intrinsics: k, rotation } => {
                 let mut directions = Vec::with_capacity(self.width * self.height);
                 for i in 0..self.height {
                     for j in 0..self.width {
-                        let camera = DVec3::new(
-                            (j as f64 + 0.5 - k.cx) / k.fx,
-                            (i as f64 + 0.5 - k.cy) / k.fy,
-                            1.0,
-                        );
+                        let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
                         directions.push((*rotation * camera).normalize().as_vec3());
                     }
                 }
-                RayGrid {
-                    width: self.width,
-                    height: self.height,
-                    directions,
-                }
+                RayGrid { width: self.width, height: self.height, directions }
             }
         }
     }
@@ -396,32 +317,14 @@ impl Camera {
     pub fn orbited(&self, degrees: f64) -> Camera {
         let turn = DMat3::from_rotation_z(degrees.to_radians());
         let projection = match &self.projection {
-            Projection::Pinhole {
-                intrinsics,
-                rotation,
-            } => Projection::Pinhole {
-                intrinsics: *intrinsics,
-                rotation: turn * *rotation,
-            },
+            Projection::Pinhole { intrinsics, rotation } => {
+                Projection::Pinhole { intrinsics: *intrinsics, rotation: turn * *rotation }
+            }
             Projection::Rays { grid, per_ray } => {
-                let directions = grid
-                    .directions
-                    .iter()
-                    .map(|d| (turn * d.as_dvec3()).as_vec3())
-                    .collect();
-                Projection::Rays {
-                    grid: RayGrid {
-                        directions,
-                        ..*grid
-                    },
-                    per_ray: *per_ray,
-                }
+                let directions = grid.directions.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
+                Projection::Rays { grid: RayGrid { directions, ..*grid }, per_ray: *per_ray }
             }
         };
-        Camera {
-            position: turn * self.position,
-            projection,
-            ..*self
-        }
+        Camera { position: turn * self.position, projection, ..*self }
     }
 }

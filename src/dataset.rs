@@ -69,20 +69,14 @@ impl SceneData {
         let grid = |rays: &[f32], i: usize, gh: usize, gw: usize| RayGrid {
             width: gw,
             height: gh,
-            directions: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3]
-                .chunks_exact(3)
-                .map(Vec3::from_slice)
-                .collect(),
+            directions: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3].chunks_exact(3).map(Vec3::from_slice).collect(),
         };
         let inputs = (0..n)
             .map(|i| {
                 let pixels = file.inputs.images[i * h * w * 3..(i + 1) * h * w * 3].to_vec();
                 Ok(InputView {
                     image: Image::new(w, h, pixels)?,
-                    camera: Camera::from_rays(
-                        position(&file.inputs.camera_pos, i),
-                        grid(&file.inputs.rays, i, h, w),
-                    )?,
+                    camera: Camera::from_rays(position(&file.inputs.camera_pos, i), grid(&file.inputs.rays, i, h, w))?,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -105,25 +99,15 @@ impl SceneData {
         };
         let targets = (0..t.count)
             .map(|i| {
-                let camera = Camera::from_patch_rays(
-                    position(&t.camera_pos, i),
-                    grid(&t.rays, i, gh, gw),
-                    per_ray,
-                )?;
-                let image = t.images.as_ref().map(|all| {
-                    Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec())
-                });
-                Ok(TargetView {
-                    camera,
-                    image: image.transpose()?,
-                })
+                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)?;
+                let image = t
+                    .images
+                    .as_ref()
+                    .map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
+                Ok(TargetView { camera, image: image.transpose()? })
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(SceneData {
-            source: SceneSource::File(path.to_path_buf()),
-            inputs,
-            targets,
-        })
+        Ok(SceneData { source: SceneSource::File(path.to_path_buf()), inputs, targets })
     }
 
     /// Reads a folder with a NeRF-style `transforms.json`: intrinsics as `camera_angle_x` (and optionally
@@ -135,18 +119,10 @@ impl SceneData {
         let dir = dir.as_ref();
         let json_path = dir.join("transforms.json");
         let shown = json_path.display().to_string();
-        let err = |reason: String| Error::Cameras {
-            path: shown.clone(),
-            reason,
-        };
-        let text = std::fs::read_to_string(&json_path)
-            .map_err(|e| Error::io(&json_path, "cannot read", e))?;
-        let root: Value =
-            serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
-        let frames = root
-            .get("frames")
-            .and_then(Value::as_array)
-            .ok_or_else(|| err("no `frames` list".into()))?;
+        let err = |reason: String| Error::Cameras { path: shown.clone(), reason };
+        let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, "cannot read", e))?;
+        let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+        let frames = root.get("frames").and_then(Value::as_array).ok_or_else(|| err("no `frames` list".into()))?;
         if frames.is_empty() {
             return Err(err("`frames` is empty: the scene has no view".into()));
         }
@@ -171,18 +147,9 @@ impl SceneData {
                 .map_err(|reason| err(format!("frame {i} ({name}): {reason}")))?;
             inputs.push(InputView { image, camera });
         }
-        let targets = inputs
-            .iter()
-            .map(|v| TargetView {
-                camera: v.camera.clone(),
-                image: Some(v.image.clone()),
-            })
-            .collect();
-        Ok(SceneData {
-            source: SceneSource::Frames(dir.to_path_buf()),
-            inputs,
-            targets,
-        })
+        let targets =
+            inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
+        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets })
     }
 }
 
@@ -211,24 +178,12 @@ fn frame_image_path(dir: &Path, name: &str) -> PathBuf {
 /// ```
 pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
     let path = path.as_ref();
-    let err = |reason: String| Error::Cameras {
-        path: path.display().to_string(),
-        reason,
-    };
+    let err = |reason: String| Error::Cameras { path: path.display().to_string(), reason };
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "cannot read", e))?;
-    let root: Value =
-        serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
-    let has_intrinsics = ["camera_angle_x", "fl_x"]
-        .iter()
-        .any(|k| root.get(k).is_some());
-    let (w, h) = (
-        number(&root, &root, "w").map_err(&err)?,
-        number(&root, &root, "h").map_err(&err)?,
-    );
-    let (width, height) = (
-        w.map_or(like.width(), |v| v as usize),
-        h.map_or(like.height(), |v| v as usize),
-    );
+    let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+    let has_intrinsics = ["camera_angle_x", "fl_x"].iter().any(|k| root.get(k).is_some());
+    let (w, h) = (number(&root, &root, "w").map_err(&err)?, number(&root, &root, "h").map_err(&err)?);
+    let (width, height) = (w.map_or(like.width(), |v| v as usize), h.map_or(like.height(), |v| v as usize));
     let camera = if has_intrinsics {
         nerf_camera(&root, &root, width, height)
     } else {
@@ -236,9 +191,7 @@ pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
             Some((k, _)) if (k.width, k.height) == (width, height) => k,
             _ => Intrinsics::msn(width, height),
         };
-        pose(&root).and_then(|m| {
-            Camera::pinhole(intrinsics, m, CameraAxes::OpenGl).map_err(|e| e.to_string())
-        })
+        pose(&root).and_then(|m| Camera::pinhole(intrinsics, m, CameraAxes::OpenGl).map_err(|e| e.to_string()))
     };
     camera.map_err(err)
 }
@@ -255,12 +208,7 @@ fn number(root: &Value, frame: &Value, key: &str) -> std::result::Result<Option<
 }
 
 /// The camera of one `transforms.json` frame on an image of `width` × `height`.
-fn nerf_camera(
-    root: &Value,
-    frame: &Value,
-    width: usize,
-    height: usize,
-) -> std::result::Result<Camera, String> {
+fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std::result::Result<Camera, String> {
     let get = |key| number(root, frame, key);
     for (key, actual) in [("w", width), ("h", height)] {
         if let Some(v) = get(key)? {
@@ -282,33 +230,20 @@ fn nerf_camera(
     };
     let cx = get("cx")?.unwrap_or(width as f64 / 2.0);
     let cy = get("cy")?.unwrap_or(height as f64 / 2.0);
-    let intrinsics = Intrinsics {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-    };
+    let intrinsics = Intrinsics { width, height, fx, fy, cx, cy };
     Camera::pinhole(intrinsics, pose(frame)?, CameraAxes::OpenGl).map_err(|e| e.to_string())
 }
 
 /// The `transform_matrix` of a frame: 4 rows of 4 finite numbers.
 fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
     let bad = || "`transform_matrix` must be 4 rows of 4 finite numbers".to_string();
-    let rows = frame
-        .get("transform_matrix")
-        .and_then(Value::as_array)
-        .ok_or_else(bad)?;
+    let rows = frame.get("transform_matrix").and_then(Value::as_array).ok_or_else(bad)?;
     if rows.len() != 4 {
         return Err(bad());
     }
     let mut m = [[0.0f64; 4]; 4];
     for (r, row) in rows.iter().enumerate() {
-        let row = row
-            .as_array()
-            .filter(|row| row.len() == 4)
-            .ok_or_else(bad)?;
+        let row = row.as_array().filter(|row| row.len() == 4).ok_or_else(bad)?;
         for (c, v) in row.iter().enumerate() {
             m[r][c] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(bad)?;
         }

@@ -73,15 +73,7 @@ impl From<raypatch_engine::EngineError> for Error {
 }
 
 impl Error {
-    pub(crate) fn io(
-        path: &std::path::Path,
-        action: &'static str,
-        source: std::io::Error,
-    ) -> Error {
-        Error::Io {
-            path: path.display().to_string(),
-            action,
-            source,
-        }
+    pub(crate) fn io(path: &std::path::Path, action: &'static str, source: std::io::Error) -> Error {
+        Error::Io { path: path.display().to_string(), action, source }
     }
 }

@@ -41,11 +41,7 @@ impl Image {
                 reason: format!("value {i} is {} (NaN or infinity)", data[i]),
             });
         }
-        Ok(Image {
-            width,
-            height,
-            data,
-        })
+        Ok(Image { width, height, data })
     }
 
     /// Reads a PNG (8 or 16 bits, grey or RGB, with or without alpha). Alpha is composited onto white, the
@@ -53,22 +49,16 @@ impl Image {
     pub fn load_png(path: impl AsRef<Path>) -> Result<Image> {
         let path = path.as_ref();
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, "cannot read", e))?;
-        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
-            .map_err(|e| Error::Image {
-                path: path.display().to_string(),
-                reason: format!("not a readable PNG: {e}"),
-            })?;
+        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
+            Error::Image { path: path.display().to_string(), reason: format!("not a readable PNG: {e}") }
+        })?;
         let rgba = decoded.into_rgba32f();
         let (width, height) = (rgba.width() as usize, rgba.height() as usize);
         let data = rgba.pixels().flat_map(|p| {
             let [r, g, b, a] = p.0;
             [r * a + (1.0 - a), g * a + (1.0 - a), b * a + (1.0 - a)]
         });
-        Ok(Image {
-            width,
-            height,
-            data: data.collect(),
-        })
+        Ok(Image { width, height, data: data.collect() })
     }
 
     /// Writes an 8-bit RGB PNG through a temporary file and a rename, so a failed write leaves no file.
@@ -77,11 +67,10 @@ impl Image {
         let rgb = image::RgbImage::from_raw(self.width as u32, self.height as u32, self.to_rgb8())
             .expect("an Image always holds width * height * 3 values");
         let mut png = Vec::new();
-        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| Error::Image {
-                path: path.display().to_string(),
-                reason: format!("cannot encode PNG: {e}"),
-            })?;
+        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| Error::Image {
+            path: path.display().to_string(),
+            reason: format!("cannot encode PNG: {e}"),
+        })?;
         write_atomic(path, &png)
     }
 
@@ -108,10 +97,7 @@ impl Image {
 
     /// 8-bit values, clamped to [0, 1] and rounded.
     pub fn to_rgb8(&self) -> Vec<u8> {
-        self.data
-            .iter()
-            .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect()
+        self.data.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect()
     }
 
     /// The pixels inside `region`, which must lie inside the image.
@@ -124,12 +110,7 @@ impl Image {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn crop(&self, region: Region) -> Result<Image> {
-        let Region {
-            x,
-            y,
-            width,
-            height,
-        } = region;
+        let Region { x, y, width, height } = region;
         if x + width > self.width || y + height > self.height {
             return Err(Error::Image {
                 path: "image".into(),
@@ -144,21 +125,14 @@ impl Image {
             let start = (row * self.width + x) * 3;
             data.extend_from_slice(&self.data[start..start + width * 3]);
         }
-        Ok(Image {
-            width,
-            height,
-            data,
-        })
+        Ok(Image { width, height, data })
     }
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so that no partial
 /// file is left behind; the temporary file is removed when the write fails.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}.tmp"));
     let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
     written.map_err(|e| {

@@ -37,9 +37,7 @@ mod image;
 pub mod metrics;
 mod render;
 
-pub use camera::{
-    Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
-};
+pub use camera::{Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{write_atomic, Image};

@@ -38,12 +38,7 @@ fn same_size(a: &Image, b: &Image) -> Result<()> {
 /// ```
 pub fn psnr(a: &Image, b: &Image) -> Result<f64> {
     same_size(a, b)?;
-    let sum: f64 = a
-        .data()
-        .iter()
-        .zip(b.data())
-        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
-        .sum();
+    let sum: f64 = a.data().iter().zip(b.data()).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum();
     let mse = sum / a.data().len().max(1) as f64;
     Ok(10.0 * (1.0 / mse).log10())
 }
@@ -99,25 +94,19 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
         )));
     }
     let window = gaussian_window();
-    let tap = |centre: usize, k: usize, n: usize| {
-        reflect(centre as isize + k as isize - radius as isize, n)
-    };
+    let tap = |centre: usize, k: usize, n: usize| reflect(centre as isize + k as isize - radius as isize, n);
     // Gaussian-weighted local means of a value per pixel: along rows, then along columns.
     let blur = |values: &dyn Fn(usize) -> f64| -> Vec<f64> {
         let mut rows = vec![0.0; height * width];
         for y in 0..height {
             for x in 0..width {
-                rows[y * width + x] = (0..SSIM_WINDOW)
-                    .map(|k| window[k] * values(y * width + tap(x, k, width)))
-                    .sum();
+                rows[y * width + x] = (0..SSIM_WINDOW).map(|k| window[k] * values(y * width + tap(x, k, width))).sum();
             }
         }
         let mut out = vec![0.0; height * width];
         for y in 0..height {
             for x in 0..width {
-                out[y * width + x] = (0..SSIM_WINDOW)
-                    .map(|k| window[k] * rows[tap(y, k, height) * width + x])
-                    .sum();
+                out[y * width + x] = (0..SSIM_WINDOW).map(|k| window[k] * rows[tap(y, k, height) * width + x]).sum();
             }
         }
         out
@@ -127,17 +116,12 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
         let x = |i: usize| a.data()[i * 3 + c] as f64;
         let y = |i: usize| b.data()[i * 3 + c] as f64;
         let (mx, my) = (blur(&x), blur(&y));
-        let (mxx, myy, mxy) = (
-            blur(&|i| x(i) * x(i)),
-            blur(&|i| y(i) * y(i)),
-            blur(&|i| x(i) * y(i)),
-        );
+        let (mxx, myy, mxy) = (blur(&|i| x(i) * x(i)), blur(&|i| y(i) * y(i)), blur(&|i| x(i) * y(i)));
         for p in 0..width * height {
             let vx = (mxx[p] - mx[p] * mx[p]).max(0.0);
             let vy = (myy[p] - my[p] * my[p]).max(0.0);
             let cov = mxy[p] - mx[p] * my[p];
-            let luminance =
-                (2.0 * mx[p] * my[p] + SSIM_C1) / (mx[p] * mx[p] + my[p] * my[p] + SSIM_C1);
+            let luminance = (2.0 * mx[p] * my[p] + SSIM_C1) / (mx[p] * mx[p] + my[p] * my[p] + SSIM_C1);
             let structure = (2.0 * cov + SSIM_C2) / (vx + vy + SSIM_C2);
             total += luminance * structure;
         }

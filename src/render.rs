@@ -3,9 +3,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use raypatch_engine::{
-    AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request,
-};
+use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request};
 use raypatch_model::{InputViews, ModelConfig};
 
 use crate::camera::Camera;
@@ -45,11 +43,7 @@ pub struct Adapter {
 
 impl std::fmt::Display for Adapter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "{} ({}, {}, {})",
-            self.name, self.kind, self.backend, self.driver
-        )
+        write!(f, "{} ({}, {}, {})", self.name, self.kind, self.backend, self.driver)
     }
 }
 
@@ -90,9 +84,7 @@ impl Engine {
                 name: info.name,
                 kind: format!("{:?}", info.device_type),
                 backend: format!("{:?}", info.backend),
-                driver: format!("{} {}", info.driver, info.driver_info)
-                    .trim()
-                    .to_string(),
+                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
             })
             .collect()
     }
@@ -113,9 +105,7 @@ impl Engine {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn load(&self, path: impl AsRef<Path>) -> Result<Model> {
-        Ok(Model {
-            inner: raypatch_engine::Model::load(self.gpu.clone(), path)?,
-        })
+        Ok(Model { inner: raypatch_engine::Model::load(self.gpu.clone(), path)? })
     }
 
     /// What the GPU has done so far (pipelines compiled, buffers created, submits, dispatches): for checking
@@ -186,9 +176,7 @@ impl Model {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
-        Ok(Scene {
-            inner: self.inner.encode(&input_views(views)?)?,
-        })
+        Ok(Scene { inner: self.inner.encode(&input_views(views)?)? })
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
@@ -198,9 +186,7 @@ impl Model {
 }
 
 fn input_views(views: &[InputView]) -> Result<InputViews> {
-    let first = views
-        .first()
-        .ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
+    let first = views.first().ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
     let (width, height) = (first.image.width(), first.image.height());
     let mut inputs = InputViews {
         count: views.len(),
@@ -228,18 +214,11 @@ fn input_views(views: &[InputView]) -> Result<InputViews> {
             )));
         }
         if let Some(v) = image.data().iter().position(|v| !(0.0..=1.0).contains(v)) {
-            return Err(Error::Views(format!(
-                "view {i}: value {v} is {}, expected [0, 1]",
-                image.data()[v]
-            )));
+            return Err(Error::Views(format!("view {i}: value {v} is {}, expected [0, 1]", image.data()[v])));
         }
         inputs.images.extend_from_slice(image.data());
-        inputs
-            .camera_pos
-            .extend(camera.position().as_vec3().to_array());
-        inputs
-            .rays
-            .extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
+        inputs.camera_pos.extend(camera.position().as_vec3().to_array());
+        inputs.rays.extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
     }
     Ok(inputs)
 }
@@ -284,15 +263,8 @@ impl Scene<'_> {
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
         let frame = self.inner.render(&camera.target_views(), *request)?;
-        let rgb = frame
-            .rgb
-            .map(|rgb| Image::new(frame.width, frame.height, rgb))
-            .transpose()?;
-        Ok(Rendered {
-            region: frame.region,
-            rgb,
-            logdepth: frame.logdepth,
-        })
+        let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
+        Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
@@ -303,9 +275,7 @@ impl Scene<'_> {
 
     /// Renders op by op and returns each op's label and time (for profiling).
     pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
-        Ok(self
-            .inner
-            .profile_render(&camera.target_views(), *request)?)
+        Ok(self.inner.profile_render(&camera.target_views(), *request)?)
     }
 
     /// Bytes the encode plan allocated for its intermediates (freed once encoded).
@@ -315,13 +285,7 @@ impl Scene<'_> {
 
     /// Bytes the scene keeps on the GPU: the latent tokens and the decoder's keys and values.
     pub fn cache_bytes(&self) -> u64 {
-        self.inner.latent.bytes()
-            + self
-                .inner
-                .keys_values
-                .iter()
-                .map(|t| t.bytes())
-                .sum::<u64>()
+        self.inner.latent.bytes() + self.inner.keys_values.iter().map(|t| t.bytes()).sum::<u64>()
     }
 
     /// Render plans built so far.

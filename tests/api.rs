@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch::metrics::{psnr, ssim};
 use raypatch::{
-    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs,
-    RayGrid, Region, Request, SceneData,
+    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs, RayGrid, Region, Request,
+    SceneData,
 };
 
 /// Largest difference allowed between two ray directions that describe the same camera: both are rounded
@@ -16,23 +16,16 @@ use raypatch::{
 const RAY_TOLERANCE: f32 = 1e-6;
 
 fn golden(case: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("assets/golden")
-        .join(case)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(case)
 }
 
 fn engine() -> Engine {
-    Engine::new(EngineOptions::default())
-        .expect("no GPU adapter: install Mesa lavapipe (see .ci/run)")
+    Engine::new(EngineOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)")
 }
 
 fn max_ray_diff(a: &RayGrid, b: &RayGrid) -> f32 {
     assert_eq!((a.width, a.height), (b.width, b.height));
-    a.directions
-        .iter()
-        .zip(&b.directions)
-        .map(|(x, y)| (*x - *y).abs().max_element())
-        .fold(0.0, f32::max)
+    a.directions.iter().zip(&b.directions).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max)
 }
 
 /// The official `get_camera_rays` (tools/cameras.py), written out on the sensor plane in f64.
@@ -55,11 +48,7 @@ fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
             directions.push(plane.normalize().as_vec3());
         }
     }
-    RayGrid {
-        width,
-        height,
-        directions,
-    }
+    RayGrid { width, height, directions }
 }
 
 #[test]
@@ -71,20 +60,11 @@ fn msn_cameras_give_the_official_rays() {
             let c = &target.camera;
             let msn = Camera::msn(c.position(), c.width(), c.height()).unwrap();
             let err = max_ray_diff(&msn.rays(), &c.rays());
-            assert!(
-                err <= RAY_TOLERANCE,
-                "{case}: MSN camera rays differ from tools/cameras.py by {err:e}"
-            );
+            assert!(err <= RAY_TOLERANCE, "{case}: MSN camera rays differ from tools/cameras.py by {err:e}");
         }
     }
-    for (pos, w, h) in [
-        (DVec3::new(3.0, -4.0, 2.0), 7, 5),
-        (DVec3::new(-1.5, 0.2, 9.0), 160, 120),
-    ] {
-        let err = max_ray_diff(
-            &Camera::msn(pos, w, h).unwrap().rays(),
-            &official_msn_rays(pos, w, h),
-        );
+    for (pos, w, h) in [(DVec3::new(3.0, -4.0, 2.0), 7, 5), (DVec3::new(-1.5, 0.2, 9.0), 160, 120)] {
+        let err = max_ray_diff(&Camera::msn(pos, w, h).unwrap().rays(), &official_msn_rays(pos, w, h));
         assert!(err <= RAY_TOLERANCE, "{w}x{h}: {err:e}");
     }
 }
@@ -99,51 +79,25 @@ fn one_camera_three_ways_gives_the_same_rays() {
     let forward = (-pos).normalize();
     let right = forward.cross(DVec3::Z).normalize();
     let down = forward.cross(right);
-    let opencv = DMat4::from_cols(
-        right.extend(0.0),
-        down.extend(0.0),
-        forward.extend(0.0),
-        pos.extend(1.0),
-    );
-    let intrinsics = Intrinsics {
-        width: 24,
-        height: 16,
-        fx: 0.035 / 0.032 * 24.0,
-        fy: 0.035 / 0.032 * 24.0,
-        cx: 12.0,
-        cy: 8.0,
-    };
+    let opencv = DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), pos.extend(1.0));
+    let intrinsics =
+        Intrinsics { width: 24, height: 16, fx: 0.035 / 0.032 * 24.0, fy: 0.035 / 0.032 * 24.0, cx: 12.0, cy: 8.0 };
     let pinhole_cv = Camera::pinhole(intrinsics, opencv, CameraAxes::OpenCv).unwrap();
     // OpenGL axes: y up and z backwards, i.e. the OpenCV y and z columns negated.
-    let opengl = DMat4::from_cols(
-        right.extend(0.0),
-        (-down).extend(0.0),
-        (-forward).extend(0.0),
-        pos.extend(1.0),
-    );
+    let opengl = DMat4::from_cols(right.extend(0.0), (-down).extend(0.0), (-forward).extend(0.0), pos.extend(1.0));
     let pinhole_gl = Camera::pinhole(intrinsics, opengl, CameraAxes::OpenGl).unwrap();
     let explicit = Camera::from_rays(pos, official.clone()).unwrap();
 
-    for (name, camera) in [
-        ("msn", &msn),
-        ("pinhole OpenCV", &pinhole_cv),
-        ("pinhole OpenGL", &pinhole_gl),
-        ("rays", &explicit),
-    ] {
+    for (name, camera) in
+        [("msn", &msn), ("pinhole OpenCV", &pinhole_cv), ("pinhole OpenGL", &pinhole_gl), ("rays", &explicit)]
+    {
         let err = max_ray_diff(&camera.rays(), &official);
-        assert!(
-            err <= RAY_TOLERANCE,
-            "{name}: rays differ from the official ones by {err:e}"
-        );
+        assert!(err <= RAY_TOLERANCE, "{name}: rays differ from the official ones by {err:e}");
         assert_eq!(camera.position(), pos);
         assert_eq!((camera.width(), camera.height()), (24, 16));
     }
     let (k, pose) = msn.as_pinhole().unwrap();
-    assert!((pose - opencv)
-        .abs()
-        .to_cols_array()
-        .iter()
-        .all(|d| *d < 1e-12));
+    assert!((pose - opencv).abs().to_cols_array().iter().all(|d| *d < 1e-12));
     assert_eq!(k, intrinsics);
 }
 
@@ -153,50 +107,20 @@ fn bad_cameras_are_errors() {
     let pose = DMat4::from_translation(DVec3::new(0.0, 0.0, 5.0));
     let scaled = pose * DMat4::from_scale(DVec3::splat(1.1));
     let mirrored = pose * DMat4::from_scale(DVec3::new(1.0, 1.0, -1.0));
-    let sheared = DMat4::from_mat3(DMat3::from_cols(
-        DVec3::X,
-        DVec3::new(0.3, 1.0, 0.0),
-        DVec3::Z,
-    ));
-    for (what, m) in [
-        ("scaled", scaled),
-        ("mirrored", mirrored),
-        ("sheared", sheared),
-    ] {
-        let err = Camera::pinhole(k, m, CameraAxes::OpenGl)
-            .unwrap_err()
-            .to_string();
+    let sheared = DMat4::from_mat3(DMat3::from_cols(DVec3::X, DVec3::new(0.3, 1.0, 0.0), DVec3::Z));
+    for (what, m) in [("scaled", scaled), ("mirrored", mirrored), ("sheared", sheared)] {
+        let err = Camera::pinhole(k, m, CameraAxes::OpenGl).unwrap_err().to_string();
         assert!(err.contains("not orthonormal"), "{what}: {err}");
     }
     let mut nan = pose;
     nan.w_axis.x = f64::NAN;
-    assert!(Camera::pinhole(k, nan, CameraAxes::OpenCv)
-        .unwrap_err()
-        .to_string()
-        .contains("NaN"));
-    assert!(Camera::msn(DVec3::new(0.0, 0.0, 3.0), 8, 8)
-        .unwrap_err()
-        .to_string()
-        .contains("up axis"));
+    assert!(Camera::pinhole(k, nan, CameraAxes::OpenCv).unwrap_err().to_string().contains("NaN"));
+    assert!(Camera::msn(DVec3::new(0.0, 0.0, 3.0), 8, 8).unwrap_err().to_string().contains("up axis"));
     assert!(Camera::msn(DVec3::ZERO, 8, 8).is_err());
-    assert!(Camera::msn(DVec3::X, 0, 8)
-        .unwrap_err()
-        .to_string()
-        .contains("empty"));
-    let grid = RayGrid {
-        width: 2,
-        height: 1,
-        directions: vec![Vec3::X, Vec3::new(f32::INFINITY, 0.0, 0.0)],
-    };
-    assert!(Camera::from_rays(DVec3::X, grid)
-        .unwrap_err()
-        .to_string()
-        .contains("ray 1"));
-    let short = RayGrid {
-        width: 2,
-        height: 2,
-        directions: vec![Vec3::X],
-    };
+    assert!(Camera::msn(DVec3::X, 0, 8).unwrap_err().to_string().contains("empty"));
+    let grid = RayGrid { width: 2, height: 1, directions: vec![Vec3::X, Vec3::new(f32::INFINITY, 0.0, 0.0)] };
+    assert!(Camera::from_rays(DVec3::X, grid).unwrap_err().to_string().contains("ray 1"));
+    let short = RayGrid { width: 2, height: 2, directions: vec![Vec3::X] };
     assert!(Camera::from_rays(DVec3::X, short).is_err());
 }
 
@@ -206,12 +130,7 @@ const HALO: usize = 3;
 /// Regions of a `width`×`height` image: single pixels in the corners, strips along each border, interior
 /// boxes that do not start on a patch boundary, and the whole image.
 fn regions(width: usize, height: usize) -> Vec<Region> {
-    let r = |x, y, w, h| Region {
-        x,
-        y,
-        width: w,
-        height: h,
-    };
+    let r = |x, y, w, h| Region { x, y, width: w, height: h };
     vec![
         r(0, 0, 1, 1),
         r(width - 1, height - 1, 1, 1),
@@ -227,74 +146,40 @@ fn regions(width: usize, height: usize) -> Vec<Region> {
 /// The `region` of a row-major single-channel map `width` columns wide.
 fn crop_map(map: &[f32], width: usize, region: Region) -> Vec<f32> {
     (region.y..region.y + region.height)
-        .flat_map(|y| {
-            map[y * width + region.x..y * width + region.x + region.width]
-                .iter()
-                .copied()
-        })
+        .flat_map(|y| map[y * width + region.x..y * width + region.x + region.width].iter().copied())
         .collect()
 }
 
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
 }
 
 #[test]
 fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
     let engine = engine();
-    let cases = [
-        "srt_k1",
-        "srt_k1_depth",
-        "rpsrt_k2",
-        "rpsrt_k4",
-        "rpsrt_k4_patchrays",
-        "rpsrt_k8",
-        "rpsrt_k16",
-    ];
+    let cases = ["srt_k1", "srt_k1_depth", "rpsrt_k2", "rpsrt_k4", "rpsrt_k4_patchrays", "rpsrt_k8", "rpsrt_k16"];
     for case in cases {
         let model = engine.load(golden(case).join("model.safetensors")).unwrap();
         let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
         let scene = model.encode(&data.inputs).unwrap();
         let camera = &data.targets[0].camera;
         let (width, height, k) = (camera.width(), camera.height(), model.patch_size());
-        let outputs = Outputs {
-            rgb: true,
-            logdepth: model.has_depth(),
-        };
-        let full_request = Request {
-            outputs,
-            region: None,
-        };
+        let outputs = Outputs { rgb: true, logdepth: model.has_depth() };
+        let full_request = Request { outputs, region: None };
         let full = scene.render(camera, &full_request).unwrap();
         let full_rgb = full.rgb.unwrap();
         let full_stats = scene.render_stats(camera, &full_request).unwrap();
-        assert_eq!(
-            full_stats.queries,
-            width * height / (k * k),
-            "{case}: one query per patch"
-        );
+        assert_eq!(full_stats.queries, width * height / (k * k), "{case}: one query per patch");
 
         for region in regions(width, height) {
-            let request = Request {
-                outputs,
-                region: Some(region),
-            };
+            let request = Request { outputs, region: Some(region) };
             let part = scene.render(camera, &request).unwrap();
             assert_eq!(part.region, region);
             // The conv decoder sums in the same order wherever a pixel lies, so the pixels are equal; allow
             // one f32 rounding of the largest value in case a driver reassociates.
-            let err = max_diff(
-                part.rgb.as_ref().unwrap().data(),
-                full_rgb.crop(region).unwrap().data(),
-            );
-            assert!(
-                err <= 1e-6,
-                "{case} {region:?}: region rgb differs from the full render by {err:e}"
-            );
+            let err = max_diff(part.rgb.as_ref().unwrap().data(), full_rgb.crop(region).unwrap().data());
+            assert!(err <= 1e-6, "{case} {region:?}: region rgb differs from the full render by {err:e}");
             if let (Some(d), Some(full_d)) = (&part.logdepth, &full.logdepth) {
                 let want = crop_map(full_d, width, region);
                 assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
@@ -305,47 +190,22 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
             let stats = scene.render_stats(camera, &request).unwrap();
             let span = |start: usize, len: usize, size: usize| {
                 let (first, last) = (start / k, (start + len - 1) / k);
-                let (lo, hi) = if k == 1 {
-                    (first, last)
-                } else {
-                    (first.saturating_sub(HALO), (last + HALO).min(size / k - 1))
-                };
+                let (lo, hi) =
+                    if k == 1 { (first, last) } else { (first.saturating_sub(HALO), (last + HALO).min(size / k - 1)) };
                 hi + 1 - lo
             };
             let most = span(region.x, region.width, width) * span(region.y, region.height, height);
-            assert!(
-                stats.queries <= most,
-                "{case} {region:?}: {} queries, at most {most} needed",
-                stats.queries
-            );
-            assert!(
-                stats.queries >= region.width.div_ceil(k) * region.height.div_ceil(k),
-                "{case} {region:?}"
-            );
+            assert!(stats.queries <= most, "{case} {region:?}: {} queries, at most {most} needed", stats.queries);
+            assert!(stats.queries >= region.width.div_ceil(k) * region.height.div_ceil(k), "{case} {region:?}");
             assert!(stats.pixels == stats.queries * k * k && stats.queries <= full_stats.queries);
             if k == 1 {
-                assert_eq!(
-                    stats.queries,
-                    region.width * region.height,
-                    "{case} {region:?}"
-                );
+                assert_eq!(stats.queries, region.width * region.height, "{case} {region:?}");
             }
         }
         // The corner pixel decodes fewer patches than the image has, once the image is more than a halo wide.
         if (width / k).max(height / k) > HALO + 1 {
-            let corner = Request {
-                outputs,
-                region: Some(Region {
-                    x: 0,
-                    y: 0,
-                    width: 1,
-                    height: 1,
-                }),
-            };
-            assert!(
-                scene.render_stats(camera, &corner).unwrap().queries < full_stats.queries,
-                "{case}"
-            );
+            let corner = Request { outputs, region: Some(Region { x: 0, y: 0, width: 1, height: 1 }) };
+            assert!(scene.render_stats(camera, &corner).unwrap().queries < full_stats.queries, "{case}");
         }
     }
 }
@@ -355,72 +215,31 @@ fn the_halo_is_needed() {
     // Without the halo the region's border pixels would see the conv decoder's zero padding: check that a
     // region render does differ from a full render of the region's own patches taken as an image.
     let engine = engine();
-    let model = engine
-        .load(golden("rpsrt_k4").join("model.safetensors"))
-        .unwrap();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
     let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
-    let region = Region {
-        x: 16,
-        y: 8,
-        width: 16,
-        height: 16,
-    };
-    let full = scene
-        .render(camera, &Request::default())
-        .unwrap()
-        .rgb
-        .unwrap()
-        .crop(region)
-        .unwrap();
+    let region = Region { x: 16, y: 8, width: 16, height: 16 };
+    let full = scene.render(camera, &Request::default()).unwrap().rgb.unwrap().crop(region).unwrap();
     // The region's patches alone: a camera whose rays are exactly those of the region.
     let rays = camera.rays();
     let directions = (region.y..region.y + region.height)
-        .flat_map(|y| {
-            rays.directions[y * rays.width + region.x..y * rays.width + region.x + region.width]
-                .to_vec()
-        })
+        .flat_map(|y| rays.directions[y * rays.width + region.x..y * rays.width + region.x + region.width].to_vec())
         .collect();
-    let alone = Camera::from_rays(
-        camera.position(),
-        RayGrid {
-            width: 16,
-            height: 16,
-            directions,
-        },
-    )
-    .unwrap();
-    let no_halo = scene
-        .render(&alone, &Request::default())
-        .unwrap()
-        .rgb
-        .unwrap();
-    assert!(
-        max_diff(no_halo.data(), full.data()) > 1e-3,
-        "the region's patches alone already give its pixels"
-    );
+    let alone = Camera::from_rays(camera.position(), RayGrid { width: 16, height: 16, directions }).unwrap();
+    let no_halo = scene.render(&alone, &Request::default()).unwrap().rgb.unwrap();
+    assert!(max_diff(no_halo.data(), full.data()) > 1e-3, "the region's patches alone already give its pixels");
 }
 
 #[test]
 fn only_requested_outputs_are_computed() {
     let engine = engine();
-    let model = engine
-        .load(golden("srt_k1_depth").join("model.safetensors"))
-        .unwrap();
+    let model = engine.load(golden("srt_k1_depth").join("model.safetensors")).unwrap();
     let data = SceneData::load(golden("srt_k1_depth").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
-    let request = |rgb, logdepth| Request {
-        outputs: Outputs { rgb, logdepth },
-        region: None,
-    };
-    let labels = |r: &Request| {
-        scene
-            .engine_scene()
-            .render_op_labels(&camera.target_views(), *r)
-            .unwrap()
-    };
+    let request = |rgb, logdepth| Request { outputs: Outputs { rgb, logdepth }, region: None };
+    let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
     let dispatches = |r: &Request| {
         scene.render(camera, r).unwrap(); // build and warm the plan
         let before = engine.counters().dispatches;
@@ -440,46 +259,25 @@ fn only_requested_outputs_are_computed() {
     assert_eq!(rgb_out.rgb, both_out.rgb);
     assert_eq!(depth_out.logdepth, both_out.logdepth);
     let stats = scene.render_stats(camera, &request(true, false)).unwrap();
-    assert_eq!(
-        stats.dispatches as u64, rgb_only,
-        "a render runs its plan's dispatches and nothing else"
-    );
-    let err = scene
-        .render(camera, &request(false, false))
-        .unwrap_err()
-        .to_string();
+    assert_eq!(stats.dispatches as u64, rgb_only, "a render runs its plan's dispatches and nothing else");
+    let err = scene.render(camera, &request(false, false)).unwrap_err().to_string();
     assert!(err.contains("nothing to render"), "{err}");
 }
 
 #[test]
 fn rendering_reuses_the_encoded_scene_and_the_plan() {
     let engine = engine();
-    let model = engine
-        .load(golden("rpsrt_k4").join("model.safetensors"))
-        .unwrap();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
     let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
-    let labels = scene
-        .engine_scene()
-        .render_op_labels(&camera.target_views(), Outputs::default())
-        .unwrap();
+    let labels = scene.engine_scene().render_op_labels(&camera.target_views(), Outputs::default()).unwrap();
     assert!(
-        labels
-            .iter()
-            .all(|l| !l.starts_with("encoder.") && !l.contains("to_kv")),
+        labels.iter().all(|l| !l.starts_with("encoder.") && !l.contains("to_kv")),
         "a render plan re-encodes or re-projects keys/values"
     );
 
-    let interior = |x| Request {
-        region: Some(Region {
-            x,
-            y: 12,
-            width: 6,
-            height: 6,
-        }),
-        ..Request::default()
-    };
+    let interior = |x| Request { region: Some(Region { x, y: 12, width: 6, height: 6 }), ..Request::default() };
     scene.render(camera, &Request::default()).unwrap();
     scene.render(camera, &interior(17)).unwrap();
     let (plans, before) = (scene.cached_plans(), engine.counters());
@@ -489,27 +287,15 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     scene.render(camera, &interior(21)).unwrap();
     let after = engine.counters();
     assert_eq!(scene.cached_plans(), plans);
-    assert_eq!(
-        after.buffers_created, before.buffers_created,
-        "a same-size render created buffers"
-    );
-    assert_eq!(
-        after.pipelines_compiled, before.pipelines_compiled,
-        "a same-size render compiled pipelines"
-    );
-    assert_eq!(
-        after.submits,
-        before.submits + 2,
-        "each render is one submit"
-    );
+    assert_eq!(after.buffers_created, before.buffers_created, "a same-size render created buffers");
+    assert_eq!(after.pipelines_compiled, before.pipelines_compiled, "a same-size render compiled pipelines");
+    assert_eq!(after.submits, before.submits + 2, "each render is one submit");
 }
 
 #[test]
 fn bad_requests_and_views_are_errors() {
     let engine = engine();
-    let model = engine
-        .load(golden("rpsrt_k4").join("model.safetensors"))
-        .unwrap();
+    let model = engine.load(golden("rpsrt_k4").join("model.safetensors")).unwrap();
     let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     fn message<T>(r: raypatch::Result<T>) -> String {
@@ -523,42 +309,18 @@ fn bad_requests_and_views_are_errors() {
     };
     let mixed = [data.inputs[0].clone(), small.clone()];
     assert!(message(model.encode(&mixed)).contains("same size"));
-    let mismatched = InputView {
-        camera: data.inputs[0].camera.clone(),
-        ..small.clone()
-    };
+    let mismatched = InputView { camera: data.inputs[0].camera.clone(), ..small.clone() };
     assert!(message(model.encode(&[mismatched])).contains("camera is for a 32x24 image"));
-    let bright = InputView {
-        image: Image::new(16, 8, vec![1.5; 16 * 8 * 3]).unwrap(),
-        ..small
-    };
+    let bright = InputView { image: Image::new(16, 8, vec![1.5; 16 * 8 * 3]).unwrap(), ..small };
     assert!(message(model.encode(&[bright])).contains("expected [0, 1]"));
-    assert!(matches!(
-        Image::new(1, 1, vec![0.0, f32::NAN, 0.0]),
-        Err(Error::Image { .. })
-    ));
+    assert!(matches!(Image::new(1, 1, vec![0.0, f32::NAN, 0.0]), Err(Error::Image { .. })));
 
     let camera = &data.targets[0].camera;
-    let outside = Request {
-        region: Some(Region {
-            x: 40,
-            y: 0,
-            width: 9,
-            height: 4,
-        }),
-        ..Request::default()
-    };
+    let outside = Request { region: Some(Region { x: 40, y: 0, width: 9, height: 4 }), ..Request::default() };
     assert!(message(scene.render(camera, &outside)).contains("not inside the 48x32"));
     let odd = Camera::msn(DVec3::new(5.0, 1.0, 2.0), 50, 32).unwrap();
-    assert!(message(scene.render(&odd, &Request::default()))
-        .contains("not divisible by the model's patch size k=4"));
-    let depth = Request {
-        outputs: Outputs {
-            rgb: true,
-            logdepth: true,
-        },
-        region: None,
-    };
+    assert!(message(scene.render(&odd, &Request::default())).contains("not divisible by the model's patch size k=4"));
+    let depth = Request { outputs: Outputs { rgb: true, logdepth: true }, region: None };
     assert!(message(scene.render(camera, &depth)).contains("no depth channel"));
 }
 
@@ -574,16 +336,10 @@ fn frames_folders_read_nerf_cameras() {
         let (_, cv) = Camera::msn(*pos, w, h).unwrap().as_pinhole().unwrap();
         let gl = DMat4::from_cols(cv.x_axis, -cv.y_axis, -cv.z_axis, cv.w_axis);
         let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
-        frames
-            .push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
+        frames.push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
         // Multiples of 1/255 survive the 8-bit PNG exactly.
-        let pixels: Vec<f32> = (0..w * h * 3)
-            .map(|v| (40 * (v % 7)) as f32 / 255.0)
-            .collect();
-        Image::new(w, h, pixels)
-            .unwrap()
-            .save_png(dir.join(format!("r_{i}.png")))
-            .unwrap();
+        let pixels: Vec<f32> = (0..w * h * 3).map(|v| (40 * (v % 7)) as f32 / 255.0).collect();
+        Image::new(w, h, pixels).unwrap().save_png(dir.join(format!("r_{i}.png"))).unwrap();
     }
     let fov_x = 2.0 * (0.016f64 / 0.035).atan();
     let transforms = serde_json::json!({ "camera_angle_x": fov_x, "frames": frames });
@@ -593,14 +349,8 @@ fn frames_folders_read_nerf_cameras() {
     assert_eq!((data.inputs.len(), data.targets.len()), (2, 2));
     for (view, pos) in data.inputs.iter().zip(positions) {
         let err = max_ray_diff(&view.camera.rays(), &official_msn_rays(pos, w, h));
-        assert!(
-            err <= RAY_TOLERANCE,
-            "NeRF pose rays differ from the MSN camera's by {err:e}"
-        );
-        assert_eq!(
-            view.image.pixel(1, 0),
-            [120.0 / 255.0, 160.0 / 255.0, 200.0 / 255.0]
-        );
+        assert!(err <= RAY_TOLERANCE, "NeRF pose rays differ from the MSN camera's by {err:e}");
+        assert_eq!(view.image.pixel(1, 0), [120.0 / 255.0, 160.0 / 255.0, 200.0 / 255.0]);
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -632,14 +382,8 @@ fn metrics_match_torchmetrics() {
     assert!((p - PSNR).abs() < 1e-5, "PSNR {p} vs torchmetrics {PSNR}");
     assert!(psnr(&a, &a).unwrap().is_infinite());
     let tiny = Image::new(4, 4, vec![0.0; 48]).unwrap();
-    assert!(ssim(&tiny, &tiny)
-        .unwrap_err()
-        .to_string()
-        .contains("at least 6x6"));
-    assert!(psnr(&a, &tiny)
-        .unwrap_err()
-        .to_string()
-        .contains("different sizes"));
+    assert!(ssim(&tiny, &tiny).unwrap_err().to_string().contains("at least 6x6"));
+    assert!(psnr(&a, &tiny).unwrap_err().to_string().contains("different sizes"));
 }
 
 #[test]
@@ -650,42 +394,21 @@ fn orbits_turn_explicit_rays_like_pinhole_cameras() {
     for degrees in [30.0, 90.0, 200.0] {
         let (a, b) = (given.orbited(degrees), msn.orbited(degrees));
         assert!((a.position() - b.position()).length() < 1e-12);
-        assert!(
-            max_ray_diff(&a.rays(), &b.rays()) <= 2.0 * RAY_TOLERANCE,
-            "{degrees}°"
-        );
+        assert!(max_ray_diff(&a.rays(), &b.rays()) <= 2.0 * RAY_TOLERANCE, "{degrees}°");
     }
 }
 
 #[test]
 fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
     let unlimited = engine();
-    for case in [
-        "srt_k1_depth",
-        "rpsrt_k2",
-        "rpsrt_k4",
-        "rpsrt_k8",
-        "rpsrt_k16",
-    ] {
+    for case in ["srt_k1_depth", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k16"] {
         let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
-        let model = unlimited
-            .load(golden(case).join("model.safetensors"))
-            .unwrap();
+        let model = unlimited.load(golden(case).join("model.safetensors")).unwrap();
         // Targets large enough that the render's buffers, not the encoder's, are the largest.
-        let (width, height) = if model.patch_size() == 1 {
-            (256, 192)
-        } else {
-            (512, 384)
-        };
+        let (width, height) = if model.patch_size() == 1 { (256, 192) } else { (512, 384) };
         let camera = &Camera::msn(data.targets[0].camera.position(), width, height).unwrap();
-        let outputs = Outputs {
-            rgb: true,
-            logdepth: model.has_depth(),
-        };
-        let full_request = Request {
-            outputs,
-            region: None,
-        };
+        let outputs = Outputs { rgb: true, logdepth: model.has_depth() };
+        let full_request = Request { outputs, region: None };
         let scene = model.encode(&data.inputs).unwrap();
         let full = scene.render(camera, &full_request).unwrap();
         let one = scene.render_stats(camera, &full_request).unwrap();
@@ -695,47 +418,22 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
         // features, so that the render must run in bands. SRT: 2/5 of its largest buffer, a query chunk,
         // which shrinks to fit instead.
         let bands_needed = model.patch_size() > 1;
-        let limit = if bands_needed {
-            (width * height * 3 * 4) as u64
-        } else {
-            one.largest_buffer_bytes * 2 / 5
-        };
-        let limited = Engine::new(EngineOptions {
-            max_buffer_bytes: Some(limit),
-            ..Default::default()
-        })
-        .unwrap();
-        let model = limited
-            .load(golden(case).join("model.safetensors"))
-            .unwrap();
+        let limit = if bands_needed { (width * height * 3 * 4) as u64 } else { one.largest_buffer_bytes * 2 / 5 };
+        let limited = Engine::new(EngineOptions { max_buffer_bytes: Some(limit), ..Default::default() }).unwrap();
+        let model = limited.load(golden(case).join("model.safetensors")).unwrap();
         let scene = model.encode(&data.inputs).unwrap();
-        let inner = Region {
-            x: 1,
-            y: 5,
-            width: width - 2,
-            height: height - 10,
-        };
+        let inner = Region { x: 1, y: 5, width: width - 2, height: height - 10 };
         for region in [None, Some(inner)] {
             let request = Request { outputs, region };
             let banded = scene.render(camera, &request).unwrap();
             let stats = scene.render_stats(camera, &request).unwrap();
-            assert!(
-                stats.largest_buffer_bytes <= limit,
-                "{case} {region:?}: {stats:?}"
-            );
-            assert_eq!(
-                stats.bands > 1,
-                bands_needed,
-                "{case} {region:?}: {stats:?}"
-            );
+            assert!(stats.largest_buffer_bytes <= limit, "{case} {region:?}: {stats:?}");
+            assert_eq!(stats.bands > 1, bands_needed, "{case} {region:?}: {stats:?}");
             let region = region.unwrap_or(full.region);
             assert_eq!(banded.region, region, "{case}");
             let want = full.rgb.as_ref().unwrap().crop(region).unwrap();
             let err = max_diff(banded.rgb.as_ref().unwrap().data(), want.data());
-            assert!(
-                err <= 1e-6,
-                "{case} {region:?}: banded rgb differs from one render by {err:e}"
-            );
+            assert!(err <= 1e-6, "{case} {region:?}: banded rgb differs from one render by {err:e}");
             if let (Some(d), Some(full_d)) = (&banded.logdepth, &full.logdepth) {
                 let want = crop_map(full_d, camera.width(), region);
                 assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
@@ -746,27 +444,19 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
 
 #[test]
 fn a_buffer_limit_nothing_fits_under_is_an_error_naming_the_buffer() {
-    let tiny = Engine::new(EngineOptions {
-        max_buffer_bytes: Some(2048),
-        ..Default::default()
-    })
-    .unwrap();
+    let tiny = Engine::new(EngineOptions { max_buffer_bytes: Some(2048), ..Default::default() }).unwrap();
     let case = golden("rpsrt_k4");
     let message = match tiny.load(case.join("model.safetensors")) {
         Err(e) => e.to_string(),
         Ok(model) => {
             let data = SceneData::load(case.join("scene.safetensors")).unwrap();
-            let rendered = model
-                .encode(&data.inputs)
-                .and_then(|s| s.render(&data.targets[0].camera, &Request::default()));
+            let rendered =
+                model.encode(&data.inputs).and_then(|s| s.render(&data.targets[0].camera, &Request::default()));
             match rendered {
                 Ok(_) => panic!("a 2 KiB buffer limit cannot fit this model"),
                 Err(e) => e.to_string(),
             }
         }
     };
-    assert!(
-        message.contains("bytes in one buffer, more than the 2048 bytes one buffer may have"),
-        "{message}"
-    );
+    assert!(message.contains("bytes in one buffer, more than the 2048 bytes one buffer may have"), "{message}");
 }

@@ -8,9 +8,7 @@ use std::sync::Arc;
 use raypatch_engine::{Gpu, GpuOptions, Model, Outputs};
 
 fn case(name: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("assets/golden")
-        .join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(name)
 }
 
 #[test]
@@ -24,14 +22,8 @@ fn rendering_again_allocates_and_compiles_nothing() {
     let second = encoded.render(&scene.targets, Outputs::default()).unwrap();
     let after = gpu.counters();
     assert_eq!(first.rgb, second.rgb);
-    assert_eq!(
-        after.buffers_created, before.buffers_created,
-        "a second render created buffers"
-    );
-    assert_eq!(
-        after.pipelines_compiled, before.pipelines_compiled,
-        "a second render compiled pipelines"
-    );
+    assert_eq!(after.buffers_created, before.buffers_created, "a second render created buffers");
+    assert_eq!(after.pipelines_compiled, before.pipelines_compiled, "a second render compiled pipelines");
     assert_eq!(after.submits, before.submits + 1, "a render is one submit");
     assert_eq!(encoded.cached_render_plans(), 1);
 }
@@ -57,16 +49,10 @@ fn transient_buffers_are_shared() {
     let before = gpu.counters();
     encoded.render(&scene.targets, Outputs::default()).unwrap();
     let after = gpu.counters();
-    let ops = encoded
-        .profile_render(&scene.targets, Outputs::default())
-        .unwrap()
-        .len();
+    let ops = encoded.profile_render(&scene.targets, Outputs::default()).unwrap().len();
     // Without sharing, every op's output would be a buffer of its own.
     let buffers = after.buffers_created - before.buffers_created;
-    assert!(
-        buffers * 2 < ops as u64,
-        "{buffers} buffers for {ops} ops: intermediates are not shared"
-    );
+    assert!(buffers * 2 < ops as u64, "{buffers} buffers for {ops} ops: intermediates are not shared");
 }
 
 #[test]
@@ -86,10 +72,7 @@ fn debug_mode_reads_back_every_op() {
     gpu.write(&plan.tensor(x), &[0.0, 1.0, -1.0, 2.0, -2.0, 10.0]);
     let outputs = plan.execute_debug(&gpu).unwrap();
     assert_eq!(outputs.len(), 2);
-    assert_eq!(
-        (outputs[0].op.as_str(), outputs[0].tensor.as_str()),
-        ("sigmoid", "y")
-    );
+    assert_eq!((outputs[0].op.as_str(), outputs[0].tensor.as_str()), ("sigmoid", "y"));
     assert_eq!(outputs[0].data[0], 0.5);
     assert_eq!(outputs[1].data, outputs[0].data);
 }

@@ -18,69 +18,38 @@ fn golden_dir() -> PathBuf {
 
 fn max_abs(a: &[f32], b: &[f32]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| {
-            if x.is_finite() {
-                (x - y).abs() as f64
-            } else {
-                f64::INFINITY
-            }
-        })
-        .fold(0.0, f64::max)
+    a.iter().zip(b).map(|(x, y)| if x.is_finite() { (x - y).abs() as f64 } else { f64::INFINITY }).fold(0.0, f64::max)
 }
 
 /// Encodes and renders one case and returns what is out of tolerance.
 fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-    let model = Model::load(gpu.clone(), dir.join("model.safetensors"))
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
-    let scene = raypatch_model::load_scene(dir.join("scene.safetensors"))
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
-    let expected = TensorFile::open(&dir.join("expected.safetensors"))
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let model = Model::load(gpu.clone(), dir.join("model.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let expected = TensorFile::open(&dir.join("expected.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
 
     let start = Instant::now();
-    let encoded = model
-        .encode(&scene.inputs)
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let encoded = model.encode(&scene.inputs).unwrap_or_else(|e| panic!("{name}: {e}"));
     let encode_time = start.elapsed();
     let latent = gpu.read(&encoded.latent).unwrap();
     let want_latent = expected.f32("latent").unwrap();
-    assert_eq!(
-        want_latent.shape,
-        vec![encoded.latent.rows, encoded.latent.cols],
-        "{name}: latent shape"
-    );
+    assert_eq!(want_latent.shape, vec![encoded.latent.rows, encoded.latent.cols], "{name}: latent shape");
     let scale = want_latent.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
     let latent_err = max_abs(&latent, &want_latent.data) / scale;
 
     // Render twice: the second render reuses the plan and must give the same bytes.
-    let outputs = Outputs {
-        logdepth: expected.contains("logdepth"),
-        ..Outputs::default()
-    };
+    let outputs = Outputs { logdepth: expected.contains("logdepth"), ..Outputs::default() };
     let start = Instant::now();
-    let frame = encoded
-        .render(&scene.targets, outputs)
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let frame = encoded.render(&scene.targets, outputs).unwrap_or_else(|e| panic!("{name}: {e}"));
     let first_render = start.elapsed();
     let start = Instant::now();
     let again = encoded.render(&scene.targets, outputs).unwrap();
     let warm_render = start.elapsed();
     assert_eq!(frame.rgb, again.rgb, "{name}: a second render differs");
-    assert_eq!(
-        encoded.cached_render_plans(),
-        1,
-        "{name}: the second render built a new plan"
-    );
+    assert_eq!(encoded.cached_render_plans(), 1, "{name}: the second render built a new plan");
 
     let want_rgb = expected.f32("rgb").unwrap();
-    assert_eq!(
-        want_rgb.shape,
-        vec![frame.views, frame.height, frame.width, 3],
-        "{name}: rgb shape"
-    );
+    assert_eq!(want_rgb.shape, vec![frame.views, frame.height, frame.width, 3], "{name}: rgb shape");
     let rgb_err = max_abs(frame.rgb.as_deref().expect("rgb requested"), &want_rgb.data);
     // Log-depth is the raw pre-sigmoid channel: compare it relative to its magnitude like the latent.
     let depth_err = outputs.logdepth.then(|| {
@@ -99,28 +68,19 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     );
     let mut failures = Vec::new();
     if let Some(err) = depth_err.filter(|&e| e > LATENT_MAX_REL) {
-        failures.push(format!(
-            "{name}: log-depth relative error {err:e} > {LATENT_MAX_REL:e}"
-        ));
+        failures.push(format!("{name}: log-depth relative error {err:e} > {LATENT_MAX_REL:e}"));
     }
     if latent_err > LATENT_MAX_REL {
-        failures.push(format!(
-            "{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"
-        ));
+        failures.push(format!("{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"));
     }
     if rgb_err > RGB_MAX_ABS {
-        failures.push(format!(
-            "{name}: rgb max abs error {rgb_err:e} > {RGB_MAX_ABS:e}"
-        ));
+        failures.push(format!("{name}: rgb max abs error {rgb_err:e} > {RGB_MAX_ABS:e}"));
     }
     failures
 }
 
 fn shared_gpu() -> Arc<Gpu> {
-    Arc::new(
-        Gpu::new(&GpuOptions::default())
-            .expect("no GPU adapter: install Mesa lavapipe (see .ci/run)"),
-    )
+    Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)"))
 }
 
 #[test]
@@ -132,23 +92,10 @@ fn golden_cases_match_pytorch() {
         .filter(|p| p.join("expected.safetensors").exists())
         .collect();
     cases.sort();
-    let names: Vec<String> = cases
-        .iter()
-        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
-        .collect();
+    let names: Vec<String> = cases.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     // The issue asks for SRT, every k, and a two-view case; make sure the assets still have them.
-    for required in [
-        "srt_k1",
-        "rpsrt_k2",
-        "rpsrt_k4",
-        "rpsrt_k8",
-        "rpsrt_k8_resize",
-        "rpsrt_k16",
-    ] {
-        assert!(
-            names.iter().any(|n| n == required),
-            "golden case {required} is missing from assets/golden"
-        );
+    for required in ["srt_k1", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k8_resize", "rpsrt_k16"] {
+        assert!(names.iter().any(|n| n == required), "golden case {required} is missing from assets/golden");
     }
     let failures: Vec<String> = cases.iter().flat_map(|dir| check_case(&gpu, dir)).collect();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
@@ -195,37 +142,14 @@ fn patch_rays_are_bit_exact() {
         let rays = b.input("rays", t.count * t.rays_height * t.rays_width, 3);
         let patch = b.output("patch_rays", t.count * ph * pw, 3);
         let (src, dst) = (b.all(rays), b.all(patch));
-        bilinear(
-            &mut b,
-            "patch_rays",
-            src,
-            t.count,
-            t.rays_height,
-            t.rays_width,
-            dst,
-            ph,
-            pw,
-            false,
-        );
+        bilinear(&mut b, "patch_rays", src, t.count, t.rays_height, t.rays_width, dst, ph, pw, false);
         let plan = b.build(&gpu).unwrap();
         gpu.write(&plan.tensor(rays), &t.rays);
         plan.execute(&gpu);
         let got = gpu.read(&plan.tensor(patch)).unwrap();
-        let differing = got
-            .iter()
-            .zip(&want.data)
-            .filter(|(a, b)| a.to_bits() != b.to_bits())
-            .count();
-        assert_eq!(
-            differing,
-            0,
-            "{}: {differing} patch-ray components differ from PyTorch",
-            dir.display()
-        );
+        let differing = got.iter().zip(&want.data).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        assert_eq!(differing, 0, "{}: {differing} patch-ray components differ from PyTorch", dir.display());
         checked += 1;
     }
-    assert!(
-        checked >= 4,
-        "expected Ray-Patch golden cases with patch_rays, found {checked}"
-    );
+    assert!(checked >= 4, "expected Ray-Patch golden cases with patch_rays, found {checked}");
 }

@@ -15,8 +15,7 @@ pub use raypatch_engine::reference::Rng;
 pub fn gpu() -> &'static Gpu {
     static GPU: OnceLock<Gpu> = OnceLock::new();
     GPU.get_or_init(|| {
-        let gpu = Gpu::new(&GpuOptions::default())
-            .expect("no GPU adapter: install Mesa lavapipe (see .ci/run)");
+        let gpu = Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)");
         eprintln!("tests run on {}", gpu.describe());
         gpu
     })
@@ -35,13 +34,7 @@ pub fn max_abs_diff(a: &[f32], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len(), "length mismatch");
     a.iter()
         .zip(b)
-        .map(|(&x, &y)| {
-            if x.is_finite() && y.is_finite() {
-                (x as f64 - y).abs()
-            } else {
-                f64::INFINITY
-            }
-        })
+        .map(|(&x, &y)| if x.is_finite() && y.is_finite() { (x as f64 - y).abs() } else { f64::INFINITY })
         .fold(0.0, f64::max)
 }
 
@@ -50,10 +43,7 @@ pub fn assert_close(what: &str, gpu: &[f32], reference: &[f64], atol: f64, rtol:
     let scale = reference.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let err = max_abs_diff(gpu, reference);
     let tol = atol + rtol * scale;
-    assert!(
-        err <= tol,
-        "{what}: max abs error {err:e} > tolerance {tol:e} (max |ref| {scale:e})"
-    );
+    assert!(err <= tol, "{what}: max abs error {err:e} > tolerance {tol:e} (max |ref| {scale:e})");
 }
 
 pub fn to_f64(v: &[f32]) -> Vec<f64> {
@@ -64,9 +54,7 @@ pub fn to_f64(v: &[f32]) -> Vec<f64> {
 /// which elements a kernel wrote.
 pub fn sentinel_tensor(rows: usize, cols: usize, sentinel: f32) -> GpuTensor {
     let ld = padded_cols(cols);
-    let t = gpu()
-        .upload("out", rows, ld, &vec![sentinel; rows * ld])
-        .expect("upload");
+    let t = gpu().upload("out", rows, ld, &vec![sentinel; rows * ld]).expect("upload");
     GpuTensor { cols, ..t }
 }
 
@@ -79,15 +67,9 @@ pub fn read_written_rows(out: &GpuTensor, view: Range<usize>, sentinel: f32) -> 
     for (r, row) in padded.chunks(ld).enumerate() {
         if view.contains(&r) {
             got.extend_from_slice(&row[..cols]);
-            assert!(
-                row[cols..].iter().all(|&v| v == 0.0),
-                "row {r}: padding not zeroed"
-            );
+            assert!(row[cols..].iter().all(|&v| v == 0.0), "row {r}: padding not zeroed");
         } else {
-            assert!(
-                row.iter().all(|&v| v == sentinel),
-                "row {r} outside the view was written"
-            );
+            assert!(row.iter().all(|&v| v == sentinel), "row {r} outside the view was written");
         }
     }
     got

@@ -54,15 +54,7 @@ impl Case {
     fn describe(&self) -> String {
         format!(
             "nq {} nkv {} heads {} dim_head {} scale {} q {:?} k {:?} v {:?} out_row {}",
-            self.nq,
-            self.nkv,
-            self.heads,
-            self.dim_head,
-            self.scale,
-            self.q,
-            self.k,
-            self.v,
-            self.out_row
+            self.nq, self.nkv, self.heads, self.dim_head, self.scale, self.q, self.k, self.v, self.out_row
         )
     }
 
@@ -73,14 +65,8 @@ impl Case {
         let inner = self.heads * self.dim_head;
         let ld = padded_cols(inner);
         let out_rows = self.out_row + self.nq + 1;
-        let padded_out = gpu
-            .upload("out", out_rows, ld, &vec![GARBAGE; out_rows * ld])
-            .unwrap();
-        let out_tensor = GpuTensor {
-            rows: out_rows,
-            cols: inner,
-            ..padded_out.clone()
-        };
+        let padded_out = gpu.upload("out", out_rows, ld, &vec![GARBAGE; out_rows * ld]).unwrap();
+        let out_tensor = GpuTensor { rows: out_rows, cols: inner, ..padded_out.clone() };
 
         let mut plan = PlanBuilder::new();
         let ids: Vec<_> = self
@@ -119,17 +105,9 @@ impl Case {
         for (r, row) in padded.chunks(ld).enumerate() {
             if (self.out_row..self.out_row + self.nq).contains(&r) {
                 result.extend_from_slice(&row[..inner]);
-                assert!(
-                    row[inner..].iter().all(|&x| x == 0.0),
-                    "{}: row {r} padding not zeroed",
-                    self.describe()
-                );
+                assert!(row[inner..].iter().all(|&x| x == 0.0), "{}: row {r} padding not zeroed", self.describe());
             } else {
-                assert!(
-                    row.iter().all(|&x| x == GARBAGE),
-                    "{}: row {r} outside the view written",
-                    self.describe()
-                );
+                assert!(row.iter().all(|&x| x == GARBAGE), "{}: row {r} outside the view written", self.describe());
             }
         }
         (result, plan.peak_bytes())
@@ -138,13 +116,7 @@ impl Case {
     /// The view's rows of a tensor as f64, with the tensor's column count.
     fn slice(&self, src: Src, rows: usize) -> (Vec<f64>, usize) {
         let h = &self.tensors[src.tensor];
-        (
-            h.data[src.row * h.cols..(src.row + rows) * h.cols]
-                .iter()
-                .map(|&x| x as f64)
-                .collect(),
-            h.cols,
-        )
+        (h.data[src.row * h.cols..(src.row + rows) * h.cols].iter().map(|&x| x as f64).collect(), h.cols)
     }
 
     fn reference(&self) -> Vec<f64> {
@@ -173,19 +145,14 @@ impl Case {
     fn heads_mut(&mut self, src: Src) -> impl Iterator<Item = &mut [f32]> {
         let inner = self.heads * self.dim_head;
         let h = &mut self.tensors[src.tensor];
-        h.data
-            .chunks_mut(h.cols)
-            .skip(src.row)
-            .map(move |row| &mut row[src.col..src.col + inner])
+        h.data.chunks_mut(h.cols).skip(src.row).map(move |row| &mut row[src.col..src.col + inner])
     }
 
     /// max |v| over the values the heads read.
     fn v_max(&self) -> f64 {
         let (v, v_ld) = self.slice(self.v, self.nkv);
         let cols = self.v.col..self.v.col + self.heads * self.dim_head;
-        v.chunks(v_ld)
-            .flat_map(|row| &row[cols.clone()])
-            .fold(0.0, |m, x| m.max(x.abs()))
+        v.chunks(v_ld).flat_map(|row| &row[cols.clone()]).fold(0.0, |m, x| m.max(x.abs()))
     }
 
     /// Per (query, head), the error the f32 rounding of the logits can cause, times max |v|.
@@ -206,9 +173,7 @@ impl Case {
                 for kj in k.chunks(k_ld) {
                     let kh = &kj[self.k.col + h * dh..][..dh];
                     logits.push(scale * qh.iter().zip(kh).map(|(a, b)| a * b).sum::<f64>());
-                    worst = worst.max(
-                        scale.abs() * qh.iter().zip(kh).map(|(a, b)| (a * b).abs()).sum::<f64>(),
-                    );
+                    worst = worst.max(scale.abs() * qh.iter().zip(kh).map(|(a, b)| (a * b).abs()).sum::<f64>());
                 }
                 let max = logits.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                 let w_max = 1.0 / logits.iter().map(|s| (s - max).exp()).sum::<f64>();
@@ -256,14 +221,7 @@ enum Layout {
 /// A random case: every view starts at row 0, 64 or 128 of a taller tensor; columns start at random
 /// (unaligned) offsets; q, k and v are uniform in [-2, 2] (logits of a few units with scale dh^-0.5), the
 /// columns no head uses are NaN.
-fn random_case(
-    rng: &mut Rng,
-    layout: Layout,
-    nq: usize,
-    nkv: usize,
-    heads: usize,
-    dim_head: usize,
-) -> Case {
+fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usize, dim_head: usize) -> Case {
     let inner = heads * dim_head;
     let mut tensors = Vec::new();
     // A tensor whose view has `rows` rows and `cols` used columns, with 0-2 rows and columns more.
@@ -275,27 +233,13 @@ fn random_case(
             cols: total_cols,
             data: rng.vec_f32(total_rows * total_cols, -2.0, 2.0),
         });
-        Src {
-            tensor: tensors.len() - 1,
-            row,
-            col: 0,
-        }
+        Src { tensor: tensors.len() - 1, row, col: 0 }
     };
     let (q, k, v) = match layout {
         Layout::FusedQkv => {
             let c0 = rng.range(0, 3);
             let src = add(rng, nq, c0 + 3 * inner);
-            (
-                Src { col: c0, ..src },
-                Src {
-                    col: c0 + inner,
-                    ..src
-                },
-                Src {
-                    col: c0 + 2 * inner,
-                    ..src
-                },
-            )
+            (Src { col: c0, ..src }, Src { col: c0 + inner, ..src }, Src { col: c0 + 2 * inner, ..src })
         }
         Layout::CachedKv => {
             let c0 = rng.range(0, 3);
@@ -306,21 +250,14 @@ fn random_case(
         Layout::Separate => {
             let mut one = |rng: &mut Rng, rows: usize| {
                 let c0 = rng.range(0, 5);
-                Src {
-                    col: c0,
-                    ..add(rng, rows, c0 + inner)
-                }
+                Src { col: c0, ..add(rng, rows, c0 + inner) }
             };
             (one(rng, nq), one(rng, nkv), one(rng, nkv))
         }
     };
     // The columns around the heads are other data the kernel must not use: make them NaN.
     for (t, h) in tensors.iter_mut().enumerate() {
-        let used: Vec<_> = [q, k, v]
-            .into_iter()
-            .filter(|s| s.tensor == t)
-            .map(|s| s.col..s.col + inner)
-            .collect();
+        let used: Vec<_> = [q, k, v].into_iter().filter(|s| s.tensor == t).map(|s| s.col..s.col + inner).collect();
         for row in h.data.chunks_mut(h.cols) {
             for (c, x) in row.iter_mut().enumerate() {
                 if !used.iter().any(|r| r.contains(&c)) {
@@ -330,18 +267,7 @@ fn random_case(
         }
     }
     let out_row = 64 * rng.range(0, 1);
-    Case {
-        tensors,
-        q,
-        k,
-        v,
-        nq,
-        nkv,
-        heads,
-        dim_head,
-        scale: (dim_head as f32).powf(-0.5),
-        out_row,
-    }
+    Case { tensors, q, k, v, nq, nkv, heads, dim_head, scale: (dim_head as f32).powf(-0.5), out_row }
 }
 
 #[test]
@@ -374,10 +300,7 @@ fn attention_random_shapes() {
 #[test]
 fn attention_large_exact_logits() {
     let mut rng = Rng::new(0x1E4);
-    for (layout, nq, nkv, heads, dim_head) in [
-        (Layout::FusedQkv, 70, 70, 2, 64),
-        (Layout::CachedKv, 33, 257, 3, 15),
-    ] {
+    for (layout, nq, nkv, heads, dim_head) in [(Layout::FusedQkv, 70, 70, 2, 64), (Layout::CachedKv, 33, 257, 3, 15)] {
         let mut case = random_case(&mut rng, layout, nq, nkv, heads, dim_head);
         for h in case.tensors.iter_mut() {
             h.data.iter_mut().for_each(|x| *x = (*x * 8.0).round());
@@ -409,14 +332,10 @@ fn attention_dominant_key_and_flat_rows() {
     // Every query is `direction`; key 123 is 40·direction (logit >= 80), the others are tiny (|logit| < 0.2).
     let mut dominant = random_case(&mut rng, Layout::Separate, nq, nkv, heads, dim_head);
     let direction: Vec<f32> = rng.vec_f32(inner, 0.5, 1.0);
-    dominant
-        .heads_mut(dominant.q)
-        .for_each(|row| row.copy_from_slice(&direction));
+    dominant.heads_mut(dominant.q).for_each(|row| row.copy_from_slice(&direction));
     for (j, key) in dominant.heads_mut(dominant.k).enumerate() {
         if j == 123 {
-            key.iter_mut()
-                .zip(&direction)
-                .for_each(|(x, d)| *x = 40.0 * d);
+            key.iter_mut().zip(&direction).for_each(|(x, d)| *x = 40.0 * d);
         } else {
             key.iter_mut().for_each(|x| *x *= 0.01);
         }
@@ -430,9 +349,7 @@ fn attention_dominant_key_and_flat_rows() {
 
     let mut same_k = random_case(&mut rng, Layout::Separate, nq, nkv, heads, dim_head);
     let first = same_k.heads_mut(same_k.k).next().unwrap().to_vec();
-    same_k
-        .heads_mut(same_k.k)
-        .for_each(|row| row.copy_from_slice(&first));
+    same_k.heads_mut(same_k.k).for_each(|row| row.copy_from_slice(&first));
     same_k.scale = 50.0;
     same_k.check();
 }
@@ -444,10 +361,7 @@ fn attention_long_kv() {
     let mut rng = Rng::new(0x4000);
     let case = random_case(&mut rng, Layout::CachedKv, 5, 16384, 2, 64);
     let (_, peak_bytes) = case.run_gpu();
-    assert!(
-        peak_bytes <= 256,
-        "attention plan allocated {peak_bytes} bytes"
-    );
+    assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
     case.check();
 }
 

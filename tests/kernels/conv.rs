@@ -25,11 +25,7 @@ impl Placed {
     /// reads or accumulates into (the layout invariant), NaN for outputs, whose padding the kernel must zero.
     pub fn new(rng: &mut Rng, label: &str, data: &[f32], cols: usize, pad: f32) -> Placed {
         let rows = data.len() / cols;
-        let row_start = if cols <= 4096 {
-            64 * rng.range(0, 1)
-        } else {
-            0
-        };
+        let row_start = if cols <= 4096 { 64 * rng.range(0, 1) } else { 0 };
         let total = row_start + rows + rng.range(0, 3);
         let ld = padded_cols(cols);
         let mut padded = vec![pad; total * ld];
@@ -43,12 +39,7 @@ impl Placed {
             }
         }
         let tensor = gpu().upload(label, total, ld, &padded).expect("upload");
-        Placed {
-            tensor: GpuTensor { cols, ..tensor },
-            row_start,
-            rows,
-            padded,
-        }
+        Placed { tensor: GpuTensor { cols, ..tensor }, row_start, rows, padded }
     }
 
     /// The placed rows as a view of an external tensor of `plan`.
@@ -61,28 +52,16 @@ impl Placed {
     /// and that the view's padding columns are zero, and returns the view's rows without padding.
     pub fn read_view(&self, what: &str) -> Vec<f32> {
         let (cols, ld) = (self.tensor.cols, padded_cols(self.tensor.cols));
-        let all = gpu()
-            .read(&GpuTensor {
-                cols: ld,
-                ..self.tensor.clone()
-            })
-            .expect("read");
+        let all = gpu().read(&GpuTensor { cols: ld, ..self.tensor.clone() }).expect("read");
         let view = self.row_start * ld..(self.row_start + self.rows) * ld;
         for (i, (got, put)) in all.iter().zip(&self.padded).enumerate() {
             if !view.contains(&i) {
-                assert!(
-                    got.to_bits() == put.to_bits(),
-                    "{what}: element {i} outside the view changed"
-                );
+                assert!(got.to_bits() == put.to_bits(), "{what}: element {i} outside the view changed");
             } else if i % ld >= cols {
                 assert!(*got == 0.0, "{what}: padding element {i} is {got}, not 0");
             }
         }
-        all[view]
-            .chunks(ld)
-            .flat_map(|row| &row[..cols])
-            .copied()
-            .collect()
+        all[view].chunks(ld).flat_map(|row| &row[..cols]).copied().collect()
     }
 }
 
@@ -103,18 +82,7 @@ struct Case {
 impl Case {
     /// Runs the case on the GPU and returns (gpu, reference) outputs.
     fn run(&self, rng: &mut Rng) -> (Vec<f32>, Vec<f64>) {
-        let &Case {
-            n,
-            h,
-            w,
-            cin,
-            cout,
-            stride,
-            upsample,
-            act,
-            bias,
-            accumulate,
-        } = self;
+        let &Case { n, h, w, cin, cout, stride, upsample, act, bias, accumulate } = self;
         let up = usize::from(upsample);
         let (ho, wo) = (((h << up) - 1) / stride + 1, ((w << up) - 1) / stride + 1);
         let x = rng.vec_f32(n * h * w * cin, -1.0, 1.0);
@@ -126,34 +94,16 @@ impl Case {
 
         let gpu = gpu();
         let xp = Placed::new(rng, "x", &x, cin, 0.0);
-        let op = Placed::new(
-            rng,
-            "out",
-            &init,
-            cout,
-            if accumulate { 0.0 } else { f32::NAN },
-        );
-        let wt = gpu
-            .upload(
-                "w",
-                cout,
-                9 * padded_cols(cin),
-                &pack_conv3x3(&weight, cout, cin),
-            )
-            .expect("upload");
-        let bt = bias_data
-            .as_ref()
-            .map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
+        let op = Placed::new(rng, "out", &init, cout, if accumulate { 0.0 } else { f32::NAN });
+        let wt = gpu.upload("w", cout, 9 * padded_cols(cin), &pack_conv3x3(&weight, cout, cin)).expect("upload");
+        let bt = bias_data.as_ref().map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
 
         let mut plan = PlanBuilder::new();
         let xv = xp.view(&mut plan, "x");
         let ov = op.view(&mut plan, "out");
         let wid = plan.external("w", &wt);
         let bid = bt.as_ref().map(|b| plan.external("b", b));
-        conv3x3(
-            &mut plan, "conv", xv, n, h, w, cin, wid, bid, ov, cout, stride, upsample, act,
-            accumulate,
-        );
+        conv3x3(&mut plan, "conv", xv, n, h, w, cin, wid, bid, ov, cout, stride, upsample, act, accumulate);
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 
@@ -185,27 +135,12 @@ impl Case {
 
 impl std::fmt::Debug for Case {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let Case {
-            n,
-            h,
-            w,
-            cin,
-            cout,
-            stride,
-            upsample,
-            act,
-            bias,
-            accumulate,
-        } = self;
+        let Case { n, h, w, cin, cout, stride, upsample, act, bias, accumulate } = self;
         write!(f, "conv {n}x{h}x{w}x{cin} -> {cout} stride {stride} upsample {upsample} {act:?} bias {bias} accumulate {accumulate}")
     }
 }
 
-const ACTS: [Activation; 3] = [
-    Activation::None,
-    Activation::Relu,
-    Activation::LeakyRelu(0.2),
-];
+const ACTS: [Activation; 3] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.2)];
 
 #[test]
 fn conv3x3_random_shapes_every_option() {
@@ -244,19 +179,7 @@ fn conv3x3_model_channel_counts() {
         (5, 800, 2, true, leaky),
     ];
     for (cin, cout, stride, upsample, act) in shapes {
-        Case {
-            n: 1,
-            h: 7,
-            w: 9,
-            cin,
-            cout,
-            stride,
-            upsample,
-            act,
-            bias: true,
-            accumulate: false,
-        }
-        .check(&mut rng);
+        Case { n: 1, h: 7, w: 9, cin, cout, stride, upsample, act, bias: true, accumulate: false }.check(&mut rng);
     }
 }
 
@@ -267,19 +190,7 @@ fn conv3x3_many_pixel_tiles() {
     for (stride, upsample) in [(1, true), (2, false)] {
         let (h, w) = if upsample { (30, 40) } else { (120, 160) };
         let act = Activation::LeakyRelu(0.2);
-        Case {
-            n: 2,
-            h,
-            w,
-            cin: 6,
-            cout: 13,
-            stride,
-            upsample,
-            act,
-            bias: true,
-            accumulate: true,
-        }
-        .check(&mut rng);
+        Case { n: 2, h, w, cin: 6, cout: 13, stride, upsample, act, bias: true, accumulate: true }.check(&mut rng);
     }
 }
 
@@ -288,10 +199,7 @@ fn conv3x3_grid_spills_into_y() {
     // More than 65535 workgroups (channel tiles of 8), so plan::grid spills into y: one pixel, 524 296 channels.
     let mut rng = Rng::new(4);
     let cout: usize = 524_296;
-    assert!(
-        cout.div_ceil(8) > 65535,
-        "the case no longer spills the grid"
-    );
+    assert!(cout.div_ceil(8) > 65535, "the case no longer spills the grid");
     Case {
         n: 1,
         h: 1,

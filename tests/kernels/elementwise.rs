@@ -28,10 +28,7 @@ fn run_map(
     let out = sentinel_tensor(out_total, cols, SENTINEL);
     let mut b = PlanBuilder::new();
     let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
-    let (xv, ov) = (
-        b.rows_of(xi, x_rows.start, rows),
-        b.rows_of(oi, out_start, rows),
-    );
+    let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
     map_columns(&mut b, "map", xv, columns.start, ov, f);
     run(b);
     read_written_rows(&out, out_start..out_start + rows, SENTINEL)
@@ -46,11 +43,7 @@ const SIGMOID_TOL: f64 = 3e-7;
 fn map_columns_random_shapes_and_views() {
     let mut rng = Rng::new(31);
     for case in 0..16 {
-        let f = if case % 2 == 0 {
-            Map::Identity
-        } else {
-            Map::Sigmoid
-        };
+        let f = if case % 2 == 0 { Map::Identity } else { Map::Sigmoid };
         let cols_x = rng.range(1, 70);
         let cols = rng.range(1, cols_x);
         let col = rng.range(0, cols_x - cols);
@@ -67,61 +60,25 @@ fn map_columns_random_shapes_and_views() {
             out_start,
             f,
         );
-        let want = reference::map_columns(
-            &to_f64(&x[x_start * cols_x..(x_start + rows) * cols_x]),
-            cols_x,
-            col,
-            cols,
-            f,
-        );
-        let what = format!(
-            "{f:?} of columns {col}..{} of {rows}x{cols_x} from rows {x_start}/{out_start}",
-            col + cols
-        );
+        let want =
+            reference::map_columns(&to_f64(&x[x_start * cols_x..(x_start + rows) * cols_x]), cols_x, col, cols, f);
+        let what = format!("{f:?} of columns {col}..{} of {rows}x{cols_x} from rows {x_start}/{out_start}", col + cols);
         // Identity is a copy: bit exact.
-        assert_close(
-            &what,
-            &got,
-            &want,
-            if f == Map::Identity { 0.0 } else { SIGMOID_TOL },
-            0.0,
-        );
+        assert_close(&what, &got, &want, if f == Map::Identity { 0.0 } else { SIGMOID_TOL }, 0.0);
     }
 }
 
 /// Large and infinite inputs neither overflow nor give NaN.
 #[test]
 fn sigmoid_extremes() {
-    let magnitudes = [
-        0.0f32,
-        1e-8,
-        0.5,
-        15.0,
-        17.0,
-        20.0,
-        88.0,
-        88.8,
-        100.0,
-        1e30,
-        f32::MAX,
-        f32::INFINITY,
-    ];
+    let magnitudes = [0.0f32, 1e-8, 0.5, 15.0, 17.0, 20.0, 88.0, 88.8, 100.0, 1e30, f32::MAX, f32::INFINITY];
     let x: Vec<f32> = magnitudes.iter().flat_map(|&v| [v, -v]).collect();
     let got = run_map(&x, 1, 0..x.len(), 0..1, x.len(), 0, Map::Sigmoid);
     let want = reference::map_columns(&to_f64(&x), 1, 0, 1, Map::Sigmoid);
     assert_close("sigmoid of extreme inputs", &got, &want, SIGMOID_TOL, 0.0);
     // The tail keeps its relative accuracy (e^x / (1 + e^x), not 1 - 1 / (1 + e^-x)).
-    for (i, (&g, &w)) in got
-        .iter()
-        .zip(&want)
-        .enumerate()
-        .filter(|(_, (_, &w))| (1e-30..1e-6).contains(&w))
-    {
-        assert!(
-            (g as f64 - w).abs() <= 1e-5 * w,
-            "sigmoid({}) = {g:e}, want {w:e}",
-            x[i]
-        );
+    for (i, (&g, &w)) in got.iter().zip(&want).enumerate().filter(|(_, (_, &w))| (1e-30..1e-6).contains(&w)) {
+        assert!((g as f64 - w).abs() <= 1e-5 * w, "sigmoid({}) = {g:e}, want {w:e}", x[i]);
     }
 }
 

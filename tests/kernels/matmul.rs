@@ -66,9 +66,7 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
         Dtype::F16 => w.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect(),
     };
     let bias_t = bias.as_ref().map(|b| gpu.upload("bias", 1, n, b).unwrap());
-    let out_t = gpu
-        .upload("out", out_rows, n, &vec![0.0; out_rows * n])
-        .unwrap();
+    let out_t = gpu.upload("out", out_rows, n, &vec![0.0; out_rows * n]).unwrap();
     let out_bytes: Vec<u8> = out_init.iter().flat_map(|v| v.to_le_bytes()).collect();
     gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
 
@@ -79,16 +77,7 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let out_id = plan.external("out", &out_t);
     let x_view = plan.rows_of(x_id, x_start, m);
     let out_view = plan.rows_of(out_id, out_start, m);
-    linear(
-        &mut plan,
-        "linear",
-        x_view,
-        w_id,
-        bias_id,
-        out_view,
-        act,
-        case.accumulate,
-    );
+    linear(&mut plan, "linear", x_view, w_id, bias_id, out_view, act, case.accumulate);
     run(plan);
     let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
 
@@ -98,26 +87,16 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let residual = residual.map(|r| to_f64(&r));
     let expected = reference::linear(&x, m, k, &w, n, bias.as_deref(), act, residual.as_deref());
 
-    let what = format!(
-        "m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}",
-        case.bias, case.accumulate, case.view
-    );
+    let what =
+        format!("m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}", case.bias, case.accumulate, case.view);
     let mut values = Vec::with_capacity(m * n);
     for r in 0..out_rows {
         let row = &got[r * ldo..(r + 1) * ldo];
         if (out_start..out_start + m).contains(&r) {
             values.extend_from_slice(&row[..n]);
-            assert!(
-                row[n..].iter().all(|&v| v == 0.0),
-                "{what}: padding of out row {r} is {:?}",
-                &row[n..]
-            );
+            assert!(row[n..].iter().all(|&v| v == 0.0), "{what}: padding of out row {r} is {:?}", &row[n..]);
         } else {
-            assert_eq!(
-                row,
-                &out_init[r * ldo..(r + 1) * ldo],
-                "{what}: row {r} outside the view changed"
-            );
+            assert_eq!(row, &out_init[r * ldo..(r + 1) * ldo], "{what}: row {r} outside the view changed");
         }
     }
 
@@ -130,20 +109,14 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
         .flat_map(|i| (0..n).map(move |j| (i, j)))
         .map(|(i, j)| {
             let sum: f64 = (0..k).map(|l| (x[i * k + l] * w[j * k + l]).abs()).sum();
-            sum + bias.as_ref().map_or(0.0, |b| b[j].abs())
-                + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
+            sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
         })
         .fold(0.0, f64::max);
     let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
     assert_close(&what, &values, &expected, tol, 0.0);
 }
 
-const ACTIVATIONS: [Activation; 4] = [
-    Activation::None,
-    Activation::Relu,
-    Activation::LeakyRelu(0.1),
-    Activation::Gelu,
-];
+const ACTIVATIONS: [Activation; 4] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.1), Activation::Gelu];
 
 #[test]
 fn linear_random_shapes() {
@@ -171,23 +144,13 @@ fn linear_random_shapes() {
 /// and K not a multiple of 8 (f16 rows are padded to 8 halves, so their stride differs from x's).
 #[test]
 fn linear_f16_weights() {
-    if !gpu()
-        .features
-        .contains(raypatch_engine::wgpu::Features::SHADER_F16)
-    {
-        eprintln!(
-            "{} has no shader-f16: f16 weights not tested",
-            gpu().describe()
-        );
+    if !gpu().features.contains(raypatch_engine::wgpu::Features::SHADER_F16) {
+        eprintln!("{} has no shader-f16: f16 weights not tested", gpu().describe());
         return;
     }
     let mut rng = Rng::new(4);
     for i in 0..16 {
-        let k = if i < 4 {
-            [1, 4, 5, 9][i]
-        } else {
-            rng.range(1, 300)
-        };
+        let k = if i < 4 { [1, 4, 5, 9][i] } else { rng.range(1, 300) };
         let case = Case {
             m: rng.range(1, 300),
             k,
@@ -205,25 +168,10 @@ fn linear_f16_weights() {
 #[test]
 fn linear_tile_edges() {
     let mut rng = Rng::new(3);
-    let shapes = [
-        (1, 1, 1),
-        (256, 4, 8),
-        (257, 5, 9),
-        (255, 3, 7),
-        (4, 8, 12),
-        (513, 9, 16),
-        (3, 2, 5),
-    ];
+    let shapes = [(1, 1, 1), (256, 4, 8), (257, 5, 9), (255, 3, 7), (4, 8, 12), (513, 9, 16), (3, 2, 5)];
     for (i, &(m, k, n)) in shapes.iter().enumerate() {
-        let case = Case {
-            m,
-            k,
-            n,
-            act: ACTIVATIONS[i % 4],
-            bias: i % 2 == 0,
-            accumulate: i % 3 == 0,
-            view: i % 2 == 1,
-        };
+        let case =
+            Case { m, k, n, act: ACTIVATIONS[i % 4], bias: i % 2 == 0, accumulate: i % 3 == 0, view: i % 2 == 1 };
         check(&case, &mut rng);
     }
 }
@@ -232,24 +180,8 @@ fn linear_tile_edges() {
 fn linear_big_shapes() {
     let mut rng = Rng::new(2);
     let cases = [
-        Case {
-            m: 1000,
-            k: 768,
-            n: 256,
-            act: Activation::Gelu,
-            bias: true,
-            accumulate: false,
-            view: false,
-        },
-        Case {
-            m: 777,
-            k: 1536,
-            n: 97,
-            act: Activation::None,
-            bias: true,
-            accumulate: true,
-            view: true,
-        },
+        Case { m: 1000, k: 768, n: 256, act: Activation::Gelu, bias: true, accumulate: false, view: false },
+        Case { m: 777, k: 1536, n: 97, act: Activation::None, bias: true, accumulate: true, view: true },
     ];
     for case in &cases {
         check(case, &mut rng);
@@ -275,16 +207,7 @@ fn gelu_erf_accuracy() {
     let w = plan.external("w", &w_t);
     let out = plan.output("gelu", points, 1);
     let (x_view, out_view) = (plan.all(x), plan.all(out));
-    linear(
-        &mut plan,
-        "gelu",
-        x_view,
-        w,
-        None,
-        out_view,
-        Activation::Gelu,
-        false,
-    );
+    linear(&mut plan, "gelu", x_view, w, None, out_view, Activation::Gelu, false);
     let plan = run(plan);
     let gelu = gpu.read(&plan.tensor(out)).unwrap();
 
@@ -305,15 +228,10 @@ fn gelu_erf_accuracy() {
     assert!(erf_err < 2e-7, "erf max abs error {erf_err:e}");
 
     // GELU itself, on both sides: the erf error scaled by |v|/2, plus f32 rounding of the result.
-    let expected: Vec<f64> = v
-        .iter()
-        .map(|&v| raypatch_engine::reference::activation(f64::from(v), Activation::Gelu))
-        .collect();
+    let expected: Vec<f64> =
+        v.iter().map(|&v| raypatch_engine::reference::activation(f64::from(v), Activation::Gelu)).collect();
     for ((&v, &g), &e) in v.iter().zip(&gelu).zip(&expected) {
         let tol = 0.5 * f64::from(v).abs() * 2e-7 + 2.0 * e.abs() * f64::from(f32::EPSILON);
-        assert!(
-            (f64::from(g) - e).abs() <= tol,
-            "gelu({v}) = {g}, expected {e}"
-        );
+        assert!((f64::from(g) - e).abs() <= tol, "gelu({v}) = {g}, expected {e}");
     }
 }

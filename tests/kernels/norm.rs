@@ -31,16 +31,9 @@ fn run_layernorm(
     let gamma = gpu.upload("gamma", 1, cols, gamma).unwrap();
     let beta = gpu.upload("beta", 1, cols, beta).unwrap();
     let mut b = PlanBuilder::new();
-    let (xi, gi, bi, oi) = (
-        b.external("x", x),
-        b.external("gamma", &gamma),
-        b.external("beta", &beta),
-        b.external("out", &out),
-    );
-    let (xv, ov) = (
-        b.rows_of(xi, x_rows.start, rows),
-        b.rows_of(oi, out_start, rows),
-    );
+    let (xi, gi, bi, oi) =
+        (b.external("x", x), b.external("gamma", &gamma), b.external("beta", &beta), b.external("out", &out));
+    let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
     layernorm(&mut b, "ln", xv, gi, bi, ov, eps);
     run(b);
     read_written_rows(&out, out_start..out_start + rows, SENTINEL)
@@ -71,15 +64,7 @@ fn layernorm_random_shapes_and_views() {
         let beta = normals(&mut rng, cols, 0.0, 1.0);
         let eps = [EPS, 1e-6, 1e-3][rng.range(0, 2)];
         let xt = gpu.upload("x", x_rows, cols, &x).unwrap();
-        let got = run_layernorm(
-            &xt,
-            x_start..x_start + rows,
-            &gamma,
-            &beta,
-            eps,
-            out_rows,
-            out_start,
-        );
+        let got = run_layernorm(&xt, x_start..x_start + rows, &gamma, &beta, eps, out_rows, out_start);
         let want = reference::layernorm(
             &f64s(&x[x_start * cols..(x_start + rows) * cols]),
             cols,
@@ -89,13 +74,7 @@ fn layernorm_random_shapes_and_views() {
         );
         // The normalised values are within ~√C·u of exact on random rows (f32 sums of C/4 terms); times
         // |gamma| ≤ 3 and plus beta: 2e-6 absolute plus 2e-6 of the output's scale leaves a 5x margin.
-        assert_close(
-            &format!("{rows}x{cols} from rows {x_start}/{out_start}, eps {eps}"),
-            &got,
-            &want,
-            2e-6,
-            2e-6,
-        );
+        assert_close(&format!("{rows}x{cols} from rows {x_start}/{out_start}, eps {eps}"), &got, &want, 2e-6, 2e-6);
     }
 }
 
@@ -110,13 +89,7 @@ fn layernorm_large_mean_small_spread() {
         let (ones, zeros) = (vec![1.0; cols], vec![0.0; cols]);
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
         let got = run_layernorm(&xt, 0..rows, &ones, &zeros, EPS, rows, 0);
-        let want = reference::layernorm(
-            &f64s(&x),
-            cols,
-            &vec![1.0; cols],
-            &vec![0.0; cols],
-            EPS as f64,
-        );
+        let want = reference::layernorm(&f64s(&x), cols, &vec![1.0; cols], &vec![0.0; cols], EPS as f64);
         // The kernel's error bound for the normalised value is (C/4 + 3)·u·(max - min)/std per row (see
         // `layernorm`); taken with the widest spread over the rows, plus 4 ulp of the largest value.
         let u = 2f64.powi(-24);
@@ -127,23 +100,13 @@ fn layernorm_large_mean_small_spread() {
                 let xr = f64s(xr);
                 let m = xr.iter().sum::<f64>() / cols as f64;
                 let std = (xr.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / cols as f64).sqrt();
-                let spread = xr.iter().cloned().fold(f64::MIN, f64::max)
-                    - xr.iter().cloned().fold(f64::MAX, f64::min);
+                let spread = xr.iter().cloned().fold(f64::MIN, f64::max) - xr.iter().cloned().fold(f64::MAX, f64::min);
                 let top = nr.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 (cols as f64 / 4.0 + 3.0) * u * spread / std.max(1e-30) + 4.0 * u * top
             })
             .fold(0.0, f64::max);
-        assert!(
-            bound < 1e-3,
-            "{cols} columns: bound {bound:e} above the 1e-3 that `layernorm` states"
-        );
-        assert_close(
-            &format!("{cols} columns around {mean}"),
-            &got,
-            &want,
-            bound,
-            0.0,
-        );
+        assert!(bound < 1e-3, "{cols} columns: bound {bound:e} above the 1e-3 that `layernorm` states");
+        assert_close(&format!("{cols} columns around {mean}"), &got, &want, bound, 0.0);
     }
 }
 
@@ -164,12 +127,7 @@ fn layernorm_constant_rows_give_beta() {
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
         let got = run_layernorm(&xt, 0..rows, &gamma, &beta, EPS, rows, 0);
         for (r, row) in got.chunks(cols).enumerate() {
-            assert_eq!(
-                row,
-                &beta[..],
-                "{cols} columns: constant row {} is not beta",
-                constants[r]
-            );
+            assert_eq!(row, &beta[..], "{cols} columns: constant row {} is not beta", constants[r]);
         }
     }
 }

@@ -41,25 +41,13 @@ fn encode(
     let ld = padded_cols(out.cols);
     let width = 6 * m.len();
     let coord_rows = coords.len() / 3;
-    let junk_then_coords: Vec<f32> = std::iter::repeat_n(1e6, coords_start * 3)
-        .chain(coords.iter().copied())
-        .collect();
-    let coords = gpu
-        .upload("coords", coords_start + coord_rows, 3, &junk_then_coords)
-        .unwrap();
-    let out_t = gpu
-        .upload("out", out.total, ld, &vec![SENTINEL; out.total * ld])
-        .unwrap();
-    let out_t = GpuTensor {
-        cols: out.cols,
-        ..out_t
-    };
+    let junk_then_coords: Vec<f32> = std::iter::repeat_n(1e6, coords_start * 3).chain(coords.iter().copied()).collect();
+    let coords = gpu.upload("coords", coords_start + coord_rows, 3, &junk_then_coords).unwrap();
+    let out_t = gpu.upload("out", out.total, ld, &vec![SENTINEL; out.total * ld]).unwrap();
+    let out_t = GpuTensor { cols: out.cols, ..out_t };
     let mut b = PlanBuilder::new();
     let (ci, oi) = (b.external("coords", &coords), b.external("out", &out_t));
-    let (cv, ov) = (
-        b.rows_of(ci, coords_start, coord_rows),
-        b.rows_of(oi, out.start, out.rows),
-    );
+    let (cv, ov) = (b.rows_of(ci, coords_start, coord_rows), b.rows_of(oi, out.start, out.rows));
     fourier_encode(&mut b, "posenc", cv, repeat, first_row, m, ov, out.col);
     run(b);
     let padded = gpu.read_rows(&out_t.buffer, 0, out.total, ld).unwrap();
@@ -71,11 +59,7 @@ fn encode(
             if in_view && (out.col..out.col + width).contains(&j) {
                 got.push(v);
             } else {
-                let want = if in_view && ends_row && j >= out.cols {
-                    0.0
-                } else {
-                    SENTINEL
-                };
+                let want = if in_view && ends_row && j >= out.cols { 0.0 } else { SENTINEL };
                 assert_eq!(
                     v,
                     want,
@@ -92,13 +76,7 @@ fn encode(
 
 /// The whole `[rows, 6N]` output.
 fn plain(rows: usize, n: usize) -> OutLayout {
-    OutLayout {
-        total: rows,
-        start: 0,
-        rows,
-        cols: 6 * n,
-        col: 0,
-    }
+    OutLayout { total: rows, start: 0, rows, cols: 6 * n, col: 0 }
 }
 
 fn f64s(v: &[f32]) -> Vec<f64> {
@@ -113,29 +91,22 @@ fn bits(v: &[f32]) -> Vec<u32> {
 fn multipliers_match_torch() {
     // (2 ** torch.arange(-5, 15, dtype=torch.float32)) * math.pi
     let arange: [u32; 20] = [
-        0x3dc90fdb, 0x3e490fdb, 0x3ec90fdb, 0x3f490fdb, 0x3fc90fdb, 0x40490fdb, 0x40c90fdb,
-        0x41490fdb, 0x41c90fdb, 0x42490fdb, 0x42c90fdb, 0x43490fdb, 0x43c90fdb, 0x44490fdb,
-        0x44c90fdb, 0x45490fdb, 0x45c90fdb, 0x46490fdb, 0x46c90fdb, 0x47490fdb,
+        0x3dc90fdb, 0x3e490fdb, 0x3ec90fdb, 0x3f490fdb, 0x3fc90fdb, 0x40490fdb, 0x40c90fdb, 0x41490fdb, 0x41c90fdb,
+        0x42490fdb, 0x42c90fdb, 0x43490fdb, 0x43c90fdb, 0x44490fdb, 0x44c90fdb, 0x45490fdb, 0x45c90fdb, 0x46490fdb,
+        0x46c90fdb, 0x47490fdb,
     ];
     assert_eq!(bits(&multipliers(20, -5.0, None)), arange);
     // torch.linspace(start, end, n, dtype=torch.float32) * math.pi, from torch 2.x on the CPU.
     let linspace: [(usize, f64, f64, &[u32]); 5] = [
-        (
-            7,
-            0.0,
-            8.0,
-            &[
-                0x00000000, 0x40860a92, 0x41060a92, 0x41490fdb, 0x41860a91, 0x41a78d36, 0x41c90fdb,
-            ],
-        ),
+        (7, 0.0, 8.0, &[0x00000000, 0x40860a92, 0x41060a92, 0x41490fdb, 0x41860a91, 0x41a78d36, 0x41c90fdb]),
         (
             20,
             -5.0,
             14.0,
             &[
-                0xc17b53d2, 0xc1490fdb, 0xc116cbe4, 0xc0c90fdb, 0xc0490fdb, 0x00000000, 0x40490fdb,
-                0x40c90fdb, 0x4116cbe4, 0x41490fdb, 0x417b53d2, 0x4196cbe4, 0x41afede0, 0x41c90fdb,
-                0x41e231d6, 0x41fb53d2, 0x420a3ae7, 0x4216cbe4, 0x42235ce2, 0x422fede0,
+                0xc17b53d2, 0xc1490fdb, 0xc116cbe4, 0xc0c90fdb, 0xc0490fdb, 0x00000000, 0x40490fdb, 0x40c90fdb,
+                0x4116cbe4, 0x41490fdb, 0x417b53d2, 0x4196cbe4, 0x41afede0, 0x41c90fdb, 0x41e231d6, 0x41fb53d2,
+                0x420a3ae7, 0x4216cbe4, 0x42235ce2, 0x422fede0,
             ],
         ),
         (
@@ -143,11 +114,10 @@ fn multipliers_match_torch() {
             0.001,
             9.7,
             &[
-                0x3b4de32f, 0x3f7c6e14, 0x3ffc0723, 0x403ceb9e, 0x407bd3ab, 0x409d5ddb, 0x40bcd1e1,
-                0x40dc45e7, 0x40fbb9ed, 0x410d96fa, 0x411d50fd, 0x412d0b00, 0x413cc503, 0x414c7f06,
-                0x415c3909, 0x416bf30c, 0x417bad11, 0x4185b38a, 0x418d908c, 0x41956d8d, 0x419d4a8f,
-                0x41a52790, 0x41ad0492, 0x41b4e193, 0x41bcbe94, 0x41c49b96, 0x41cc7898, 0x41d45599,
-                0x41dc329b, 0x41e40f9c, 0x41ebec9e, 0x41f3c9a0,
+                0x3b4de32f, 0x3f7c6e14, 0x3ffc0723, 0x403ceb9e, 0x407bd3ab, 0x409d5ddb, 0x40bcd1e1, 0x40dc45e7,
+                0x40fbb9ed, 0x410d96fa, 0x411d50fd, 0x412d0b00, 0x413cc503, 0x414c7f06, 0x415c3909, 0x416bf30c,
+                0x417bad11, 0x4185b38a, 0x418d908c, 0x41956d8d, 0x419d4a8f, 0x41a52790, 0x41ad0492, 0x41b4e193,
+                0x41bcbe94, 0x41c49b96, 0x41cc7898, 0x41d45599, 0x41dc329b, 0x41e40f9c, 0x41ebec9e, 0x41f3c9a0,
             ],
         ),
         (
@@ -155,18 +125,14 @@ fn multipliers_match_torch() {
             2.0,
             -3.0,
             &[
-                0x40c90fdb, 0x409f2c8e, 0x406a9281, 0x4016cbe4, 0x3f860a93, 0xbe860a8d, 0xbfc90fdd,
-                0xc0384e8a, 0xc0860a92, 0xc0afede0, 0xc0d9d12e, 0xc101da3d, 0xc116cbe4,
+                0x40c90fdb, 0x409f2c8e, 0x406a9281, 0x4016cbe4, 0x3f860a93, 0xbe860a8d, 0xbfc90fdd, 0xc0384e8a,
+                0xc0860a92, 0xc0afede0, 0xc0d9d12e, 0xc101da3d, 0xc116cbe4,
             ],
         ),
         (1, 2.5, 9.0, &[0x40fb53d2]),
     ];
     for (n, start, end, want) in linspace {
-        assert_eq!(
-            bits(&multipliers(n, start, Some(end))),
-            want,
-            "linspace({start}, {end}, {n})"
-        );
+        assert_eq!(bits(&multipliers(n, start, Some(end))), want, "linspace({start}, {end}, {n})");
     }
 }
 
@@ -193,14 +159,10 @@ fn fourier_encode_dense_argument_sweep() {
     for k in 0..=(limit / std::f64::consts::FRAC_PI_2) as u32 {
         let nearest = ((k as f64 * std::f64::consts::FRAC_PI_2) as f32).to_bits();
         let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
-        coords.extend(
-            [nearest.saturating_sub(1), nearest, nearest + 1].map(|b| sign * f32::from_bits(b)),
-        );
+        coords.extend([nearest.saturating_sub(1), nearest, nearest + 1].map(|b| sign * f32::from_bits(b)));
     }
     let sweep = 3 << 16;
-    coords.extend(
-        (0..sweep).map(|i| (-limit + 2.0 * limit * (i as f64 + rng.unit()) / sweep as f64) as f32),
-    );
+    coords.extend((0..sweep).map(|i| (-limit + 2.0 * limit * (i as f64 + rng.unit()) / sweep as f64) as f32));
     let rows = coords.len() / 3;
     let got = encode(&coords, 0, 1, 0, &[1.0], &plain(rows, 1));
     let want = reference::fourier_encode(&f64s(&coords), 1, 0, rows, &[1.0]);
@@ -220,45 +182,20 @@ fn fourier_encode_broadcast_columns_and_views() {
             let n = rng.range(1, 20);
             multipliers(n, rng.range(0, 20 - n) as f64 - 5.0, None)
         } else {
-            multipliers(
-                rng.range(1, 32),
-                rng.uniform(-5.0, 1.0),
-                Some(rng.uniform(2.0, 14.0)),
-            )
+            multipliers(rng.range(1, 32), rng.uniform(-5.0, 1.0), Some(rng.uniform(2.0, 14.0)))
         };
         let n = m.len();
-        let (coord_rows, repeat) = if case == 0 {
-            (300, 1000)
-        } else {
-            (rng.range(1, 40), rng.range(1, 50))
-        };
-        let rows = if case == 0 {
-            300_000
-        } else {
-            rng.range(1, coord_rows * repeat)
-        };
+        let (coord_rows, repeat) = if case == 0 { (300, 1000) } else { (rng.range(1, 40), rng.range(1, 50)) };
+        let rows = if case == 0 { 300_000 } else { rng.range(1, coord_rows * repeat) };
         let first_row = rng.range(0, coord_rows * repeat - rows);
         let col = if case == 0 { 0 } else { rng.range(0, 9) };
-        let extra = if rng.range(0, 1) == 0 {
-            0
-        } else {
-            rng.range(1, 7)
-        };
+        let extra = if rng.range(0, 1) == 0 { 0 } else { rng.range(1, 7) };
         let start = 64 * rng.range(0, 2);
-        let out = OutLayout {
-            total: start + rows + rng.range(0, 30),
-            start,
-            rows,
-            cols: col + 6 * n + extra,
-            col,
-        };
+        let out = OutLayout { total: start + rows + rng.range(0, 30), start, rows, cols: col + 6 * n + extra, col };
         let coords = rng.vec_f32(coord_rows * 3, -10.0, 10.0);
         let got = encode(&coords, 64 * rng.range(0, 2), repeat, first_row, &m, &out);
         let want = reference::fourier_encode(&f64s(&coords), repeat, first_row, rows, &m);
-        let what = format!(
-            "N {n}, {rows} rows from {first_row} with repeat {repeat}, columns {col}.. of {}",
-            out.cols
-        );
+        let what = format!("N {n}, {rows} rows from {first_row} with repeat {repeat}, columns {col}.. of {}", out.cols);
         assert_close(&what, &got, &want, TOL, 0.0);
     }
 }

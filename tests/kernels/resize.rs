@@ -9,27 +9,12 @@ use crate::conv::Placed;
 
 /// Resizes random data `[n*hi*wi, c]` to `ho × wo` on the GPU and checks it against the reference.
 #[allow(clippy::too_many_arguments)]
-fn check(
-    rng: &mut Rng,
-    accumulate: bool,
-    n: usize,
-    hi: usize,
-    wi: usize,
-    c: usize,
-    ho: usize,
-    wo: usize,
-) {
+fn check(rng: &mut Rng, accumulate: bool, n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) {
     let what = format!("bilinear (accumulate {accumulate}) {n}x{hi}x{wi}x{c} -> {ho}x{wo}");
     let x = rng.vec_f32(n * hi * wi * c, -1.0, 1.0);
     let init = rng.vec_f32(n * ho * wo * c, -1.0, 1.0);
     let xp = Placed::new(rng, "x", &x, c, 0.0);
-    let op = Placed::new(
-        rng,
-        "out",
-        &init,
-        c,
-        if accumulate { 0.0 } else { f32::NAN },
-    );
+    let op = Placed::new(rng, "out", &init, c, if accumulate { 0.0 } else { f32::NAN });
 
     let mut plan = PlanBuilder::new();
     let xv = xp.view(&mut plan, "x");
@@ -41,10 +26,7 @@ fn check(
     let x = to_f64(&x);
     let mut expected = reference::bilinear(&x, n, hi, wi, c, ho, wo);
     if accumulate {
-        expected
-            .iter_mut()
-            .zip(&init)
-            .for_each(|(e, &i)| *e += f64::from(i));
+        expected.iter_mut().zip(&init).for_each(|(e, &i)| *e += f64::from(i));
     }
     // The same f32 source coordinates and λ as the reference, then a blend of
     // 4 values with |x| <= 1 (a few 2^-24 of rounding; 1.4e-7 measured on lavapipe). A driver may fuse
@@ -61,11 +43,8 @@ fn bilinear_downsample_by_k() {
     let mut rng = Rng::new(11);
     for (i, k) in [2, 4, 8, 16].into_iter().enumerate() {
         for c in CHANNELS {
-            let (hi, wi) = if c == 3 {
-                (k * rng.range(1, 4), k * rng.range(1, 5))
-            } else {
-                (rng.range(k, 70), rng.range(k, 70))
-            };
+            let (hi, wi) =
+                if c == 3 { (k * rng.range(1, 4), k * rng.range(1, 5)) } else { (rng.range(k, 70), rng.range(k, 70)) };
             let n = rng.range(1, 3);
             check(&mut rng, i % 2 == 1, n, hi, wi, c, hi / k, wi / k);
         }
@@ -91,23 +70,9 @@ fn bilinear_random_sizes() {
     // Arbitrary ratios in both directions, 1-pixel images, odd sizes.
     let mut rng = Rng::new(13);
     for case in 0..24 {
-        let (hi, wi, ho, wo) = (
-            rng.range(1, 25),
-            rng.range(1, 25),
-            rng.range(1, 25),
-            rng.range(1, 25),
-        );
+        let (hi, wi, ho, wo) = (rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), rng.range(1, 25));
         let n = rng.range(1, 3);
-        check(
-            &mut rng,
-            case % 2 == 1,
-            n,
-            hi,
-            wi,
-            CHANNELS[case % 3],
-            ho,
-            wo,
-        );
+        check(&mut rng, case % 2 == 1, n, hi, wi, CHANNELS[case % 3], ho, wo);
     }
 }
 
@@ -125,20 +90,10 @@ fn nearest_matches_reference_exactly() {
     // PyTorch's mode='nearest' copies source pixels: the result must be exact. Arbitrary ratios, the 2×
     // and k× special cases, and the official output resize (56×80 from a 7×10 patch grid at k=8 → 60×80).
     let mut rng = Rng::new(15);
-    let mut cases: Vec<(usize, usize, usize, usize, usize)> = vec![
-        (7, 5, 14, 10, 3),
-        (40, 48, 10, 6, 5),
-        (56, 80, 60, 80, 3),
-        (56, 80, 60, 80, 4),
-    ];
+    let mut cases: Vec<(usize, usize, usize, usize, usize)> =
+        vec![(7, 5, 14, 10, 3), (40, 48, 10, 6, 5), (56, 80, 60, 80, 3), (56, 80, 60, 80, 4)];
     for _ in 0..12 {
-        cases.push((
-            rng.range(1, 25),
-            rng.range(1, 25),
-            rng.range(1, 25),
-            rng.range(1, 25),
-            CHANNELS[rng.range(0, 2)],
-        ));
+        cases.push((rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), rng.range(1, 25), CHANNELS[rng.range(0, 2)]));
     }
     for (hi, wi, ho, wo, c) in cases {
         let n = rng.range(1, 2);
@@ -151,12 +106,6 @@ fn nearest_matches_reference_exactly() {
         nearest(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo);
         run(plan);
         let got = op.read_view(&what);
-        assert_close(
-            &what,
-            &got,
-            &reference::nearest(&to_f64(&x), n, hi, wi, c, ho, wo),
-            0.0,
-            0.0,
-        );
+        assert_close(&what, &got, &reference::nearest(&to_f64(&x), n, hi, wi, c, ho, wo), 0.0, 0.0);
     }
 }

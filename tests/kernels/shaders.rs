@@ -3,17 +3,12 @@
 
 #[test]
 fn all_shaders_validate() {
-    let kernels = raypatch_engine::kernels::ALL_SHADERS
-        .iter()
-        .chain(&raypatch_engine::kernels::VARIANTS);
+    let kernels = raypatch_engine::kernels::ALL_SHADERS.iter().chain(&raypatch_engine::kernels::VARIANTS);
     for shader in kernels {
         let source = shader.wgsl();
         let module = naga::front::wgsl::parse_str(&source)
             .unwrap_or_else(|e| panic!("{}.wgsl: {}", shader.name, e.emit_to_string(&source)));
-        let capabilities = if shader
-            .features
-            .contains(raypatch_engine::wgpu::Features::SHADER_F16)
-        {
+        let capabilities = if shader.features.contains(raypatch_engine::wgpu::Features::SHADER_F16) {
             naga::valid::Capabilities::SHADER_FLOAT16
         } else {
             naga::valid::Capabilities::empty()

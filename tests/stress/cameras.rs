@@ -21,74 +21,28 @@ const TOL: f64 = 1e-4;
 #[test]
 fn far_and_polar_cameras_match_the_reference() {
     let rigs = [
-        (
-            "1e3 away",
-            CameraRig {
-                distance: (900.0, 1000.0),
-                elevation: (-60.0, 60.0),
-            },
-        ),
-        (
-            "100 away",
-            CameraRig {
-                distance: (90.0, 100.0),
-                elevation: (10.0, 60.0),
-            },
-        ),
-        (
-            "near the north pole",
-            CameraRig {
-                distance: (5.0, 12.0),
-                elevation: (89.99, 89.999),
-            },
-        ),
-        (
-            "near the south pole",
-            CameraRig {
-                distance: (5.0, 12.0),
-                elevation: (-89.999, -89.99),
-            },
-        ),
-        (
-            "near the pole, 1e3 away",
-            CameraRig {
-                distance: (900.0, 1000.0),
-                elevation: (89.99, 89.999),
-            },
-        ),
+        ("1e3 away", CameraRig { distance: (900.0, 1000.0), elevation: (-60.0, 60.0) }),
+        ("100 away", CameraRig { distance: (90.0, 100.0), elevation: (10.0, 60.0) }),
+        ("near the north pole", CameraRig { distance: (5.0, 12.0), elevation: (89.99, 89.999) }),
+        ("near the south pole", CameraRig { distance: (5.0, 12.0), elevation: (-89.999, -89.99) }),
+        ("near the pole, 1e3 away", CameraRig { distance: (900.0, 1000.0), elevation: (89.99, 89.999) }),
     ];
     for case in ["srt_k1", "rpsrt_k4"] {
-        let loaded =
-            raypatch_model::load_model(golden_case(case).join("model.safetensors")).unwrap();
+        let loaded = raypatch_model::load_model(golden_case(case).join("model.safetensors")).unwrap();
         let model = engine_model(&loaded);
         let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32);
         let float64 = ReferenceModel::new(&loaded, Argument::Float64);
         for (seed, (what, rig)) in rigs.iter().enumerate() {
-            let (inputs, targets) =
-                synthetic_scene(seed as u64, 2, (24, 32), 2, (16, 24), rig).unwrap();
-            let frame = model
-                .encode(&inputs)
-                .unwrap()
-                .render(&targets, Outputs::default())
-                .unwrap();
+            let (inputs, targets) = synthetic_scene(seed as u64, 2, (24, 32), 2, (16, 24), rig).unwrap();
+            let frame = model.encode(&inputs).unwrap().render(&targets, Outputs::default()).unwrap();
             let rgb = frame.rgb.expect("rgb");
-            assert!(
-                rgb.iter().all(|v| v.is_finite()),
-                "{case}, cameras {what}: non-finite rgb"
-            );
-            let want = reference
-                .render(&reference.encode(&inputs).unwrap(), &targets)
-                .unwrap();
+            assert!(rgb.iter().all(|v| v.is_finite()), "{case}, cameras {what}: non-finite rgb");
+            let want = reference.render(&reference.encode(&inputs).unwrap(), &targets).unwrap();
             let err = max_abs_diff(&rgb, &want.rgb);
-            let exact = float64
-                .render(&float64.encode(&inputs).unwrap(), &targets)
-                .unwrap();
+            let exact = float64.render(&float64.encode(&inputs).unwrap(), &targets).unwrap();
             let model_gap = max_abs_diff(&rgb, &exact.rgb);
             eprintln!("{case}, cameras {what}: rgb error {err:.1e} (vs the float64-argument model: {model_gap:.1e})");
-            assert!(
-                err <= TOL,
-                "{case}, cameras {what}: rgb error {err:e} > {TOL:e}"
-            );
+            assert!(err <= TOL, "{case}, cameras {what}: rgb error {err:e} > {TOL:e}");
         }
     }
 }

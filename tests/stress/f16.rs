@@ -22,13 +22,7 @@ fn golden_tensors(case: &str) -> (serde_json::Value, Vec<Tensor>) {
     let tensors = file
         .keys()
         .filter(|k| !k.ends_with("num_batches_tracked"))
-        .map(|k| {
-            (
-                k.to_string(),
-                file.shape(k).unwrap().to_vec(),
-                file.f32(k).unwrap().data,
-            )
-        })
+        .map(|k| (k.to_string(), file.shape(k).unwrap().to_vec(), file.f32(k).unwrap().data))
         .collect();
     (config, tensors)
 }
@@ -36,40 +30,20 @@ fn golden_tensors(case: &str) -> (serde_json::Value, Vec<Tensor>) {
 /// Renders `loaded` with f16 weights; returns what was kept in f32 and the rgb error against the reference.
 fn render_f16(loaded: &LoadedModel, case: &str) -> (Vec<KeptF32>, f64) {
     let scene = raypatch_model::load_scene(golden_case(case).join("scene.safetensors")).unwrap();
-    let options = LoadOptions {
-        weight_storage: WeightStorage::F16,
-    };
+    let options = LoadOptions { weight_storage: WeightStorage::F16 };
     let model = Model::from_loaded_with(gpu(), loaded, &options).unwrap();
-    let rgb = model
-        .encode(&scene.inputs)
-        .unwrap()
-        .render(&scene.targets, Outputs::default())
-        .unwrap()
-        .rgb
-        .expect("rgb");
-    assert!(
-        rgb.iter().all(|v| v.is_finite()),
-        "{case}: non-finite rgb with f16 weights"
-    );
+    let rgb =
+        model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
+    assert!(rgb.iter().all(|v| v.is_finite()), "{case}: non-finite rgb with f16 weights");
     let reference = ReferenceModel::new(loaded, Argument::RoundedToF32);
-    let want = reference
-        .render(&reference.encode(&scene.inputs).unwrap(), &scene.targets)
-        .unwrap();
-    (
-        model.weights_kept_f32().to_vec(),
-        max_abs_diff(&rgb, &want.rgb),
-    )
+    let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
+    (model.weights_kept_f32().to_vec(), max_abs_diff(&rgb, &want.rgb))
 }
 
 fn has_f16() -> bool {
-    let ok = gpu()
-        .features
-        .contains(raypatch_engine::wgpu::Features::SHADER_F16);
+    let ok = gpu().features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
     if !ok {
-        eprintln!(
-            "{} has no shader-f16: f16 storage not tested",
-            gpu().describe()
-        );
+        eprintln!("{} has no shader-f16: f16 storage not tested", gpu().describe());
     }
     ok
 }
@@ -80,15 +54,11 @@ fn f16_weights_stay_close_to_the_reference() {
         return;
     }
     for case in ["srt_k1", "rpsrt_k4", "rpsrt_k16"] {
-        let loaded =
-            raypatch_model::load_model(golden_case(case).join("model.safetensors")).unwrap();
+        let loaded = raypatch_model::load_model(golden_case(case).join("model.safetensors")).unwrap();
         let (kept, err) = render_f16(&loaded, case);
         eprintln!("{case}: f16 weights, rgb error {err:.1e}");
         assert!(kept.is_empty(), "{case}: layers kept in f32: {kept:?}");
-        assert!(
-            err <= F16_TOL,
-            "{case}: rgb error {err:e} with f16 weights > {F16_TOL:e}"
-        );
+        assert!(err <= F16_TOL, "{case}: rgb error {err:e} with f16 weights > {F16_TOL:e}");
     }
 }
 
@@ -108,58 +78,28 @@ fn weights_beyond_f16_range_keep_their_layer_in_f32() {
     };
     let dead_unit_0 = |shape: &[usize], w: &mut Vec<f32>| w[..shape[1]].fill(0.0);
     let bias = |b: &mut Vec<f32>| b[0] = -1e3;
-    for prefix in [
-        "encoder.transformer.layers.0.1.fn.net",
-        "encoder.transformer.layers.1.1.fn.net",
-    ] {
+    for prefix in ["encoder.transformer.layers.0.1.fn.net", "encoder.transformer.layers.1.1.fn.net"] {
         set(&mut tensors, &format!("{prefix}.0.weight"), &dead_unit_0);
         set(&mut tensors, &format!("{prefix}.0.bias"), &|_, b| bias(b));
     }
-    set(
-        &mut tensors,
-        "decoder_att.ray_predictor.input_mlp.0.weight",
-        &dead_unit_0,
-    );
-    set(
-        &mut tensors,
-        "decoder_att.ray_predictor.input_mlp.0.bias",
-        &|_, b| bias(b),
-    );
+    set(&mut tensors, "decoder_att.ray_predictor.input_mlp.0.weight", &dead_unit_0);
+    set(&mut tensors, "decoder_att.ray_predictor.input_mlp.0.bias", &|_, b| bias(b));
     // Column 0 reads the dead unit.
-    let column_0 = |value: f32| {
-        move |shape: &[usize], w: &mut Vec<f32>| (0..shape[0]).for_each(|r| w[r * shape[1]] = value)
-    };
-    set(
-        &mut tensors,
-        "encoder.transformer.layers.0.1.fn.net.3.weight",
-        &column_0(65504.0),
-    );
-    set(
-        &mut tensors,
-        "encoder.transformer.layers.1.1.fn.net.3.weight",
-        &column_0(-65520.0),
-    );
-    set(
-        &mut tensors,
-        "decoder_att.ray_predictor.input_mlp.2.weight",
-        &column_0(1e5),
-    );
+    let column_0 =
+        |value: f32| move |shape: &[usize], w: &mut Vec<f32>| (0..shape[0]).for_each(|r| w[r * shape[1]] = value);
+    set(&mut tensors, "encoder.transformer.layers.0.1.fn.net.3.weight", &column_0(65504.0));
+    set(&mut tensors, "encoder.transformer.layers.1.1.fn.net.3.weight", &column_0(-65520.0));
+    set(&mut tensors, "decoder_att.ray_predictor.input_mlp.2.weight", &column_0(1e5));
     let (loaded, _) = model_from_tensors(&config, &tensors, "rpsrt_k4 with large weights").unwrap();
     let (kept, err) = render_f16(&loaded, case);
     eprintln!("large weights: kept in f32 {kept:?}, rgb error {err:.1e}");
     let names: Vec<&str> = kept.iter().map(|k| k.tensor.as_str()).collect();
     assert_eq!(
         names,
-        [
-            "encoder.transformer.layers.1.1.fn.net.3.weight",
-            "decoder_att.ray_predictor.input_mlp.2.weight"
-        ]
+        ["encoder.transformer.layers.1.1.fn.net.3.weight", "decoder_att.ray_predictor.input_mlp.2.weight"]
     );
     assert_eq!((kept[0].max_abs, kept[1].max_abs), (65520.0, 1e5));
-    assert!(
-        err <= F16_TOL,
-        "rgb error {err:e} with f16 weights > {F16_TOL:e}"
-    );
+    assert!(err <= F16_TOL, "rgb error {err:e} with f16 weights > {F16_TOL:e}");
 }
 
 #[test]
@@ -167,13 +107,7 @@ fn f16_uploads_refuse_values_beyond_range() {
     if !has_f16() {
         return;
     }
-    let err = gpu()
-        .upload_f16("w", 2, 3, &[0.0, 1.0, 2.0, 3.0, 65520.0, 5.0])
-        .unwrap_err()
-        .to_string();
-    assert!(
-        err.contains("w: element [1, 1] = 65520 is outside the f16 range"),
-        "{err}"
-    );
+    let err = gpu().upload_f16("w", 2, 3, &[0.0, 1.0, 2.0, 3.0, 65520.0, 5.0]).unwrap_err().to_string();
+    assert!(err.contains("w: element [1, 1] = 65520 is outside the f16 range"), "{err}");
     gpu().upload_f16("w", 1, 2, &[65504.0, -65504.0]).unwrap();
 }

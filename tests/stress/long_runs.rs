@@ -23,57 +23,33 @@ fn resident_bytes() -> Option<u64> {
 
 #[test]
 fn a_thousand_renders_are_identical_and_allocate_nothing() {
-    let loaded =
-        raypatch_model::load_model(golden_case("rpsrt_k8").join("model.safetensors")).unwrap();
-    let scene =
-        raypatch_model::load_scene(golden_case("rpsrt_k8").join("scene.safetensors")).unwrap();
+    let loaded = raypatch_model::load_model(golden_case("rpsrt_k8").join("model.safetensors")).unwrap();
+    let scene = raypatch_model::load_scene(golden_case("rpsrt_k8").join("scene.safetensors")).unwrap();
     // A GPU of its own: the other tests of this binary run in parallel and would move the shared counters.
     let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
     let model = Model::from_loaded(gpu.clone(), &loaded).unwrap();
     let encoded = model.encode(&scene.inputs).unwrap();
-    let first = encoded
-        .render(&scene.targets, Outputs::default())
-        .unwrap()
-        .rgb
-        .expect("rgb");
+    let first = encoded.render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
     assert!(first.iter().all(|v| v.is_finite()), "non-finite rgb");
     let after_first = gpu.counters();
     let mut rss_at_100 = None;
     for i in 1..RENDERS {
-        let rgb = encoded
-            .render(&scene.targets, Outputs::default())
-            .unwrap()
-            .rgb
-            .expect("rgb");
+        let rgb = encoded.render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
         // Bit-for-bit: compare the bits, so that NaNs could not compare unequal to themselves unnoticed.
-        let same = rgb.len() == first.len()
-            && rgb
-                .iter()
-                .zip(&first)
-                .all(|(a, b)| a.to_bits() == b.to_bits());
+        let same = rgb.len() == first.len() && rgb.iter().zip(&first).all(|(a, b)| a.to_bits() == b.to_bits());
         assert!(same, "render {i} differs from the first");
         if i == 100 {
             rss_at_100 = resident_bytes();
         }
     }
     let end = gpu.counters();
-    assert_eq!(
-        end.buffers_created, after_first.buffers_created,
-        "buffers were created after the first render"
-    );
-    assert_eq!(
-        end.bytes_allocated, after_first.bytes_allocated,
-        "bytes were allocated after the first render"
-    );
+    assert_eq!(end.buffers_created, after_first.buffers_created, "buffers were created after the first render");
+    assert_eq!(end.bytes_allocated, after_first.bytes_allocated, "bytes were allocated after the first render");
     assert_eq!(
         end.pipelines_compiled, after_first.pipelines_compiled,
         "pipelines were compiled after the first render"
     );
-    assert_eq!(
-        end.submits - after_first.submits,
-        (RENDERS - 1) as u64,
-        "a render is one submit"
-    );
+    assert_eq!(end.submits - after_first.submits, (RENDERS - 1) as u64, "a render is one submit");
     assert_eq!(encoded.cached_render_plans(), 1);
     if let (Some(before), Some(after)) = (rss_at_100, resident_bytes()) {
         eprintln!(
@@ -81,9 +57,6 @@ fn a_thousand_renders_are_identical_and_allocate_nothing() {
             before as f64 / 1048576.0,
             after as f64 / 1048576.0
         );
-        assert!(
-            after <= before + RSS_SLACK_BYTES,
-            "resident memory grew from {before} to {after} bytes"
-        );
+        assert!(after <= before + RSS_SLACK_BYTES, "resident memory grew from {before} to {after} bytes");
     }
 }

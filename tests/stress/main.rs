@@ -40,8 +40,7 @@ use raypatch_model::LoadedModel;
 fn gpu() -> Arc<Gpu> {
     static GPU: OnceLock<Arc<Gpu>> = OnceLock::new();
     GPU.get_or_init(|| {
-        let gpu = Gpu::new(&GpuOptions::default())
-            .expect("no GPU adapter: install Mesa lavapipe (see .ci/run)");
+        let gpu = Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)");
         eprintln!("stress tests run on {}", gpu.describe());
         Arc::new(gpu)
     })
@@ -49,9 +48,7 @@ fn gpu() -> Arc<Gpu> {
 }
 
 fn golden_case(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("assets/golden")
-        .join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(name)
 }
 
 fn engine_model(loaded: &LoadedModel) -> Model {

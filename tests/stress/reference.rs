@@ -25,27 +25,13 @@ const F32_TOL: f64 = 1e-4;
 fn f64_tensor(path: &Path, key: &str) -> Vec<f64> {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let file = SafeTensors::deserialize(&bytes).unwrap();
-    let view = file
-        .tensor(key)
-        .unwrap_or_else(|e| panic!("{}: {key}: {e}", path.display()));
-    assert_eq!(
-        view.dtype(),
-        Dtype::F64,
-        "{}: {key} is not F64",
-        path.display()
-    );
-    view.data()
-        .chunks_exact(8)
-        .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
-        .collect()
+    let view = file.tensor(key).unwrap_or_else(|e| panic!("{}: {key}: {e}", path.display()));
+    assert_eq!(view.dtype(), Dtype::F64, "{}: {key} is not F64", path.display());
+    view.data().chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap())).collect()
 }
 
 fn f32_tensor(path: &Path, key: &str) -> Vec<f32> {
-    raypatch_model::TensorFile::open(path)
-        .unwrap()
-        .f32(key)
-        .unwrap()
-        .data
+    raypatch_model::TensorFile::open(path).unwrap().f32(key).unwrap().data
 }
 
 /// max |a - b|, infinite if either holds a NaN or infinity.
@@ -53,13 +39,7 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len(), "length mismatch");
     a.iter()
         .zip(b)
-        .map(|(x, y)| {
-            if x.is_finite() && y.is_finite() {
-                (x - y).abs()
-            } else {
-                f64::INFINITY
-            }
-        })
+        .map(|(x, y)| if x.is_finite() && y.is_finite() { (x - y).abs() } else { f64::INFINITY })
         .fold(0.0, f64::max)
 }
 
@@ -75,11 +55,7 @@ fn golden_cases() -> Vec<PathBuf> {
         .filter(|p| p.join("expected.safetensors").exists())
         .collect();
     cases.sort();
-    assert!(
-        cases.len() >= 5,
-        "expected the golden cases in {}",
-        dir.display()
-    );
+    assert!(cases.len() >= 5, "expected the golden cases in {}", dir.display());
     cases
 }
 
@@ -98,21 +74,12 @@ fn reference_model_matches_float64_pytorch() {
         let latent_err = max_diff(&encoded.latent, &latent) / max_abs(&latent);
         let rgb_err = max_diff(&frame.rgb, &f64_tensor(&expected, "rgb_f64"));
         eprintln!("{name}: float64 reference vs float64 PyTorch: latent rel {latent_err:.1e}, rgb {rgb_err:.1e}");
-        assert!(
-            latent_err <= F64_TOL,
-            "{name}: latent relative error {latent_err:e} > {F64_TOL:e}"
-        );
-        assert!(
-            rgb_err <= F64_TOL,
-            "{name}: rgb error {rgb_err:e} > {F64_TOL:e}"
-        );
+        assert!(latent_err <= F64_TOL, "{name}: latent relative error {latent_err:e} > {F64_TOL:e}");
+        assert!(rgb_err <= F64_TOL, "{name}: rgb error {rgb_err:e} > {F64_TOL:e}");
         if let Some(depth) = &frame.logdepth {
             let want = f64_tensor(&expected, "logdepth_f64");
             let err = max_diff(depth, &want) / max_abs(&want);
-            assert!(
-                err <= F64_TOL,
-                "{name}: log-depth relative error {err:e} > {F64_TOL:e}"
-            );
+            assert!(err <= F64_TOL, "{name}: log-depth relative error {err:e} > {F64_TOL:e}");
         }
     }
 }
@@ -124,36 +91,18 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
         let loaded = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
         let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap();
         let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32);
-        let want = reference
-            .render(&reference.encode(&scene.inputs).unwrap(), &scene.targets)
-            .unwrap();
+        let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
 
         let model = engine_model(&loaded);
-        let frame = model
-            .encode(&scene.inputs)
-            .unwrap()
-            .render(&scene.targets, Outputs::default())
-            .unwrap();
+        let frame = model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap();
         let engine_err = max_abs_diff(&frame.rgb.expect("rgb"), &want.rgb);
-        let torch_err = max_abs_diff(
-            &f32_tensor(&dir.join("expected.safetensors"), "rgb"),
-            &want.rgb,
-        );
-        let f32_vs_f64 = max_diff(
-            &want.rgb,
-            &f64_tensor(&dir.join("expected.safetensors"), "rgb_f64"),
-        );
+        let torch_err = max_abs_diff(&f32_tensor(&dir.join("expected.safetensors"), "rgb"), &want.rgb);
+        let f32_vs_f64 = max_diff(&want.rgb, &f64_tensor(&dir.join("expected.safetensors"), "rgb_f64"));
         eprintln!(
             "{name}: rgb vs the reference with f32 arguments: engine {engine_err:.1e}, torch f32 {torch_err:.1e}; \
              f32 arguments vs f64 arguments {f32_vs_f64:.1e}"
         );
-        assert!(
-            engine_err <= F32_TOL,
-            "{name}: engine rgb error {engine_err:e} > {F32_TOL:e}"
-        );
-        assert!(
-            torch_err <= F32_TOL,
-            "{name}: torch float32 rgb error {torch_err:e} > {F32_TOL:e}"
-        );
+        assert!(engine_err <= F32_TOL, "{name}: engine rgb error {engine_err:e} > {F32_TOL:e}");
+        assert!(torch_err <= F32_TOL, "{name}: torch float32 rgb error {torch_err:e} > {F32_TOL:e}");
     }
 }

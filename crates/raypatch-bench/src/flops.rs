@@ -26,11 +26,7 @@ pub fn encode_macs(cfg: &ModelConfig, n: usize, h: usize, w: usize) -> u64 {
     }
     let t = (n * h * w) as u64;
     let conv_out = cfg.encoder_conv_widths().last().map_or(0, |c| c.2) as u64;
-    let (dim, inner, ff) = (
-        e.token_dim as u64,
-        (e.heads * e.dim_head) as u64,
-        e.ff_hidden as u64,
-    );
+    let (dim, inner, ff) = (e.token_dim as u64, (e.heads * e.dim_head) as u64, e.ff_hidden as u64);
     macs += t * dim * conv_out;
     let per_layer = t * (dim * 3 * inner + inner * dim + 2 * dim * ff) + 2 * t * t * inner;
     macs += e.num_att_blocks as u64 * per_layer;
@@ -41,22 +37,12 @@ pub fn encode_macs(cfg: &ModelConfig, n: usize, h: usize, w: usize) -> u64 {
 
 /// MACs of rendering `views` target views of `height`×`width` against `tokens` latent tokens: the decoder
 /// on every query (one per pixel, or per k×k patch) and the Ray-Patch conv decoder.
-pub fn render_macs(
-    cfg: &ModelConfig,
-    views: usize,
-    height: usize,
-    width: usize,
-    tokens: usize,
-) -> u64 {
+pub fn render_macs(cfg: &ModelConfig, views: usize, height: usize, width: usize, tokens: usize) -> u64 {
     let d = &cfg.decoder;
     let k = cfg.patch_size();
     let (ph, pw) = (height / k, width / k);
     let queries = (views * ph * pw) as u64;
-    let (q, inner, t) = (
-        cfg.query_dim() as u64,
-        (d.heads * d.dim_head) as u64,
-        tokens as u64,
-    );
+    let (q, inner, t) = (cfg.query_dim() as u64, (d.heads * d.dim_head) as u64, tokens as u64);
     let (mlp_in, mlp_out) = (d.input_mlp_hidden as u64, d.out_mlp_hidden as u64);
     let per_layer = q * inner + 2 * t * inner + inner * q + 2 * q * d.ff_hidden as u64;
     let per_query = 2 * q * mlp_in
@@ -70,10 +56,7 @@ pub fn render_macs(
         let mut pixels = queries;
         macs += pixels * channels * rp.conv_features as u64 * 9;
         for i in 0..rp.upsample {
-            let (cin, cout) = (
-                (rp.conv_features >> i) as u64,
-                (rp.conv_features >> (i + 1)) as u64,
-            );
+            let (cin, cout) = ((rp.conv_features >> i) as u64, (rp.conv_features >> (i + 1)) as u64);
             pixels *= 4;
             macs += pixels * (cout * cin + channels * cout) * 9;
         }

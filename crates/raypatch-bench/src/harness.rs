@@ -10,8 +10,7 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
 use raypatch_engine::weights::{LoadOptions, WeightStorage};
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, EngineError, Frame, Gpu, GpuOptions, Model, Outputs, Region,
-    Request,
+    AdapterChoice, EncodedScene, EngineError, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request,
 };
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
 use serde::{Deserialize, Serialize};
@@ -93,8 +92,7 @@ struct Results {
 pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
     let mut merged: Option<Results> = None;
     for file in files {
-        let text = std::fs::read_to_string(file)
-            .with_context(|| format!("{}: cannot read", file.display()))?;
+        let text = std::fs::read_to_string(file).with_context(|| format!("{}: cannot read", file.display()))?;
         let next: Results = serde_json::from_str(&text)
             .with_context(|| format!("{}: not a raypatch-bench results.json", file.display()))?;
         merged = Some(match merged {
@@ -126,36 +124,22 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
         });
     }
     let results = merged.context("no results.json to replot")?;
-    std::fs::create_dir_all(out)
-        .with_context(|| format!("{}: cannot create the output folder", out.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create the output folder", out.display()))?;
     if files.len() > 1 {
         let json = serde_json::to_string_pretty(&results)?;
         report::write_file(&out.join("results.json"), json.as_bytes())?;
         report::write_csv(&out.join("results.csv"), &results.results)?;
         report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
     }
-    let tables = report::markdown(
-        &results.results,
-        &results.kernels,
-        &results.paper_comparison,
-    );
+    let tables = report::markdown(&results.results, &results.kernels, &results.paper_comparison);
     report::write_file(&out.join("tables.md"), tables.as_bytes())?;
     plots::draw_all(&results.results, out)?;
-    println!(
-        "wrote tables.md and {} in {}",
-        plots::FILES.join(", "),
-        out.display()
-    );
+    println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
     Ok(())
 }
 
 /// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
-type References = (
-    ReferenceModel,
-    ReferenceScene,
-    ReferenceModel,
-    ReferenceScene,
-);
+type References = (ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene);
 
 /// One model under test with its encoded scene (engine and references).
 struct Subject<'a> {
@@ -176,60 +160,35 @@ pub fn run(options: &Options) -> Result<()> {
     std::fs::create_dir_all(&options.out)
         .with_context(|| format!("{}: cannot create the output folder", options.out.display()))?;
     let scratch = options.out.join("scratch");
-    std::fs::create_dir_all(&scratch)
-        .with_context(|| format!("{}: cannot create", scratch.display()))?;
-    let adapter = options
-        .adapter
-        .clone()
-        .map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
-    let gpu = Arc::new(Gpu::new(&GpuOptions {
-        adapter,
-        ..Default::default()
-    })?);
+    std::fs::create_dir_all(&scratch).with_context(|| format!("{}: cannot create", scratch.display()))?;
+    let adapter = options.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    let gpu = Arc::new(Gpu::new(&GpuOptions { adapter, ..Default::default() })?);
     let timestamps = gpu.set_timestamps(TimestampMode::Plan).is_ok();
     let env = Environment {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend),
-        driver: format!("{} {}", gpu.info.driver, gpu.info.driver_info)
-            .trim()
-            .to_string(),
+        driver: format!("{} {}", gpu.info.driver, gpu.info.driver_info).trim().to_string(),
         machine: measure::machine(),
     };
-    let torch = if options.pytorch {
-        pytorch::probe()
-    } else {
-        Err("--no-pytorch".to_string())
-    };
+    let torch = if options.pytorch { pytorch::probe() } else { Err("--no-pytorch".to_string()) };
     let runs = options.repeats.unwrap_or(if options.quick { 3 } else { 5 });
     let bench = Bench {
         gpu,
         timestamps,
-        repeats: Repeats {
-            warmup: 1,
-            runs,
-            budget: Duration::from_secs(if options.quick { 2 } else { 30 }),
-        },
-        max_render: Duration::from_secs_f64(
-            options
-                .max_render_seconds
-                .unwrap_or(if options.quick { 1.5 } else { 120.0 }),
-        ),
-        reference_macs: if options.quick {
-            2_000_000_000
+        repeats: Repeats { warmup: 1, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
+        max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick {
+            1.5
         } else {
-            60_000_000_000
-        },
+            120.0
+        })),
+        reference_macs: if options.quick { 2_000_000_000 } else { 60_000_000_000 },
         torch,
         scratch,
         quick: options.quick,
         only: options.only.clone(),
         env,
     };
-    let timing = if bench.timestamps {
-        "gpu timestamps"
-    } else {
-        "wall clock"
-    };
+    let timing = if bench.timestamps { "gpu timestamps" } else { "wall clock" };
     println!(
         "raypatch-bench{} on {} ({}, {})",
         if options.quick { " --quick" } else { "" },
@@ -259,9 +218,7 @@ pub fn run(options: &Options) -> Result<()> {
     println!("\n{tables}");
     let results = Results {
         command: options.command.clone(),
-        date_unix: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
         environment: bench.env.clone(),
         timing: timing.to_string(),
         pytorch: match &bench.torch {
@@ -305,27 +262,15 @@ fn decoder_name(k: usize) -> String {
 
 impl Bench {
     /// A render's wall time and, with timestamps, its GPU time.
-    fn render_sample(
-        &self,
-        encoded: &EncodedScene,
-        targets: &TargetViews,
-        request: Request,
-    ) -> Result<Sample> {
+    fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, request: Request) -> Result<Sample> {
         let start = Instant::now();
         encoded.render(targets, request)?;
         let wall = start.elapsed();
-        Ok(Sample {
-            wall,
-            gpu: self.gpu.take_timestamps()?.map(|t| t.total),
-        })
+        Ok(Sample { wall, gpu: self.gpu.take_timestamps()?.map(|t| t.total) })
     }
 
     /// Encodes `inputs` repeatedly; returns the timings and the last encoded scene.
-    fn encode<'m>(
-        &self,
-        model: &'m Model,
-        inputs: &InputViews,
-    ) -> Result<((Stats, Option<Stats>), EncodedScene<'m>)> {
+    fn encode<'m>(&self, model: &'m Model, inputs: &InputViews) -> Result<((Stats, Option<Stats>), EncodedScene<'m>)> {
         let mut last = None;
         let stats = measure::repeat(self.repeats, || -> Result<Sample> {
             let start = Instant::now();
@@ -363,18 +308,7 @@ impl Bench {
         references: Option<&'a References>,
     ) -> Result<Subject<'a>> {
         let (encode, encoded) = self.encode(model, inputs)?;
-        Ok(Subject {
-            name,
-            group,
-            loaded,
-            file,
-            model,
-            storage,
-            inputs,
-            encode,
-            encoded,
-            references,
-        })
+        Ok(Subject { name, group, loaded, file, model, storage, inputs, encode, encoded, references })
     }
 
     /// The fields of a record that do not need a measurement: the configuration, its FLOPs, the memory a
@@ -400,23 +334,12 @@ impl Bench {
             pixels: views * size.0 * size.1,
             queries,
             tokens,
-            timing: if self.timestamps {
-                "gpu timestamps"
-            } else {
-                "wall clock"
-            }
-            .into(),
+            timing: if self.timestamps { "gpu timestamps" } else { "wall clock" }.into(),
             encode_ms: s.encode.1.or(Some(s.encode.0)),
             encode_wall_ms: Some(s.encode.0),
             encode_peak_bytes: Some(s.encoded.encode_peak_bytes),
-            attention_scores_bytes: flops::attention_score_bytes(
-                queries,
-                tokens,
-                cfg.decoder.heads,
-            ),
-            encode_gflop: 2.0
-                * flops::encode_macs(cfg, s.inputs.count, s.inputs.height, s.inputs.width) as f64
-                / 1e9,
+            attention_scores_bytes: flops::attention_score_bytes(queries, tokens, cfg.decoder.heads),
+            encode_gflop: 2.0 * flops::encode_macs(cfg, s.inputs.count, s.inputs.height, s.inputs.width) as f64 / 1e9,
             render_gflop: 2.0 * flops::render_macs(cfg, views, size.0, size.1, tokens) as f64 / 1e9,
             env: Some(self.env.clone()),
             ..Default::default()
@@ -425,59 +348,35 @@ impl Bench {
 
     /// Renders once (building the plan), then times repeated renders; fills the record's timing, memory and
     /// work fields and returns the first frame.
-    fn time_render(
-        &self,
-        s: &Subject,
-        targets: &TargetViews,
-        request: Request,
-        record: &mut Record,
-    ) -> Result<Frame> {
+    fn time_render(&self, s: &Subject, targets: &TargetViews, request: Request, record: &mut Record) -> Result<Frame> {
         let start = Instant::now();
         let frame = s.encoded.render(targets, request)?;
         record.first_render_wall_ms = Some(start.elapsed().as_secs_f64() * 1e3);
         self.gpu.take_timestamps()?;
         let stats = s.encoded.render_stats(targets, request)?;
-        (record.render_peak_bytes, record.dispatches, record.queries) = (
-            Some(stats.peak_bytes),
-            Some(stats.dispatches),
-            stats.queries,
-        );
+        (record.render_peak_bytes, record.dispatches, record.queries) =
+            (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
         // The first render was the warm-up (it built the plan).
-        let repeats = Repeats {
-            warmup: 0,
-            ..self.repeats
-        };
-        let (wall, mut gpu) =
-            measure::repeat(repeats, || self.render_sample(&s.encoded, targets, request))?;
+        let repeats = Repeats { warmup: 0, ..self.repeats };
+        let (wall, mut gpu) = measure::repeat(repeats, || self.render_sample(&s.encoded, targets, request))?;
         if stats.bands > 1 {
             // Timestamps cover the last band's plan only: time the whole banded render by the wall clock.
             gpu = None;
-            record.note = format!(
-                "{} row bands (largest buffer over the adapter's limit), wall clock",
-                stats.bands
-            );
+            record.note = format!("{} row bands (largest buffer over the adapter's limit), wall clock", stats.bands);
         }
         set_times(record, wall, gpu);
         Ok(frame)
     }
 
     /// Measures one render configuration of a subject. `truth`: PyTorch's rgb for these targets, if known.
-    fn measure(
-        &self,
-        s: &Subject,
-        targets: &TargetViews,
-        truth: Option<&[f32]>,
-        with_torch: bool,
-    ) -> Result<Record> {
+    fn measure(&self, s: &Subject, targets: &TargetViews, truth: Option<&[f32]>, with_torch: bool) -> Result<Record> {
         let grid = s.loaded.config.target_grid(targets, "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
         let frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
         let rgb = frame.rgb.context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
         match s.references {
-            Some((f32_args, f32_scene, f64_args, f64_scene))
-                if render_macs <= self.reference_macs =>
-            {
+            Some((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
                 let want = f32_args.render(f32_scene, targets)?;
                 record.max_err_f64_reference = Some(measure::max_abs_error(&rgb, &want.rgb));
                 record.rms_err_f64_reference = Some(measure::rms_error(&rgb, &want.rgb));
@@ -485,9 +384,8 @@ impl Bench {
                 record.max_err_f64_model = Some(measure::max_abs_error(&rgb, &exact.rgb));
             }
             _ => {
-                record.note = format!("{}; no f64 reference (too slow at this size)", record.note)
-                    .trim_start_matches("; ")
-                    .into()
+                record.note =
+                    format!("{}; no f64 reference (too slow at this size)", record.note).trim_start_matches("; ").into()
             }
         }
         if let Some(truth) = truth {
@@ -499,50 +397,30 @@ impl Bench {
         if with_torch {
             // PyTorch failing (e.g. out of memory at a large size) is reported in the record, not fatal.
             if let Err(e) = self.time_pytorch(s, targets, &rgb, &mut record) {
-                record.note = format!("{} PyTorch failed: {e:#}", record.note)
-                    .trim()
-                    .to_string();
+                record.note = format!("{} PyTorch failed: {e:#}", record.note).trim().to_string();
             }
         }
         print_row(&record);
         Ok(record)
     }
 
-    fn time_pytorch(
-        &self,
-        s: &Subject,
-        targets: &TargetViews,
-        rgb: &[f32],
-        record: &mut Record,
-    ) -> Result<()> {
+    fn time_pytorch(&self, s: &Subject, targets: &TargetViews, rgb: &[f32], record: &mut Record) -> Result<()> {
         let (Ok(_), Some(file)) = (&self.torch, s.file) else {
             return Ok(());
         };
         // Model-file subjects are named by their path: keep the scratch file name flat.
-        let flat: String = s
-            .name
-            .chars()
-            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-            .collect();
-        let model_path = self
-            .scratch
-            .join(format!("{flat}-k{}.safetensors", record.k));
+        let flat: String = s.name.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+        let model_path = self.scratch.join(format!("{flat}-k{}.safetensors", record.k));
         if !model_path.exists() {
             report::write_file(&model_path, file)?;
         }
-        let scene_path = self
-            .scratch
-            .join(format!("scene-{}.safetensors", record.target_size));
+        let scene_path = self.scratch.join(format!("scene-{}.safetensors", record.target_size));
         report::write_file(&scene_path, &scene_file(s.inputs, targets)?)?;
         let repeats = if self.quick { 1 } else { 3 };
         let run = pytorch::run(&model_path, &scene_path, repeats)?;
         record.max_err_pytorch = Some(max_abs_f32(rgb, &run.rgb));
-        record.pytorch_over_ours = record
-            .render_wall_ms
-            .map(|ours| run.render.median_ms / ours.median_ms);
-        record.note = format!("{} PyTorch on {} CPU threads", record.note, run.threads)
-            .trim()
-            .to_string();
+        record.pytorch_over_ours = record.render_wall_ms.map(|ours| run.render.median_ms / ours.median_ms);
+        record.note = format!("{} PyTorch on {} CPU threads", record.note, run.threads).trim().to_string();
         record.pytorch_encode_ms = Some(run.encode);
         record.pytorch_render_ms = Some(run.render);
         Ok(())
@@ -560,15 +438,10 @@ impl Bench {
         cases.sort();
         println!("golden cases (assets/golden): errors against PyTorch and the float64 reference");
         for case in cases {
-            let name = case
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let name = case.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             let loaded = raypatch_model::load_model(case.join("model.safetensors"))?;
             let scene = raypatch_model::load_scene(case.join("scene.safetensors"))?;
-            let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?
-                .f32("rgb")?
-                .data;
+            let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?.f32("rgb")?.data;
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let references = self.references(&loaded, &scene.inputs)?;
             let subject = self.subject(
@@ -594,27 +467,9 @@ impl Bench {
         let grid = s.loaded.config.target_grid(targets, "target views")?;
         let mut rows = Vec::new();
         let variants = [
-            (
-                "outputs: rgb",
-                Outputs {
-                    rgb: true,
-                    logdepth: false,
-                },
-            ),
-            (
-                "outputs: rgb + log-depth",
-                Outputs {
-                    rgb: true,
-                    logdepth: true,
-                },
-            ),
-            (
-                "outputs: log-depth",
-                Outputs {
-                    rgb: false,
-                    logdepth: true,
-                },
-            ),
+            ("outputs: rgb", Outputs { rgb: true, logdepth: false }),
+            ("outputs: rgb + log-depth", Outputs { rgb: true, logdepth: true }),
+            ("outputs: log-depth", Outputs { rgb: false, logdepth: true }),
         ];
         for (variant, outputs) in variants {
             let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
@@ -631,42 +486,18 @@ impl Bench {
         let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
             (&QUICK_SIZES, vec![(8, &[(120, 160)])])
         } else {
-            (
-                &FULL_SIZES,
-                PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect(),
-            )
+            (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
         };
-        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> = PATCH_SIZES
-            .iter()
-            .map(|&k| {
-                (
-                    "small",
-                    k,
-                    synthetic::small_config(k, SMALL_WIDTH),
-                    small_sizes,
-                )
-            })
-            .collect();
+        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> =
+            PATCH_SIZES.iter().map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
         for (k, sizes) in official {
-            let config = if k == 1 {
-                synthetic::official_srt_config()
-            } else {
-                synthetic::official_rpsrt_config(k)
-            };
+            let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
             specs.push(("official", k, config, sizes));
         }
-        println!(
-            "random-weight models, 1 input view {}x{}, 1 target view",
-            INPUT_SIZE.0, INPUT_SIZE.1
-        );
-        let f16 = self
-            .gpu
-            .features
-            .contains(raypatch_engine::wgpu::Features::SHADER_F16);
+        println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
+        let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
         if !self.only.is_empty() {
-            specs.retain(|(name, k, _, _)| {
-                self.only.iter().any(|(n, only_k)| n == name && only_k == k)
-            });
+            specs.retain(|(name, k, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
         }
         for (name, k, config, sizes) in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
@@ -676,19 +507,11 @@ impl Bench {
             if f16 && (name == "small" || !self.quick) {
                 storages.push(WeightStorage::F16);
             }
-            let mut sizes: Vec<(usize, usize)> = sizes
-                .iter()
-                .filter(|s| s.0 % k == 0 && s.1 % k == 0)
-                .copied()
-                .collect();
+            let mut sizes: Vec<(usize, usize)> =
+                sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
             for storage in storages {
-                let model = Model::from_loaded_with(
-                    self.gpu.clone(),
-                    &loaded,
-                    &LoadOptions {
-                        weight_storage: storage,
-                    },
-                )?;
+                let model =
+                    Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
                 let subject = self.subject(
                     name.to_string(),
                     "sweep",
@@ -701,15 +524,8 @@ impl Bench {
                 )?;
                 let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
                 // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
-                let f16_sizes: &[(usize, usize)] = if self.quick {
-                    &[(120, 160)]
-                } else {
-                    &[(60, 80), (120, 160)]
-                };
-                sizes = measured
-                    .into_iter()
-                    .filter(|s| f16_sizes.contains(s))
-                    .collect();
+                let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
+                sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
             }
         }
         Ok(())
@@ -725,11 +541,7 @@ impl Bench {
         kernels: &mut Vec<KernelTime>,
     ) -> Result<Vec<(usize, usize)>> {
         let mut measured = Vec::new();
-        let (name, k, f32_weights) = (
-            s.name.as_str(),
-            s.loaded.config.patch_size(),
-            s.storage == WeightStorage::F32,
-        );
+        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
         let mut rate: Option<f64> = None;
         for &size in sizes {
             let (_, targets) = scene(size)?;
@@ -751,17 +563,8 @@ impl Bench {
             let mut record = match self.measure(s, &targets, None, with_torch) {
                 Ok(record) => record,
                 // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
-                Err(e)
-                    if matches!(
-                        e.downcast_ref::<EngineError>(),
-                        Some(EngineError::TooLarge { .. })
-                    ) =>
-                {
-                    println!(
-                        "  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}",
-                        decoder_name(k),
-                        size_text(size)
-                    );
+                Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
+                    println!("  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}", decoder_name(k), size_text(size));
                     let mut record = self.record(s, targets.count, size, "");
                     record.note = format!("does not fit: {e}");
                     records.push(record);
@@ -771,30 +574,17 @@ impl Bench {
                 Err(e) => return Err(e),
             };
             if !s.model.weights_kept_f32().is_empty() {
-                let kept: Vec<&str> = s
-                    .model
-                    .weights_kept_f32()
-                    .iter()
-                    .map(|k| k.tensor.as_str())
-                    .collect();
-                record.note = format!(
-                    "{} kept in f32 (beyond f16 range): {}",
-                    record.note,
-                    kept.join(" ")
-                )
-                .trim()
-                .to_string();
+                let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
+                record.note =
+                    format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
             }
-            rate = record
-                .render_wall_ms
-                .map(|r| macs as f64 / (r.median_ms / 1e3));
+            rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
             records.push(record);
             measured.push(size);
             if f32_weights && self.breakdown_config(name, k, size) {
                 kernels.extend(self.kernel_breakdown(s, &targets)?);
             }
-            let skips =
-                (name == "small" && k == 4) || (!self.quick && name == "official" && k == 8);
+            let skips = (name == "small" && k == 4) || (!self.quick && name == "official" && k == 8);
             if f32_weights && skips && size == (120, 160) {
                 records.extend(self.plan_and_encode_skips(s, &targets)?);
             }
@@ -813,8 +603,7 @@ impl Bench {
     }
 
     fn breakdown_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
-        size == (120, 160)
-            && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
+        size == (120, 160) && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
     }
 
     /// A size not rendered: its FLOPs and planned memory (the plan is built, not run) with the prediction.
@@ -824,8 +613,7 @@ impl Bench {
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
         match s.encoded.render_stats(targets, Outputs::default()) {
             Ok(stats) => {
-                (record.render_peak_bytes, record.dispatches) =
-                    (Some(stats.peak_bytes), Some(stats.dispatches))
+                (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches))
             }
             Err(e @ EngineError::TooLarge { .. }) => record.note += &format!("; does not fit: {e}"),
             Err(e) => return Err(e.into()),
@@ -845,11 +633,8 @@ impl Bench {
             record.timing = "wall clock".into();
             set_times(&mut record, wall, None);
             let stats = s.encoded.render_stats(targets, request)?;
-            (record.render_peak_bytes, record.dispatches, record.queries) = (
-                Some(stats.peak_bytes),
-                Some(stats.dispatches),
-                stats.queries,
-            );
+            (record.render_peak_bytes, record.dispatches, record.queries) =
+                (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
             print_row(&record);
             Ok(record)
         };
@@ -858,19 +643,11 @@ impl Bench {
                 let start = Instant::now();
                 f()?;
                 self.gpu.take_timestamps()?;
-                Ok(Sample {
-                    wall: start.elapsed(),
-                    gpu: None,
-                })
+                Ok(Sample { wall: start.elapsed(), gpu: None })
             })
             .map(|(wall, _)| wall)
         };
-        let cached = wall(&|| {
-            s.encoded
-                .render(targets, full)
-                .map(drop)
-                .map_err(Into::into)
-        })?;
+        let cached = wall(&|| s.encoded.render(targets, full).map(drop).map_err(Into::into))?;
         // Without the plan cache every render builds its plan (buffers, params, bind groups) first.
         let rebuilt = wall(&|| {
             s.encoded.clear_render_plans();
@@ -890,29 +667,13 @@ impl Bench {
             Ok(())
         })?;
         // A region of interest: the top-left quarter of the image; only the patches it needs are decoded.
-        let quarter = Request {
-            region: Some(Region {
-                x: 0,
-                y: 0,
-                width: size.1 / 2,
-                height: size.0 / 2,
-            }),
-            ..full
-        };
+        let quarter = Request { region: Some(Region { x: 0, y: 0, width: size.1 / 2, height: size.0 / 2 }), ..full };
         s.encoded.render(targets, quarter)?;
-        let region = wall(&|| {
-            s.encoded
-                .render(targets, quarter)
-                .map(drop)
-                .map_err(Into::into)
-        })?;
+        let region = wall(&|| s.encoded.render(targets, quarter).map(drop).map_err(Into::into))?;
         Ok(vec![
             row("plan cached, scene encoded once", cached, full)?,
             row("plan rebuilt per render", rebuilt, full)?,
-            Record {
-                fps: None,
-                ..row("(plan build alone)", build, full)?
-            },
+            Record { fps: None, ..row("(plan build alone)", build, full)? },
             row("scene encoded per render", encode_each, full)?,
             row("region: top-left quarter", region, quarter)?,
         ])
@@ -929,9 +690,7 @@ impl Bench {
             Ok(self.gpu.take_timestamps()?)
         })();
         self.gpu.set_timestamps(TimestampMode::Plan)?;
-        let Some(times) = times? else {
-            bail!("no timestamps came back")
-        };
+        let Some(times) = times? else { bail!("no timestamps came back") };
         let k = s.loaded.config.patch_size();
         let grid = s.loaded.config.target_grid(targets, "target views")?;
         let config = format!(
@@ -957,8 +716,7 @@ impl Bench {
                 None => scene((120, 160))?,
             };
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
-            let file =
-                std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+            let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
             let references = self.references(&loaded, &inputs)?;
             let name = path.display().to_string();
             let subject = self.subject(
@@ -1017,8 +775,7 @@ fn max_abs_f32(a: &[f32], b: &[f32]) -> f64 {
 /// The benchmark scene: one input view of [`INPUT_SIZE`] and one target view of `target`, the same cameras
 /// and image at every target size.
 fn scene(target: (usize, usize)) -> Result<(InputViews, TargetViews)> {
-    synthetic::synthetic_scene(SEED, 1, INPUT_SIZE, 1, target, &CameraRig::default())
-        .map_err(anyhow::Error::msg)
+    synthetic::synthetic_scene(SEED, 1, INPUT_SIZE, 1, target, &CameraRig::default()).map_err(anyhow::Error::msg)
 }
 
 /// A scene file (docs/FORMATS.md) of these views, for PyTorch.
@@ -1027,31 +784,11 @@ fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>> {
     let t = targets.count;
     let (th, tw) = (targets.rays_height, targets.rays_width);
     let tensors = vec![
-        (
-            "input_images".to_string(),
-            vec![n, h, w, 3],
-            inputs.images.clone(),
-        ),
-        (
-            "input_camera_pos".to_string(),
-            vec![n, 3],
-            inputs.camera_pos.clone(),
-        ),
-        (
-            "input_rays".to_string(),
-            vec![n, h, w, 3],
-            inputs.rays.clone(),
-        ),
-        (
-            "target_camera_pos".to_string(),
-            vec![t, 3],
-            targets.camera_pos.clone(),
-        ),
-        (
-            "target_rays".to_string(),
-            vec![t, th, tw, 3],
-            targets.rays.clone(),
-        ),
+        ("input_images".to_string(), vec![n, h, w, 3], inputs.images.clone()),
+        ("input_camera_pos".to_string(), vec![n, 3], inputs.camera_pos.clone()),
+        ("input_rays".to_string(), vec![n, h, w, 3], inputs.rays.clone()),
+        ("target_camera_pos".to_string(), vec![t, 3], targets.camera_pos.clone()),
+        ("target_rays".to_string(), vec![t, th, tw, 3], targets.rays.clone()),
     ];
     let metadata = json!({"format": "raypatch-scene/1"});
     let metadata = metadata

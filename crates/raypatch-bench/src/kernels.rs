@@ -38,19 +38,12 @@ pub fn fold_label(label: &str) -> String {
 
 /// Per folded op, then per kernel (op `*`), sorted by time, for the configuration `config`.
 pub fn fold(config: &str, times: &GpuTimes) -> Vec<KernelTime> {
-    let total: f64 = times
-        .ops
-        .iter()
-        .map(|o| o.time.as_secs_f64())
-        .sum::<f64>()
-        .max(1e-12);
+    let total: f64 = times.ops.iter().map(|o| o.time.as_secs_f64()).sum::<f64>().max(1e-12);
     let mut by_op: HashMap<(String, String), (usize, f64)> = HashMap::new();
     let mut by_kernel: HashMap<String, (usize, f64)> = HashMap::new();
     for op in &times.ops {
         let t = op.time.as_secs_f64();
-        let entry = by_op
-            .entry((fold_label(&op.label), op.kernel.clone()))
-            .or_default();
+        let entry = by_op.entry((fold_label(&op.label), op.kernel.clone())).or_default();
         *entry = (entry.0 + 1, entry.1 + t);
         let entry = by_kernel.entry(op.kernel.clone()).or_default();
         *entry = (entry.0 + 1, entry.1 + t);
@@ -63,10 +56,7 @@ pub fn fold(config: &str, times: &GpuTimes) -> Vec<KernelTime> {
         ms: seconds * 1e3,
         share: seconds / total,
     };
-    let mut kernels: Vec<KernelTime> = by_kernel
-        .into_iter()
-        .map(|(k, v)| row("*".into(), k, v))
-        .collect();
+    let mut kernels: Vec<KernelTime> = by_kernel.into_iter().map(|(k, v)| row("*".into(), k, v)).collect();
     let mut ops: Vec<KernelTime> = by_op.into_iter().map(|((o, k), v)| row(o, k, v)).collect();
     kernels.sort_by(|a, b| b.ms.total_cmp(&a.ms));
     ops.sort_by(|a, b| b.ms.total_cmp(&a.ms));
@@ -84,17 +74,8 @@ mod tests {
             fold_label("decoder_att.ray_predictor.transformer.layers.1[0..5440].0.fn.to_q"),
             "decoder_att.ray_predictor.transformer.layers.*.0.fn.to_q"
         );
-        assert_eq!(
-            fold_label("decoder_att.out_mlp.2[64..128]"),
-            "decoder_att.out_mlp.2"
-        );
-        assert_eq!(
-            fold_label("decoder_rp.conv_decoder.conv_blocks.2.0"),
-            "decoder_rp.conv_decoder.conv_blocks.*.0"
-        );
-        assert_eq!(
-            fold_label("encoder.transformer.layers.4.1.fn.net.3"),
-            "encoder.transformer.layers.*.1.fn.net.3"
-        );
+        assert_eq!(fold_label("decoder_att.out_mlp.2[64..128]"), "decoder_att.out_mlp.2");
+        assert_eq!(fold_label("decoder_rp.conv_decoder.conv_blocks.2.0"), "decoder_rp.conv_decoder.conv_blocks.*.0");
+        assert_eq!(fold_label("encoder.transformer.layers.4.1.fn.net.3"), "encoder.transformer.layers.*.1.fn.net.3");
     }
 }

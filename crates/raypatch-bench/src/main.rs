@@ -7,10 +7,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 #[derive(Parser)]
-#[command(
-    version,
-    about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots"
-)]
+#[command(version, about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots")]
 struct Args {
     /// The smoke-test subset: small models, a few sizes, one official-size configuration (< 2 min on lavapipe).
     #[arg(long)]
@@ -83,15 +80,11 @@ fn main() -> ExitCode {
 }
 
 fn parse_only(text: &str) -> Result<(String, usize), String> {
-    let (group, k) = text
-        .split_once(':')
-        .ok_or("expected GROUP:K, e.g. small:2")?;
+    let (group, k) = text.split_once(':').ok_or("expected GROUP:K, e.g. small:2")?;
     if group != "small" && group != "official" {
         return Err(format!("group {group:?}: expected small or official"));
     }
-    let k: usize = k
-        .parse()
-        .map_err(|_| format!("k {k:?}: expected 1, 2, 4, 8 or 16"))?;
+    let k: usize = k.parse().map_err(|_| format!("k {k:?}: expected 1, 2, 4, 8 or 16"))?;
     if ![1, 2, 4, 8, 16].contains(&k) {
         return Err(format!("k {k}: expected 1, 2, 4, 8 or 16"));
     }

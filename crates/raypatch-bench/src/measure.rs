@@ -21,17 +21,8 @@ impl Stats {
         let mut ms: Vec<f64> = samples.iter().map(|d| d.as_secs_f64() * 1e3).collect();
         ms.sort_by(f64::total_cmp);
         let n = ms.len();
-        let median = if n % 2 == 1 {
-            ms[n / 2]
-        } else {
-            0.5 * (ms[n / 2 - 1] + ms[n / 2])
-        };
-        Some(Stats {
-            median_ms: median,
-            min_ms: ms[0],
-            max_ms: ms[n - 1],
-            runs: n,
-        })
+        let median = if n % 2 == 1 { ms[n / 2] } else { 0.5 * (ms[n / 2 - 1] + ms[n / 2]) };
+        Some(Stats { median_ms: median, min_ms: ms[0], max_ms: ms[n - 1], runs: n })
     }
 }
 
@@ -52,26 +43,18 @@ pub struct Sample {
 
 /// Runs `run` `warmup` times unrecorded, then up to `runs` times (within the budget); returns the wall-time
 /// and GPU-time statistics (the latter when every run had a GPU time).
-pub fn repeat<E>(
-    repeats: Repeats,
-    mut run: impl FnMut() -> Result<Sample, E>,
-) -> Result<(Stats, Option<Stats>), E> {
+pub fn repeat<E>(repeats: Repeats, mut run: impl FnMut() -> Result<Sample, E>) -> Result<(Stats, Option<Stats>), E> {
     for _ in 0..repeats.warmup {
         run()?;
     }
     let (mut wall, mut gpu) = (Vec::new(), Vec::new());
     let start = Instant::now();
-    while wall.len() < repeats.runs.max(1) && (wall.is_empty() || start.elapsed() < repeats.budget)
-    {
+    while wall.len() < repeats.runs.max(1) && (wall.is_empty() || start.elapsed() < repeats.budget) {
         let sample = run()?;
         wall.push(sample.wall);
         gpu.extend(sample.gpu);
     }
-    let gpu = if gpu.len() == wall.len() {
-        Stats::of(&gpu)
-    } else {
-        None
-    };
+    let gpu = if gpu.len() == wall.len() { Stats::of(&gpu) } else { None };
     Ok((Stats::of(&wall).expect("at least one run"), gpu))
 }
 
@@ -80,13 +63,7 @@ pub fn max_abs_error(a: &[f32], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len(), "compared outputs differ in length");
     a.iter()
         .zip(b)
-        .map(|(&x, &y)| {
-            if x.is_finite() && y.is_finite() {
-                (x as f64 - y).abs()
-            } else {
-                f64::INFINITY
-            }
-        })
+        .map(|(&x, &y)| if x.is_finite() && y.is_finite() { (x as f64 - y).abs() } else { f64::INFINITY })
         .fold(0.0, f64::max)
 }
 
@@ -124,29 +101,12 @@ pub fn machine() -> String {
         .lines()
         .find(|l| l.starts_with("model name"))
         .and_then(|l| l.split(':').nth(1))
-        .map_or_else(
-            || std::env::consts::ARCH.to_string(),
-            |s| s.trim().to_string(),
-        );
+        .map_or_else(|| std::env::consts::ARCH.to_string(), |s| s.trim().to_string());
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let memory = std::fs::read_to_string("/proc/meminfo")
         .ok()
-        .and_then(|m| {
-            m.lines()
-                .find(|l| l.starts_with("MemTotal"))
-                .map(str::to_string)
-        })
-        .and_then(|l| {
-            l.split_whitespace()
-                .nth(1)
-                .and_then(|kb| kb.parse::<f64>().ok())
-        })
-        .map_or(String::new(), |kb| {
-            format!(", {:.0} GiB RAM", kb / 1048576.0)
-        });
-    format!(
-        "{cpu}, {threads} threads{memory}, {} {}",
-        std::env::consts::OS,
-        std::env::consts::ARCH
-    )
+        .and_then(|m| m.lines().find(|l| l.starts_with("MemTotal")).map(str::to_string))
+        .and_then(|l| l.split_whitespace().nth(1).and_then(|kb| kb.parse::<f64>().ok()))
+        .map_or(String::new(), |kb| format!(", {:.0} GiB RAM", kb / 1048576.0));
+    format!("{cpu}, {threads} threads{memory}, {} {}", std::env::consts::OS, std::env::consts::ARCH)
 }

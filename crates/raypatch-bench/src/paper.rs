@@ -45,18 +45,13 @@ fn name(k: usize) -> String {
 
 pub fn compare(records: &[Record]) -> Vec<Comparison> {
     let mut rows = Vec::new();
-    let adapter = records
-        .iter()
-        .find_map(|r| r.env.as_ref())
-        .map_or(String::new(), |e| e.adapter.clone());
+    let adapter = records.iter().find_map(|r| r.env.as_ref()).map_or(String::new(), |e| e.adapter.clone());
     for &(size, k, fps, gflops) in &TABLE_1 {
         let ours = official(records, size, k);
         rows.push(Comparison {
             what: format!("{} {}x{}: rendering speed", name(k), size.0, size.1),
             paper: format!("{fps:.0} fps (V100)"),
-            ours: ours
-                .and_then(|r| r.fps)
-                .map_or("not measured".into(), |f| format!("{f:.2} fps ({adapter})")),
+            ours: ours.and_then(|r| r.fps).map_or("not measured".into(), |f| format!("{f:.2} fps ({adapter})")),
         });
         rows.push(Comparison {
             what: format!("{} {}x{}: work per frame", name(k), size.0, size.1),
@@ -64,21 +59,12 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             // The paper's counts match multiply-accumulates (one MAC as one "FLOP"), as fvcore-style counters give.
             ours: ours.map_or("not measured".into(), |r| {
                 let (render, encode) = (r.render_gflop / 2.0, r.encode_gflop / 2.0);
-                format!(
-                    "{:.1} GMAC (render {render:.1} + encode {encode:.1})",
-                    render + encode
-                )
+                format!("{:.1} GMAC (render {render:.1} + encode {encode:.1})", render + encode)
             }),
         });
         if k > 1 {
-            let srt = TABLE_1
-                .iter()
-                .find(|row| row.0 == size && row.1 == 1)
-                .map_or(1.0, |row| row.2);
-            let ours = match (
-                official(records, size, 1).and_then(|r| r.fps),
-                ours.and_then(|r| r.fps),
-            ) {
+            let srt = TABLE_1.iter().find(|row| row.0 == size && row.1 == 1).map_or(1.0, |row| row.2);
+            let ours = match (official(records, size, 1).and_then(|r| r.fps), ours.and_then(|r| r.fps)) {
                 (Some(s), Some(r)) => format!("{:.1}x", r / s),
                 _ => "not measured".into(),
             };
@@ -93,8 +79,7 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
     // softmax: 75 GB; with k = 16, 0.3 GB. The same formula for the official SRT (300 tokens, 12 heads) and
     // the memory the engine plans (its online softmax stores no score matrix; queries run in chunks).
     rows.push(Comparison {
-        what: "attention memory, 960x1280 DeFiNe decode (2048 latents, 8 heads), SRT vs RP k=16"
-            .into(),
+        what: "attention memory, 960x1280 DeFiNe decode (2048 latents, 8 heads), SRT vs RP k=16".into(),
         paper: "75 GB vs 0.3 GB".into(),
         ours: format!(
             "{} vs {} by the same formula",
@@ -104,14 +89,11 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
     });
     for k in [1, 16] {
         let size = format!("{}x{}", 960, 1280);
-        if let Some(r) = records.iter().find(|r| {
-            r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep"
-        }) {
+        if let Some(r) =
+            records.iter().find(|r| r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep")
+        {
             rows.push(Comparison {
-                what: format!(
-                    "official {} 960x1280: materialised scores vs the engine's planned peak",
-                    name(k)
-                ),
+                what: format!("official {} 960x1280: materialised scores vs the engine's planned peak", name(k)),
                 paper: "-".into(),
                 ours: format!(
                     "{} vs {}",

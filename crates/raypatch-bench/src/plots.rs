@@ -10,11 +10,7 @@ use plotters::style::{register_font, FontStyle};
 
 use crate::report::Record;
 
-pub const FILES: [&str; 3] = [
-    "pareto.png",
-    "fps_vs_resolution.png",
-    "memory_vs_resolution.png",
-];
+pub const FILES: [&str; 3] = ["pareto.png", "fps_vs_resolution.png", "memory_vs_resolution.png"];
 const SIZE: (u32, u32) = (1200, 640);
 const FONT: &str = "sans-serif";
 const COLORS: [RGBColor; 12] = [
@@ -34,14 +30,8 @@ const COLORS: [RGBColor; 12] = [
 
 fn font() -> Result<()> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        register_font(
-            FONT,
-            FontStyle::Normal,
-            include_bytes!("../assets/DejaVuSansMono.ttf"),
-        )
-        .is_ok()
-    });
+    let ok = *REGISTERED
+        .get_or_init(|| register_font(FONT, FontStyle::Normal, include_bytes!("../assets/DejaVuSansMono.ttf")).is_ok());
     if ok {
         Ok(())
     } else {
@@ -61,13 +51,7 @@ struct Series {
 
 impl Series {
     fn new(label: String, color: RGBColor) -> Series {
-        Series {
-            label,
-            points: Vec::new(),
-            tags: Vec::new(),
-            color,
-            dashed: false,
-        }
+        Series { label, points: Vec::new(), tags: Vec::new(), color, dashed: false }
     }
 }
 
@@ -81,34 +65,21 @@ fn si(v: &f64) -> String {
         a if a >= 1.0 || a == 0.0 => (v, ""),
         _ => return format!("{v:.0e}"),
     };
-    format!(
-        "{}{suffix}",
-        format!("{scaled:.2}")
-            .trim_end_matches('0')
-            .trim_end_matches('.')
-    )
+    format!("{}{suffix}", format!("{scaled:.2}").trim_end_matches('0').trim_end_matches('.'))
 }
 
 /// Log-log axes spanning every point with a margin.
 fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
-    let points: Vec<(f64, f64)> = series
-        .iter()
-        .flat_map(|s| s.points.iter().copied())
-        .filter(|(x, y)| *x > 0.0 && *y > 0.0)
-        .collect();
+    let points: Vec<(f64, f64)> =
+        series.iter().flat_map(|s| s.points.iter().copied()).filter(|(x, y)| *x > 0.0 && *y > 0.0).collect();
     if points.is_empty() {
         return None;
     }
     let span = |values: Vec<f64>| {
-        let (lo, hi) = values
-            .iter()
-            .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        let (lo, hi) = values.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         (lo / 1.6, hi * 1.6)
     };
-    Some((
-        span(points.iter().map(|p| p.0).collect()),
-        span(points.iter().map(|p| p.1).collect()),
-    ))
+    Some((span(points.iter().map(|p| p.0).collect()), span(points.iter().map(|p| p.1).collect())))
 }
 
 /// A log-log plot written to `path`: the chart on the left, the legend in a column on the right. `fronts`
@@ -130,23 +101,10 @@ fn draw(
         root.fill(&WHITE).map_err(err)?;
         let (plot, legend_area) = root.split_horizontally(w - LEGEND_WIDTH);
         match bounds(series) {
-            None => plot
-                .draw(&Text::new(
-                    format!("{title}: no data"),
-                    (20, h as i32 / 2),
-                    (FONT, 20),
-                ))
-                .map_err(err)?,
-            Some(((x0, x1), (y0, y1))) => chart(
-                &plot,
-                title,
-                x_desc,
-                y_desc,
-                series,
-                fronts,
-                (x0..x1, y0..y1),
-            )
-            .map_err(err)?,
+            None => plot.draw(&Text::new(format!("{title}: no data"), (20, h as i32 / 2), (FONT, 20))).map_err(err)?,
+            Some(((x0, x1), (y0, y1))) => {
+                chart(&plot, title, x_desc, y_desc, series, fronts, (x0..x1, y0..y1)).map_err(err)?
+            }
         }
         legend(&legend_area, series, !fronts.is_empty()).map_err(err)?;
         root.present().map_err(err)?;
@@ -157,10 +115,7 @@ fn draw(
 const LEGEND_WIDTH: u32 = 330;
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
-type DrawResult = std::result::Result<
-    (),
-    DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>,
->;
+type DrawResult = std::result::Result<(), DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>>;
 
 fn legend(area: &Area, series: &[Series], front: bool) -> DrawResult {
     let grey = RGBColor(190, 190, 190);
@@ -213,50 +168,32 @@ fn chart(
         .y_label_formatter(&si)
         .draw()?;
     for front in fronts {
-        chart.draw_series(LineSeries::new(
-            front.iter().copied(),
-            RGBColor(190, 190, 190).stroke_width(8),
-        ))?;
+        chart.draw_series(LineSeries::new(front.iter().copied(), RGBColor(190, 190, 190).stroke_width(8)))?;
     }
     for s in series {
         let style = s.color.stroke_width(2);
         if s.dashed {
             chart.draw_series(DashedLineSeries::new(s.points.iter().copied(), 6, 6, style))?;
         } else {
-            let line = if s.tags.is_empty() {
-                s.points.clone()
-            } else {
-                Vec::new()
-            };
+            let line = if s.tags.is_empty() { s.points.clone() } else { Vec::new() };
             chart.draw_series(LineSeries::new(line, style))?;
-            chart.draw_series(
-                s.points
-                    .iter()
-                    .map(|&p| Circle::new(p, 5, s.color.filled())),
-            )?;
+            chart.draw_series(s.points.iter().map(|&p| Circle::new(p, 5, s.color.filled())))?;
         }
         let tags = s.points.iter().zip(&s.tags);
-        chart.draw_series(
-            tags.map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&s.color))),
-        )?;
+        chart.draw_series(tags.map(|(&p, tag)| Text::new(tag.clone(), p, (FONT, 13).into_font().color(&s.color))))?;
     }
     Ok(())
 }
 
 fn save(path: &Path, pixels: Vec<u8>) -> Result<()> {
-    let image = image::RgbImage::from_raw(SIZE.0, SIZE.1, pixels)
-        .ok_or_else(|| anyhow!("plot buffer size"))?;
+    let image = image::RgbImage::from_raw(SIZE.0, SIZE.1, pixels).ok_or_else(|| anyhow!("plot buffer size"))?;
     let mut png = Vec::new();
     image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
     crate::report::write_file(path, &png)
 }
 
 fn config_label(r: &Record) -> String {
-    let decoder = if r.k == 1 {
-        "SRT".to_string()
-    } else {
-        format!("RP k={}", r.k)
-    };
+    let decoder = if r.k == 1 { "SRT".to_string() } else { format!("RP k={}", r.k) };
     format!("{} {decoder} {}", r.model, r.precision)
 }
 
@@ -264,24 +201,16 @@ fn config_label(r: &Record) -> String {
 /// x and y taken by `point`, sorted by x.
 fn by_config(records: &[Record], point: impl Fn(&Record) -> Option<(f64, f64)>) -> Vec<Series> {
     let mut series: Vec<Series> = Vec::new();
-    for r in records
-        .iter()
-        .filter(|r| r.group == "sweep" && r.precision == "f32")
-    {
+    for r in records.iter().filter(|r| r.group == "sweep" && r.precision == "f32") {
         let Some(p) = point(r) else { continue };
         let label = config_label(r);
         let next = COLORS[series.len() % COLORS.len()];
         match series.iter_mut().find(|s| s.label == label) {
             Some(s) => s.points.push(p),
-            None => series.push(Series {
-                points: vec![p],
-                ..Series::new(label, next)
-            }),
+            None => series.push(Series { points: vec![p], ..Series::new(label, next) }),
         }
     }
-    series
-        .iter_mut()
-        .for_each(|s| s.points.sort_by(|a, b| a.0.total_cmp(&b.0)));
+    series.iter_mut().for_each(|s| s.points.sort_by(|a, b| a.0.total_cmp(&b.0)));
     series
 }
 
@@ -302,17 +231,10 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     // Render time against error at one target size (the paper's 120×160), over k and precision.
     let size = "120x160";
     let mut pareto: Vec<Series> = Vec::new();
-    for r in records
-        .iter()
-        .filter(|r| r.group == "sweep" && r.target_size == size)
-    {
+    for r in records.iter().filter(|r| r.group == "sweep" && r.target_size == size) {
         if let (Some(t), Some(e)) = (r.render_ms, r.max_err_f64_reference) {
             let label = format!("{} {}", r.model, r.precision);
-            let tag = if r.k == 1 {
-                " SRT".to_string()
-            } else {
-                format!(" k={}", r.k)
-            };
+            let tag = if r.k == 1 { " SRT".to_string() } else { format!(" k={}", r.k) };
             let p = (t.median_ms, e.max(1e-9));
             let next = COLORS[pareto.len() % COLORS.len()];
             let s = match pareto.iter_mut().position(|s| s.label == label) {
@@ -327,10 +249,7 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
         }
     }
     // One front per model: the choices (k, precision) for a given model.
-    let mut models: Vec<&str> = pareto
-        .iter()
-        .filter_map(|s| s.label.split(' ').next())
-        .collect();
+    let mut models: Vec<&str> = pareto.iter().filter_map(|s| s.label.split(' ').next()).collect();
     models.dedup();
     let fronts: Vec<Vec<(f64, f64)>> = models
         .iter()
@@ -361,24 +280,13 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     )?;
     // Beside the engine's planned peaks (solid), what the official SRT and RP-SRT k=16 would hold in softmax
     // scores if they materialised them (dashed, the paper's Figure 2a quantity).
-    let mut memory = by_config(records, |r| {
-        r.render_peak_bytes.map(|b| (r.pixels as f64, b as f64))
-    });
+    let mut memory = by_config(records, |r| r.render_peak_bytes.map(|b| (r.pixels as f64, b as f64)));
     let scores = by_config(records, |r| {
-        (r.model == "official" && (r.k == 1 || r.k == 16))
-            .then_some((r.pixels as f64, r.attention_scores_bytes as f64))
+        (r.model == "official" && (r.k == 1 || r.k == 16)).then_some((r.pixels as f64, r.attention_scores_bytes as f64))
     });
     for s in scores {
-        let color = memory
-            .iter()
-            .find(|m| m.label == s.label)
-            .map_or(s.color, |m| m.color);
-        memory.push(Series {
-            label: format!("{}: scores", s.label),
-            color,
-            dashed: true,
-            ..s
-        });
+        let color = memory.iter().find(|m| m.label == s.label).map_or(s.color, |m| m.color);
+        memory.push(Series { label: format!("{}: scores", s.label), color, dashed: true, ..s });
     }
     draw(
         &out.join(FILES[2]),
@@ -397,9 +305,6 @@ mod tests {
     #[test]
     fn the_front_keeps_only_undominated_points() {
         let points = [(1.0, 5.0), (2.0, 3.0), (3.0, 4.0), (4.0, 1.0), (0.5, 9.0)];
-        assert_eq!(
-            pareto_front(&points),
-            vec![(0.5, 9.0), (1.0, 5.0), (2.0, 3.0), (4.0, 1.0)]
-        );
+        assert_eq!(pareto_front(&points), vec![(0.5, 9.0), (1.0, 5.0), (2.0, 3.0), (4.0, 1.0)]);
     }
 }

@@ -23,10 +23,7 @@ pub fn probe() -> std::result::Result<String, String> {
         Ok(String::from_utf8_lossy(&out.stdout).trim().to_string())
     } else {
         let err = String::from_utf8_lossy(&out.stderr);
-        Err(format!(
-            "PyTorch cannot be imported ({})",
-            err.lines().last().unwrap_or("").trim()
-        ))
+        Err(format!("PyTorch cannot be imported ({})", err.lines().last().unwrap_or("").trim()))
     }
 }
 
@@ -40,12 +37,7 @@ struct TimesJson {
 
 impl From<TimesJson> for Stats {
     fn from(t: TimesJson) -> Stats {
-        Stats {
-            median_ms: t.median_ms,
-            min_ms: t.min_ms,
-            max_ms: t.max_ms,
-            runs: t.runs,
-        }
+        Stats { median_ms: t.median_ms, min_ms: t.min_ms, max_ms: t.max_ms, runs: t.runs }
     }
 }
 
@@ -70,32 +62,16 @@ pub fn run(model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
     let rgb_path = scene.with_extension("pytorch-rgb.safetensors");
     let out = Command::new("python3")
         .arg(script())
-        .args([
-            "--model".as_ref(),
-            model.as_os_str(),
-            "--scene".as_ref(),
-            scene.as_os_str(),
-        ])
+        .args(["--model".as_ref(), model.as_os_str(), "--scene".as_ref(), scene.as_os_str()])
         .args(["--repeats", &repeats.to_string(), "--out-rgb"])
         .arg(&rgb_path)
         .output()
         .context("running python3 tools/bench_pytorch.py")?;
     if !out.status.success() {
-        bail!(
-            "tools/bench_pytorch.py failed: {}",
-            String::from_utf8_lossy(&out.stderr).trim()
-        );
+        bail!("tools/bench_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
     }
-    let json: RunJson =
-        serde_json::from_slice(&out.stdout).context("tools/bench_pytorch.py printed no result")?;
-    let rgb = raypatch_model::TensorFile::open(&rgb_path)?
-        .f32("rgb")?
-        .data;
+    let json: RunJson = serde_json::from_slice(&out.stdout).context("tools/bench_pytorch.py printed no result")?;
+    let rgb = raypatch_model::TensorFile::open(&rgb_path)?.f32("rgb")?.data;
     std::fs::remove_file(&rgb_path).ok();
-    Ok(TorchRun {
-        threads: json.threads,
-        encode: json.encode.into(),
-        render: json.render.into(),
-        rgb,
-    })
+    Ok(TorchRun { threads: json.threads, encode: json.encode.into(), render: json.render.into(), rgb })
 }

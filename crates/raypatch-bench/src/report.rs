@@ -103,11 +103,7 @@ fn flatten(prefix: &str, value: &Value, out: &mut Vec<(String, Value)>) {
     match value {
         Value::Object(map) => {
             for (k, v) in map {
-                let key = if prefix.is_empty() {
-                    k.clone()
-                } else {
-                    format!("{prefix}.{k}")
-                };
+                let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
                 flatten(&key, v, out);
             }
         }
@@ -134,11 +130,7 @@ pub fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
         .iter()
         .map(|r| {
             let mut out = Vec::new();
-            flatten(
-                "",
-                &serde_json::to_value(r).expect("records serialise"),
-                &mut out,
-            );
+            flatten("", &serde_json::to_value(r).expect("records serialise"), &mut out);
             out
         })
         .collect();
@@ -154,11 +146,7 @@ pub fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
     for row in &flat {
         let fields: Vec<String> = columns
             .iter()
-            .map(|c| {
-                row.iter()
-                    .find(|(k, _)| k == c)
-                    .map_or(String::new(), |(_, v)| csv_field(v))
-            })
+            .map(|c| row.iter().find(|(k, _)| k == c).map_or(String::new(), |(_, v)| csv_field(v)))
             .collect();
         text += &(fields.join(",") + "\n");
     }
@@ -168,10 +156,8 @@ pub fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
 /// Writes through a temporary file and a rename, so that no partial file is left behind.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = path.with_extension("partial");
-    let mut file =
-        std::fs::File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
-    file.write_all(bytes)
-        .with_context(|| format!("{}: cannot write", tmp.display()))?;
+    let mut file = std::fs::File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
+    file.write_all(bytes).with_context(|| format!("{}: cannot write", tmp.display()))?;
     drop(file);
     std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot write", path.display()))
 }
@@ -197,18 +183,11 @@ pub fn sci(v: Option<f64>) -> String {
 }
 
 fn stats_text(s: Option<Stats>) -> String {
-    s.map_or_else(
-        || "-".into(),
-        |s| format!("{:.2} [{:.2}–{:.2}]", s.median_ms, s.min_ms, s.max_ms),
-    )
+    s.map_or_else(|| "-".into(), |s| format!("{:.2} [{:.2}–{:.2}]", s.median_ms, s.min_ms, s.max_ms))
 }
 
 fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
-    *out += &format!(
-        "| {} |\n|{}\n",
-        header.join(" | "),
-        "---|".repeat(header.len())
-    );
+    *out += &format!("| {} |\n|{}\n", header.join(" | "), "---|".repeat(header.len()));
     for row in rows {
         *out += &format!("| {} |\n", row.join(" | "));
     }
@@ -216,17 +195,10 @@ fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
 }
 
 /// The results as Markdown tables (printed, and written to `tables.md` for docs/PERFORMANCE.md).
-pub fn markdown(
-    records: &[Record],
-    kernels: &[KernelTime],
-    comparison: &[crate::paper::Comparison],
-) -> String {
+pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate::paper::Comparison]) -> String {
     let mut out = String::new();
     if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
-        out += &format!(
-            "Adapter: {} ({}, {}). Machine: {}.\n\n",
-            env.adapter, env.backend, env.driver, env.machine
-        );
+        out += &format!("Adapter: {} ({}, {}). Machine: {}.\n\n", env.adapter, env.backend, env.driver, env.machine);
     }
     let timing = records.first().map_or("", |r| r.timing.as_str());
     out += &format!("### Sweep (random weights; render time: {timing}, median [min–max] ms)\n\n");
@@ -258,11 +230,7 @@ pub fn markdown(
                     r.k.to_string(),
                     r.precision.clone(),
                     r.target_size.clone(),
-                    if r.render_ms.is_some() {
-                        stats_text(r.render_ms)
-                    } else {
-                        r.note.clone()
-                    },
+                    if r.render_ms.is_some() { stats_text(r.render_ms) } else { r.note.clone() },
                     opt(r.fps, 2),
                     opt(r.encode_ms.map(|e| e.median_ms), 1),
                     r.render_peak_bytes.map_or("-".into(), bytes),
@@ -289,42 +257,15 @@ pub fn markdown(
         let fps = |k: usize| {
             sweep
                 .iter()
-                .find(|r| {
-                    r.model == model
-                        && r.precision == precision
-                        && r.target_size == size
-                        && r.k == k
-                })
+                .find(|r| r.model == model && r.precision == precision && r.target_size == size && r.k == k)
                 .and_then(|r| r.fps)
         };
         let Some(srt) = fps(1) else { continue };
-        let mut row = vec![
-            model.clone(),
-            precision.clone(),
-            size.clone(),
-            format!("{srt:.2}"),
-        ];
-        row.extend(
-            [2, 4, 8, 16]
-                .iter()
-                .map(|&k| fps(k).map_or("-".into(), |f| format!("{:.1}x", f / srt))),
-        );
+        let mut row = vec![model.clone(), precision.clone(), size.clone(), format!("{srt:.2}")];
+        row.extend([2, 4, 8, 16].iter().map(|&k| fps(k).map_or("-".into(), |f| format!("{:.1}x", f / srt))));
         rows.push(row);
     }
-    table(
-        &mut out,
-        &[
-            "model",
-            "precision",
-            "target",
-            "SRT fps",
-            "k=2",
-            "k=4",
-            "k=8",
-            "k=16",
-        ],
-        rows,
-    );
+    table(&mut out, &["model", "precision", "target", "SRT fps", "k=2", "k=4", "k=8", "k=16"], rows);
 
     out += "### Golden cases (errors against PyTorch float32, the float64 reference and the float64 model)\n\n";
     table(
@@ -405,17 +346,7 @@ pub fn markdown(
     out += "### Skips on and off (render time)\n\n";
     table(
         &mut out,
-        &[
-            "model",
-            "decoder",
-            "k",
-            "target",
-            "variant",
-            "queries",
-            "dispatches",
-            "timing",
-            "render ms",
-        ],
+        &["model", "decoder", "k", "target", "variant", "queries", "dispatches", "timing", "render ms"],
         records
             .iter()
             .filter(|r| r.group == "skips")
@@ -438,8 +369,7 @@ pub fn markdown(
     let mut configs: Vec<&str> = kernels.iter().map(|k| k.config.as_str()).collect();
     configs.dedup();
     for config in configs {
-        out +=
-            &format!("### Where the render time goes: {config} (GPU timestamps between ops)\n\n");
+        out += &format!("### Where the render time goes: {config} (GPU timestamps between ops)\n\n");
         let rows: Vec<&KernelTime> = kernels.iter().filter(|k| k.config == config).collect();
         let family = rows
             .iter()
@@ -470,10 +400,7 @@ pub fn markdown(
     table(
         &mut out,
         &["", "paper", "ours"],
-        comparison
-            .iter()
-            .map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()])
-            .collect(),
+        comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect(),
     );
     out
 }

@@ -3,9 +3,7 @@
 //! them) and scenes seen by MSN-Easy cameras (`tools/cameras.py`).
 
 use raypatch_engine::reference::Rng;
-use raypatch_model::{
-    InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT,
-};
+use raypatch_model::{InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 use serde_json::{json, Value};
@@ -25,10 +23,7 @@ pub fn official_srt_config() -> Value {
 /// The official MSN-Easy `rpsrt_MDBN_4_32` run with patch size `k` (a power of two; the official run has 4): the
 /// `srt_MDBN_32` model with the Ray-Patch decoder, whose feature width the checkpoint stores as `out_dims`.
 pub fn official_rpsrt_config(k: usize) -> Value {
-    assert!(
-        k.is_power_of_two() && k > 1,
-        "Ray-Patch k must be a power of two above 1"
-    );
+    assert!(k.is_power_of_two() && k > 1, "Ray-Patch k must be a power of two above 1");
     let mut cfg = official_srt_config();
     cfg["decoder"] = json!("featurefield");
     cfg["decoder_kwargs"]["out_dims"] = json!(128);
@@ -56,8 +51,7 @@ pub fn small_config(k: usize, width: usize) -> Value {
         let features = (2 * width).max(2 * k);
         cfg["decoder"] = json!("featurefield");
         cfg["decoder_kwargs"]["out_dims"] = json!(features);
-        cfg["rp_kwargs"] =
-            json!({"upsample": k.trailing_zeros(), "conv_features": features, "norm": "Batch"});
+        cfg["rp_kwargs"] = json!({"upsample": k.trailing_zeros(), "conv_features": features, "norm": "Batch"});
     }
     cfg
 }
@@ -66,11 +60,7 @@ pub fn small_config(k: usize, width: usize) -> Value {
 /// attention projections and the output layers, √2 before the (Leaky)ReLUs), biases N(0, 0.1²), norm scales
 /// U(0.5, 1.5), BatchNorm statistics N(0, 0.2²) and U(0.5, 2). The model goes through the same safetensors
 /// parsing and checks as a file. Returns the model and its file bytes (for tools that need a file).
-pub fn random_model(
-    config: &Value,
-    seed: u64,
-    name: &str,
-) -> Result<(LoadedModel, Vec<u8>), ModelError> {
+pub fn random_model(config: &Value, seed: u64, name: &str) -> Result<(LoadedModel, Vec<u8>), ModelError> {
     model_from_tensors(config, &random_tensors(config, seed, name)?, name)
 }
 
@@ -93,11 +83,7 @@ pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tenso
                 rng.vec_f32(count, 0.5, 1.5)
             } else {
                 let fan_in: usize = shape[1..].iter().product();
-                let gain = if unit_gain(&key) {
-                    1.0
-                } else {
-                    std::f64::consts::SQRT_2
-                };
+                let gain = if unit_gain(&key) { 1.0 } else { std::f64::consts::SQRT_2 };
                 let std = gain / (fan_in as f64).sqrt();
                 (0..count).map(|_| (std * rng.normal()) as f32).collect()
             };
@@ -115,17 +101,10 @@ pub fn model_from_tensors(
     let metadata = [
         ("format".to_string(), MODEL_FORMAT.to_string()),
         ("config".to_string(), config.to_string()),
-        (
-            "source".to_string(),
-            format!("{name}, made in memory by raypatch-bench"),
-        ),
+        ("source".to_string(), format!("{name}, made in memory by raypatch-bench")),
     ];
-    let bytes = serialize(tensors, metadata.into_iter().collect()).map_err(|reason| {
-        ModelError::Format {
-            path: name.to_string(),
-            reason,
-        }
-    })?;
+    let bytes = serialize(tensors, metadata.into_iter().collect())
+        .map_err(|reason| ModelError::Format { path: name.to_string(), reason })?;
     let model = raypatch_model::weights::model_from_file(TensorFile::parse(name, &bytes)?)?;
     Ok((model, bytes))
 }
@@ -139,23 +118,16 @@ fn unit_gain(key: &str) -> bool {
     let rgb_conv = key
         .strip_prefix("decoder_rp.conv_decoder.conv_blocks.")
         .is_some_and(|rest| rest.split('.').count() == 3 && rest.ends_with(".1.weight"));
-    ["to_q.", "to_kv.", "to_qkv.", "to_out."]
-        .iter()
-        .any(|p| key.contains(p))
+    ["to_q.", "to_kv.", "to_qkv.", "to_out."].iter().any(|p| key.contains(p))
         || key == "decoder_att.out_mlp.8.weight"
         || key == "decoder_rp.conv_decoder.conv_0.weight"
         || rgb_conv
 }
 
 /// A safetensors file of f32 tensors (name, shape, data) with metadata.
-pub fn serialize(
-    tensors: &[Tensor],
-    metadata: std::collections::HashMap<String, String>,
-) -> Result<Vec<u8>, String> {
-    let bytes: Vec<(&str, Vec<usize>, &[u8])> = tensors
-        .iter()
-        .map(|(k, s, d)| (k.as_str(), s.clone(), bytemuck::cast_slice(d)))
-        .collect();
+pub fn serialize(tensors: &[Tensor], metadata: std::collections::HashMap<String, String>) -> Result<Vec<u8>, String> {
+    let bytes: Vec<(&str, Vec<usize>, &[u8])> =
+        tensors.iter().map(|(k, s, d)| (k.as_str(), s.clone(), bytemuck::cast_slice(d))).collect();
     let views = bytes
         .iter()
         .map(|(k, s, d)| TensorView::new(Dtype::F32, s.clone(), d).map(|v| (*k, v)))
@@ -168,11 +140,7 @@ pub fn serialize(
 /// `look_at_positions`): azimuth in the xy plane from +x towards +y, elevation towards +z, in degrees.
 pub fn look_at_position(azimuth_deg: f64, distance: f64, elevation_deg: f64) -> [f32; 3] {
     let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
-    [
-        (distance * e.cos() * a.cos()) as f32,
-        (distance * e.cos() * a.sin()) as f32,
-        (distance * e.sin()) as f32,
-    ]
+    [(distance * e.cos() * a.cos()) as f32, (distance * e.cos() * a.sin()) as f32, (distance * e.sin()) as f32]
 }
 
 /// Unit rays `[height, width, 3]` of a pinhole camera at `position` looking at the origin with +z up, through
@@ -184,34 +152,25 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
     let c = position.map(f64::from);
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     let scale = |v: [f64; 3], s: f64| v.map(|x| x * s);
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
     let dir = scale(c, -1.0 / norm(c));
     let horizontal = cross(dir, [0.0, 0.0, 1.0]);
     if norm(horizontal) < 1e-9 {
-        return Err(format!(
-            "camera at {position:?} looks along the world up axis: no look-at frame"
-        ));
+        return Err(format!("camera at {position:?} looks along the world up axis: no look-at frame"));
     }
     let horizontal = scale(horizontal, 1.0 / norm(horizontal));
     let vertical = cross(dir, horizontal);
     let vertical = scale(vertical, 1.0 / norm(vertical));
     let sensor_height = SENSOR_WIDTH / width as f64 * height as f64;
     // Pixel centres: the midpoints of linspace(-1, 1, n + 1) · sensor / 2.
-    let centre =
-        |i: usize, n: usize, sensor: f64| (-1.0 + (2 * i + 1) as f64 / n as f64) * sensor / 2.0;
+    let centre = |i: usize, n: usize, sensor: f64| (-1.0 + (2 * i + 1) as f64 / n as f64) * sensor / 2.0;
     let mut rays = Vec::with_capacity(width * height * 3);
     for y in 0..height {
         let v = centre(y, height, sensor_height);
         for x in 0..width {
             let h = centre(x, width, SENSOR_WIDTH);
-            let ray: [f64; 3] =
-                std::array::from_fn(|i| h * horizontal[i] + v * vertical[i] + dir[i] * FOCAL);
+            let ray: [f64; 3] = std::array::from_fn(|i| h * horizontal[i] + v * vertical[i] + dir[i] * FOCAL);
             let n = norm(ray);
             rays.extend(ray.map(|r| (r / n) as f32));
         }
@@ -221,15 +180,8 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
 
 /// A smooth colour image `[height, width, 3]` in [0, 1] with a few flat discs (like make_golden's images).
 pub fn structured_image(height: usize, width: usize, rng: &mut Rng) -> Vec<f32> {
-    let waves: Vec<(f64, f64, f64)> = (0..3)
-        .map(|_| {
-            (
-                rng.uniform(0.3, 1.2),
-                rng.uniform(0.3, 1.2),
-                rng.uniform(0.0, 6.3),
-            )
-        })
-        .collect();
+    let waves: Vec<(f64, f64, f64)> =
+        (0..3).map(|_| (rng.uniform(0.3, 1.2), rng.uniform(0.3, 1.2), rng.uniform(0.0, 6.3))).collect();
     let discs: Vec<(f64, f64, f64, [f64; 3])> = (0..3)
         .map(|_| {
             (
@@ -245,14 +197,9 @@ pub fn structured_image(height: usize, width: usize, rng: &mut Rng) -> Vec<f32> 
         let fy = y as f64 / (height.max(2) - 1) as f64;
         for x in 0..width {
             let fx = x as f64 / (width.max(2) - 1) as f64;
-            let disc = discs
-                .iter()
-                .find(|(cy, cx, r, _)| (fy - cy).powi(2) + (fx - cx).powi(2) < r * r);
+            let disc = discs.iter().find(|(cy, cx, r, _)| (fy - cy).powi(2) + (fx - cx).powi(2) < r * r);
             for (c, (a, b, phase)) in waves.iter().enumerate() {
-                let v = disc.map_or(
-                    0.5 + 0.25 * (std::f64::consts::TAU * (a * fx + b * fy) + phase).sin(),
-                    |d| d.3[c],
-                );
+                let v = disc.map_or(0.5 + 0.25 * (std::f64::consts::TAU * (a * fx + b * fy) + phase).sin(), |d| d.3[c]);
                 image.push(v.clamp(0.0, 1.0) as f32);
             }
         }
@@ -270,10 +217,7 @@ pub struct CameraRig {
 impl Default for CameraRig {
     /// MSN-Easy-like: 5 to 12 units away, 10° to 60° above the ground plane.
     fn default() -> Self {
-        CameraRig {
-            distance: (5.0, 12.0),
-            elevation: (10.0, 60.0),
-        }
+        CameraRig { distance: (5.0, 12.0), elevation: (10.0, 60.0) }
     }
 }
 
@@ -303,14 +247,7 @@ pub fn synthetic_scene(
         rays.extend(camera_rays(p, w, h)?);
         positions.extend(p);
     }
-    let input = InputViews {
-        count: inputs,
-        height: h,
-        width: w,
-        images,
-        camera_pos: positions,
-        rays,
-    };
+    let input = InputViews { count: inputs, height: h, width: w, images, camera_pos: positions, rays };
     let (th, tw) = target_size;
     let (mut positions, mut rays) = (Vec::new(), Vec::new());
     for _ in 0..targets {
@@ -339,28 +276,16 @@ mod tests {
     fn camera_rays_match_tools_cameras_py() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/golden");
         for case in ["srt_k1", "rpsrt_k4"] {
-            let scene =
-                raypatch_model::load_scene(dir.join(case).join("scene.safetensors")).unwrap();
+            let scene = raypatch_model::load_scene(dir.join(case).join("scene.safetensors")).unwrap();
             let t = &scene.targets;
             let per_view = t.rays_height * t.rays_width * 3;
             for v in 0..t.count {
-                let position = [
-                    t.camera_pos[3 * v],
-                    t.camera_pos[3 * v + 1],
-                    t.camera_pos[3 * v + 2],
-                ];
+                let position = [t.camera_pos[3 * v], t.camera_pos[3 * v + 1], t.camera_pos[3 * v + 2]];
                 let rays = camera_rays(position, t.rays_width, t.rays_height).unwrap();
                 let want = &t.rays[v * per_view..(v + 1) * per_view];
                 // numpy sums the pixel offsets in another order: allow one f32 rounding step (2^-24 relative).
-                let err = rays
-                    .iter()
-                    .zip(want)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0f32, f32::max);
-                assert!(
-                    err <= 1.2e-7,
-                    "{case} view {v}: rays differ from tools/cameras.py by {err:e}"
-                );
+                let err = rays.iter().zip(want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+                assert!(err <= 1.2e-7, "{case} view {v}: rays differ from tools/cameras.py by {err:e}");
             }
         }
     }
@@ -369,29 +294,18 @@ mod tests {
     fn a_camera_on_the_up_axis_has_no_frame() {
         assert!(camera_rays([0.0, 0.0, 5.0], 4, 3).is_err());
         let near = camera_rays(look_at_position(30.0, 1e3, 89.999), 4, 3).unwrap();
-        assert!(near
-            .chunks(3)
-            .all(
-                |r| ((r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) - 1.0).abs() < 1e-6 && r[2] < -0.9
-            ));
+        assert!(near.chunks(3).all(|r| ((r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) - 1.0).abs() < 1e-6 && r[2] < -0.9));
     }
 
     #[test]
     fn random_models_load_for_every_config() {
-        for (k, config) in [
-            (1, small_config(1, 16)),
-            (4, small_config(4, 16)),
-            (16, small_config(16, 32)),
-        ] {
+        for (k, config) in [(1, small_config(1, 16)), (4, small_config(4, 16)), (16, small_config(16, 32))] {
             let (model, bytes) = random_model(&config, 1, "small").unwrap();
             assert_eq!(model.config.patch_size(), k);
             assert!(bytes.len() > 4 * model.parameter_count());
         }
         let official = ModelConfig::from_value("srt", official_srt_config()).unwrap();
-        assert_eq!(
-            (official.encoder.token_dim, official.decoder.out_mlp_hidden),
-            (768, 1536)
-        );
+        assert_eq!((official.encoder.token_dim, official.decoder.out_mlp_hidden), (768, 1536));
         let rp = ModelConfig::from_value("rpsrt", official_rpsrt_config(8)).unwrap();
         assert_eq!((rp.patch_size(), rp.decoder.out_dims), (8, 128));
     }

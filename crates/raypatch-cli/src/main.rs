@@ -9,8 +9,8 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    metrics, write_atomic, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs,
-    Region, Request, SceneData, SceneSource,
+    metrics, write_atomic, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs, Region, Request,
+    SceneData, SceneSource,
 };
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
@@ -28,10 +28,8 @@ fn bundled(relative: &str) -> PathBuf {
     if here.exists() {
         return here;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .ancestors()
-        .nth(2)
-        .expect("crates/raypatch-cli is two levels deep");
+    let root =
+        Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).expect("crates/raypatch-cli is two levels deep");
     root.join(relative)
 }
 
@@ -60,12 +58,7 @@ struct Args {
     #[arg(long, value_name = "LIST")]
     view: Option<String>,
     /// Render the first target camera turned by DEG degrees about the world z axis (a novel view).
-    #[arg(
-        long,
-        value_name = "DEG",
-        allow_hyphen_values = true,
-        conflicts_with = "pose"
-    )]
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, conflicts_with = "pose")]
     orbit: Option<f64>,
     /// Render from the camera in FILE: JSON with a 4x4 camera-to-world `transform_matrix` (NeRF axes) and
     /// optional intrinsics (`camera_angle_x` or `fl_x`/`fl_y`/`cx`/`cy`, `w`/`h`).
@@ -118,16 +111,9 @@ fn parse_region(text: &str) -> Result<Region, String> {
         .collect::<Result<_, _>>()
         .map_err(|_| format!("{text:?} is not X,Y,W,H (four non-negative integers)"))?;
     match parts[..] {
-        [x, y, width, height] if width > 0 && height > 0 => Ok(Region {
-            x,
-            y,
-            width,
-            height,
-        }),
+        [x, y, width, height] if width > 0 && height > 0 => Ok(Region { x, y, width, height }),
         [_, _, _, _] => Err(format!("{text:?}: width and height must be positive")),
-        _ => Err(format!(
-            "{text:?} is not X,Y,W,H (four non-negative integers)"
-        )),
+        _ => Err(format!("{text:?} is not X,Y,W,H (four non-negative integers)")),
     }
 }
 
@@ -164,14 +150,9 @@ fn pick(flag: &str, list: &str, count: usize, what: &str) -> Result<Vec<usize>> 
     }
     let mut picked = Vec::new();
     for part in list.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let i: usize = part
-            .parse()
-            .with_context(|| format!("--{flag} {list:?}: {part:?} is not an index or `all`"))?;
+        let i: usize = part.parse().with_context(|| format!("--{flag} {list:?}: {part:?} is not an index or `all`"))?;
         if i >= count {
-            bail!(
-                "--{flag} {i}: the scene has {count} {what} (0 to {})",
-                count.saturating_sub(1)
-            );
+            bail!("--{flag} {i}: the scene has {count} {what} (0 to {})", count.saturating_sub(1));
         }
         picked.push(i);
     }
@@ -197,16 +178,9 @@ fn run(args: &Args) -> Result<()> {
         }
         return Ok(());
     }
-    let adapter = args
-        .adapter
-        .clone()
-        .map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let max_buffer_bytes = args.max_buffer_mib.map(|mib| mib << 20);
-    let engine = Engine::new(EngineOptions {
-        adapter,
-        max_buffer_bytes,
-    })
-    .context("--adapter")?;
+    let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes }).context("--adapter")?;
     let model_path = args.model.clone().unwrap_or_else(|| bundled(DEFAULT_MODEL));
     let scene_path = args.scene.clone().unwrap_or_else(|| bundled(DEFAULT_SCENE));
     let start = Instant::now();
@@ -222,9 +196,7 @@ fn run(args: &Args) -> Result<()> {
     };
     let inputs = match &args.input_views {
         Some(list) => pick("input-views", list, data.inputs.len(), "input views")?,
-        None if frames => (0..data.inputs.len())
-            .filter(|i| !views.contains(i))
-            .collect(),
+        None if frames => (0..data.inputs.len()).filter(|i| !views.contains(i)).collect(),
         None => (0..data.inputs.len()).collect(),
     };
     if inputs.is_empty() {
@@ -241,14 +213,8 @@ fn run(args: &Args) -> Result<()> {
              not --orbit, --orbit-frames or --pose"
         );
     }
-    let outputs = Outputs {
-        rgb: true,
-        logdepth: args.logdepth,
-    };
-    let request = Request {
-        outputs,
-        region: args.region,
-    };
+    let outputs = Outputs { rgb: true, logdepth: args.logdepth };
+    let request = Request { outputs, region: args.region };
 
     let start = Instant::now();
     let scene = model.encode(&inputs)?;
@@ -257,17 +223,14 @@ fn run(args: &Args) -> Result<()> {
     // any output.
     let start = Instant::now();
     for shot in &shots {
-        scene
-            .render_stats(&shot.camera, &request)
-            .with_context(|| shot.label.clone())?;
+        scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
     }
     let plan_time = start.elapsed();
     check_outputs(args, &shots)?;
     let progress = if args.orbit_frames.is_some() {
         let bar = ProgressBar::new(shots.len() as u64);
         bar.set_style(
-            ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})")
-                .expect("template"),
+            ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"),
         );
         bar
     } else {
@@ -277,11 +240,7 @@ fn run(args: &Args) -> Result<()> {
     let mut render_times = Vec::with_capacity(shots.len());
     for shot in &shots {
         let start = Instant::now();
-        rendered.push(
-            scene
-                .render(&shot.camera, &request)
-                .with_context(|| shot.label.clone())?,
-        );
+        rendered.push(scene.render(&shot.camera, &request).with_context(|| shot.label.clone())?);
         render_times.push(start.elapsed());
         progress.inc(1);
     }
@@ -293,15 +252,8 @@ fn run(args: &Args) -> Result<()> {
         repeats.push(start.elapsed());
     }
 
-    let images: Vec<Image> = rendered
-        .iter()
-        .map(|r| r.rgb.clone().expect("rgb is always requested"))
-        .collect();
-    let metric_lines = if args.metrics {
-        metrics_report(&shots, &images, request.region)?
-    } else {
-        Vec::new()
-    };
+    let images: Vec<Image> = rendered.iter().map(|r| r.rgb.clone().expect("rgb is always requested")).collect();
+    let metric_lines = if args.metrics { metrics_report(&shots, &images, request.region)? } else { Vec::new() };
     let mut written = Vec::new();
     let write_all = |written: &mut Vec<PathBuf>| -> Result<()> {
         for (shot, image) in shots.iter().zip(&images) {
@@ -309,10 +261,7 @@ fn run(args: &Args) -> Result<()> {
             written.push(shot.png.clone());
         }
         if let Some(path) = &args.out_raw {
-            let depths = rendered
-                .iter()
-                .map(|r| r.logdepth.clone())
-                .collect::<Option<Vec<_>>>();
+            let depths = rendered.iter().map(|r| r.logdepth.clone()).collect::<Option<Vec<_>>>();
             write_raw(path, &images, depths)?;
             written.push(path.clone());
         }
@@ -328,9 +277,8 @@ fn run(args: &Args) -> Result<()> {
 
     let k = model.patch_size();
     let first = &images[0];
-    let region = request.region.map_or(String::new(), |r| {
-        format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height)
-    });
+    let region =
+        request.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
     println!(
         "rendered {} view(s) of {}x{}{region} from {} input view(s) with {} ({}, k={k}, {:.2}M parameters) on {}",
         images.len(),
@@ -350,11 +298,7 @@ fn run(args: &Args) -> Result<()> {
         images.len(),
         first.width(),
         first.height(),
-        written
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+        written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
     );
     for line in &metric_lines {
         println!("{line}");
@@ -412,26 +356,15 @@ fn summary(times: &[Duration]) -> String {
 
 /// The images to render: the chosen target views, or novel cameras made from the first of them.
 fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
-    let folder = args
-        .out
-        .extension()
-        .is_none_or(|e| !e.eq_ignore_ascii_case("png"));
+    let folder = args.out.extension().is_none_or(|e| !e.eq_ignore_ascii_case("png"));
     let reference = &data.targets[views[0]].camera;
     if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
         bail!("--orbit {degrees}: expected a finite angle in degrees");
     }
-    let novel = |camera: Camera, label: String| Shot {
-        camera,
-        truth: None,
-        label,
-        png: PathBuf::new(),
-    };
+    let novel = |camera: Camera, label: String| Shot { camera, truth: None, label, png: PathBuf::new() };
     let (mut shots, folder_names): (Vec<Shot>, Vec<String>) = if let Some(path) = &args.pose {
         (
-            vec![novel(
-                raypatch::load_pose(path, reference)?,
-                format!("--pose {}", path.display()),
-            )],
+            vec![novel(raypatch::load_pose(path, reference)?, format!("--pose {}", path.display()))],
             vec!["render".into()],
         )
     } else if let Some(n) = args.orbit_frames {
@@ -440,24 +373,10 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
         }
         let start = args.orbit.unwrap_or(0.0);
         let turn = |i: usize| start + 360.0 * i as f64 / n as f64;
-        let shots = (0..n).map(|i| {
-            novel(
-                reference.orbited(turn(i)),
-                format!("turntable frame {i} ({:.1}°)", turn(i)),
-            )
-        });
-        (
-            shots.collect(),
-            (0..n).map(|i| format!("frame_{i:03}")).collect(),
-        )
+        let shots = (0..n).map(|i| novel(reference.orbited(turn(i)), format!("turntable frame {i} ({:.1}°)", turn(i))));
+        (shots.collect(), (0..n).map(|i| format!("frame_{i:03}")).collect())
     } else if let Some(degrees) = args.orbit {
-        (
-            vec![novel(
-                reference.orbited(degrees),
-                format!("--orbit {degrees}"),
-            )],
-            vec!["render".into()],
-        )
+        (vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"))], vec!["render".into()])
     } else {
         let shots = views.iter().map(|&v| Shot {
             camera: data.targets[v].camera.clone(),
@@ -465,10 +384,7 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
             label: format!("target view {v}"),
             png: PathBuf::new(),
         });
-        (
-            shots.collect(),
-            views.iter().map(|v| format!("view_{v:03}")).collect(),
-        )
+        (shots.collect(), views.iter().map(|v| format!("view_{v:03}")).collect())
     };
     let single = shots.len() == 1;
     for (i, (shot, name)) in shots.iter_mut().zip(folder_names).enumerate() {
@@ -477,11 +393,7 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
         } else if single {
             args.out.clone()
         } else {
-            let stem = args
-                .out
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let stem = args.out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             args.out.with_file_name(format!("{stem}_{i:03}.png"))
         };
     }
@@ -491,16 +403,9 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
 /// Fails before any GPU work when an output cannot be written: the folder must exist (or be creatable, for
 /// an --out folder) and accept a new file.
 fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
-    let folder_of = |path: &Path| {
-        path.parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."))
-            .to_path_buf()
-    };
-    let mut checks: Vec<(String, PathBuf)> = shots
-        .iter()
-        .map(|s| ("--out".to_string(), folder_of(&s.png)))
-        .collect();
+    let folder_of =
+        |path: &Path| path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
+    let mut checks: Vec<(String, PathBuf)> = shots.iter().map(|s| ("--out".to_string(), folder_of(&s.png))).collect();
     if let Some(path) = &args.out_raw {
         checks.push(("--out-raw".into(), folder_of(path)));
     }
@@ -514,10 +419,8 @@ fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
             bail!("{flag}: folder {} does not exist", dir.display());
         }
         let probe = dir.join(format!(".render-frame-probe-{}", std::process::id()));
-        std::fs::write(&probe, b"")
-            .with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
-        std::fs::remove_file(&probe)
-            .with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
+        std::fs::write(&probe, b"").with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
+        std::fs::remove_file(&probe).with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
     }
     Ok(())
 }
@@ -541,31 +444,18 @@ fn metrics_report(shots: &[Shot], images: &[Image], region: Option<Region>) -> R
         ssim_sum += s;
     }
     let n = shots.len() as f64;
-    lines.push(format!(
-        "mean over {} view(s): PSNR {:.3} dB, SSIM {:.4}",
-        shots.len(),
-        psnr_sum / n,
-        ssim_sum / n
-    ));
+    lines.push(format!("mean over {} view(s): PSNR {:.3} dB, SSIM {:.4}", shots.len(), psnr_sum / n, ssim_sum / n));
     Ok(lines)
 }
 
 /// The slowest ops of a plan, with their share of the plan's total.
 fn print_profile(what: &str, ops: &OpTimes) {
     let total: f64 = ops.iter().map(|(_, t)| t.as_secs_f64()).sum();
-    println!(
-        "{what}: {} ops, {:.1} ms run one by one; slowest:",
-        ops.len(),
-        total * 1e3
-    );
+    println!("{what}: {} ops, {:.1} ms run one by one; slowest:", ops.len(), total * 1e3);
     let mut sorted: Vec<_> = ops.iter().collect();
     sorted.sort_by_key(|(_, t)| std::cmp::Reverse(*t));
     for (label, t) in sorted.iter().take(12) {
-        println!(
-            "  {:8.2} ms {:5.1}%  {label}",
-            ms(*t),
-            100.0 * t.as_secs_f64() / total
-        );
+        println!("  {:8.2} ms {:5.1}%  {label}", ms(*t), 100.0 * t.as_secs_f64() / total);
     }
 }
 
@@ -578,20 +468,11 @@ fn write_raw(path: &Path, images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Re
         vec![images.len(), h, w, 3],
     )];
     if let Some(depths) = depths {
-        tensors.push((
-            "logdepth".into(),
-            f32_bytes(depths.into_iter().flatten()),
-            vec![images.len(), h, w],
-        ));
+        tensors.push(("logdepth".into(), f32_bytes(depths.into_iter().flatten()), vec![images.len(), h, w]));
     }
     let views = tensors
         .iter()
-        .map(|(name, bytes, shape)| {
-            Ok((
-                name.clone(),
-                TensorView::new(Dtype::F32, shape.clone(), bytes)?,
-            ))
-        })
+        .map(|(name, bytes, shape)| Ok((name.clone(), TensorView::new(Dtype::F32, shape.clone(), bytes)?)))
         .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
     let metadata = HashMap::from([("format".to_string(), "raypatch-frame/1".to_string())]);
     let bytes = safetensors::serialize(views, Some(metadata))?;

@@ -13,20 +13,11 @@ use safetensors::Dtype;
 use tempfile::TempDir;
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .ancestors()
-        .nth(2)
-        .unwrap()
-        .to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).unwrap().to_path_buf()
 }
 
 fn golden(case: &str, file: &str) -> String {
-    root()
-        .join("assets/golden")
-        .join(case)
-        .join(file)
-        .display()
-        .to_string()
+    root().join("assets/golden").join(case).join(file).display().to_string()
 }
 
 struct Run {
@@ -37,11 +28,7 @@ struct Run {
 
 /// Runs render-frame in `dir` with `args`.
 fn run(dir: &Path, args: &[&str]) -> Run {
-    let out = Command::new(env!("CARGO_BIN_EXE_render-frame"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_render-frame")).args(args).current_dir(dir).output().unwrap();
     Run {
         code: out.status.code().unwrap_or(-1),
         stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -69,29 +56,13 @@ fn files(dir: &Path) -> Vec<String> {
 fn fails(dir: &Path, args: &[&str], expected: &[&str]) {
     let before = files(dir);
     let r = run(dir, args);
-    assert_eq!(
-        r.code, 2,
-        "{args:?}: exit code {} (stderr: {})",
-        r.code, r.stderr
-    );
+    assert_eq!(r.code, 2, "{args:?}: exit code {} (stderr: {})", r.code, r.stderr);
     let lines: Vec<&str> = r.stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert!(
-        lines.len() == 1 || lines[0].starts_with("error:"),
-        "{args:?}: not one line: {:?}",
-        r.stderr
-    );
+    assert!(lines.len() == 1 || lines[0].starts_with("error:"), "{args:?}: not one line: {:?}", r.stderr);
     for text in expected {
-        assert!(
-            r.stderr.contains(text),
-            "{args:?}: {:?} does not mention {text:?}",
-            r.stderr
-        );
+        assert!(r.stderr.contains(text), "{args:?}: {:?} does not mention {text:?}", r.stderr);
     }
-    assert!(
-        !r.stderr.contains("panicked"),
-        "{args:?}: panicked: {}",
-        r.stderr
-    );
+    assert!(!r.stderr.contains("panicked"), "{args:?}: panicked: {}", r.stderr);
     assert_eq!(files(dir), before, "{args:?}: files were left behind");
 }
 
@@ -109,14 +80,7 @@ fn read_f32_tensors(path: &str) -> (Tensors, HashMap<String, String>) {
         .keys()
         .map(|k| {
             let t = file.f32(k).unwrap();
-            (
-                k.to_string(),
-                (
-                    Dtype::F32,
-                    t.shape,
-                    t.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-                ),
-            )
+            (k.to_string(), (Dtype::F32, t.shape, t.data.iter().flat_map(|v| v.to_le_bytes()).collect()))
         })
         .collect();
     (tensors, file.metadata.clone())
@@ -125,18 +89,9 @@ fn read_f32_tensors(path: &str) -> (Tensors, HashMap<String, String>) {
 fn write_tensors(path: &Path, tensors: &Tensors, metadata: &HashMap<String, String>) {
     let views: Vec<(String, TensorView)> = tensors
         .iter()
-        .map(|(name, (dtype, shape, bytes))| {
-            (
-                name.clone(),
-                TensorView::new(*dtype, shape.clone(), bytes).unwrap(),
-            )
-        })
+        .map(|(name, (dtype, shape, bytes))| (name.clone(), TensorView::new(*dtype, shape.clone(), bytes).unwrap()))
         .collect();
-    std::fs::write(
-        path,
-        safetensors::serialize(views, Some(metadata.clone())).unwrap(),
-    )
-    .unwrap();
+    std::fs::write(path, safetensors::serialize(views, Some(metadata.clone())).unwrap()).unwrap();
 }
 
 /// A copy of a scene or model file with `edit` applied to its tensors, written into `dir`.
@@ -168,70 +123,31 @@ fn no_arguments_renders_the_bundled_scene_into_render_png() {
     let r = run(dir.path(), &[]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("render.png")), (80, 60));
-    assert!(
-        r.stdout.contains("rendered 1 view(s) of 80x60") && r.stdout.contains("k=4"),
-        "{}",
-        r.stdout
-    );
-    assert!(
-        r.stdout.contains("encode") && r.stdout.contains(" ms"),
-        "{}",
-        r.stdout
-    );
+    assert!(r.stdout.contains("rendered 1 view(s) of 80x60") && r.stdout.contains("k=4"), "{}", r.stdout);
+    assert!(r.stdout.contains("encode") && r.stdout.contains(" ms"), "{}", r.stdout);
     assert_eq!(files(dir.path()), vec!["render.png"]);
 }
 
 #[test]
 fn target_views_match_pytorch_with_metrics_and_raw_output() {
     let dir = TempDir::new().unwrap();
-    let (model, scene) = (
-        golden("rpsrt_k2", "model.safetensors"),
-        golden("rpsrt_k2", "scene.safetensors"),
-    );
-    let args = [
-        "--model",
-        &model,
-        "--scene",
-        &scene,
-        "--view",
-        "all",
-        "--out",
-        "views",
-        "--out-raw",
-        "raw.safetensors",
-    ];
-    let r = run(
-        dir.path(),
-        &[&args[..], &["--metrics", "--timings"]].concat(),
-    );
+    let (model, scene) = (golden("rpsrt_k2", "model.safetensors"), golden("rpsrt_k2", "scene.safetensors"));
+    let args =
+        ["--model", &model, "--scene", &scene, "--view", "all", "--out", "views", "--out-raw", "raw.safetensors"];
+    let r = run(dir.path(), &[&args[..], &["--metrics", "--timings"]].concat());
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("views/view_000.png")), (24, 16));
     assert_eq!(png_size(&dir.path().join("views/view_001.png")), (24, 16));
-    for text in [
-        "target view 0: PSNR",
-        "target view 1: PSNR",
-        "mean over 2 view(s): PSNR",
-        "SSIM",
-        "planned peak GPU memory",
-    ] {
+    for text in
+        ["target view 0: PSNR", "target view 1: PSNR", "mean over 2 view(s): PSNR", "SSIM", "planned peak GPU memory"]
+    {
         assert!(r.stdout.contains(text), "no {text:?} in {}", r.stdout);
     }
     // The raw output is the model's: equal to PyTorch's within the golden tolerance.
-    let raw = TensorFile::open(&dir.path().join("raw.safetensors"))
-        .unwrap()
-        .f32("rgb")
-        .unwrap();
-    let want = TensorFile::open(Path::new(&golden("rpsrt_k2", "expected.safetensors")))
-        .unwrap()
-        .f32("rgb")
-        .unwrap();
+    let raw = TensorFile::open(&dir.path().join("raw.safetensors")).unwrap().f32("rgb").unwrap();
+    let want = TensorFile::open(Path::new(&golden("rpsrt_k2", "expected.safetensors"))).unwrap().f32("rgb").unwrap();
     assert_eq!(raw.shape, want.shape);
-    let err = raw
-        .data
-        .iter()
-        .zip(&want.data)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let err = raw.data.iter().zip(&want.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     assert!(err <= 1e-4, "CLI rgb differs from PyTorch by {err}");
 
     // A region writes just that region, equal to the same pixels of the full render.
@@ -254,18 +170,12 @@ fn target_views_match_pytorch_with_metrics_and_raw_output() {
     );
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("part.png")), (9, 7));
-    let part = TensorFile::open(&dir.path().join("part.safetensors"))
-        .unwrap()
-        .f32("rgb")
-        .unwrap();
+    let part = TensorFile::open(&dir.path().join("part.safetensors")).unwrap().f32("rgb").unwrap();
     assert_eq!(part.shape, vec![1, 7, 9, 3]);
     for y in 0..7 {
         for x in 0..27 {
             let full = raw.data[((16 + 5 + y) * 24 + 3) * 3 + x];
-            assert!(
-                (part.data[y * 27 + x] - full).abs() <= 1e-6,
-                "region pixel ({x}/3, {y}) differs"
-            );
+            assert!((part.data[y * 27 + x] - full).abs() <= 1e-6, "region pixel ({x}/3, {y}) differs");
         }
     }
 }
@@ -280,44 +190,24 @@ fn novel_views_turntables_poses_and_depth() {
     let r = run(dir.path(), &["--orbit-frames", "3", "--out", "turntable"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     for i in 0..3 {
-        assert_eq!(
-            png_size(&dir.path().join(format!("turntable/frame_{i:03}.png"))),
-            (80, 60)
-        );
+        assert_eq!(png_size(&dir.path().join(format!("turntable/frame_{i:03}.png"))), (80, 60));
     }
     assert!(r.stdout.contains("rendered 3 view(s)"), "{}", r.stdout);
 
     // A pose file: a NeRF-axes camera-to-world matrix, intrinsics and size of its own.
-    let (_, cv) = Camera::msn(glam::DVec3::new(-4.0, 6.0, 3.0), 16, 8)
-        .unwrap()
-        .as_pinhole()
-        .unwrap();
+    let (_, cv) = Camera::msn(glam::DVec3::new(-4.0, 6.0, 3.0), 16, 8).unwrap().as_pinhole().unwrap();
     let gl = DMat4::from_cols(cv.x_axis, -cv.y_axis, -cv.z_axis, cv.w_axis);
     let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
-    let pose =
-        serde_json::json!({ "camera_angle_x": 0.9, "w": 16, "h": 8, "transform_matrix": rows });
+    let pose = serde_json::json!({ "camera_angle_x": 0.9, "w": 16, "h": 8, "transform_matrix": rows });
     std::fs::write(dir.path().join("pose.json"), pose.to_string()).unwrap();
     let r = run(dir.path(), &["--pose", "pose.json", "--out", "posed.png"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("posed.png")), (16, 8));
 
-    let (model, scene) = (
-        golden("srt_k1_depth", "model.safetensors"),
-        golden("srt_k1_depth", "scene.safetensors"),
-    );
+    let (model, scene) = (golden("srt_k1_depth", "model.safetensors"), golden("srt_k1_depth", "scene.safetensors"));
     let r = run(
         dir.path(),
-        &[
-            "--model",
-            &model,
-            "--scene",
-            &scene,
-            "--logdepth",
-            "--out",
-            "depth.png",
-            "--out-raw",
-            "depth.safetensors",
-        ],
+        &["--model", &model, "--scene", &scene, "--logdepth", "--out", "depth.png", "--out-raw", "depth.safetensors"],
     );
     assert_eq!(r.code, 0, "{}", r.stderr);
     let raw = TensorFile::open(&dir.path().join("depth.safetensors")).unwrap();
@@ -339,23 +229,12 @@ fn frames_folder(dir: &Path, count: usize) -> PathBuf {
         let (_, cv) = Camera::msn(position, 32, 24).unwrap().as_pinhole().unwrap();
         let gl = DMat4::from_cols(cv.x_axis, -cv.y_axis, -cv.z_axis, cv.w_axis);
         let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
-        frames
-            .push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
-        let pixels = (0..32 * 24 * 3)
-            .map(|v| ((v * (i + 3)) % 256) as f32 / 255.0)
-            .collect();
-        Image::new(32, 24, pixels)
-            .unwrap()
-            .save_png(folder.join(format!("r_{i}.png")))
-            .unwrap();
+        frames.push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
+        let pixels = (0..32 * 24 * 3).map(|v| ((v * (i + 3)) % 256) as f32 / 255.0).collect();
+        Image::new(32, 24, pixels).unwrap().save_png(folder.join(format!("r_{i}.png"))).unwrap();
     }
-    let transforms =
-        serde_json::json!({ "camera_angle_x": 2.0 * (0.016f64 / 0.035).atan(), "frames": frames });
-    std::fs::write(
-        folder.join("transforms.json"),
-        serde_json::to_string_pretty(&transforms).unwrap(),
-    )
-    .unwrap();
+    let transforms = serde_json::json!({ "camera_angle_x": 2.0 * (0.016f64 / 0.035).atan(), "frames": frames });
+    std::fs::write(folder.join("transforms.json"), serde_json::to_string_pretty(&transforms).unwrap()).unwrap();
     folder
 }
 
@@ -367,104 +246,37 @@ fn png_folders_with_transforms_json() {
     // Default: the last frame is the target, the others are the inputs.
     let r = run(dir.path(), &["--scene", &scene, "--metrics"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
-    assert!(
-        r.stdout.contains("from 2 input view(s)") && r.stdout.contains("target view 2: PSNR"),
-        "{}",
-        r.stdout
-    );
+    assert!(r.stdout.contains("from 2 input view(s)") && r.stdout.contains("target view 2: PSNR"), "{}", r.stdout);
     assert_eq!(png_size(&dir.path().join("render.png")), (32, 24));
-    let r = run(
-        dir.path(),
-        &[
-            "--scene",
-            &scene,
-            "--input-views",
-            "1",
-            "--view",
-            "0,2",
-            "--out",
-            "out",
-        ],
-    );
+    let r = run(dir.path(), &["--scene", &scene, "--input-views", "1", "--view", "0,2", "--out", "out"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
-    assert!(
-        dir.path().join("out/view_000.png").exists()
-            && dir.path().join("out/view_002.png").exists()
-    );
+    assert!(dir.path().join("out/view_000.png").exists() && dir.path().join("out/view_002.png").exists());
 }
 
 #[test]
 fn bad_flags_and_paths() {
     let dir = TempDir::new().unwrap();
     let d = dir.path();
-    fails(
-        d,
-        &["--model", "missing.safetensors"],
-        &["missing.safetensors", "cannot read"],
-    );
+    fails(d, &["--model", "missing.safetensors"], &["missing.safetensors", "cannot read"]);
     fails(d, &["--model", "."], &["cannot read"]);
     fails(d, &["--scene", "nowhere"], &["nowhere", "cannot read"]);
     fails(d, &["--region", "1,2,3"], &["--region", "X,Y,W,H"]);
-    fails(
-        d,
-        &["--region", "76,0,9,4"],
-        &["region", "not inside the 80x60"],
-    );
+    fails(d, &["--region", "76,0,9,4"], &["region", "not inside the 80x60"]);
     fails(d, &["--view", "9"], &["--view 9", "2 target views"]);
-    fails(
-        d,
-        &["--input-views", ""],
-        &["--input-views", "no input views selected"],
-    );
+    fails(d, &["--input-views", ""], &["--input-views", "no input views selected"]);
     fails(d, &["--input-views", "0,x"], &["--input-views", "\"x\""]);
-    fails(
-        d,
-        &["--adapter", "no-such-gpu"],
-        &["no adapter whose name contains \"no-such-gpu\""],
-    );
-    let (golden_model, golden_scene) = (
-        golden("rpsrt_k4", "model.safetensors"),
-        golden("rpsrt_k4", "scene.safetensors"),
-    );
-    fails(
-        d,
-        &[
-            "--model",
-            &golden_model,
-            "--scene",
-            &golden_scene,
-            "--metrics",
-        ],
-        &["--metrics", "ground-truth"],
-    );
+    fails(d, &["--adapter", "no-such-gpu"], &["no adapter whose name contains \"no-such-gpu\""]);
+    let (golden_model, golden_scene) =
+        (golden("rpsrt_k4", "model.safetensors"), golden("rpsrt_k4", "scene.safetensors"));
+    fails(d, &["--model", &golden_model, "--scene", &golden_scene, "--metrics"], &["--metrics", "ground-truth"]);
     fails(d, &["--max-buffer-mib", "0"], &["--max-buffer-mib", "0"]);
     fails(d, &["--orbit-frames", "0"], &["--orbit-frames 0"]);
-    fails(
-        d,
-        &["--orbit-frames", "2", "--orbit", "NaN"],
-        &["--orbit NaN", "finite angle"],
-    );
-    fails(
-        d,
-        &["--logdepth", "--out-raw", "x.safetensors"],
-        &["log-depth", "no depth channel"],
-    );
+    fails(d, &["--orbit-frames", "2", "--orbit", "NaN"], &["--orbit NaN", "finite angle"]);
+    fails(d, &["--logdepth", "--out-raw", "x.safetensors"], &["log-depth", "no depth channel"]);
     std::fs::write(d.join("plain-file"), b"").unwrap();
-    fails(
-        d,
-        &["--out", "plain-file/render.png"],
-        &["--out", "plain-file", "does not exist"],
-    );
-    fails(
-        d,
-        &["--out-raw", "no/such/dir/raw.safetensors"],
-        &["--out-raw", "no/such/dir", "does not exist"],
-    );
-    fails(
-        d,
-        &["--out", "plain-file/sub"],
-        &["--out", "cannot create the folder"],
-    );
+    fails(d, &["--out", "plain-file/render.png"], &["--out", "plain-file", "does not exist"]);
+    fails(d, &["--out-raw", "no/such/dir/raw.safetensors"], &["--out-raw", "no/such/dir", "does not exist"]);
+    fails(d, &["--out", "plain-file/sub"], &["--out", "cannot create the folder"]);
 }
 
 #[test]
@@ -477,52 +289,26 @@ fn malformed_safetensors_files() {
     fails(
         d,
         &["--model", "truncated.safetensors"],
-        &[
-            "truncated.safetensors",
-            "not a valid safetensors file",
-            "truncated file?",
-        ],
+        &["truncated.safetensors", "not a valid safetensors file", "truncated file?"],
     );
     std::fs::write(d.join("short.safetensors"), &bytes[..5]).unwrap();
-    fails(
-        d,
-        &["--model", "short.safetensors"],
-        &[
-            "short.safetensors",
-            "too short for the 8-byte header length",
-        ],
-    );
+    fails(d, &["--model", "short.safetensors"], &["short.safetensors", "too short for the 8-byte header length"]);
     let mut huge = bytes.clone();
     huge[..8].copy_from_slice(&(u64::MAX / 2).to_le_bytes());
     std::fs::write(d.join("huge-header.safetensors"), huge).unwrap();
-    fails(
-        d,
-        &["--model", "huge-header.safetensors"],
-        &["huge-header.safetensors", "header length", "is more than"],
-    );
+    fails(d, &["--model", "huge-header.safetensors"], &["huge-header.safetensors", "header length", "is more than"]);
     let mut past_end = bytes.clone();
     past_end[..8].copy_from_slice(&(bytes.len() as u64).to_le_bytes());
     std::fs::write(d.join("past-end.safetensors"), past_end).unwrap();
-    fails(
-        d,
-        &["--model", "past-end.safetensors"],
-        &["past-end.safetensors", "header length", "is more than"],
-    );
+    fails(d, &["--model", "past-end.safetensors"], &["past-end.safetensors", "header length", "is more than"]);
 
     let data = [0u8; 32];
-    let outside = raw_file(
-        d,
-        "outside.safetensors",
-        r#"{"a":{"dtype":"F32","shape":[8],"data_offsets":[0,64]}}"#,
-        &data,
-    );
+    let outside =
+        raw_file(d, "outside.safetensors", r#"{"a":{"dtype":"F32","shape":[8],"data_offsets":[0,64]}}"#, &data);
     fails(
         d,
         &["--scene", &outside],
-        &[
-            "outside.safetensors",
-            "`a` has data_offsets [0, 64] outside the 32-byte data section",
-        ],
+        &["outside.safetensors", "`a` has data_offsets [0, 64] outside the 32-byte data section"],
     );
     let overlap = raw_file(
         d,
@@ -530,56 +316,16 @@ fn malformed_safetensors_files() {
         r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]},"b":{"dtype":"F32","shape":[4],"data_offsets":[8,24]}}"#,
         &data,
     );
-    fails(
-        d,
-        &["--scene", &overlap],
-        &[
-            "overlap.safetensors",
-            "tensors `a` [0, 16] and `b` [8, 24] overlap",
-        ],
-    );
-    let dtype = raw_file(
-        d,
-        "dtype.safetensors",
-        r#"{"a":{"dtype":"F33","shape":[8],"data_offsets":[0,32]}}"#,
-        &data,
-    );
-    fails(
-        d,
-        &["--scene", &dtype],
-        &["dtype.safetensors", "tensor `a` has unknown dtype \"F33\""],
-    );
-    let misfit = raw_file(
-        d,
-        "misfit.safetensors",
-        r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,32]}}"#,
-        &data,
-    );
-    fails(
-        d,
-        &["--scene", &misfit],
-        &[
-            "misfit.safetensors",
-            "shape [4] of F32 does not fill data_offsets [0, 32]",
-        ],
-    );
-    let trailing = raw_file(
-        d,
-        "trailing.safetensors",
-        r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#,
-        &data,
-    );
-    fails(
-        d,
-        &["--scene", &trailing],
-        &["trailing.safetensors", "trailing bytes"],
-    );
+    fails(d, &["--scene", &overlap], &["overlap.safetensors", "tensors `a` [0, 16] and `b` [8, 24] overlap"]);
+    let dtype = raw_file(d, "dtype.safetensors", r#"{"a":{"dtype":"F33","shape":[8],"data_offsets":[0,32]}}"#, &data);
+    fails(d, &["--scene", &dtype], &["dtype.safetensors", "tensor `a` has unknown dtype \"F33\""]);
+    let misfit = raw_file(d, "misfit.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,32]}}"#, &data);
+    fails(d, &["--scene", &misfit], &["misfit.safetensors", "shape [4] of F32 does not fill data_offsets [0, 32]"]);
+    let trailing =
+        raw_file(d, "trailing.safetensors", r#"{"a":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#, &data);
+    fails(d, &["--scene", &trailing], &["trailing.safetensors", "trailing bytes"]);
     let json = raw_file(d, "json.safetensors", r#"{"a":"#, &data);
-    fails(
-        d,
-        &["--scene", &json],
-        &["json.safetensors", "invalid JSON"],
-    );
+    fails(d, &["--scene", &json], &["json.safetensors", "invalid JSON"]);
 }
 
 #[test]
@@ -592,60 +338,28 @@ fn wrong_tensors_in_scenes_and_models() {
     let f = edited(d, &scene, "no-rays.safetensors", |t| {
         t.remove("input_rays");
     });
-    fails(
-        d,
-        &["--scene", &f],
-        &["no-rays.safetensors", "missing tensor `input_rays`"],
-    );
+    fails(d, &["--scene", &f], &["no-rays.safetensors", "missing tensor `input_rays`"]);
     let f = edited(d, &model, "extra.safetensors", |t| {
-        t.insert(
-            "decoder_rp.extra.weight".into(),
-            (Dtype::F32, vec![1], vec![0; 4]),
-        );
+        t.insert("decoder_rp.extra.weight".into(), (Dtype::F32, vec![1], vec![0; 4]));
     });
-    fails(
-        d,
-        &["--model", &f],
-        &[
-            "extra.safetensors",
-            "unexpected tensor `decoder_rp.extra.weight`",
-        ],
-    );
+    fails(d, &["--model", &f], &["extra.safetensors", "unexpected tensor `decoder_rp.extra.weight`"]);
     let f = edited(d, &model, "misshapen.safetensors", |t| {
         let w = t.get_mut("decoder_rp.conv_decoder.conv_0.bias").unwrap();
         w.1 = vec![w.1[0] - 1];
         w.2.truncate(w.2.len() - 4);
     });
-    fails(
-        d,
-        &["--model", &f],
-        &[
-            "misshapen.safetensors",
-            "`decoder_rp.conv_decoder.conv_0.bias` has shape",
-        ],
-    );
+    fails(d, &["--model", &f], &["misshapen.safetensors", "`decoder_rp.conv_decoder.conv_0.bias` has shape"]);
     let f = edited(d, &scene, "pos.safetensors", |t| {
         let p = t.get_mut("input_camera_pos").unwrap();
         p.1 = vec![1, 6];
     });
-    fails(
-        d,
-        &["--scene", &f],
-        &["pos.safetensors", "input_camera_pos", "expected [2,3]"],
-    );
+    fails(d, &["--scene", &f], &["pos.safetensors", "input_camera_pos", "expected [2,3]"]);
     let f = edited(d, &scene, "f64.safetensors", |t| {
         let p = t.get_mut("input_camera_pos").unwrap();
         p.0 = Dtype::F64;
         p.1 = vec![1, 3];
     });
-    fails(
-        d,
-        &["--scene", &f],
-        &[
-            "f64.safetensors",
-            "`input_camera_pos` has dtype F64, expected F32",
-        ],
-    );
+    fails(d, &["--scene", &f], &["f64.safetensors", "`input_camera_pos` has dtype F64, expected F32"]);
     for (key, index, value, name) in [
         ("input_images", 5, f32::NAN, "nan-image.safetensors"),
         ("target_rays", 7, f32::INFINITY, "inf-ray.safetensors"),
@@ -664,25 +378,13 @@ fn wrong_tensors_in_scenes_and_models() {
         p.1[0] = 0;
         p.2.clear();
     });
-    fails(
-        d,
-        &["--scene", &f],
-        &["no-inputs.safetensors", "at least one non-empty input view"],
-    );
+    fails(d, &["--scene", &f], &["no-inputs.safetensors", "at least one non-empty input view"]);
     let f = edited(d, &scene, "size.safetensors", |t| {
         let r = t.get_mut("target_rays").unwrap();
         r.1 = vec![2, 32, 42, 3];
         r.2.truncate(2 * 32 * 42 * 12);
     });
-    fails(
-        d,
-        &["--scene", &f],
-        &[
-            "target",
-            "32x42",
-            "not divisible by the model's patch size k=4",
-        ],
-    );
+    fails(d, &["--scene", &f], &["target", "32x42", "not divisible by the model's patch size k=4"]);
 }
 
 #[test]
@@ -693,39 +395,16 @@ fn bad_cameras_and_frames() {
         std::fs::write(d.join(name), text).unwrap();
         name.to_string()
     };
-    let scaled = pose(
-        "scaled.json",
-        r#"{"transform_matrix": [[2,0,0,0],[0,2,0,-6],[0,0,2,1],[0,0,0,1]]}"#,
-    );
+    let scaled = pose("scaled.json", r#"{"transform_matrix": [[2,0,0,0],[0,2,0,-6],[0,0,2,1],[0,0,0,1]]}"#);
     fails(d, &["--pose", &scaled], &["scaled.json", "not orthonormal"]);
-    let inf = pose(
-        "inf.json",
-        r#"{"transform_matrix": [[1,0,0,1e999],[0,1,0,0],[0,0,1,5],[0,0,0,1]]}"#,
-    );
+    let inf = pose("inf.json", r#"{"transform_matrix": [[1,0,0,1e999],[0,1,0,0],[0,0,1,5],[0,0,0,1]]}"#);
     fails(d, &["--pose", &inf], &["inf.json"]);
-    let short = pose(
-        "short.json",
-        r#"{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]]}"#,
-    );
-    fails(
-        d,
-        &["--pose", &short],
-        &["short.json", "4 rows of 4 finite numbers"],
-    );
-    let odd = pose(
-        "odd.json",
-        r#"{"w": 50, "h": 32, "transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]]}"#,
-    );
-    fails(
-        d,
-        &["--pose", &odd],
-        &["50", "not divisible by the model's patch size k=4"],
-    );
-    fails(
-        d,
-        &["--pose", "absent.json"],
-        &["absent.json", "cannot read"],
-    );
+    let short = pose("short.json", r#"{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]]}"#);
+    fails(d, &["--pose", &short], &["short.json", "4 rows of 4 finite numbers"]);
+    let odd =
+        pose("odd.json", r#"{"w": 50, "h": 32, "transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]]}"#);
+    fails(d, &["--pose", &odd], &["50", "not divisible by the model's patch size k=4"]);
+    fails(d, &["--pose", "absent.json"], &["absent.json", "cannot read"]);
 
     let folder = frames_folder(d, 3);
     let scene = folder.display().to_string();
@@ -733,25 +412,10 @@ fn bad_cameras_and_frames() {
     let mut json: serde_json::Value = serde_json::from_str(&transforms).unwrap();
     json["frames"][1]["transform_matrix"][0][0] = serde_json::json!(1.5);
     std::fs::write(folder.join("transforms.json"), json.to_string()).unwrap();
-    fails(
-        d,
-        &["--scene", &scene],
-        &["transforms.json", "frame 1 (./r_1)", "not orthonormal"],
-    );
+    fails(d, &["--scene", &scene], &["transforms.json", "frame 1 (./r_1)", "not orthonormal"]);
     std::fs::write(folder.join("transforms.json"), &transforms).unwrap();
-    Image::new(16, 24, vec![0.5; 16 * 24 * 3])
-        .unwrap()
-        .save_png(folder.join("r_2.png"))
-        .unwrap();
-    fails(
-        d,
-        &["--scene", &scene],
-        &[
-            "transforms.json",
-            "frame 2 (./r_2) is 16x24, frame 0 is 32x24",
-            "same size",
-        ],
-    );
+    Image::new(16, 24, vec![0.5; 16 * 24 * 3]).unwrap().save_png(folder.join("r_2.png")).unwrap();
+    fails(d, &["--scene", &scene], &["transforms.json", "frame 2 (./r_2) is 16x24, frame 0 is 32x24", "same size"]);
     std::fs::remove_file(folder.join("r_2.png")).unwrap();
     fails(d, &["--scene", &scene], &["r_2.png", "cannot read"]);
     std::fs::write(folder.join("r_2.png"), b"not a png").unwrap();

@@ -29,12 +29,7 @@ impl Shader {
         }
         let mut text = format!("{}{}", self.prefix, self.source);
         for (from, to) in self.replace {
-            assert_eq!(
-                text.matches(from).count(),
-                1,
-                "shader {}: `{from}` must occur exactly once",
-                self.name
-            );
+            assert_eq!(text.matches(from).count(), 1, "shader {}: `{from}` must occur exactly once", self.name);
             text = text.replace(from, to);
         }
         text.into()
@@ -147,12 +142,11 @@ impl Timestamps {
             return;
         }
         while self.sets.len() < sets_needed {
-            self.sets
-                .push(device.create_query_set(&wgpu::QuerySetDescriptor {
-                    label: Some("timestamps"),
-                    ty: wgpu::QueryType::Timestamp,
-                    count: QUERIES_PER_SET,
-                }));
+            self.sets.push(device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: QUERIES_PER_SET,
+            }));
         }
         let bytes = self.sets.len() as u64 * QUERIES_PER_SET as u64 * 8;
         let buffer = |label, usage| {
@@ -164,37 +158,20 @@ impl Timestamps {
             })
         };
         self.buffers = Some((
-            buffer(
-                "timestamps",
-                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-            ),
-            buffer(
-                "timestamps readback",
-                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            ),
+            buffer("timestamps", wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC),
+            buffer("timestamps readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST),
         ));
     }
 
     /// The query set and index of timestamp `i`.
     pub(crate) fn slot(&self, i: u32) -> (&wgpu::QuerySet, u32) {
-        (
-            &self.sets[(i / QUERIES_PER_SET) as usize],
-            i % QUERIES_PER_SET,
-        )
+        (&self.sets[(i / QUERIES_PER_SET) as usize], i % QUERIES_PER_SET)
     }
 
     /// Records the copy of `queries` timestamps to the host-mappable buffer; `ops` names the ops (label,
     /// kernel) between them.
-    pub(crate) fn resolve(
-        &mut self,
-        encoder: &mut wgpu::CommandEncoder,
-        queries: u32,
-        ops: Vec<(String, String)>,
-    ) {
-        let (resolve, readback) = self
-            .buffers
-            .as_ref()
-            .expect("timestamps reserved before use");
+    pub(crate) fn resolve(&mut self, encoder: &mut wgpu::CommandEncoder, queries: u32, ops: Vec<(String, String)>) {
+        let (resolve, readback) = self.buffers.as_ref().expect("timestamps reserved before use");
         for (s, set) in self.sets.iter().enumerate() {
             let first = s as u32 * QUERIES_PER_SET;
             if first >= queries {
@@ -236,11 +213,7 @@ impl Gpu {
     pub fn new(options: &GpuOptions) -> Result<Gpu> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
-        adapters.retain(|a| {
-            a.get_downlevel_capabilities()
-                .flags
-                .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
-        });
+        adapters.retain(|a| a.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS));
         adapters.sort_by_key(|a| adapter_rank(&a.get_info()));
         let adapter = match &options.adapter {
             AdapterChoice::Auto => adapters.into_iter().next(),
@@ -249,10 +222,14 @@ impl Gpu {
                 adapters.into_iter().find(|a| a.get_info().name.to_lowercase().contains(&text))
             }
         }
-        .ok_or_else(|| EngineError::NoAdapter(match &options.adapter {
-            AdapterChoice::Auto => "no adapter with compute shaders found (install a Vulkan driver, e.g. Mesa lavapipe)".into(),
-            AdapterChoice::NameContains(t) => format!("no adapter whose name contains {t:?} (see --list-adapters)"),
-        }))?;
+        .ok_or_else(|| {
+            EngineError::NoAdapter(match &options.adapter {
+                AdapterChoice::Auto => {
+                    "no adapter with compute shaders found (install a Vulkan driver, e.g. Mesa lavapipe)".into()
+                }
+                AdapterChoice::NameContains(t) => format!("no adapter whose name contains {t:?} (see --list-adapters)"),
+            })
+        })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
         let features = adapter.features() & OPTIONAL_FEATURES;
@@ -263,12 +240,8 @@ impl Gpu {
             ..Default::default()
         }))
         .map_err(|e| EngineError::Device(e.to_string()))?;
-        let adapter_max = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
-        let max_buffer_bytes = options
-            .max_buffer_bytes
-            .map_or(adapter_max, |m| m.min(adapter_max));
+        let adapter_max = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let max_buffer_bytes = options.max_buffer_bytes.map_or(adapter_max, |m| m.min(adapter_max));
         Ok(Gpu {
             device,
             queue,
@@ -288,15 +261,10 @@ impl Gpu {
         let needs = match mode {
             TimestampMode::Off => wgpu::Features::empty(),
             TimestampMode::Plan => wgpu::Features::TIMESTAMP_QUERY,
-            TimestampMode::Ops => {
-                wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES
-            }
+            TimestampMode::Ops => wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES,
         };
         if !self.features.contains(needs) {
-            return Err(EngineError::Device(format!(
-                "{} has no {needs:?}",
-                self.info.name
-            )));
+            return Err(EngineError::Device(format!("{} has no {needs:?}", self.info.name)));
         }
         let mut timestamps = self.timestamps.lock().expect("timestamps poisoned");
         timestamps.mode = mode;
@@ -311,10 +279,7 @@ impl Gpu {
         let Some((queries, names)) = timestamps.pending.take() else {
             return Ok(None);
         };
-        let (_, readback) = timestamps
-            .buffers
-            .as_ref()
-            .expect("timestamps were resolved");
+        let (_, readback) = timestamps.buffers.as_ref().expect("timestamps were resolved");
         let slice = readback.slice(..queries as u64 * 8);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -325,83 +290,53 @@ impl Gpu {
             .map_err(|_| EngineError::Device("timestamp readback callback dropped".into()))?
             .map_err(|e| EngineError::Device(format!("mapping the timestamps: {e}")))?;
         let ticks: Vec<u64> = {
-            let mapped = slice
-                .get_mapped_range()
-                .map_err(|e| EngineError::Device(format!("reading timestamps: {e}")))?;
+            let mapped =
+                slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading timestamps: {e}")))?;
             bytemuck::cast_slice(&mapped).to_vec()
         };
         readback.unmap();
         let period = self.queue.get_timestamp_period() as f64;
-        let span = |a: u64, b: u64| {
-            Duration::from_nanos((b.saturating_sub(a) as f64 * period).round() as u64)
-        };
+        let span = |a: u64, b: u64| Duration::from_nanos((b.saturating_sub(a) as f64 * period).round() as u64);
         let total = span(ticks[0], ticks[queries as usize - 1]);
         let ops = names
             .into_iter()
             .zip(ticks.windows(2))
-            .map(|((label, kernel), t)| OpTime {
-                label,
-                kernel,
-                time: span(t[0], t[1]),
-            })
+            .map(|((label, kernel), t)| OpTime { label, kernel, time: span(t[0], t[1]) })
             .collect();
         Ok(Some(GpuTimes { total, ops }))
     }
 
     /// "name (backend, driver)" for logs and benchmark records.
     pub fn describe(&self) -> String {
-        format!(
-            "{} ({:?}, {} {})",
-            self.info.name, self.info.backend, self.info.driver, self.info.driver_info
-        )
+        format!("{} ({:?}, {} {})", self.info.name, self.info.backend, self.info.driver, self.info.driver_info)
     }
 
     /// The compute pipeline of `shader`'s `entry`, compiled on first use and cached for the life of the Gpu.
-    pub fn pipeline(
-        &self,
-        shader: &'static Shader,
-        entry: &'static str,
-    ) -> Arc<wgpu::ComputePipeline> {
+    pub fn pipeline(&self, shader: &'static Shader, entry: &'static str) -> Arc<wgpu::ComputePipeline> {
         let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
         cache
             .entry((shader.name, entry))
             .or_insert_with(|| {
-                self.counters
-                    .pipelines_compiled
-                    .fetch_add(1, Ordering::Relaxed);
-                let module = self
-                    .device
-                    .create_shader_module(wgpu::ShaderModuleDescriptor {
-                        label: Some(shader.name),
-                        source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
-                    });
-                Arc::new(
-                    self.device
-                        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                            label: Some(entry),
-                            layout: None,
-                            module: &module,
-                            entry_point: Some(entry),
-                            compilation_options: Default::default(),
-                            cache: None,
-                        }),
-                )
+                self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
+                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(shader.name),
+                    source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
+                });
+                Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                }))
             })
             .clone()
     }
 
-    pub(crate) fn create_buffer(
-        &self,
-        label: &str,
-        bytes: u64,
-        usage: wgpu::BufferUsages,
-    ) -> wgpu::Buffer {
-        self.counters
-            .buffers_created
-            .fetch_add(1, Ordering::Relaxed);
-        self.counters
-            .bytes_allocated
-            .fetch_add(bytes, Ordering::Relaxed);
+    pub(crate) fn create_buffer(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.counters.buffers_created.fetch_add(1, Ordering::Relaxed);
+        self.counters.bytes_allocated.fetch_add(bytes, Ordering::Relaxed);
         self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             // wgpu rejects empty bindings; a 16-byte floor keeps zero-row tensors legal.
@@ -415,54 +350,30 @@ impl Gpu {
     pub fn check_binding_size(&self, what: &str, bytes: u64) -> Result<()> {
         let max = self.max_buffer_bytes;
         if bytes > max {
-            return Err(EngineError::TooLarge {
-                what: what.to_string(),
-                bytes,
-                max,
-            });
+            return Err(EngineError::TooLarge { what: what.to_string(), bytes, max });
         }
         Ok(())
     }
 
     /// Uploads a row-major `[rows, cols]` f32 matrix, padding each row to the engine's row stride.
     pub fn upload(&self, label: &str, rows: usize, cols: usize, data: &[f32]) -> Result<GpuTensor> {
-        assert_eq!(
-            data.len(),
-            rows * cols,
-            "upload of {label}: data length does not match {rows}x{cols}"
-        );
+        assert_eq!(data.len(), rows * cols, "upload of {label}: data length does not match {rows}x{cols}");
         let ld = padded_cols(cols);
         let bytes = (rows * ld * 4) as u64;
         self.check_binding_size(label, bytes)?;
         let buffer = self.create_buffer(label, bytes, storage_usage());
         if rows > 0 {
             let padded = pad_rows(data, rows, cols);
-            self.queue
-                .write_buffer(&buffer, 0, bytemuck::cast_slice(&padded));
+            self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&padded));
         }
-        Ok(GpuTensor {
-            buffer: Arc::new(buffer),
-            rows,
-            cols,
-            dtype: Dtype::F32,
-        })
+        Ok(GpuTensor { buffer: Arc::new(buffer), rows, cols, dtype: Dtype::F32 })
     }
 
     /// Uploads a row-major `[rows, cols]` matrix as f16 (round to nearest even), rows padded to a multiple
     /// of 8 halves. The caller checks that every value is within f16 range (|x| ≤ 65504): out-of-range
     /// values are an error here, never silently infinity.
-    pub fn upload_f16(
-        &self,
-        label: &str,
-        rows: usize,
-        cols: usize,
-        data: &[f32],
-    ) -> Result<GpuTensor> {
-        assert_eq!(
-            data.len(),
-            rows * cols,
-            "upload of {label}: data length does not match {rows}x{cols}"
-        );
+    pub fn upload_f16(&self, label: &str, rows: usize, cols: usize, data: &[f32]) -> Result<GpuTensor> {
+        assert_eq!(data.len(), rows * cols, "upload of {label}: data length does not match {rows}x{cols}");
         let ld = Dtype::F16.ld(cols);
         let mut halves = vec![half::f16::ZERO; rows * ld];
         for (r, row) in data.chunks_exact(cols.max(1)).enumerate() {
@@ -481,28 +392,17 @@ impl Gpu {
         let buffer = self.create_buffer(label, bytes, storage_usage());
         if rows > 0 {
             let words: Vec<u16> = halves.iter().map(|h| h.to_bits()).collect();
-            self.queue
-                .write_buffer(&buffer, 0, bytemuck::cast_slice(&words));
+            self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&words));
         }
-        Ok(GpuTensor {
-            buffer: Arc::new(buffer),
-            rows,
-            cols,
-            dtype: Dtype::F16,
-        })
+        Ok(GpuTensor { buffer: Arc::new(buffer), rows, cols, dtype: Dtype::F16 })
     }
 
     /// Writes a row-major `[rows, cols]` matrix into an existing tensor of that shape.
     pub fn write(&self, tensor: &GpuTensor, data: &[f32]) {
-        assert_eq!(
-            data.len(),
-            tensor.rows * tensor.cols,
-            "write: data length does not match the tensor"
-        );
+        assert_eq!(data.len(), tensor.rows * tensor.cols, "write: data length does not match the tensor");
         if tensor.rows > 0 {
             let padded = pad_rows(data, tensor.rows, tensor.cols);
-            self.queue
-                .write_buffer(&tensor.buffer, 0, bytemuck::cast_slice(&padded));
+            self.queue.write_buffer(&tensor.buffer, 0, bytemuck::cast_slice(&padded));
         }
     }
 
@@ -512,13 +412,7 @@ impl Gpu {
     }
 
     /// Reads rows `[row_start, row_start + rows)` of a `cols`-wide tensor stored in `buffer`.
-    pub fn read_rows(
-        &self,
-        buffer: &wgpu::Buffer,
-        row_start: usize,
-        rows: usize,
-        cols: usize,
-    ) -> Result<Vec<f32>> {
+    pub fn read_rows(&self, buffer: &wgpu::Buffer, row_start: usize, rows: usize, cols: usize) -> Result<Vec<f32>> {
         let ld = padded_cols(cols);
         let bytes = (rows * ld * 4) as u64;
         if bytes == 0 {
@@ -542,9 +436,7 @@ impl Gpu {
         rx.recv()
             .map_err(|_| EngineError::Device("readback callback dropped".into()))?
             .map_err(|e| EngineError::Device(format!("mapping a readback buffer: {e}")))?;
-        let mapped = slice
-            .get_mapped_range()
-            .map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
+        let mapped = slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
         let words: &[f32] = bytemuck::cast_slice(&mapped);
         let mut out = Vec::with_capacity(rows * cols);
         for r in 0..rows {

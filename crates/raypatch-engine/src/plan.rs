@@ -103,21 +103,8 @@ impl PlanBuilder {
         Self::default()
     }
 
-    fn add(
-        &mut self,
-        name: &str,
-        rows: usize,
-        cols: usize,
-        dtype: Dtype,
-        storage: Storage,
-    ) -> TensorId {
-        self.tensors.push(TensorInfo {
-            name: name.to_string(),
-            rows,
-            cols,
-            dtype,
-            storage,
-        });
+    fn add(&mut self, name: &str, rows: usize, cols: usize, dtype: Dtype, storage: Storage) -> TensorId {
+        self.tensors.push(TensorInfo { name: name.to_string(), rows, cols, dtype, storage });
         TensorId(self.tensors.len() - 1)
     }
 
@@ -132,13 +119,7 @@ impl PlanBuilder {
         self.add(name, rows, cols, Dtype::F32, Storage::Output)
     }
     pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
-        self.add(
-            name,
-            tensor.rows,
-            tensor.cols,
-            tensor.dtype,
-            Storage::External(tensor.clone()),
-        )
+        self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::External(tensor.clone()))
     }
 
     pub fn rows(&self, id: TensorId) -> usize {
@@ -161,24 +142,12 @@ impl PlanBuilder {
 
     /// The whole tensor.
     pub fn all(&self, id: TensorId) -> View {
-        View {
-            id,
-            row_start: 0,
-            rows: self.rows(id),
-        }
+        View { id, row_start: 0, rows: self.rows(id) }
     }
     /// Rows `[row_start, row_start + rows)` of a tensor.
     pub fn rows_of(&self, id: TensorId, row_start: usize, rows: usize) -> View {
-        assert!(
-            row_start + rows <= self.rows(id),
-            "view past the end of {}",
-            self.name(id)
-        );
-        View {
-            id,
-            row_start,
-            rows,
-        }
+        assert!(row_start + rows <= self.rows(id), "view past the end of {}", self.name(id));
+        View { id, row_start, rows }
     }
 
     pub fn push(&mut self, op: Op) {
@@ -191,11 +160,7 @@ impl PlanBuilder {
 
     /// Bytes of the largest tensor the plan binds (what [`Gpu::check_binding_size`] must accept).
     pub fn largest_tensor_bytes(&self) -> u64 {
-        self.tensors
-            .iter()
-            .map(TensorInfo::bytes)
-            .max()
-            .unwrap_or(0)
+        self.tensors.iter().map(TensorInfo::bytes).max().unwrap_or(0)
     }
 
     pub fn build(self, gpu: &Gpu) -> Result<Plan> {
@@ -224,10 +189,7 @@ impl PlanBuilder {
                 }
                 let need = info.bytes();
                 let free = (0..slot_bytes.len()).filter(|&s| slot_free[s]);
-                let best_fit = free
-                    .clone()
-                    .filter(|&s| slot_bytes[s] >= need)
-                    .min_by_key(|&s| slot_bytes[s]);
+                let best_fit = free.clone().filter(|&s| slot_bytes[s] >= need).min_by_key(|&s| slot_bytes[s]);
                 let slot = match best_fit.or_else(|| free.max_by_key(|&s| slot_bytes[s])) {
                     Some(s) => s,
                     None => {
@@ -252,26 +214,19 @@ impl PlanBuilder {
         for (t, info) in tensors.iter().enumerate() {
             gpu.check_binding_size(&info.name, info.bytes())?;
             if matches!(info.storage, Storage::Transient) && live[t].is_none() {
-                return Err(EngineError::Request(format!(
-                    "plan bug: tensor {} is never used",
-                    info.name
-                )));
+                return Err(EngineError::Request(format!("plan bug: tensor {} is never used", info.name)));
             }
         }
         let slot_buffers: Vec<Arc<wgpu::Buffer>> = slot_bytes
             .iter()
             .enumerate()
-            .map(|(s, &bytes)| {
-                Arc::new(gpu.create_buffer(&format!("pool{s}"), bytes, storage_usage()))
-            })
+            .map(|(s, &bytes)| Arc::new(gpu.create_buffer(&format!("pool{s}"), bytes, storage_usage())))
             .collect();
         let mut peak_bytes: u64 = slot_bytes.iter().sum();
         let mut buffers: Vec<Arc<wgpu::Buffer>> = Vec::with_capacity(tensors.len());
         for (t, info) in tensors.iter().enumerate() {
             buffers.push(match &info.storage {
-                Storage::Transient => {
-                    slot_buffers[slot_of[t].expect("transient without slot")].clone()
-                }
+                Storage::Transient => slot_buffers[slot_of[t].expect("transient without slot")].clone(),
                 Storage::Input | Storage::Output => {
                     peak_bytes += info.bytes();
                     Arc::new(gpu.create_buffer(&info.name, info.bytes(), storage_usage()))
@@ -281,14 +236,10 @@ impl PlanBuilder {
         }
 
         // All params in one uniform buffer, one aligned block per op.
-        let block =
-            |words: usize| ((words * 4) as u64).max(16).div_ceil(uniform_align) * uniform_align;
+        let block = |words: usize| ((words * 4) as u64).max(16).div_ceil(uniform_align) * uniform_align;
         let uniform_bytes: u64 = ops.iter().map(|op| block(op.params.len())).sum();
-        let uniforms = gpu.create_buffer(
-            "params",
-            uniform_bytes,
-            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        );
+        let uniforms =
+            gpu.create_buffer("params", uniform_bytes, wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST);
         peak_bytes += uniform_bytes;
         let mut staged = vec![0u8; uniform_bytes as usize];
         let mut offsets = Vec::with_capacity(ops.len());
@@ -337,12 +288,7 @@ impl PlanBuilder {
                 layout: &pipeline.get_bind_group_layout(0),
                 entries: &entries,
             });
-            let written = op
-                .bindings
-                .iter()
-                .filter(|(_, a)| *a != Access::Read)
-                .map(|(v, _)| *v)
-                .collect();
+            let written = op.bindings.iter().filter(|(_, a)| *a != Access::Read).map(|(v, _)| *v).collect();
             planned.push(PlannedOp {
                 label: op.label.clone(),
                 shader: op.shader.name,
@@ -354,17 +300,8 @@ impl PlanBuilder {
             });
         }
 
-        let infos = tensors
-            .iter()
-            .map(|t| (t.name.clone(), t.rows, t.cols, t.dtype))
-            .collect();
-        Ok(Plan {
-            ops: planned,
-            buffers,
-            infos,
-            peak_bytes,
-            _uniforms: uniforms,
-        })
+        let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols, t.dtype)).collect();
+        Ok(Plan { ops: planned, buffers, infos, peak_bytes, _uniforms: uniforms })
     }
 }
 
@@ -414,12 +351,7 @@ impl Plan {
     /// The buffer of an input or output tensor, as a [`GpuTensor`] the host can write or read.
     pub fn tensor(&self, id: TensorId) -> GpuTensor {
         let (_, rows, cols, dtype) = self.infos[id.0];
-        GpuTensor {
-            buffer: self.buffers[id.0].clone(),
-            rows,
-            cols,
-            dtype,
-        }
+        GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols, dtype }
     }
 
     /// Records `ops` into one compute pass and submits it, with GPU timestamps when the Gpu's
@@ -443,10 +375,8 @@ impl Plan {
                     end_of_pass_write_index: Some(1),
                 }
             });
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: None,
-                timestamp_writes: pass_writes,
-            });
+            let mut pass =
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: pass_writes });
             for (i, op) in ops.iter().enumerate() {
                 if mode == TimestampMode::Ops {
                     let (set, index) = timestamps.slot(i as u32);
@@ -464,10 +394,9 @@ impl Plan {
         }
         if mode != TimestampMode::Off {
             let names = match mode {
-                TimestampMode::Ops => ops
-                    .iter()
-                    .map(|o| (o.label.clone(), format!("{}.{}", o.shader, o.entry)))
-                    .collect(),
+                TimestampMode::Ops => {
+                    ops.iter().map(|o| (o.label.clone(), format!("{}.{}", o.shader, o.entry))).collect()
+                }
                 _ => Vec::new(),
             };
             timestamps.resolve(&mut encoder, queries, names);
@@ -475,9 +404,7 @@ impl Plan {
         drop(timestamps);
         gpu.queue.submit([encoder.finish()]);
         gpu.counters.submits.fetch_add(1, Ordering::Relaxed);
-        gpu.counters
-            .dispatches
-            .fetch_add(ops.len() as u64, Ordering::Relaxed);
+        gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
     }
 
     /// Records every op into one compute pass and submits it. Returns without waiting for the GPU.
@@ -505,8 +432,7 @@ impl Plan {
             self.record(gpu, std::slice::from_ref(op));
             for view in &op.written {
                 let (name, _, cols, _) = &self.infos[view.id.0];
-                let data =
-                    gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
+                let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
                 outputs.push(OpOutput {
                     op: op.label.clone(),
                     tensor: name.clone(),

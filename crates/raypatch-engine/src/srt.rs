@@ -17,8 +17,7 @@ use crate::error::{EngineError, Result};
 use crate::gpu::Gpu;
 use crate::kernels::elementwise::{map_columns, Map};
 use crate::kernels::{
-    attention::attention, conv::conv3x3, matmul::linear, norm::layernorm, posenc, resize,
-    Activation,
+    attention::attention, conv::conv3x3, matmul::linear, norm::layernorm, posenc, resize, Activation,
 };
 use crate::plan::{Plan, PlanBuilder, TensorId, View};
 use crate::tensor::{padded_cols, GpuTensor};
@@ -63,10 +62,7 @@ pub struct Outputs {
 
 impl Default for Outputs {
     fn default() -> Self {
-        Outputs {
-            rgb: true,
-            logdepth: false,
-        }
+        Outputs { rgb: true, logdepth: false }
     }
 }
 
@@ -106,10 +102,7 @@ pub struct Request {
 
 impl From<Outputs> for Request {
     fn from(outputs: Outputs) -> Self {
-        Request {
-            outputs,
-            region: None,
-        }
+        Request { outputs, region: None }
     }
 }
 
@@ -208,11 +201,7 @@ impl Model {
     }
 
     /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
-    pub fn from_loaded_with(
-        gpu: Arc<Gpu>,
-        loaded: &LoadedModel,
-        options: &LoadOptions,
-    ) -> Result<Model> {
+    pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
         let weights = SrtWeights::upload(&gpu, loaded, options)?;
         Ok(Model {
             gpu,
@@ -247,11 +236,7 @@ impl Model {
         self.encode_inner(inputs, true)
     }
 
-    fn encode_inner(
-        &self,
-        inputs: &InputViews,
-        profile: bool,
-    ) -> Result<(EncodedScene<'_>, OpTimes)> {
+    fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
         inputs.check_for(&self.config, "input views")?;
         let gpu = &*self.gpu;
         let cfg = &self.config;
@@ -269,16 +254,7 @@ impl Model {
         let (pos_view, input_view, rays_view) = (b.all(camera_pos), b.all(input), b.all(rays));
         let pos_mult = multipliers(&e.pos_octaves);
         let ray_mult = multipliers(&e.ray_octaves);
-        posenc::fourier_encode(
-            &mut b,
-            "encoder.pos_enc",
-            pos_view,
-            height * width,
-            0,
-            &pos_mult,
-            input_view,
-            3,
-        );
+        posenc::fourier_encode(&mut b, "encoder.pos_enc", pos_view, height * width, 0, &pos_mult, input_view, 3);
         posenc::fourier_encode(
             &mut b,
             "encoder.ray_enc",
@@ -293,11 +269,7 @@ impl Model {
         // SRTConvBlocks: conv(stride 1) → BN → ReLU → conv(stride 2) → BN → ReLU, BN folded.
         let (mut x, mut h, mut wd) = (input, height, width);
         for (i, (first, second)) in w.conv_blocks.iter().enumerate() {
-            let hidden = b.transient(
-                &format!("encoder.conv_blocks.{i}.hidden"),
-                n * h * wd,
-                first.cout,
-            );
+            let hidden = b.transient(&format!("encoder.conv_blocks.{i}.hidden"), n * h * wd, first.cout);
             conv(
                 &mut b,
                 &format!("encoder.conv_blocks.{i}.0"),
@@ -313,11 +285,7 @@ impl Model {
                 false,
             );
             let (h2, w2) = (h.div_ceil(2), wd.div_ceil(2));
-            let out = b.transient(
-                &format!("encoder.conv_blocks.{i}.out"),
-                n * h2 * w2,
-                second.cout,
-            );
+            let out = b.transient(&format!("encoder.conv_blocks.{i}.out"), n * h2 * w2, second.cout);
             conv(
                 &mut b,
                 &format!("encoder.conv_blocks.{i}.3"),
@@ -338,64 +306,20 @@ impl Model {
         // image, images concatenated.
         let tokens = n * h * wd;
         let latent = b.output("latent", tokens, e.token_dim);
-        dense(
-            &mut b,
-            "encoder.per_patch_linear",
-            x,
-            &w.per_patch_linear,
-            latent,
-            Activation::None,
-            false,
-        );
+        dense(&mut b, "encoder.per_patch_linear", x, &w.per_patch_linear, latent, Activation::None, false);
 
         let inner = e.heads * e.dim_head;
         for (l, layer) in w.layers.iter().enumerate() {
             let p = format!("encoder.transformer.layers.{l}");
             let normed = norm(&mut b, &format!("{p}.0.norm"), latent, &layer.attn_norm);
             let qkv = b.transient(&format!("{p}.qkv"), tokens, 3 * inner);
-            dense(
-                &mut b,
-                &format!("{p}.0.fn.to_qkv"),
-                normed,
-                &layer.to_qkv,
-                qkv,
-                Activation::None,
-                false,
-            );
+            dense(&mut b, &format!("{p}.0.fn.to_qkv"), normed, &layer.to_qkv, qkv, Activation::None, false);
             let heads_out = b.transient(&format!("{p}.attention"), tokens, inner);
             let (q, o) = (b.all(qkv), b.all(heads_out));
             let scale = (e.dim_head as f32).powf(-0.5);
-            attention(
-                &mut b,
-                &format!("{p}.0.fn.attend"),
-                q,
-                0,
-                q,
-                inner,
-                q,
-                2 * inner,
-                o,
-                e.heads,
-                e.dim_head,
-                scale,
-            );
-            dense(
-                &mut b,
-                &format!("{p}.0.fn.to_out"),
-                heads_out,
-                &layer.to_out,
-                latent,
-                Activation::None,
-                true,
-            );
-            feed_forward(
-                &mut b,
-                &p,
-                latent,
-                &layer.ff_norm,
-                &layer.ff_in,
-                &layer.ff_out,
-            );
+            attention(&mut b, &format!("{p}.0.fn.attend"), q, 0, q, inner, q, 2 * inner, o, e.heads, e.dim_head, scale);
+            dense(&mut b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, latent, Activation::None, true);
+            feed_forward(&mut b, &p, latent, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
 
         // The decoder's keys and values depend only on z: project them once per scene.
@@ -424,10 +348,7 @@ impl Model {
 
         let plan = b.build(gpu)?;
         let mut host_input = vec![0.0f32; pixels * in_dim];
-        for (row, rgb) in host_input
-            .chunks_exact_mut(in_dim)
-            .zip(inputs.images.chunks_exact(3))
-        {
+        for (row, rgb) in host_input.chunks_exact_mut(in_dim).zip(inputs.images.chunks_exact(3)) {
             row[..3].copy_from_slice(rgb);
         }
         gpu.write(&plan.tensor(input), &host_input);
@@ -471,25 +392,16 @@ impl EncodedScene<'_> {
         if let [band] = bands.as_slice() {
             return self.render_band(targets, band);
         }
-        let frames = bands
-            .iter()
-            .map(|band| self.render_band(targets, band))
-            .collect::<Result<Vec<_>>>()?;
+        let frames = bands.iter().map(|band| self.render_band(targets, band)).collect::<Result<Vec<_>>>()?;
         let region = request.region.unwrap_or(frames[0].region);
-        let region = Region {
-            height: frames.iter().map(|f| f.height).sum(),
-            ..region
-        };
+        let region = Region { height: frames.iter().map(|f| f.height).sum(), ..region };
         let stitch = |channels: usize, output: fn(&Frame) -> &Option<Vec<f32>>| {
             output(&frames[0]).as_ref()?;
-            let mut all =
-                Vec::with_capacity(targets.count * region.height * region.width * channels);
+            let mut all = Vec::with_capacity(targets.count * region.height * region.width * channels);
             for v in 0..targets.count {
                 for frame in &frames {
                     let per_view = frame.height * frame.width * channels;
-                    all.extend_from_slice(
-                        &output(frame).as_ref()?[v * per_view..(v + 1) * per_view],
-                    );
+                    all.extend_from_slice(&output(frame).as_ref()?[v * per_view..(v + 1) * per_view]);
                 }
             }
             Some(all)
@@ -523,11 +435,7 @@ impl EncodedScene<'_> {
     }
 
     /// Runs the render plans op by op, timing each (slower than [`render`](Self::render); for profiling).
-    pub fn profile_render(
-        &self,
-        targets: &TargetViews,
-        request: impl Into<Request>,
-    ) -> Result<OpTimes> {
+    pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
         let mut times = OpTimes::new();
         for band in self.bands(targets, &request.into())? {
             let (graph, _) = self.prepare(targets, &band)?;
@@ -538,11 +446,7 @@ impl EncodedScene<'_> {
 
     /// What the render plans for these targets and this request compute (building the plans if needed).
     /// Peak bytes add up the distinct plans of the bands, which stay cached together.
-    pub fn render_stats(
-        &self,
-        targets: &TargetViews,
-        request: impl Into<Request>,
-    ) -> Result<RenderStats> {
+    pub fn render_stats(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<RenderStats> {
         let request = request.into();
         let bands = self.bands(targets, &request)?;
         let mut stats = RenderStats {
@@ -570,39 +474,24 @@ impl EncodedScene<'_> {
     }
 
     /// Labels of the render plans' ops, in order (building the plans if needed).
-    pub fn render_op_labels(
-        &self,
-        targets: &TargetViews,
-        request: impl Into<Request>,
-    ) -> Result<Vec<String>> {
+    pub fn render_op_labels(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<String>> {
         let request = request.into();
         let mut labels = Vec::new();
         for band in self.bands(targets, &request)? {
             let crop = self.crop(targets, &band)?;
-            labels.extend(
-                self.graph(targets.count, &crop, request.outputs)?
-                    .plan
-                    .op_labels()
-                    .map(String::from),
-            );
+            labels.extend(self.graph(targets.count, &crop, request.outputs)?.plan.op_labels().map(String::from));
         }
         Ok(labels)
     }
 
     /// Number of render plans built so far (one per distinct target count, computed size and outputs).
     pub fn cached_render_plans(&self) -> usize {
-        self.render_plans
-            .lock()
-            .expect("render plan cache poisoned")
-            .len()
+        self.render_plans.lock().expect("render plan cache poisoned").len()
     }
 
     /// Drops the cached render plans and their buffers; the next render builds its plan again.
     pub fn clear_render_plans(&self) {
-        self.render_plans
-            .lock()
-            .expect("render plan cache poisoned")
-            .clear();
+        self.render_plans.lock().expect("render plan cache poisoned").clear();
     }
 
     /// Checks the request against the model and the targets and works out which pixels to compute.
@@ -612,21 +501,12 @@ impl EncodedScene<'_> {
         let image = cfg.target_grid(targets, "target views")?;
         let outputs = request.outputs;
         if !outputs.rgb && !outputs.logdepth {
-            return Err(EngineError::Request(
-                "nothing to render: ask for rgb, log-depth or both".into(),
-            ));
+            return Err(EngineError::Request("nothing to render: ask for rgb, log-depth or both".into()));
         }
         if outputs.logdepth && cfg.image_channels() != 4 {
-            return Err(EngineError::Request(
-                "log-depth was requested but this model has no depth channel".into(),
-            ));
+            return Err(EngineError::Request("log-depth was requested but this model has no depth channel".into()));
         }
-        let full = Region {
-            x: 0,
-            y: 0,
-            width: image.width,
-            height: image.height,
-        };
+        let full = Region { x: 0, y: 0, width: image.width, height: image.height };
         let region = request.region.unwrap_or(full);
         if region.width == 0
             || region.height == 0
@@ -641,39 +521,17 @@ impl EncodedScene<'_> {
         if !image.height.is_multiple_of(k) || !image.width.is_multiple_of(k) {
             // The decoder's output is resized to the image, which mixes every patch into every pixel's
             // position: compute the whole image.
-            return Ok(Crop {
-                image,
-                region,
-                y0: 0,
-                x0: 0,
-                grid: image,
-            });
+            return Ok(Crop { image, region, y0: 0, x0: 0, grid: image });
         }
         let upsample = cfg.ray_patch.as_ref().map_or(0, |rp| rp.upsample);
-        let (py0, py1) = patch_span(
-            region.y,
-            region.y + region.height - 1,
-            upsample,
-            image.height / k,
-        );
-        let (px0, px1) = patch_span(
-            region.x,
-            region.x + region.width - 1,
-            upsample,
-            image.width / k,
-        );
+        let (py0, py1) = patch_span(region.y, region.y + region.height - 1, upsample, image.height / k);
+        let (px0, px1) = patch_span(region.x, region.x + region.width - 1, upsample, image.width / k);
         let grid = TargetGrid {
             height: (py1 + 1 - py0) * k,
             width: (px1 + 1 - px0) * k,
             rays_are_patches: image.rays_are_patches,
         };
-        Ok(Crop {
-            image,
-            region,
-            y0: py0 * k,
-            x0: px0 * k,
-            grid,
-        })
+        Ok(Crop { image, region, y0: py0 * k, x0: px0 * k, grid })
     }
 
     /// The requests a render runs as: the request itself when its plan fits the GPU's buffer limit, else its
@@ -693,25 +551,15 @@ impl EncodedScene<'_> {
             let bands: Vec<Request> = (region.y..region.y + region.height)
                 .step_by(rows)
                 .map(|y| Request {
-                    region: Some(Region {
-                        y,
-                        height: rows.min(region.y + region.height - y),
-                        ..region
-                    }),
+                    region: Some(Region { y, height: rows.min(region.y + region.height - y), ..region }),
                     ..*request
                 })
                 .collect();
-            let crops = bands
-                .iter()
-                .map(|band| self.crop(targets, band))
-                .collect::<Result<Vec<_>>>()?;
+            let crops = bands.iter().map(|band| self.crop(targets, band)).collect::<Result<Vec<_>>>()?;
             if crops.iter().any(|c| c.grid.height >= crop.grid.height) {
                 break; // the bands do not shrink the computed rows (an output resize needs the whole image)
             }
-            if crops
-                .iter()
-                .all(|c| self.fits(targets.count, c, request.outputs))
-            {
+            if crops.iter().all(|c| self.fits(targets.count, c, request.outputs)) {
                 return Ok(bands);
             }
             count *= 2;
@@ -721,17 +569,8 @@ impl EncodedScene<'_> {
 
     /// Whether the render plan of this crop binds no buffer larger than the GPU allows.
     fn fits(&self, views: usize, crop: &Crop, outputs: Outputs) -> bool {
-        let key = RenderKey {
-            views,
-            grid: crop.grid,
-            outputs,
-        };
-        if self
-            .render_plans
-            .lock()
-            .expect("render plan cache poisoned")
-            .contains_key(&key)
-        {
+        let key = RenderKey { views, grid: crop.grid, outputs };
+        if self.render_plans.lock().expect("render plan cache poisoned").contains_key(&key) {
             return true;
         }
         let (builder, _) = self.describe_render(views, crop.grid, outputs);
@@ -740,15 +579,8 @@ impl EncodedScene<'_> {
 
     /// The cached (or new) render plan for this many views of this crop.
     fn graph(&self, views: usize, crop: &Crop, outputs: Outputs) -> Result<Arc<RenderGraph>> {
-        let key = RenderKey {
-            views,
-            grid: crop.grid,
-            outputs,
-        };
-        let mut plans = self
-            .render_plans
-            .lock()
-            .expect("render plan cache poisoned");
+        let key = RenderKey { views, grid: crop.grid, outputs };
+        let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
         if let Some(g) = plans.get(&key) {
             return Ok(g.clone());
         }
@@ -758,52 +590,24 @@ impl EncodedScene<'_> {
     }
 
     /// The render plan for these targets, with their cameras and the crop's rays uploaded.
-    fn prepare(
-        &self,
-        targets: &TargetViews,
-        request: &Request,
-    ) -> Result<(Arc<RenderGraph>, Crop)> {
+    fn prepare(&self, targets: &TargetViews, request: &Request) -> Result<(Arc<RenderGraph>, Crop)> {
         let crop = self.crop(targets, request)?;
         let graph = self.graph(targets.count, &crop, request.outputs)?;
         let gpu = self.model.gpu();
-        gpu.write(
-            &graph.plan.tensor(graph.ids.target_pos),
-            &targets.camera_pos,
-        );
-        let k = if crop.image.rays_are_patches {
-            self.model.config.patch_size()
-        } else {
-            1
-        };
-        gpu.write(
-            &graph.plan.tensor(graph.ids.target_rays),
-            &crop.rays(targets, k),
-        );
+        gpu.write(&graph.plan.tensor(graph.ids.target_pos), &targets.camera_pos);
+        let k = if crop.image.rays_are_patches { self.model.config.patch_size() } else { 1 };
+        gpu.write(&graph.plan.tensor(graph.ids.target_rays), &crop.rays(targets, k));
         Ok((graph, crop))
     }
 
-    fn build_render(
-        &self,
-        views: usize,
-        grid: TargetGrid,
-        outputs: Outputs,
-    ) -> Result<RenderGraph> {
+    fn build_render(&self, views: usize, grid: TargetGrid, outputs: Outputs) -> Result<RenderGraph> {
         let (builder, ids) = self.describe_render(views, grid, outputs);
         let largest_tensor_bytes = builder.largest_tensor_bytes();
-        Ok(RenderGraph {
-            plan: builder.build(self.model.gpu())?,
-            ids,
-            largest_tensor_bytes,
-        })
+        Ok(RenderGraph { plan: builder.build(self.model.gpu())?, ids, largest_tensor_bytes })
     }
 
     /// The render plan's ops and tensors, before any buffer exists.
-    fn describe_render(
-        &self,
-        views: usize,
-        grid: TargetGrid,
-        outputs: Outputs,
-    ) -> (PlanBuilder, RenderIds) {
+    fn describe_render(&self, views: usize, grid: TargetGrid, outputs: Outputs) -> (PlanBuilder, RenderIds) {
         let model = self.model;
         let cfg = &model.config;
         let d = &cfg.decoder;
@@ -819,18 +623,7 @@ impl EncodedScene<'_> {
             let full = b.input("target_rays", views * grid.height * grid.width, 3);
             let patch = b.transient("patch_rays", queries, 3);
             let (src, dst) = (b.all(full), b.all(patch));
-            resize::bilinear(
-                &mut b,
-                "patch_rays",
-                src,
-                views,
-                grid.height,
-                grid.width,
-                dst,
-                ph,
-                pw,
-                false,
-            );
+            resize::bilinear(&mut b, "patch_rays", src, views, grid.height, grid.width, dst, ph, pw, false);
             (full, patch)
         } else {
             let rays = b.input("target_rays", queries, 3);
@@ -846,18 +639,11 @@ impl EncodedScene<'_> {
         let features = b.transient("decoder_features", queries, d.out_dims);
         let pos_mult = multipliers(&d.pos_octaves);
         let ray_mult = multipliers(&d.ray_octaves);
-        let widest = [
-            d.out_mlp_hidden,
-            d.ff_hidden,
-            d.input_mlp_hidden,
-            d.heads * d.dim_head,
-            cfg.query_dim(),
-        ]
-        .into_iter()
-        .max()
-        .unwrap_or(1);
-        let chunk_bytes =
-            CHUNK_BYTES.min(usize::try_from(model.gpu().max_buffer_bytes).unwrap_or(usize::MAX));
+        let widest = [d.out_mlp_hidden, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, cfg.query_dim()]
+            .into_iter()
+            .max()
+            .unwrap_or(1);
+        let chunk_bytes = CHUNK_BYTES.min(usize::try_from(model.gpu().max_buffer_bytes).unwrap_or(usize::MAX));
         let chunk = (chunk_bytes / (4 * padded_cols(widest))) / CHUNK_ALIGN * CHUNK_ALIGN;
         let chunk = chunk.clamp(CHUNK_ALIGN, queries.div_ceil(CHUNK_ALIGN) * CHUNK_ALIGN);
         for start in (0..queries).step_by(chunk) {
@@ -885,23 +671,9 @@ impl EncodedScene<'_> {
         };
         if (ph * k, pw * k) != (grid.height, grid.width) {
             // The official RayPatchDecoder's F.interpolate(output, (h_out, w_out)): nearest, to the target size.
-            let resized = b.transient(
-                "decoder_rp.resize_out",
-                views * grid.height * grid.width,
-                channels,
-            );
+            let resized = b.transient("decoder_rp.resize_out", views * grid.height * grid.width, channels);
             let (src, dst) = (b.all(image), b.all(resized));
-            resize::nearest(
-                &mut b,
-                "decoder_rp.resize_out",
-                src,
-                views,
-                ph * k,
-                pw * k,
-                dst,
-                grid.height,
-                grid.width,
-            );
+            resize::nearest(&mut b, "decoder_rp.resize_out", src, views, ph * k, pw * k, dst, grid.height, grid.width);
             image = resized;
         }
         let pixels = views * grid.height * grid.width;
@@ -917,16 +689,7 @@ impl EncodedScene<'_> {
             map_columns(&mut b, "logdepth", src, 3, dst, Map::Identity);
             depth
         });
-        (
-            b,
-            RenderIds {
-                target_pos,
-                target_rays,
-                rgb,
-                logdepth,
-                queries,
-            },
-        )
+        (b, RenderIds { target_pos, target_rays, rgb, logdepth, queries })
     }
 
     /// `SRTDecoder` on one chunk of ray queries: encode, input_mlp, cross-attention layers, out_mlp.
@@ -952,47 +715,13 @@ impl EncodedScene<'_> {
         // q = cat(posenc(camera_pos), posenc(ray)); the position is broadcast over its view's rays.
         let query = b.transient(&tag("query"), rows, cfg.query_dim());
         let (pos, q) = (b.all(target_pos), b.all(query));
-        posenc::fourier_encode(
-            b,
-            &tag("pos_enc"),
-            pos,
-            queries_per_view,
-            start,
-            pos_mult,
-            q,
-            0,
-        );
-        posenc::fourier_encode(
-            b,
-            &tag("ray_enc"),
-            rays,
-            1,
-            0,
-            ray_mult,
-            q,
-            6 * pos_mult.len(),
-        );
+        posenc::fourier_encode(b, &tag("pos_enc"), pos, queries_per_view, start, pos_mult, q, 0);
+        posenc::fourier_encode(b, &tag("ray_enc"), rays, 1, 0, ray_mult, q, 6 * pos_mult.len());
 
         let hidden = b.transient(&tag("input_mlp.hidden"), rows, d.input_mlp_hidden);
-        dense(
-            b,
-            &tag("ray_predictor.input_mlp.0"),
-            query,
-            &w.input_mlp.0,
-            hidden,
-            Activation::Relu,
-            false,
-        );
+        dense(b, &tag("ray_predictor.input_mlp.0"), query, &w.input_mlp.0, hidden, Activation::Relu, false);
         let x = b.transient(&tag("x"), rows, cfg.query_dim());
-        dense(
-            b,
-            &tag("ray_predictor.input_mlp.2"),
-            hidden,
-            &w.input_mlp.1,
-            x,
-            Activation::None,
-            false,
-        );
+        dense(b, &tag("ray_predictor.input_mlp.2"), hidden, &w.input_mlp.1, x, Activation::None, false);
 
         let inner = d.heads * d.dim_head;
         let scale = (d.dim_head as f32).powf(-0.5);
@@ -1000,40 +729,11 @@ impl EncodedScene<'_> {
             let p = tag(&format!("ray_predictor.transformer.layers.{l}"));
             let normed = norm(b, &format!("{p}.0.norm"), x, &layer.attn_norm);
             let q = b.transient(&format!("{p}.q"), rows, inner);
-            dense(
-                b,
-                &format!("{p}.0.fn.to_q"),
-                normed,
-                &layer.to_q,
-                q,
-                Activation::None,
-                false,
-            );
+            dense(b, &format!("{p}.0.fn.to_q"), normed, &layer.to_q, q, Activation::None, false);
             let heads_out = b.transient(&format!("{p}.attention"), rows, inner);
             let (qv, kvv, o) = (b.all(q), b.all(kv), b.all(heads_out));
-            attention(
-                b,
-                &format!("{p}.0.fn.attend"),
-                qv,
-                0,
-                kvv,
-                0,
-                kvv,
-                inner,
-                o,
-                d.heads,
-                d.dim_head,
-                scale,
-            );
-            dense(
-                b,
-                &format!("{p}.0.fn.to_out"),
-                heads_out,
-                &layer.to_out,
-                x,
-                Activation::None,
-                true,
-            );
+            attention(b, &format!("{p}.0.fn.attend"), qv, 0, kvv, 0, kvv, inner, o, d.heads, d.dim_head, scale);
+            dense(b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, x, Activation::None, true);
             feed_forward(b, &p, x, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
 
@@ -1046,15 +746,7 @@ impl EncodedScene<'_> {
                 dense_view(b, &label, src, lin, out, Activation::None, false);
             } else {
                 let next = b.transient(&label, rows, d.out_mlp_hidden);
-                dense(
-                    b,
-                    &label,
-                    h,
-                    lin,
-                    next,
-                    Activation::LeakyRelu(OUT_MLP_SLOPE),
-                    false,
-                );
+                dense(b, &label, h, lin, next, Activation::LeakyRelu(OUT_MLP_SLOPE), false);
                 h = next;
             }
         }
@@ -1076,91 +768,22 @@ fn ray_patch_decoder(
     let p = "decoder_rp.conv_decoder";
     let (mut h, mut w) = (ph, pw);
     let first_skip = b.transient(&format!("{p}.conv_0"), views * h * w, channels);
-    conv(
-        b,
-        &format!("{p}.conv_0"),
-        features,
-        views,
-        h,
-        w,
-        &rp.conv_0,
-        first_skip,
-        1,
-        false,
-        Activation::None,
-        false,
-    );
+    conv(b, &format!("{p}.conv_0"), features, views, h, w, &rp.conv_0, first_skip, 1, false, Activation::None, false);
     let mut skip = b.transient(&format!("{p}.skip.0"), views * 4 * h * w, channels);
     let (src, dst) = (b.all(first_skip), b.all(skip));
-    resize::bilinear(
-        b,
-        &format!("{p}.skip.0"),
-        src,
-        views,
-        h,
-        w,
-        dst,
-        2 * h,
-        2 * w,
-        false,
-    );
+    resize::bilinear(b, &format!("{p}.skip.0"), src, views, h, w, dst, 2 * h, 2 * w, false);
     let mut x = features;
     for (i, (feature_conv, to_rgb)) in rp.blocks.iter().enumerate() {
         let (h2, w2) = (2 * h, 2 * w);
-        let up = b.transient(
-            &format!("{p}.conv_blocks.{i}"),
-            views * h2 * w2,
-            feature_conv.cout,
-        );
+        let up = b.transient(&format!("{p}.conv_blocks.{i}"), views * h2 * w2, feature_conv.cout);
         let label = format!("{p}.conv_blocks.{i}.0");
-        conv(
-            b,
-            &label,
-            x,
-            views,
-            h,
-            w,
-            feature_conv,
-            up,
-            1,
-            true,
-            Activation::LeakyRelu(CONV_DECODER_SLOPE),
-            false,
-        );
+        conv(b, &label, x, views, h, w, feature_conv, up, 1, true, Activation::LeakyRelu(CONV_DECODER_SLOPE), false);
         // x_out = conv_out(x) + skip, accumulated into the upsampled skip.
-        conv(
-            b,
-            &format!("{p}.conv_blocks.{i}.1"),
-            up,
-            views,
-            h2,
-            w2,
-            to_rgb,
-            skip,
-            1,
-            false,
-            Activation::None,
-            true,
-        );
+        conv(b, &format!("{p}.conv_blocks.{i}.1"), up, views, h2, w2, to_rgb, skip, 1, false, Activation::None, true);
         if i + 1 < rp.blocks.len() {
-            let next = b.transient(
-                &format!("{p}.skip.{}", i + 1),
-                views * 4 * h2 * w2,
-                channels,
-            );
+            let next = b.transient(&format!("{p}.skip.{}", i + 1), views * 4 * h2 * w2, channels);
             let (src, dst) = (b.all(skip), b.all(next));
-            resize::bilinear(
-                b,
-                &format!("{p}.skip.{}", i + 1),
-                src,
-                views,
-                h2,
-                w2,
-                dst,
-                2 * h2,
-                2 * w2,
-                false,
-            );
+            resize::bilinear(b, &format!("{p}.skip.{}", i + 1), src, views, h2, w2, dst, 2 * h2, 2 * w2, false);
             skip = next;
         }
         (x, h, w) = (up, h2, w2);
@@ -1185,17 +808,7 @@ impl Crop {
     fn cut(&self, computed: &[f32], views: usize, channels: usize) -> Vec<f32> {
         let r = &self.region;
         let (y, x) = (r.y - self.y0, r.x - self.x0);
-        cut_rows(
-            computed,
-            views,
-            self.grid.height,
-            self.grid.width,
-            channels,
-            y,
-            x,
-            r.height,
-            r.width,
-        )
+        cut_rows(computed, views, self.grid.height, self.grid.width, channels, y, x, r.height, r.width)
     }
 }
 
@@ -1230,8 +843,7 @@ fn cut_rows(
 /// equal those of a full render. For SRT (`upsample` 0) a patch is a pixel and nothing more is needed.
 fn patch_span(lo: usize, hi: usize, upsample: usize, patches: usize) -> (usize, usize) {
     type Span = (isize, isize);
-    let clip =
-        |(lo, hi): Span, level: usize| (lo.max(0), hi.min(((patches << level) - 1) as isize));
+    let clip = |(lo, hi): Span, level: usize| (lo.max(0), hi.min(((patches << level) - 1) as isize));
     let grow = |(lo, hi): Span| (lo - 1, hi + 1);
     let half = |(lo, hi): Span| ((lo - 1).div_euclid(2), (hi + 1).div_euclid(2));
     let hull = |a: Span, b: Span| (a.0.min(b.0), a.1.max(b.1));
@@ -1268,15 +880,7 @@ fn dense(
     dense_view(b, label, xv, lin, ov, act, accumulate);
 }
 
-fn dense_view(
-    b: &mut PlanBuilder,
-    label: &str,
-    x: View,
-    lin: &Linear,
-    out: View,
-    act: Activation,
-    accumulate: bool,
-) {
+fn dense_view(b: &mut PlanBuilder, label: &str, x: View, lin: &Linear, out: View, act: Activation, accumulate: bool) {
     let weight = b.external(label, &lin.weight);
     let bias = lin.bias.as_ref().map(|t| b.external(label, t));
     linear(b, label, x, weight, bias, out, act, accumulate);
@@ -1292,34 +896,11 @@ fn norm(b: &mut PlanBuilder, label: &str, x: TensorId, ln: &LayerNorm) -> Tensor
 }
 
 /// x += FF(LN(x)), FF = Linear → GELU → Linear.
-fn feed_forward(
-    b: &mut PlanBuilder,
-    prefix: &str,
-    x: TensorId,
-    ln: &LayerNorm,
-    ff_in: &Linear,
-    ff_out: &Linear,
-) {
+fn feed_forward(b: &mut PlanBuilder, prefix: &str, x: TensorId, ln: &LayerNorm, ff_in: &Linear, ff_out: &Linear) {
     let normed = norm(b, &format!("{prefix}.1.norm"), x, ln);
     let hidden = b.transient(&format!("{prefix}.ff"), b.rows(x), ff_in.weight.rows);
-    dense(
-        b,
-        &format!("{prefix}.1.fn.net.0"),
-        normed,
-        ff_in,
-        hidden,
-        Activation::Gelu,
-        false,
-    );
-    dense(
-        b,
-        &format!("{prefix}.1.fn.net.3"),
-        hidden,
-        ff_out,
-        x,
-        Activation::None,
-        true,
-    );
+    dense(b, &format!("{prefix}.1.fn.net.0"), normed, ff_in, hidden, Activation::Gelu, false);
+    dense(b, &format!("{prefix}.1.fn.net.3"), hidden, ff_out, x, Activation::None, true);
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1340,21 +921,5 @@ fn conv(
     let weight = b.external(label, &c.weight);
     let bias = c.bias.as_ref().map(|t| b.external(label, t));
     let (xv, ov) = (b.all(x), b.all(out));
-    conv3x3(
-        b,
-        label,
-        xv,
-        n,
-        h,
-        w,
-        c.cin,
-        weight,
-        bias,
-        ov,
-        c.cout,
-        stride,
-        upsample_input,
-        act,
-        accumulate,
-    );
+    conv3x3(b, label, xv, n, h, w, c.cin, weight, bias, ov, c.cout, stride, upsample_input, act, accumulate);
 }

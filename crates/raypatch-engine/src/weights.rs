@@ -144,56 +144,30 @@ impl Uploader<'_> {
                 t
             }
             WeightStorage::F16 => {
-                self.kept_f32.push(KeptF32 {
-                    tensor: key.clone(),
-                    max_abs,
-                });
+                self.kept_f32.push(KeptF32 { tensor: key.clone(), max_abs });
                 self.tensor(&key, rows, cols, &w.data)?
             }
             WeightStorage::F32 => self.tensor(&key, rows, cols, &w.data)?,
         };
-        let bias = if bias {
-            Some(self.row(&format!("{prefix}.bias"))?)
-        } else {
-            None
-        };
+        let bias = if bias { Some(self.row(&format!("{prefix}.bias"))?) } else { None };
         Ok(Linear { weight, bias })
     }
 
     fn layer_norm(&mut self, prefix: &str) -> Result<LayerNorm> {
-        Ok(LayerNorm {
-            gamma: self.row(&format!("{prefix}.weight"))?,
-            beta: self.row(&format!("{prefix}.bias"))?,
-        })
+        Ok(LayerNorm { gamma: self.row(&format!("{prefix}.weight"))?, beta: self.row(&format!("{prefix}.bias"))? })
     }
 
     /// A conv `weight_key` [cout, cin, 3, 3] with optional bias, folding in the eval-mode BatchNorm at
     /// `batch_norm` when given: w' = w·γ/√(σ²+ε), b' = β + (b − μ)·γ/√(σ²+ε).
-    fn conv(
-        &mut self,
-        weight_key: &str,
-        bias_key: Option<&str>,
-        batch_norm: Option<&str>,
-    ) -> Result<Conv3x3> {
+    fn conv(&mut self, weight_key: &str, bias_key: Option<&str>, batch_norm: Option<&str>) -> Result<Conv3x3> {
         let w = self.model.weight(weight_key);
         let (cout, cin) = (w.shape[0], w.shape[1]);
         let mut weight: Vec<f32> = w.data.clone();
-        let mut bias: Option<Vec<f64>> = bias_key.map(|k| {
-            self.model
-                .weight(k)
-                .data
-                .iter()
-                .map(|&v| v as f64)
-                .collect()
-        });
+        let mut bias: Option<Vec<f64>> =
+            bias_key.map(|k| self.model.weight(k).data.iter().map(|&v| v as f64).collect());
         if let Some(bn) = batch_norm {
             let get = |name: &str| &self.model.weight(&format!("{bn}.{name}")).data;
-            let (gamma, beta, mean, var) = (
-                get("weight"),
-                get("bias"),
-                get("running_mean"),
-                get("running_var"),
-            );
+            let (gamma, beta, mean, var) = (get("weight"), get("bias"), get("running_mean"), get("running_var"));
             let mut folded = Vec::with_capacity(cout);
             for c in 0..cout {
                 let scale = gamma[c] as f64 / (var[c] as f64 + BATCH_NORM_EPS).sqrt();
@@ -216,49 +190,28 @@ impl Uploader<'_> {
             )?),
             None => None,
         };
-        Ok(Conv3x3 {
-            weight,
-            bias,
-            cin,
-            cout,
-        })
+        Ok(Conv3x3 { weight, bias, cin, cout })
     }
 }
 
 impl SrtWeights {
     pub fn upload(gpu: &Gpu, model: &LoadedModel, options: &LoadOptions) -> Result<SrtWeights> {
         let config: &ModelConfig = &model.config;
-        if options.weight_storage == WeightStorage::F16
-            && !gpu.features.contains(wgpu::Features::SHADER_F16)
-        {
+        if options.weight_storage == WeightStorage::F16 && !gpu.features.contains(wgpu::Features::SHADER_F16) {
             return Err(EngineError::Request(format!(
                 "f16 weights need shader-f16, which {} does not have",
                 gpu.info.name
             )));
         }
-        let mut up = Uploader {
-            gpu,
-            model,
-            storage: options.weight_storage,
-            bytes: 0,
-            kept_f32: Vec::new(),
-        };
+        let mut up = Uploader { gpu, model, storage: options.weight_storage, bytes: 0, kept_f32: Vec::new() };
         let bn = |on: bool, key: String| on.then_some(key);
 
         let e = &config.encoder;
         let mut conv_blocks = Vec::with_capacity(e.num_conv_blocks);
         for i in 0..e.num_conv_blocks {
             let p = format!("encoder.conv_blocks.{i}.layers");
-            let first = up.conv(
-                &format!("{p}.0.weight"),
-                None,
-                bn(e.batch_norm, format!("{p}.1")).as_deref(),
-            )?;
-            let second = up.conv(
-                &format!("{p}.3.weight"),
-                None,
-                bn(e.batch_norm, format!("{p}.4")).as_deref(),
-            )?;
+            let first = up.conv(&format!("{p}.0.weight"), None, bn(e.batch_norm, format!("{p}.1")).as_deref())?;
+            let second = up.conv(&format!("{p}.3.weight"), None, bn(e.batch_norm, format!("{p}.4")).as_deref())?;
             conv_blocks.push((first, second));
         }
         let per_patch_linear = up.linear("encoder.per_patch_linear", true)?;
@@ -274,17 +227,11 @@ impl SrtWeights {
                 ff_out: up.linear(&format!("{p}.1.fn.net.3"), true)?,
             });
         }
-        let encoder = EncoderWeights {
-            conv_blocks,
-            per_patch_linear,
-            layers,
-        };
+        let encoder = EncoderWeights { conv_blocks, per_patch_linear, layers };
 
         let rp = "decoder_att.ray_predictor";
-        let input_mlp = (
-            up.linear(&format!("{rp}.input_mlp.0"), true)?,
-            up.linear(&format!("{rp}.input_mlp.2"), true)?,
-        );
+        let input_mlp =
+            (up.linear(&format!("{rp}.input_mlp.0"), true)?, up.linear(&format!("{rp}.input_mlp.2"), true)?);
         let mut layers = Vec::with_capacity(config.decoder.num_att_blocks);
         for l in 0..config.decoder.num_att_blocks {
             let p = format!("{rp}.transformer.layers.{l}");
@@ -302,21 +249,13 @@ impl SrtWeights {
             .iter()
             .map(|i| up.linear(&format!("decoder_att.out_mlp.{i}"), true))
             .collect::<Result<Vec<_>>>()?;
-        let decoder = DecoderWeights {
-            input_mlp,
-            layers,
-            out_mlp,
-        };
+        let decoder = DecoderWeights { input_mlp, layers, out_mlp };
 
         let ray_patch = match &config.ray_patch {
             None => None,
             Some(cfg) => {
                 let p = "decoder_rp.conv_decoder";
-                let conv_0 = up.conv(
-                    &format!("{p}.conv_0.weight"),
-                    Some(&format!("{p}.conv_0.bias")),
-                    None,
-                )?;
+                let conv_0 = up.conv(&format!("{p}.conv_0.weight"), Some(&format!("{p}.conv_0.bias")), None)?;
                 let mut blocks = Vec::with_capacity(cfg.upsample);
                 for i in 0..cfg.upsample {
                     let b = format!("{p}.conv_blocks.{i}");
@@ -325,19 +264,12 @@ impl SrtWeights {
                         Some(&format!("{b}.0.1.bias")),
                         bn(cfg.batch_norm, format!("{b}.0.2")).as_deref(),
                     )?;
-                    let to_rgb =
-                        up.conv(&format!("{b}.1.weight"), Some(&format!("{b}.1.bias")), None)?;
+                    let to_rgb = up.conv(&format!("{b}.1.weight"), Some(&format!("{b}.1.bias")), None)?;
                     blocks.push((feature, to_rgb));
                 }
                 Some(RayPatchWeights { conv_0, blocks })
             }
         };
-        Ok(SrtWeights {
-            encoder,
-            decoder,
-            ray_patch,
-            bytes: up.bytes,
-            kept_f32: up.kept_f32,
-        })
+        Ok(SrtWeights { encoder, decoder, ray_patch, bytes: up.bytes, kept_f32: up.kept_f32 })
     }
 }

@@ -86,10 +86,7 @@ impl<'a> Section<'a> {
         let value = root.get(name).filter(|v| !v.is_null());
         if let Some(v) = value {
             if !v.is_object() {
-                return Err(config_err(
-                    path,
-                    format!("`{name}` must be a mapping, found {v}"),
-                ));
+                return Err(config_err(path, format!("`{name}` must be a mapping, found {v}")));
             }
         }
         Ok(Section { path, name, value })
@@ -103,13 +100,7 @@ impl<'a> Section<'a> {
         match self.get(key) {
             None => Ok(default),
             Some(v) => v.as_u64().map(|x| x as usize).ok_or_else(|| {
-                config_err(
-                    self.path,
-                    format!(
-                        "`{}.{key}` must be a non-negative integer, found {v}",
-                        self.name
-                    ),
-                )
+                config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {v}", self.name))
             }),
         }
     }
@@ -121,12 +112,10 @@ impl<'a> Section<'a> {
     fn opt_f64(&self, key: &str) -> Result<Option<f64>, ModelError> {
         match self.get(key) {
             None => Ok(None),
-            Some(v) => v.as_f64().map(Some).ok_or_else(|| {
-                config_err(
-                    self.path,
-                    format!("`{}.{key}` must be a number, found {v}", self.name),
-                )
-            }),
+            Some(v) => v
+                .as_f64()
+                .map(Some)
+                .ok_or_else(|| config_err(self.path, format!("`{}.{key}` must be a number, found {v}", self.name))),
         }
     }
 
@@ -134,10 +123,7 @@ impl<'a> Section<'a> {
         match self.get(key) {
             None => Ok(default),
             Some(v) => v.as_bool().ok_or_else(|| {
-                config_err(
-                    self.path,
-                    format!("`{}.{key}` must be true or false, found {v}", self.name),
-                )
+                config_err(self.path, format!("`{}.{key}` must be true or false, found {v}", self.name))
             }),
         }
     }
@@ -147,10 +133,7 @@ impl<'a> Section<'a> {
         match self.get("norm") {
             None => Ok(false),
             Some(Value::String(s)) if s == "Batch" => Ok(true),
-            Some(v) => Err(config_err(
-                self.path,
-                format!("`{}.norm` must be \"Batch\" or null, found {v}", self.name),
-            )),
+            Some(v) => Err(config_err(self.path, format!("`{}.norm` must be \"Batch\" or null, found {v}", self.name))),
         }
     }
 
@@ -171,29 +154,21 @@ impl<'a> Section<'a> {
 }
 
 fn config_err(path: &str, reason: String) -> ModelError {
-    ModelError::Config {
-        path: path.to_string(),
-        reason,
-    }
+    ModelError::Config { path: path.to_string(), reason }
 }
 
 impl ModelConfig {
     /// Resolves the model section of a run config. `path` names the file in errors.
     pub fn from_value(path: &str, raw: Value) -> Result<ModelConfig, ModelError> {
         if !raw.is_object() {
-            return Err(config_err(
-                path,
-                format!("the model config must be a mapping, found {raw}"),
-            ));
+            return Err(config_err(path, format!("the model config must be a mapping, found {raw}")));
         }
         match raw.get("base").and_then(Value::as_str) {
             Some("srt") => {}
             Some(other) => {
                 return Err(config_err(
                     path,
-                    format!(
-                    "model base `{other}` is not supported (raypatch runs `srt`: SRT and RP-SRT)"
-                ),
+                    format!("model base `{other}` is not supported (raypatch runs `srt`: SRT and RP-SRT)"),
                 ))
             }
             None => return Err(config_err(path, "missing `base` (expected \"srt\")".into())),
@@ -211,26 +186,15 @@ impl ModelConfig {
 
         let enc = Section::new(path, &raw, "encoder_kwargs")?;
         if enc.bool("max_pooling", false)? {
-            return Err(config_err(
-                path,
-                "`encoder_kwargs.max_pooling: true` is not supported".into(),
-            ));
+            return Err(config_err(path, "`encoder_kwargs.max_pooling: true` is not supported".into()));
         }
         let num_octaves = enc.usize("num_octaves", 15)?;
         let latent_dim = enc.usize("latent_dim", 768)?;
         let encoder = EncoderConfig {
             num_conv_blocks: enc.usize("num_conv_blocks", 4)?,
             num_att_blocks: enc.usize("num_att_blocks", 10)?,
-            pos_octaves: Octaves {
-                count: num_octaves,
-                start: enc.f64("pos_start_octave", 0.0)?,
-                end: None,
-            },
-            ray_octaves: Octaves {
-                count: num_octaves,
-                start: 0.0,
-                end: None,
-            },
+            pos_octaves: Octaves { count: num_octaves, start: enc.f64("pos_start_octave", 0.0)?, end: None },
+            ray_octaves: Octaves { count: num_octaves, start: 0.0, end: None },
             batch_norm: enc.batch_norm()?,
             conv_hidden: enc.usize("conv_hidden", 96)?,
             token_dim: enc.usize("token_dim", 768)?,
@@ -262,20 +226,8 @@ impl ModelConfig {
         let heads = dec.usize("heads", 12)?;
         let decoder = DecoderConfig {
             num_att_blocks: dec.usize("num_att_blocks", 2)?,
-            pos_octaves: dec.octaves(
-                "pos_octaves",
-                "pos_start_octave",
-                "pos_end_octave",
-                15,
-                0.0,
-            )?,
-            ray_octaves: dec.octaves(
-                "ray_octaves",
-                "ray_start_octave",
-                "ray_end_octave",
-                15,
-                0.0,
-            )?,
+            pos_octaves: dec.octaves("pos_octaves", "pos_start_octave", "pos_end_octave", 15, 0.0)?,
+            ray_octaves: dec.octaves("ray_octaves", "ray_start_octave", "ray_end_octave", 15, 0.0)?,
             kv_dim,
             heads,
             // int(latent_dim / heads) as in the official RayPredictor.
@@ -290,12 +242,7 @@ impl ModelConfig {
             },
         };
 
-        let config = ModelConfig {
-            encoder,
-            decoder,
-            ray_patch,
-            raw,
-        };
+        let config = ModelConfig { encoder, decoder, ray_patch, raw };
         config.validate(path)?;
         Ok(config)
     }
@@ -315,44 +262,31 @@ impl ModelConfig {
             ("decoder_kwargs.heads", d.heads),
             ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
             ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
-            (
-                "decoder_kwargs.pos_octaves + ray_octaves",
-                d.pos_octaves.count + d.ray_octaves.count,
-            ),
+            ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count + d.ray_octaves.count),
         ];
         for (key, value) in positive {
             if value == 0 {
                 return Err(config_err(path, format!("`{key}` must be positive")));
             }
         }
-        for (key, octaves) in [
-            ("decoder_kwargs.pos_octaves", &d.pos_octaves),
-            ("decoder_kwargs.ray_octaves", &d.ray_octaves),
-        ] {
+        for (key, octaves) in
+            [("decoder_kwargs.pos_octaves", &d.pos_octaves), ("decoder_kwargs.ray_octaves", &d.ray_octaves)]
+        {
             if octaves.count > 32 {
                 return Err(config_err(
                     path,
-                    format!(
-                        "`{key}` is {}; at most 32 octaves are supported",
-                        octaves.count
-                    ),
+                    format!("`{key}` is {}; at most 32 octaves are supported", octaves.count),
                 ));
             }
         }
         if e.pos_octaves.count > 32 {
             return Err(config_err(
                 path,
-                format!(
-                    "`encoder_kwargs.num_octaves` is {}; at most 32 are supported",
-                    e.pos_octaves.count
-                ),
+                format!("`encoder_kwargs.num_octaves` is {}; at most 32 are supported", e.pos_octaves.count),
             ));
         }
         if d.dim_head > 128 || e.dim_head > 128 {
-            return Err(config_err(
-                path,
-                "attention heads wider than 128 are not supported".into(),
-            ));
+            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
         }
         if d.kv_dim != e.token_dim {
             return Err(config_err(
@@ -366,10 +300,7 @@ impl ModelConfig {
         match &self.ray_patch {
             Some(rp) => {
                 if rp.upsample == 0 || rp.upsample > 6 {
-                    return Err(config_err(
-                        path,
-                        format!("`rp_kwargs.upsample` must be 1..6, found {}", rp.upsample),
-                    ));
+                    return Err(config_err(path, format!("`rp_kwargs.upsample` must be 1..6, found {}", rp.upsample)));
                 }
                 if rp.conv_features >> rp.upsample < 2 {
                     return Err(config_err(
@@ -391,10 +322,7 @@ impl ModelConfig {
                 if d.out_dims != 3 && d.out_dims != 4 {
                     return Err(config_err(
                         path,
-                        format!(
-                            "`decoder_kwargs.out_dims` must be 3 or 4, found {}",
-                            d.out_dims
-                        ),
+                        format!("`decoder_kwargs.out_dims` must be 3 or 4, found {}", d.out_dims),
                     ));
                 }
             }
@@ -404,9 +332,7 @@ impl ModelConfig {
 
     /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
     pub fn resizes_output(&self) -> bool {
-        self.ray_patch
-            .as_ref()
-            .is_some_and(|rp| rp.resize_out.is_some())
+        self.ray_patch.as_ref().is_some_and(|rp| rp.resize_out.is_some())
     }
 
     /// The image size and ray resolution of target views for this model (see [`TargetViews::grid`]).
@@ -421,9 +347,7 @@ impl ModelConfig {
 
     /// Channels of the final image before the sigmoid: 3, or 4 with log-depth.
     pub fn image_channels(&self) -> usize {
-        self.ray_patch
-            .as_ref()
-            .map_or(self.decoder.out_dims, |rp| rp.out_dims)
+        self.ray_patch.as_ref().map_or(self.decoder.out_dims, |rp| rp.out_dims)
     }
 
     /// Input images must be divisible by this (each conv block halves the size).
@@ -467,11 +391,7 @@ impl ModelConfig {
             t.push((format!("{prefix}.weight"), vec![c]));
             t.push((format!("{prefix}.bias"), vec![c]));
         };
-        let linear = |t: &mut Vec<(String, Vec<usize>)>,
-                      prefix: &str,
-                      out: usize,
-                      inp: usize,
-                      bias: bool| {
+        let linear = |t: &mut Vec<(String, Vec<usize>)>, prefix: &str, out: usize, inp: usize, bias: bool| {
             t.push((format!("{prefix}.weight"), vec![out, inp]));
             if bias {
                 t.push((format!("{prefix}.bias"), vec![out]));
@@ -491,44 +411,17 @@ impl ModelConfig {
             }
         }
         let conv_out = widths.last().map_or(0, |w| w.2);
-        t.push((
-            "encoder.per_patch_linear.weight".into(),
-            vec![e.token_dim, conv_out, 1, 1],
-        ));
+        t.push(("encoder.per_patch_linear.weight".into(), vec![e.token_dim, conv_out, 1, 1]));
         t.push(("encoder.per_patch_linear.bias".into(), vec![e.token_dim]));
         let inner = e.heads * e.dim_head;
         for l in 0..e.num_att_blocks {
             let p = format!("encoder.transformer.layers.{l}");
             layer_norm(&mut t, &format!("{p}.0.norm"), e.token_dim);
-            linear(
-                &mut t,
-                &format!("{p}.0.fn.to_qkv"),
-                3 * inner,
-                e.token_dim,
-                false,
-            );
-            linear(
-                &mut t,
-                &format!("{p}.0.fn.to_out.1"),
-                e.token_dim,
-                inner,
-                true,
-            );
+            linear(&mut t, &format!("{p}.0.fn.to_qkv"), 3 * inner, e.token_dim, false);
+            linear(&mut t, &format!("{p}.0.fn.to_out.1"), e.token_dim, inner, true);
             layer_norm(&mut t, &format!("{p}.1.norm"), e.token_dim);
-            linear(
-                &mut t,
-                &format!("{p}.1.fn.net.0"),
-                e.ff_hidden,
-                e.token_dim,
-                true,
-            );
-            linear(
-                &mut t,
-                &format!("{p}.1.fn.net.3"),
-                e.token_dim,
-                e.ff_hidden,
-                true,
-            );
+            linear(&mut t, &format!("{p}.1.fn.net.0"), e.ff_hidden, e.token_dim, true);
+            linear(&mut t, &format!("{p}.1.fn.net.3"), e.token_dim, e.ff_hidden, true);
         }
 
         let q = self.query_dim();
@@ -537,32 +430,14 @@ impl ModelConfig {
             let p = format!("decoder_att.ray_predictor.transformer.layers.{l}");
             layer_norm(&mut t, &format!("{p}.0.norm"), q);
             linear(&mut t, &format!("{p}.0.fn.to_q"), inner, q, false);
-            linear(
-                &mut t,
-                &format!("{p}.0.fn.to_kv"),
-                2 * inner,
-                d.kv_dim,
-                false,
-            );
+            linear(&mut t, &format!("{p}.0.fn.to_kv"), 2 * inner, d.kv_dim, false);
             linear(&mut t, &format!("{p}.0.fn.to_out.1"), q, inner, true);
             layer_norm(&mut t, &format!("{p}.1.norm"), q);
             linear(&mut t, &format!("{p}.1.fn.net.0"), d.ff_hidden, q, true);
             linear(&mut t, &format!("{p}.1.fn.net.3"), q, d.ff_hidden, true);
         }
-        linear(
-            &mut t,
-            "decoder_att.ray_predictor.input_mlp.0",
-            d.input_mlp_hidden,
-            q,
-            true,
-        );
-        linear(
-            &mut t,
-            "decoder_att.ray_predictor.input_mlp.2",
-            q,
-            d.input_mlp_hidden,
-            true,
-        );
+        linear(&mut t, "decoder_att.ray_predictor.input_mlp.0", d.input_mlp_hidden, q, true);
+        linear(&mut t, "decoder_att.ray_predictor.input_mlp.2", q, d.input_mlp_hidden, true);
         let h = d.out_mlp_hidden;
         linear(&mut t, "decoder_att.out_mlp.0", h, q, true);
         for i in [2, 4, 6] {
@@ -572,10 +447,7 @@ impl ModelConfig {
 
         if let Some(rp) = &self.ray_patch {
             let p = "decoder_rp.conv_decoder";
-            t.push((
-                format!("{p}.conv_0.weight"),
-                vec![rp.out_dims, rp.conv_features, 3, 3],
-            ));
+            t.push((format!("{p}.conv_0.weight"), vec![rp.out_dims, rp.conv_features, 3, 3]));
             t.push((format!("{p}.conv_0.bias"), vec![rp.out_dims]));
             for i in 0..rp.upsample {
                 let (cin, cout) = (rp.conv_features >> i, rp.conv_features >> (i + 1));

@@ -57,19 +57,11 @@ fn shape_err(path: &str, key: &str, expected: String, found: &[usize]) -> ModelE
 }
 
 /// Reads `key` and checks it is `[.., 3]` with the given leading dimensions (None = any).
-fn read(
-    file: &TensorFile,
-    key: &str,
-    lead: &[Option<usize>],
-    what: &str,
-) -> Result<HostTensor, ModelError> {
+fn read(file: &TensorFile, key: &str, lead: &[Option<usize>], what: &str) -> Result<HostTensor, ModelError> {
     let t = file.f32(key)?;
     let ok = t.shape.len() == lead.len() + 1
         && t.shape[lead.len()] == 3
-        && lead
-            .iter()
-            .zip(&t.shape)
-            .all(|(want, &got)| want.is_none_or(|w| w == got));
+        && lead.iter().zip(&t.shape).all(|(want, &got)| want.is_none_or(|w| w == got));
     if !ok {
         return Err(shape_err(&file.path, key, what.to_string(), &t.shape));
     }
@@ -88,34 +80,18 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
         return Err(ModelError::Value {
             path: path.into(),
             key: "input_images".into(),
-            reason: format!(
-                "shape {:?}: the scene needs at least one non-empty input view",
-                images.shape
-            ),
+            reason: format!("shape {:?}: the scene needs at least one non-empty input view", images.shape),
         });
     }
     if let Some(i) = images.data.iter().position(|v| !(0.0..=1.0).contains(v)) {
         return Err(ModelError::Value {
             path: path.into(),
             key: "input_images".into(),
-            reason: format!(
-                "element {i} is {}, expected values in [0, 1]",
-                images.data[i]
-            ),
+            reason: format!("element {i} is {}, expected values in [0, 1]", images.data[i]),
         });
     }
-    let camera_pos = read(
-        file,
-        "input_camera_pos",
-        &[Some(n)],
-        &format!("[{n},3] (one position per input view)"),
-    )?;
-    let rays = read(
-        file,
-        "input_rays",
-        &[Some(n), Some(h), Some(w)],
-        &format!("[{n},{h},{w},3] (like input_images)"),
-    )?;
+    let camera_pos = read(file, "input_camera_pos", &[Some(n)], &format!("[{n},3] (one position per input view)"))?;
+    let rays = read(file, "input_rays", &[Some(n), Some(h), Some(w)], &format!("[{n},{h},{w},3] (like input_images)"))?;
     check_unit_rays(path, "input_rays", &rays.data)?;
 
     let target_pos = read(file, "target_camera_pos", &[None], "[T,3]")?;
@@ -127,20 +103,11 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
             reason: "no target view".into(),
         });
     }
-    let target_rays = read(
-        file,
-        "target_rays",
-        &[Some(t), None, None],
-        &format!("[{t},Ht,Wt,3] (one grid per target view)"),
-    )?;
+    let target_rays =
+        read(file, "target_rays", &[Some(t), None, None], &format!("[{t},Ht,Wt,3] (one grid per target view)"))?;
     check_unit_rays(path, "target_rays", &target_rays.data)?;
     let target_images = if file.contains("target_images") {
-        Some(read(
-            file,
-            "target_images",
-            &[Some(t), None, None],
-            &format!("[{t},Ht,Wt,3]"),
-        )?)
+        Some(read(file, "target_images", &[Some(t), None, None], &format!("[{t},Ht,Wt,3]"))?)
     } else {
         None
     };
@@ -218,28 +185,15 @@ impl TargetViews {
     /// Resolves the image size and whether the rays are per patch, for patch size `k` (docs/FORMATS.md).
     /// A model that resizes its output (the official `rp_kwargs.h_out/w_out`) renders sizes that `k` does not
     /// divide: it decodes the `(height / k) × (width / k)` patch grid and resizes the result.
-    pub fn grid(
-        &self,
-        k: usize,
-        resizes_output: bool,
-        path: &str,
-    ) -> Result<TargetGrid, ModelError> {
+    pub fn grid(&self, k: usize, resizes_output: bool, path: &str) -> Result<TargetGrid, ModelError> {
         let (rh, rw) = (self.rays_height, self.rays_width);
         let (height, width) = self.declared_size.unwrap_or((rh, rw));
-        let err = |reason: String| ModelError::Value {
-            path: path.into(),
-            key: "target_rays".into(),
-            reason,
-        };
+        let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
         if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
-            return Err(err(format!(
-                "target size {height}x{width} is not divisible by the model's patch size k={k}"
-            )));
+            return Err(err(format!("target size {height}x{width} is not divisible by the model's patch size k={k}")));
         }
         if height < k || width < k {
-            return Err(err(format!(
-                "target size {height}x{width} is smaller than one patch (k={k})"
-            )));
+            return Err(err(format!("target size {height}x{width} is smaller than one patch (k={k})")));
         }
         let rays_are_patches = if (rh, rw) == (height, width) {
             false
@@ -252,10 +206,6 @@ impl TargetViews {
                 width / k
             )));
         };
-        Ok(TargetGrid {
-            height,
-            width,
-            rays_are_patches,
-        })
+        Ok(TargetGrid { height, width, rays_are_patches })
     }
 }

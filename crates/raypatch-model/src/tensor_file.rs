@@ -33,10 +33,7 @@ pub struct TensorFile {
 impl TensorFile {
     pub fn open(path: &Path) -> Result<TensorFile, ModelError> {
         let shown = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
-            path: shown.clone(),
-            source,
-        })?;
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: shown.clone(), source })?;
         Self::parse(&shown, &bytes)
     }
 
@@ -44,37 +41,18 @@ impl TensorFile {
     /// and the safetensors crate check the header length, the JSON, the dtypes, and that the tensors' byte
     /// ranges tile the data section exactly.
     pub fn parse(path: &str, bytes: &[u8]) -> Result<TensorFile, ModelError> {
-        let format_err = |reason: String| ModelError::Format {
-            path: path.to_string(),
-            reason,
-        };
+        let format_err = |reason: String| ModelError::Format { path: path.to_string(), reason };
         crate::layout::check_layout(bytes).map_err(format_err)?;
-        let (_, header) =
-            SafeTensors::read_metadata(bytes).map_err(|e| format_err(e.to_string()))?;
+        let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| format_err(e.to_string()))?;
         let st = SafeTensors::deserialize(bytes).map_err(|e| format_err(e.to_string()))?;
         let metadata = header.metadata().clone().unwrap_or_default();
         let mut tensors = BTreeMap::new();
         for (name, view) in st.tensors() {
-            let data = (view.dtype() == Dtype::F32).then(|| {
-                view.data()
-                    .chunks_exact(4)
-                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                    .collect()
-            });
-            tensors.insert(
-                name,
-                FileTensor {
-                    shape: view.shape().to_vec(),
-                    dtype: view.dtype(),
-                    data,
-                },
-            );
+            let data = (view.dtype() == Dtype::F32)
+                .then(|| view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect());
+            tensors.insert(name, FileTensor { shape: view.shape().to_vec(), dtype: view.dtype(), data });
         }
-        Ok(TensorFile {
-            path: path.to_string(),
-            metadata,
-            tensors,
-        })
+        Ok(TensorFile { path: path.to_string(), metadata, tensors })
     }
 
     pub fn contains(&self, key: &str) -> bool {
@@ -108,10 +86,7 @@ impl TensorFile {
                 reason: format!("element {i} is {} (NaN or infinity)", data[i]),
             });
         }
-        Ok(HostTensor {
-            shape: t.shape.clone(),
-            data: data.clone(),
-        })
+        Ok(HostTensor { shape: t.shape.clone(), data: data.clone() })
     }
 
     /// Like [`f32`](Self::f32), also checking the shape.

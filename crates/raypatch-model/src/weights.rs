@@ -23,9 +23,7 @@ pub struct LoadedModel {
 impl LoadedModel {
     /// The weight `key`. Every key of [`ModelConfig::expected_tensors`] is present after loading.
     pub fn weight(&self, key: &str) -> &HostTensor {
-        self.weights
-            .get(key)
-            .unwrap_or_else(|| panic!("weight {key} is not part of this model"))
+        self.weights.get(key).unwrap_or_else(|| panic!("weight {key} is not part of this model"))
     }
 
     /// Total number of parameters (BatchNorm running statistics included).
@@ -41,15 +39,10 @@ pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
 
 pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
     let path = file.path.clone();
-    let config_err = |reason: String| ModelError::Config {
-        path: path.clone(),
-        reason,
-    };
+    let config_err = |reason: String| ModelError::Config { path: path.clone(), reason };
     if let Some(format) = file.metadata.get("format") {
         if format != MODEL_FORMAT {
-            return Err(config_err(format!(
-                "metadata format is {format:?}, expected {MODEL_FORMAT:?}"
-            )));
+            return Err(config_err(format!("metadata format is {format:?}, expected {MODEL_FORMAT:?}")));
         }
     }
     let text = file.metadata.get("config").ok_or_else(|| {
@@ -58,8 +51,8 @@ pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
                 .into(),
         )
     })?;
-    let raw = serde_json::from_str(text)
-        .map_err(|e| config_err(format!("`config` metadata is not valid JSON: {e}")))?;
+    let raw =
+        serde_json::from_str(text).map_err(|e| config_err(format!("`config` metadata is not valid JSON: {e}")))?;
     let config = ModelConfig::from_value(&path, raw)?;
 
     let expected = config.expected_tensors();
@@ -77,10 +70,5 @@ pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
             });
         }
     }
-    Ok(LoadedModel {
-        path,
-        config,
-        metadata: file.metadata,
-        weights,
-    })
+    Ok(LoadedModel { path, config, metadata: file.metadata, weights })
 }

@@ -14,30 +14,21 @@ fn official(decoder: &str) -> serde_json::Value {
         "lr_config": "linear", "gamma": null, "lr": 0.0001, "decay_it": 500000, "lr_warmup": 2500
     });
     if decoder == "featurefield" {
-        cfg["rp_kwargs"] =
-            json!({"upsample": 2, "h_in": 30, "w_in": 40, "conv_features": 128, "norm": "Batch"});
-        cfg["decoder_kwargs"]
-            .as_object_mut()
-            .unwrap()
-            .remove("out_dims");
+        cfg["rp_kwargs"] = json!({"upsample": 2, "h_in": 30, "w_in": 40, "conv_features": 128, "norm": "Batch"});
+        cfg["decoder_kwargs"].as_object_mut().unwrap().remove("out_dims");
     }
     cfg
 }
 
 /// Reads a key list from official-state-dict-keys.txt: `name [d0, d1, ...]` per line.
 fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
-    let text = std::fs::read_to_string(format!("{}/tests/data/{file}", env!("CARGO_MANIFEST_DIR")))
-        .unwrap();
+    let text = std::fs::read_to_string(format!("{}/tests/data/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap();
     text.lines()
         .filter(|l| !l.trim().is_empty())
         .map(|l| {
             let (name, shape) = l.split_once(' ').unwrap();
             let dims = shape.trim_matches(|c| c == '[' || c == ']');
-            let dims = dims
-                .split(',')
-                .filter(|s| !s.trim().is_empty())
-                .map(|s| s.trim().parse().unwrap())
-                .collect();
+            let dims = dims.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse().unwrap()).collect();
             (name.to_string(), dims)
         })
         .filter(|(name, _)| !name.ends_with("num_batches_tracked"))
@@ -72,14 +63,8 @@ fn official_dimensions() {
     assert_eq!(c.patch_size(), 4);
     assert_eq!(c.query_dim(), 180);
     assert_eq!(c.encoder_input_dim(), 183);
-    assert_eq!(
-        (c.decoder.heads, c.decoder.dim_head, c.decoder.ff_hidden),
-        (12, 64, 1536)
-    );
-    assert_eq!(
-        (c.encoder.heads, c.encoder.dim_head, c.encoder.ff_hidden),
-        (12, 64, 1536)
-    );
+    assert_eq!((c.decoder.heads, c.decoder.dim_head, c.decoder.ff_hidden), (12, 64, 1536));
+    assert_eq!((c.encoder.heads, c.encoder.dim_head, c.encoder.ff_hidden), (12, 64, 1536));
     assert_eq!(c.decoder.out_dims, 128);
 }
 
@@ -87,25 +72,16 @@ fn official_dimensions() {
 fn bad_configs_say_what_is_wrong() {
     let mut cfg = official("featurefield");
     cfg["base"] = json!("osrt");
-    let err = ModelConfig::from_value("m.safetensors", cfg)
-        .unwrap_err()
-        .to_string();
-    assert!(
-        err.contains("m.safetensors") && err.contains("osrt"),
-        "{err}"
-    );
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
+    assert!(err.contains("m.safetensors") && err.contains("osrt"), "{err}");
 
     let mut cfg = official("featurefield");
     cfg["rp_kwargs"]["upsample"] = json!("two");
-    let err = ModelConfig::from_value("m.safetensors", cfg)
-        .unwrap_err()
-        .to_string();
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("rp_kwargs.upsample"), "{err}");
 
     let mut cfg = official("lightfield");
     cfg["decoder_kwargs"]["latent_dim"] = json!(512);
-    let err = ModelConfig::from_value("m.safetensors", cfg)
-        .unwrap_err()
-        .to_string();
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("latent_dim"), "{err}");
 }

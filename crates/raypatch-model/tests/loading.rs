@@ -3,17 +3,12 @@
 
 use std::collections::HashMap;
 
-use raypatch_model::{
-    load_model, scene::scene_from_file, weights::model_from_file, ModelError, TensorFile,
-};
+use raypatch_model::{load_model, scene::scene_from_file, weights::model_from_file, ModelError, TensorFile};
 use safetensors::tensor::TensorView;
 use safetensors::{Dtype, SafeTensors};
 
 fn golden(file: &str) -> Vec<u8> {
-    let path = format!(
-        "{}/../../assets/golden/srt_k1/{file}",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let path = format!("{}/../../assets/golden/srt_k1/{file}", env!("CARGO_MANIFEST_DIR"));
     std::fs::read(&path).unwrap_or_else(|e| panic!("{path}: {e}"))
 }
 
@@ -23,19 +18,14 @@ type Tensors = Vec<(String, Dtype, Vec<usize>, Vec<u8>)>;
 fn unpack(bytes: &[u8]) -> (Tensors, HashMap<String, String>) {
     let (_, header) = SafeTensors::read_metadata(bytes).unwrap();
     let st = SafeTensors::deserialize(bytes).unwrap();
-    let tensors = st
-        .tensors()
-        .into_iter()
-        .map(|(n, v)| (n, v.dtype(), v.shape().to_vec(), v.data().to_vec()))
-        .collect();
+    let tensors =
+        st.tensors().into_iter().map(|(n, v)| (n, v.dtype(), v.shape().to_vec(), v.data().to_vec())).collect();
     (tensors, header.metadata().clone().unwrap_or_default())
 }
 
 fn pack(tensors: &Tensors, metadata: &HashMap<String, String>) -> Vec<u8> {
-    let views: Vec<(String, TensorView)> = tensors
-        .iter()
-        .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).unwrap()))
-        .collect();
+    let views: Vec<(String, TensorView)> =
+        tensors.iter().map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).unwrap())).collect();
     safetensors::serialize(views, Some(metadata.clone())).unwrap()
 }
 
@@ -62,10 +52,7 @@ fn assert_mentions(err: &str, parts: &[&str]) {
 
 #[test]
 fn golden_model_loads() {
-    let path = format!(
-        "{}/../../assets/golden/srt_k1/model.safetensors",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
     let model = load_model(&path).unwrap();
     assert_eq!(model.config.patch_size(), 1);
     assert!(model.parameter_count() > 0);
@@ -80,14 +67,7 @@ fn missing_tensor_is_named() {
 
 #[test]
 fn unexpected_tensor_is_named() {
-    let err = model_error(|t, _| {
-        t.push((
-            "decoder_att.extra.weight".into(),
-            Dtype::F32,
-            vec![2],
-            vec![0; 8],
-        ))
-    });
+    let err = model_error(|t, _| t.push(("decoder_att.extra.weight".into(), Dtype::F32, vec![2], vec![0; 8])));
     assert_mentions(&err, &["unexpected", "decoder_att.extra.weight", "[2]"]);
 }
 
@@ -135,10 +115,7 @@ fn truncated_file_is_a_format_error() {
     let bytes = golden("model.safetensors");
     for cut in [4, 20, bytes.len() / 2, bytes.len() - 1] {
         let err = TensorFile::parse("cut.safetensors", &bytes[..cut]).unwrap_err();
-        assert!(
-            matches!(err, ModelError::Format { .. }),
-            "cut at {cut}: {err}"
-        );
+        assert!(matches!(err, ModelError::Format { .. }), "cut at {cut}: {err}");
         assert_mentions(&err.to_string(), &["cut.safetensors"]);
     }
 }
@@ -161,10 +138,7 @@ fn scene_errors_are_named() {
     assert_mentions(&err, &["input_images", "[0, 1]"]);
 
     let err = scene_error(|t, _| {
-        let e = t
-            .iter_mut()
-            .find(|(n, ..)| n == "input_camera_pos")
-            .unwrap();
+        let e = t.iter_mut().find(|(n, ..)| n == "input_camera_pos").unwrap();
         e.2 = vec![3, 1];
     });
     assert_mentions(&err, &["input_camera_pos", "expected"]);

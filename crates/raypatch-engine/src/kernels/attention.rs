@@ -40,21 +40,10 @@ pub fn attention(
 ) {
     let inner = heads * dim_head;
     assert!(heads >= 1, "{label}: attention needs at least one head");
-    assert!(
-        (1..=MAX_DIM_HEAD).contains(&dim_head),
-        "{label}: dim_head {dim_head} outside 1..={MAX_DIM_HEAD}"
-    );
+    assert!((1..=MAX_DIM_HEAD).contains(&dim_head), "{label}: dim_head {dim_head} outside 1..={MAX_DIM_HEAD}");
     assert!(k.rows >= 1, "{label}: attention needs at least one key");
-    assert_eq!(
-        k.rows, v.rows,
-        "{label}: {} keys but {} values",
-        k.rows, v.rows
-    );
-    assert_eq!(
-        q.rows, out.rows,
-        "{label}: {} queries but {} output rows",
-        q.rows, out.rows
-    );
+    assert_eq!(k.rows, v.rows, "{label}: {} keys but {} values", k.rows, v.rows);
+    assert_eq!(q.rows, out.rows, "{label}: {} queries but {} output rows", q.rows, out.rows);
     for (what, view, col) in [("q", q, q_col), ("k", k, k_col), ("v", v, v_col)] {
         let cols = plan.cols(view.id);
         assert!(
@@ -64,11 +53,7 @@ pub fn attention(
             plan.name(view.id)
         );
     }
-    assert_eq!(
-        plan.cols(out.id),
-        inner,
-        "{label}: output must have heads*dim_head = {inner} columns"
-    );
+    assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
 
     let params = [
         q.rows,
@@ -92,12 +77,7 @@ pub fn attention(
         shader: &ATTENTION,
         entry: "attention",
         params,
-        bindings: vec![
-            (q, Access::Read),
-            (k, Access::Read),
-            (v, Access::Read),
-            (out, Access::Write),
-        ],
+        bindings: vec![(q, Access::Read), (k, Access::Read), (v, Access::Read), (out, Access::Write)],
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
     });
 }

@@ -15,12 +15,7 @@ const COUT_VEC4S_PER_INVOCATION: usize = 2;
 /// [cout, 9 * padded_cols(cin)] matrix: for each output channel, the 9 taps (ky, kx row-major), each a zero-padded
 /// run of cin input channels. Upload it with Gpu::upload(label, cout, 9 * padded_cols(cin), &packed).
 pub fn pack_conv3x3(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
-    assert_eq!(
-        weight.len(),
-        cout * cin * 9,
-        "pack_conv3x3: weight has {} values, not cout*cin*9",
-        weight.len()
-    );
+    assert_eq!(weight.len(), cout * cin * 9, "pack_conv3x3: weight has {} values, not cout*cin*9", weight.len());
     let ld = padded_cols(cin);
     let mut packed = vec![0.0; cout * 9 * ld];
     for co in 0..cout {
@@ -59,26 +54,10 @@ pub fn conv3x3(
     act: Activation,
     accumulate: bool,
 ) {
-    assert!(
-        n > 0 && h > 0 && w > 0 && cin > 0 && cout > 0,
-        "{label}: empty convolution"
-    );
-    assert!(
-        stride == 1 || stride == 2,
-        "{label}: stride {stride} is not 1 or 2"
-    );
-    assert_eq!(
-        x.rows,
-        n * h * w,
-        "{label}: x has {} rows, not n*h*w = {n}*{h}*{w}",
-        x.rows
-    );
-    assert_eq!(
-        plan.cols(x.id),
-        cin,
-        "{label}: x has {} columns, not cin = {cin}",
-        plan.cols(x.id)
-    );
+    assert!(n > 0 && h > 0 && w > 0 && cin > 0 && cout > 0, "{label}: empty convolution");
+    assert!(stride == 1 || stride == 2, "{label}: stride {stride} is not 1 or 2");
+    assert_eq!(x.rows, n * h * w, "{label}: x has {} rows, not n*h*w = {n}*{h}*{w}", x.rows);
+    assert_eq!(plan.cols(x.id), cin, "{label}: x has {} columns, not cin = {cin}", plan.cols(x.id));
     let (wrows, wcols) = (plan.rows(weight), plan.cols(weight));
     assert!(
         wrows == cout && wcols == 9 * padded_cols(cin),
@@ -87,28 +66,15 @@ pub fn conv3x3(
     );
     if let Some(b) = bias {
         let (brows, bcols) = (plan.rows(b), plan.cols(b));
-        assert!(
-            brows == 1 && bcols == cout,
-            "{label}: bias is [{brows}, {bcols}], not [1, {cout}]"
-        );
+        assert!(brows == 1 && bcols == cout, "{label}: bias is [{brows}, {bcols}], not [1, {cout}]");
     }
     let up = usize::from(upsample_input);
     let (ho, wo) = (((h << up) - 1) / stride + 1, ((w << up) - 1) / stride + 1);
     let npix = n * ho * wo;
-    assert_eq!(
-        out.rows, npix,
-        "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}",
-        out.rows
-    );
-    assert_eq!(
-        plan.cols(out.id),
-        cout,
-        "{label}: out has {} columns, not cout = {cout}",
-        plan.cols(out.id)
-    );
+    assert_eq!(out.rows, npix, "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}", out.rows);
+    assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
     assert!(
-        npix * padded_cols(cout) <= u32::MAX as usize
-            && n * h * w * padded_cols(cin) <= u32::MAX as usize,
+        npix * padded_cols(cout) <= u32::MAX as usize && n * h * w * padded_cols(cin) <= u32::MAX as usize,
         "{label}: tensors too large for u32 indexing"
     );
 
@@ -145,14 +111,7 @@ pub fn conv3x3(
             (x, Access::Read),
             (weight_view, Access::Read),
             (bias_view, Access::Read),
-            (
-                out,
-                if accumulate {
-                    Access::ReadWrite
-                } else {
-                    Access::Write
-                },
-            ),
+            (out, if accumulate { Access::ReadWrite } else { Access::Write }),
         ],
         workgroups: grid(pixel_tiles * cout_tiles),
     });

@@ -36,21 +36,10 @@ pub fn map_columns(plan: &mut PlanBuilder, label: &str, x: View, col: usize, out
         col + cols,
         plan.cols(x.id)
     );
-    assert_eq!(
-        out.rows, x.rows,
-        "map_columns {label}: out has {} rows, x has {}",
-        out.rows, x.rows
-    );
+    assert_eq!(out.rows, x.rows, "map_columns {label}: out has {} rows, x has {}", out.rows, x.rows);
     assert!(x.id != out.id, "map_columns {label}: cannot run in place");
     let ld4 = plan.ld(out.id) / 4;
-    let params = vec![
-        x.rows as u32,
-        plan.ld(x.id) as u32,
-        col as u32,
-        cols as u32,
-        ld4 as u32,
-        f.code(),
-    ];
+    let params = vec![x.rows as u32, plan.ld(x.id) as u32, col as u32, cols as u32, ld4 as u32, f.code()];
     plan.push(Op {
         label: label.to_string(),
         shader: &ELEMENTWISE,

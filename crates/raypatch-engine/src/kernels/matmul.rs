@@ -30,12 +30,7 @@ pub fn linear(
 ) {
     let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
     assert!(k > 0 && n > 0, "linear {label}: empty weight [{n}, {k}]");
-    assert_eq!(
-        plan.cols(w),
-        k,
-        "linear {label}: weight is [{n}, {}] but x has {k} columns",
-        plan.cols(w)
-    );
+    assert_eq!(plan.cols(w), k, "linear {label}: weight is [{n}, {}] but x has {k} columns", plan.cols(w));
     assert!(
         out.rows == m && plan.cols(out.id) == n,
         "linear {label}: out is [{}, {}], expected [{m}, {n}]",
@@ -72,11 +67,7 @@ pub fn linear(
         Dtype::F16 => &MATMUL_F16,
     };
     let groups = m.div_ceil(ROWS_PER_GROUP) * padded_cols(n).div_ceil(COLS_PER_GROUP);
-    let out_access = if accumulate {
-        Access::ReadWrite
-    } else {
-        Access::Write
-    };
+    let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
     plan.push(Op {
         label: label.to_string(),
         shader,

@@ -61,10 +61,7 @@ pub static MATMUL: Shader = shader!("matmul", "activation");
 pub static MATMUL_F16: Shader = Shader {
     name: "matmul_f16",
     prefix: "enable f16;\n",
-    replace: &[(
-        "alias WeightVec = vec4<f32>;",
-        "alias WeightVec = vec4<f16>;",
-    )],
+    replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
     features: wgpu::Features::SHADER_F16,
     ..shader!("matmul", "activation")
 };
@@ -79,12 +76,4 @@ pub static ELEMENTWISE: Shader = shader!("elementwise");
 pub static VARIANTS: [&Shader; 1] = [&MATMUL_F16];
 
 /// Every shader, for validation tests and pipeline warm-up.
-pub static ALL_SHADERS: [&Shader; 7] = [
-    &MATMUL,
-    &ATTENTION,
-    &LAYERNORM,
-    &POSENC,
-    &RESIZE,
-    &CONV,
-    &ELEMENTWISE,
-];
+pub static ALL_SHADERS: [&Shader; 7] = [&MATMUL, &ATTENTION, &LAYERNORM, &POSENC, &RESIZE, &CONV, &ELEMENTWISE];

@@ -17,15 +17,7 @@ const ROWS_PER_GROUP: usize = 64;
 /// (four partial sums per row) plus its own rounding, so ≤ 1e-3 for any C ≤ 2048 and a spread ≤ 8 std,
 /// whatever the row's mean (a row with mean 1e4 and std 1e-2 included), and ~1e-6 on typical rows. A
 /// constant row gives exactly `beta`.
-pub fn layernorm(
-    plan: &mut PlanBuilder,
-    label: &str,
-    x: View,
-    gamma: TensorId,
-    beta: TensorId,
-    out: View,
-    eps: f32,
-) {
+pub fn layernorm(plan: &mut PlanBuilder, label: &str, x: View, gamma: TensorId, beta: TensorId, out: View, eps: f32) {
     let cols = plan.cols(x.id);
     assert!(cols > 0, "layernorm {label}: x has no columns");
     assert!(
@@ -44,22 +36,10 @@ pub fn layernorm(
             plan.cols(t)
         );
     }
-    assert!(
-        eps > 0.0 && eps.is_finite(),
-        "layernorm {label}: eps {eps} must be positive"
-    );
-    let params = vec![
-        x.rows as u32,
-        cols as u32,
-        (plan.ld(x.id) / 4) as u32,
-        eps.to_bits(),
-    ];
-    let bindings = vec![
-        (x, Access::Read),
-        (plan.all(gamma), Access::Read),
-        (plan.all(beta), Access::Read),
-        (out, Access::Write),
-    ];
+    assert!(eps > 0.0 && eps.is_finite(), "layernorm {label}: eps {eps} must be positive");
+    let params = vec![x.rows as u32, cols as u32, (plan.ld(x.id) / 4) as u32, eps.to_bits()];
+    let bindings =
+        vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
     plan.push(Op {
         label: label.to_string(),
         shader: &LAYERNORM,

@@ -20,25 +20,24 @@ pub const MAX_OCTAVES: usize = 32;
 /// Every product is rounded to f32, as torch's float32 `*` does.
 pub fn multipliers(num_octaves: usize, start: f64, end: Option<f64>) -> Vec<f32> {
     let pi = std::f32::consts::PI;
-    let octaves: Vec<f32> = match end {
-        None => (0..num_octaves)
-            .map(|i| (start + i as f64).exp2() as f32)
-            .collect(),
-        Some(_) if num_octaves <= 1 => vec![start as f32; num_octaves],
-        Some(end) => {
-            let (start, end, n) = (start as f32, end as f32, num_octaves);
-            let step = (end - start) / (n - 1) as f32;
-            (0..n)
-                .map(|i| {
-                    if i < n / 2 {
-                        step.mul_add(i as f32, start)
-                    } else {
-                        (-step).mul_add((n - 1 - i) as f32, end)
-                    }
-                })
-                .collect()
-        }
-    };
+    let octaves: Vec<f32> =
+        match end {
+            None => (0..num_octaves).map(|i| (start + i as f64).exp2() as f32).collect(),
+            Some(_) if num_octaves <= 1 => vec![start as f32; num_octaves],
+            Some(end) => {
+                let (start, end, n) = (start as f32, end as f32, num_octaves);
+                let step = (end - start) / (n - 1) as f32;
+                (0..n)
+                    .map(|i| {
+                        if i < n / 2 {
+                            step.mul_add(i as f32, start)
+                        } else {
+                            (-step).mul_add((n - 1 - i) as f32, end)
+                        }
+                    })
+                    .collect()
+            }
+        };
     octaves.into_iter().map(|o| o * pi).collect()
 }
 
@@ -68,46 +67,21 @@ pub fn fourier_encode(
 ) {
     let n = multipliers.len();
     let cols = plan.cols(out.id);
-    assert_eq!(
-        plan.cols(coords.id),
-        3,
-        "fourier_encode {label}: coords must have 3 columns"
-    );
-    assert!(
-        (1..=MAX_OCTAVES).contains(&n),
-        "fourier_encode {label}: {n} multipliers, expected 1..={MAX_OCTAVES}"
-    );
-    assert!(
-        repeat > 0,
-        "fourier_encode {label}: repeat must be positive"
-    );
+    assert_eq!(plan.cols(coords.id), 3, "fourier_encode {label}: coords must have 3 columns");
+    assert!((1..=MAX_OCTAVES).contains(&n), "fourier_encode {label}: {n} multipliers, expected 1..={MAX_OCTAVES}");
+    assert!(repeat > 0, "fourier_encode {label}: repeat must be positive");
     assert!(
         out.rows == 0 || (first_row + out.rows - 1) / repeat < coords.rows,
         "fourier_encode {label}: rows {first_row}..{} with repeat {repeat} need more than {} coordinate rows",
         first_row + out.rows,
         coords.rows
     );
-    assert!(
-        col + 6 * n <= cols,
-        "fourier_encode {label}: columns {col}..{} past the {cols} of out",
-        col + 6 * n
-    );
-    assert!(
-        coords.id != out.id,
-        "fourier_encode {label}: coords and out must be different tensors"
-    );
+    assert!(col + 6 * n <= cols, "fourier_encode {label}: columns {col}..{} past the {cols} of out", col + 6 * n);
+    assert!(coords.id != out.id, "fourier_encode {label}: coords and out must be different tensors");
     let ld = plan.ld(out.id);
     let pad_from = if col + 6 * n == cols { cols } else { ld };
-    let mut params = vec![
-        out.rows as u32,
-        repeat as u32,
-        first_row as u32,
-        n as u32,
-        col as u32,
-        ld as u32,
-        pad_from as u32,
-        0,
-    ];
+    let mut params =
+        vec![out.rows as u32, repeat as u32, first_row as u32, n as u32, col as u32, ld as u32, pad_from as u32, 0];
     params.extend(multipliers.iter().map(|m| m.to_bits()));
     params.resize(8 + MAX_OCTAVES, 0);
     plan.push(Op {

@@ -21,34 +21,13 @@ fn resize(
     accumulate: bool,
 ) {
     let c = plan.cols(x.id);
-    assert!(
-        hi > 0 && wi > 0 && ho > 0 && wo > 0,
-        "{label}: empty image ({hi}x{wi} -> {ho}x{wo})"
-    );
-    assert_eq!(
-        x.rows,
-        n * hi * wi,
-        "{label}: x has {} rows, not n*hi*wi = {n}*{hi}*{wi}",
-        x.rows
-    );
-    assert_eq!(
-        out.rows,
-        n * ho * wo,
-        "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}",
-        out.rows
-    );
-    assert_eq!(
-        plan.cols(out.id),
-        c,
-        "{label}: out has {} columns, x has {c}",
-        plan.cols(out.id)
-    );
+    assert!(hi > 0 && wi > 0 && ho > 0 && wo > 0, "{label}: empty image ({hi}x{wi} -> {ho}x{wo})");
+    assert_eq!(x.rows, n * hi * wi, "{label}: x has {} rows, not n*hi*wi = {n}*{hi}*{wi}", x.rows);
+    assert_eq!(out.rows, n * ho * wo, "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}", out.rows);
+    assert_eq!(plan.cols(out.id), c, "{label}: out has {} columns, x has {c}", plan.cols(out.id));
     let c4 = padded_cols(c) / 4;
     let total = n * ho * wo * c4;
-    assert!(
-        total <= u32::MAX as usize,
-        "{label}: {total} output vec4s overflow u32 indexing"
-    );
+    assert!(total <= u32::MAX as usize, "{label}: {total} output vec4s overflow u32 indexing");
     // PyTorch's scale: input size over output size, as f32 (for scale_factor = 2 this is 1/2, the same value).
     let scale = |i: usize, o: usize| (i as f32 / o as f32).to_bits();
     plan.push(Op {
@@ -66,17 +45,7 @@ fn resize(
             scale(wi, wo),
             accumulate as u32,
         ],
-        bindings: vec![
-            (x, Access::Read),
-            (
-                out,
-                if accumulate {
-                    Access::ReadWrite
-                } else {
-                    Access::Write
-                },
-            ),
-        ],
+        bindings: vec![(x, Access::Read), (out, if accumulate { Access::ReadWrite } else { Access::Write })],
         workgroups: grid(total.div_ceil(64)),
     });
 }
@@ -102,17 +71,7 @@ pub fn bilinear(
     wo: usize,
     accumulate: bool,
 ) {
-    resize(
-        plan,
-        label,
-        "bilinear",
-        x,
-        n,
-        (hi, wi),
-        out,
-        (ho, wo),
-        accumulate,
-    );
+    resize(plan, label, "bilinear", x, n, (hi, wi), out, (ho, wo), accumulate);
 }
 
 /// Nearest resize as PyTorch mode='nearest': src = min(floor(dst · (in/out as f32)), in − 1).

@@ -24,14 +24,8 @@ pub fn attention(
 ) -> Vec<f64> {
     let inner = heads * dim_head;
     assert!(q.len() >= nq * q_ld && q_col + inner <= q_ld, "q too small");
-    assert!(
-        k.len() >= nkv * k_ld && k_col + inner <= k_ld,
-        "k too small"
-    );
-    assert!(
-        v.len() >= nkv * v_ld && v_col + inner <= v_ld,
-        "v too small"
-    );
+    assert!(k.len() >= nkv * k_ld && k_col + inner <= k_ld, "k too small");
+    assert!(v.len() >= nkv * v_ld && v_col + inner <= v_ld, "v too small");
     let mut out = vec![0.0; nq * inner];
     let mut logits = vec![0.0; nkv];
     for i in 0..nq {

@@ -25,26 +25,14 @@ pub fn conv3x3(
     act: Activation,
     residual: Option<&[f64]>,
 ) -> Vec<f64> {
-    assert_eq!(
-        x.len(),
-        n * h * w * cin,
-        "conv3x3 reference: x is not [n*h*w, cin]"
-    );
-    assert_eq!(
-        weight.len(),
-        cout * cin * 9,
-        "conv3x3 reference: weight is not [cout, cin, 3, 3]"
-    );
+    assert_eq!(x.len(), n * h * w * cin, "conv3x3 reference: x is not [n*h*w, cin]");
+    assert_eq!(weight.len(), cout * cin * 9, "conv3x3 reference: weight is not [cout, cin, 3, 3]");
     let up = if upsample_input { 2 } else { 1 };
     let (he, we) = (h * up, w * up);
     let (ho, wo) = ((he - 1) / stride + 1, (we - 1) / stride + 1);
     let mut out = vec![0.0; n * ho * wo * cout];
     if let Some(r) = residual {
-        assert_eq!(
-            r.len(),
-            out.len(),
-            "conv3x3 reference: residual is not [n*ho*wo, cout]"
-        );
+        assert_eq!(r.len(), out.len(), "conv3x3 reference: residual is not [n*ho*wo, cout]");
     }
     for b in 0..n {
         for oy in 0..ho {
@@ -54,13 +42,11 @@ pub fn conv3x3(
                     let mut sum = bias.map_or(0.0, |bias| bias[co]);
                     for ky in 0..3 {
                         // Input row in the (upsampled) image, with padding 1.
-                        let Some(iy) = (oy * stride + ky).checked_sub(1).filter(|&iy| iy < he)
-                        else {
+                        let Some(iy) = (oy * stride + ky).checked_sub(1).filter(|&iy| iy < he) else {
                             continue;
                         };
                         for kx in 0..3 {
-                            let Some(ix) = (ox * stride + kx).checked_sub(1).filter(|&ix| ix < we)
-                            else {
+                            let Some(ix) = (ox * stride + kx).checked_sub(1).filter(|&ix| ix < we) else {
                                 continue;
                             };
                             let src = ((b * h + iy / up) * w + ix / up) * cin;

@@ -18,23 +18,13 @@ pub fn linear(
 ) -> Vec<f64> {
     assert_eq!(x.len(), m * k, "reference linear: x is not [{m}, {k}]");
     assert_eq!(w.len(), n * k, "reference linear: w is not [{n}, {k}]");
-    assert!(
-        bias.is_none_or(|b| b.len() == n),
-        "reference linear: bias is not [{n}]"
-    );
-    assert!(
-        residual.is_none_or(|r| r.len() == m * n),
-        "reference linear: residual is not [{m}, {n}]"
-    );
+    assert!(bias.is_none_or(|b| b.len() == n), "reference linear: bias is not [{n}]");
+    assert!(residual.is_none_or(|r| r.len() == m * n), "reference linear: residual is not [{m}, {n}]");
     let mut out = Vec::with_capacity(m * n);
     for i in 0..m {
         let row = &x[i * k..(i + 1) * k];
         for j in 0..n {
-            let dot: f64 = row
-                .iter()
-                .zip(&w[j * k..(j + 1) * k])
-                .map(|(a, b)| a * b)
-                .sum();
+            let dot: f64 = row.iter().zip(&w[j * k..(j + 1) * k]).map(|(a, b)| a * b).sum();
             let value = activation(dot + bias.map_or(0.0, |b| b[j]), act);
             out.push(value + residual.map_or(0.0, |r| r[i * n + j]));
         }

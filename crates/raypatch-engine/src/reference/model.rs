@@ -47,16 +47,7 @@ impl Dense {
         parallel_rows(m, self.n, |rows| {
             let residual = residual.map(|r| &r[rows.start * self.n..rows.end * self.n]);
             let x = &x[rows.start * self.k..rows.end * self.k];
-            linear(
-                x,
-                rows.len(),
-                self.k,
-                &self.w,
-                self.n,
-                self.b.as_deref(),
-                act,
-                residual,
-            )
+            linear(x, rows.len(), self.k, &self.w, self.n, self.b.as_deref(), act, residual)
         })
     }
 }
@@ -91,20 +82,7 @@ impl Conv {
         act: Activation,
         residual: Option<&[f64]>,
     ) -> Vec<f64> {
-        conv3x3(
-            x,
-            n,
-            h,
-            w,
-            self.cin,
-            &self.w,
-            self.b.as_deref(),
-            self.cout,
-            stride,
-            upsample_input,
-            act,
-            residual,
-        )
+        conv3x3(x, n, h, w, self.cin, &self.w, self.b.as_deref(), self.cout, stride, upsample_input, act, residual)
     }
 }
 
@@ -174,17 +152,10 @@ impl ReferenceModel {
         let dense = |prefix: &str, bias: bool| {
             let w = model.weight(&format!("{prefix}.weight"));
             let n = w.shape[0];
-            Dense {
-                w: f64s(&w.data),
-                b: bias.then(|| get(&format!("{prefix}.bias"))),
-                n,
-                k: w.data.len() / n,
-            }
+            Dense { w: f64s(&w.data), b: bias.then(|| get(&format!("{prefix}.bias"))), n, k: w.data.len() / n }
         };
-        let norm = |prefix: &str| Norm {
-            gamma: get(&format!("{prefix}.weight")),
-            beta: get(&format!("{prefix}.bias")),
-        };
+        let norm =
+            |prefix: &str| Norm { gamma: get(&format!("{prefix}.weight")), beta: get(&format!("{prefix}.bias")) };
         // BatchNorm (eval): y = (conv(x) + b - μ)·γ/√(σ²+ε) + β, folded into the weights and bias.
         let conv = |weight: &str, bias: Option<&str>, batch_norm: Option<&str>| {
             let shape = &model.weight(weight).shape;
@@ -193,16 +164,11 @@ impl ReferenceModel {
             let mut b = bias.map(get);
             if let Some(bn) = batch_norm {
                 let (gamma, beta) = (get(&format!("{bn}.weight")), get(&format!("{bn}.bias")));
-                let (mean, var) = (
-                    get(&format!("{bn}.running_mean")),
-                    get(&format!("{bn}.running_var")),
-                );
+                let (mean, var) = (get(&format!("{bn}.running_mean")), get(&format!("{bn}.running_var")));
                 let mut folded = Vec::with_capacity(cout);
                 for c in 0..cout {
                     let scale = gamma[c] / (var[c] + BATCH_NORM_EPS).sqrt();
-                    w[c * cin * 9..(c + 1) * cin * 9]
-                        .iter_mut()
-                        .for_each(|v| *v *= scale);
+                    w[c * cin * 9..(c + 1) * cin * 9].iter_mut().for_each(|v| *v *= scale);
                     folded.push(beta[c] + (b.as_ref().map_or(0.0, |b| b[c]) - mean[c]) * scale);
                 }
                 b = Some(folded);
@@ -216,16 +182,8 @@ impl ReferenceModel {
             .map(|i| {
                 let p = format!("encoder.conv_blocks.{i}.layers");
                 (
-                    conv(
-                        &format!("{p}.0.weight"),
-                        None,
-                        bn(e.batch_norm, format!("{p}.1")).as_deref(),
-                    ),
-                    conv(
-                        &format!("{p}.3.weight"),
-                        None,
-                        bn(e.batch_norm, format!("{p}.4")).as_deref(),
-                    ),
+                    conv(&format!("{p}.0.weight"), None, bn(e.batch_norm, format!("{p}.1")).as_deref()),
+                    conv(&format!("{p}.3.weight"), None, bn(e.batch_norm, format!("{p}.4")).as_deref()),
                 )
             })
             .collect();
@@ -259,11 +217,7 @@ impl ReferenceModel {
             .collect();
         let ray_patch = config.ray_patch.as_ref().map(|cfg| {
             let p = "decoder_rp.conv_decoder";
-            let conv_0 = conv(
-                &format!("{p}.conv_0.weight"),
-                Some(&format!("{p}.conv_0.bias")),
-                None,
-            );
+            let conv_0 = conv(&format!("{p}.conv_0.weight"), Some(&format!("{p}.conv_0.bias")), None);
             let blocks = (0..cfg.upsample)
                 .map(|i| {
                     let b = format!("{p}.conv_blocks.{i}");
@@ -272,10 +226,7 @@ impl ReferenceModel {
                         Some(&format!("{b}.0.1.bias")),
                         bn(cfg.batch_norm, format!("{b}.0.2")).as_deref(),
                     );
-                    (
-                        feature,
-                        conv(&format!("{b}.1.weight"), Some(&format!("{b}.1.bias")), None),
-                    )
+                    (feature, conv(&format!("{b}.1.weight"), Some(&format!("{b}.1.bias")), None))
                 })
                 .collect();
             (conv_0, blocks)
@@ -285,15 +236,9 @@ impl ReferenceModel {
             conv_blocks,
             per_patch_linear: dense("encoder.per_patch_linear", true),
             encoder_layers,
-            input_mlp: (
-                dense(&format!("{rp}.input_mlp.0"), true),
-                dense(&format!("{rp}.input_mlp.2"), true),
-            ),
+            input_mlp: (dense(&format!("{rp}.input_mlp.0"), true), dense(&format!("{rp}.input_mlp.2"), true)),
             decoder_layers,
-            out_mlp: [0, 2, 4, 6, 8]
-                .iter()
-                .map(|i| dense(&format!("decoder_att.out_mlp.{i}"), true))
-                .collect(),
+            out_mlp: [0, 2, 4, 6, 8].iter().map(|i| dense(&format!("decoder_att.out_mlp.{i}"), true)).collect(),
             ray_patch,
             config,
         }
@@ -303,14 +248,7 @@ impl ReferenceModel {
         &self.config
     }
 
-    fn encoding(
-        &self,
-        coords: &[f64],
-        repeat: usize,
-        first_row: usize,
-        rows: usize,
-        octaves: &Octaves,
-    ) -> Vec<f64> {
+    fn encoding(&self, coords: &[f64], repeat: usize, first_row: usize, rows: usize, octaves: &Octaves) -> Vec<f64> {
         let m = multipliers(octaves.count, octaves.start, octaves.end);
         fourier_encode_with(coords, repeat, first_row, rows, &m, self.argument)
     }
@@ -344,53 +282,24 @@ impl ReferenceModel {
         let inner = e.heads * e.dim_head;
         let scale = (e.dim_head as f64).powf(-0.5);
         for layer in &self.encoder_layers {
-            let qkv = layer
-                .to_qkv
-                .apply(&layer.attn_norm.apply(&z), Activation::None, None);
+            let qkv = layer.to_qkv.apply(&layer.attn_norm.apply(&z), Activation::None, None);
             let heads = parallel_rows(tokens, inner, |rows| {
                 let q = &qkv[rows.start * 3 * inner..rows.end * 3 * inner];
                 let (ld, (nq, nkv)) = (3 * inner, (rows.len(), tokens));
-                attention(
-                    q,
-                    ld,
-                    0,
-                    &qkv,
-                    ld,
-                    inner,
-                    &qkv,
-                    ld,
-                    2 * inner,
-                    nq,
-                    nkv,
-                    e.heads,
-                    e.dim_head,
-                    scale,
-                )
+                attention(q, ld, 0, &qkv, ld, inner, &qkv, ld, 2 * inner, nq, nkv, e.heads, e.dim_head, scale)
             });
             z = layer.to_out.apply(&heads, Activation::None, Some(&z));
             z = feed_forward(&z, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
-        let keys_values = self
-            .decoder_layers
-            .iter()
-            .map(|l| l.to_kv.apply(&z, Activation::None, None))
-            .collect();
-        Ok(ReferenceScene {
-            latent: z,
-            tokens,
-            keys_values,
-        })
+        let keys_values = self.decoder_layers.iter().map(|l| l.to_kv.apply(&z, Activation::None, None)).collect();
+        Ok(ReferenceScene { latent: z, tokens, keys_values })
     }
 
     /// Renders target views of an encoded scene: `SRTDecoder` on every query (pixel, or patch for Ray-Patch),
     /// then the Ray-Patch decoder, then the sigmoid. Patch rays are made from full-resolution rays as the
     /// official loader makes them (bilinear), in f32 with [`Argument::RoundedToF32`] (PyTorch's float32
     /// operation order, which the engine reproduces bit for bit) and in f64 otherwise.
-    pub fn render(
-        &self,
-        scene: &ReferenceScene,
-        targets: &TargetViews,
-    ) -> Result<ReferenceFrame, ModelError> {
+    pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
         let cfg = &self.config;
         let k = cfg.patch_size();
         let grid = cfg.target_grid(targets, "target views")?;
@@ -398,9 +307,7 @@ impl ReferenceModel {
         let (rh, rw) = (targets.rays_height, targets.rays_width);
         let rays = if k > 1 && !grid.rays_are_patches {
             match self.argument {
-                Argument::RoundedToF32 => {
-                    f64s(&patch_rays_f32(&targets.rays, views, rh, rw, ph, pw))
-                }
+                Argument::RoundedToF32 => f64s(&patch_rays_f32(&targets.rays, views, rh, rw, ph, pw)),
                 Argument::Float64 => bilinear(&f64s(&targets.rays), views, rh, rw, 3, ph, pw),
             }
         } else {
@@ -411,13 +318,7 @@ impl ReferenceModel {
         let mut features = Vec::with_capacity(queries * cfg.decoder.out_dims);
         for start in (0..queries).step_by(QUERY_CHUNK) {
             let rows = QUERY_CHUNK.min(queries - start);
-            features.extend(self.decode(
-                scene,
-                &positions,
-                ph * pw,
-                start,
-                &rays[3 * start..3 * (start + rows)],
-            ));
+            features.extend(self.decode(scene, &positions, ph * pw, start, &rays[3 * start..3 * (start + rows)]));
         }
 
         let channels = cfg.image_channels();
@@ -427,8 +328,7 @@ impl ReferenceModel {
                 // conv_0's output, bilinearly upsampled, is the first rgb skip; each block adds its rgb conv
                 // to the skip, which is upsampled again for the next block.
                 let (mut h, mut w) = (ph, pw);
-                let first =
-                    conv_0.apply(&features, (views, h, w), 1, false, Activation::None, None);
+                let first = conv_0.apply(&features, (views, h, w), 1, false, Activation::None, None);
                 let mut skip = bilinear(&first, views, h, w, channels, 2 * h, 2 * w);
                 let mut x = features;
                 for (i, (feature_conv, to_rgb)) in blocks.iter().enumerate() {
@@ -449,15 +349,7 @@ impl ReferenceModel {
         let image = if (ph * k, pw * k) == (grid.height, grid.width) {
             image
         } else {
-            nearest(
-                &image,
-                views,
-                ph * k,
-                pw * k,
-                channels,
-                grid.height,
-                grid.width,
-            )
+            nearest(&image, views, ph * k, pw * k, channels, grid.height, grid.width)
         };
         Ok(ReferenceFrame {
             views,
@@ -494,28 +386,11 @@ impl ReferenceModel {
         let inner = d.heads * d.dim_head;
         let scale = (d.dim_head as f64).powf(-0.5);
         for (layer, kv) in self.decoder_layers.iter().zip(&scene.keys_values) {
-            let q = layer
-                .to_q
-                .apply(&layer.attn_norm.apply(&x), Activation::None, None);
+            let q = layer.to_q.apply(&layer.attn_norm.apply(&x), Activation::None, None);
             let heads = parallel_rows(rows, inner, |r| {
                 let q = &q[r.start * inner..r.end * inner];
                 let (ld, nkv) = (2 * inner, scene.tokens);
-                attention(
-                    q,
-                    inner,
-                    0,
-                    kv,
-                    ld,
-                    0,
-                    kv,
-                    ld,
-                    inner,
-                    r.len(),
-                    nkv,
-                    d.heads,
-                    d.dim_head,
-                    scale,
-                )
+                attention(q, inner, 0, kv, ld, 0, kv, ld, inner, r.len(), nkv, d.heads, d.dim_head, scale)
             });
             x = layer.to_out.apply(&heads, Activation::None, Some(&x));
             x = feed_forward(&x, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
@@ -564,15 +439,8 @@ fn patch_rays_f32(rays: &[f32], n: usize, hi: usize, wi: usize, ho: usize, wo: u
 }
 
 /// Computes `rows` rows of `cols` values, split into contiguous row ranges over the CPU's threads.
-fn parallel_rows(
-    rows: usize,
-    cols: usize,
-    f: impl Fn(std::ops::Range<usize>) -> Vec<f64> + Sync,
-) -> Vec<f64> {
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(rows.div_ceil(16))
-        .max(1);
+fn parallel_rows(rows: usize, cols: usize, f: impl Fn(std::ops::Range<usize>) -> Vec<f64> + Sync) -> Vec<f64> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(rows.div_ceil(16)).max(1);
     let per = rows.div_ceil(threads);
     let parts: Vec<Vec<f64>> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
@@ -582,10 +450,7 @@ fn parallel_rows(
                 s.spawn(move || f(range))
             })
             .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("reference thread panicked"))
-            .collect()
+        handles.into_iter().map(|h| h.join().expect("reference thread panicked")).collect()
     });
     let mut out = Vec::with_capacity(rows * cols);
     parts.into_iter().for_each(|p| out.extend(p));

@@ -22,14 +22,7 @@ pub fn fourier_encode(
     rows_out: usize,
     multipliers: &[f32],
 ) -> Vec<f64> {
-    fourier_encode_with(
-        coords,
-        repeat,
-        first_row,
-        rows_out,
-        multipliers,
-        Argument::RoundedToF32,
-    )
+    fourier_encode_with(coords, repeat, first_row, rows_out, multipliers, Argument::RoundedToF32)
 }
 
 /// [`fourier_encode`] with the arguments formed as `argument` says.

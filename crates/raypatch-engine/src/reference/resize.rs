@@ -20,20 +20,8 @@ fn nearest_source(dst: usize, in_size: usize, out_size: usize) -> usize {
 }
 
 /// Bilinear resize of `x`, NHWC `[n*hi*wi, c]`, to `[n*ho*wo, c]`.
-pub fn bilinear(
-    x: &[f64],
-    n: usize,
-    hi: usize,
-    wi: usize,
-    c: usize,
-    ho: usize,
-    wo: usize,
-) -> Vec<f64> {
-    assert_eq!(
-        x.len(),
-        n * hi * wi * c,
-        "bilinear reference: x is not [n*hi*wi, c]"
-    );
+pub fn bilinear(x: &[f64], n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) -> Vec<f64> {
+    assert_eq!(x.len(), n * hi * wi * c, "bilinear reference: x is not [n*hi*wi, c]");
     let at = |b: usize, y: usize, xx: usize, ch: usize| x[((b * hi + y) * wi + xx) * c + ch];
     let mut out = Vec::with_capacity(n * ho * wo * c);
     for b in 0..n {
@@ -53,20 +41,8 @@ pub fn bilinear(
 }
 
 /// Nearest resize of `x`, NHWC `[n*hi*wi, c]`, to `[n*ho*wo, c]`.
-pub fn nearest(
-    x: &[f64],
-    n: usize,
-    hi: usize,
-    wi: usize,
-    c: usize,
-    ho: usize,
-    wo: usize,
-) -> Vec<f64> {
-    assert_eq!(
-        x.len(),
-        n * hi * wi * c,
-        "nearest reference: x is not [n*hi*wi, c]"
-    );
+pub fn nearest(x: &[f64], n: usize, hi: usize, wi: usize, c: usize, ho: usize, wo: usize) -> Vec<f64> {
+    assert_eq!(x.len(), n * hi * wi * c, "nearest reference: x is not [n*hi*wi, c]");
     let mut out = Vec::with_capacity(n * ho * wo * c);
     for b in 0..n {
         for oy in 0..ho {
