@@ -390,11 +390,11 @@ impl EncodedScene<'_> {
         let request = request.into();
         let bands = self.bands(targets, &request)?;
         if let [band] = bands.as_slice() {
-            return self.render_band(targets, band);
+            return self.render_band(targets, band, request.outputs);
         }
-        let frames = bands.iter().map(|band| self.render_band(targets, band)).collect::<Result<Vec<_>>>()?;
-        let region = request.region.unwrap_or(frames[0].region);
-        let region = Region { height: frames.iter().map(|f| f.height).sum(), ..region };
+        let frames =
+            bands.iter().map(|band| self.render_band(targets, band, request.outputs)).collect::<Result<Vec<_>>>()?;
+        let region = Region { height: frames.iter().map(|f| f.height).sum(), ..frames[0].region };
         let stitch = |channels: usize, output: fn(&Frame) -> &Option<Vec<f32>>| {
             output(&frames[0]).as_ref()?;
             let mut all = Vec::with_capacity(targets.count * region.height * region.width * channels);
@@ -416,9 +416,9 @@ impl EncodedScene<'_> {
         })
     }
 
-    /// Renders one request whose plan fits the GPU.
-    fn render_band(&self, targets: &TargetViews, request: &Request) -> Result<Frame> {
-        let (graph, crop) = self.prepare(targets, request)?;
+    /// Renders one crop whose plan fits the GPU.
+    fn render_band(&self, targets: &TargetViews, crop: &Crop, outputs: Outputs) -> Result<Frame> {
+        let graph = self.prepare(targets, crop, outputs)?;
         let gpu = self.model.gpu();
         graph.plan.execute(gpu);
         let read = |id: Option<TensorId>| id.map(|id| gpu.read(&graph.plan.tensor(id))).transpose();
@@ -436,9 +436,10 @@ impl EncodedScene<'_> {
 
     /// Runs the render plans op by op, timing each (slower than [`render`](Self::render); for profiling).
     pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
+        let request = request.into();
         let mut times = OpTimes::new();
-        for band in self.bands(targets, &request.into())? {
-            let (graph, _) = self.prepare(targets, &band)?;
+        for band in self.bands(targets, &request)? {
+            let graph = self.prepare(targets, &band, request.outputs)?;
             times.extend(graph.plan.profile(self.model.gpu())?);
         }
         Ok(times)
@@ -458,9 +459,8 @@ impl EncodedScene<'_> {
             bands: bands.len(),
         };
         let mut distinct: Vec<TargetGrid> = Vec::new();
-        for band in &bands {
-            let crop = self.crop(targets, band)?;
-            let graph = self.graph(targets.count, &crop, request.outputs)?;
+        for crop in &bands {
+            let graph = self.graph(targets.count, crop, request.outputs)?;
             stats.queries += graph.ids.queries;
             stats.pixels += crop.grid.height * crop.grid.width;
             stats.dispatches += graph.plan.dispatch_count();
@@ -477,8 +477,7 @@ impl EncodedScene<'_> {
     pub fn render_op_labels(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<String>> {
         let request = request.into();
         let mut labels = Vec::new();
-        for band in self.bands(targets, &request)? {
-            let crop = self.crop(targets, &band)?;
+        for crop in self.bands(targets, &request)? {
             labels.extend(self.graph(targets.count, &crop, request.outputs)?.plan.op_labels().map(String::from));
         }
         Ok(labels)
@@ -534,13 +533,13 @@ impl EncodedScene<'_> {
         Ok(Crop { image, region, y0: py0 * k, x0: px0 * k, grid })
     }
 
-    /// The requests a render runs as: the request itself when its plan fits the GPU's buffer limit, else its
-    /// region cut into the fewest row bands (whole patches high) whose plans fit. When nothing fits, the
-    /// request itself, whose plan then reports which buffer is too large.
-    fn bands(&self, targets: &TargetViews, request: &Request) -> Result<Vec<Request>> {
+    /// The crops a render runs as: the request's own when its plan fits the GPU's buffer limit, else those of
+    /// its region cut into the fewest row bands (whole patches high) whose plans fit. When nothing fits, the
+    /// request's own, whose plan then reports which buffer is too large.
+    fn bands(&self, targets: &TargetViews, request: &Request) -> Result<Vec<Crop>> {
         let crop = self.crop(targets, request)?;
         if self.fits(targets.count, &crop, request.outputs) {
-            return Ok(vec![*request]);
+            return Ok(vec![crop]);
         }
         let k = self.model.config.patch_size();
         let region = crop.region;
@@ -548,23 +547,22 @@ impl EncodedScene<'_> {
         let mut count = 2;
         while count <= patch_rows {
             let rows = patch_rows.div_ceil(count) * k;
-            let bands: Vec<Request> = (region.y..region.y + region.height)
+            let crops = (region.y..region.y + region.height)
                 .step_by(rows)
-                .map(|y| Request {
-                    region: Some(Region { y, height: rows.min(region.y + region.height - y), ..region }),
-                    ..*request
+                .map(|y| {
+                    let band = Region { y, height: rows.min(region.y + region.height - y), ..region };
+                    self.crop(targets, &Request { region: Some(band), ..*request })
                 })
-                .collect();
-            let crops = bands.iter().map(|band| self.crop(targets, band)).collect::<Result<Vec<_>>>()?;
+                .collect::<Result<Vec<_>>>()?;
             if crops.iter().any(|c| c.grid.height >= crop.grid.height) {
                 break; // the bands do not shrink the computed rows (an output resize needs the whole image)
             }
             if crops.iter().all(|c| self.fits(targets.count, c, request.outputs)) {
-                return Ok(bands);
+                return Ok(crops);
             }
             count *= 2;
         }
-        Ok(vec![*request])
+        Ok(vec![crop])
     }
 
     /// Whether the render plan of this crop binds no buffer larger than the GPU allows.
@@ -590,14 +588,13 @@ impl EncodedScene<'_> {
     }
 
     /// The render plan for these targets, with their cameras and the crop's rays uploaded.
-    fn prepare(&self, targets: &TargetViews, request: &Request) -> Result<(Arc<RenderGraph>, Crop)> {
-        let crop = self.crop(targets, request)?;
-        let graph = self.graph(targets.count, &crop, request.outputs)?;
+    fn prepare(&self, targets: &TargetViews, crop: &Crop, outputs: Outputs) -> Result<Arc<RenderGraph>> {
+        let graph = self.graph(targets.count, crop, outputs)?;
         let gpu = self.model.gpu();
         gpu.write(&graph.plan.tensor(graph.ids.target_pos), &targets.camera_pos);
         let k = if crop.image.rays_are_patches { self.model.config.patch_size() } else { 1 };
         gpu.write(&graph.plan.tensor(graph.ids.target_rays), &crop.rays(targets, k));
-        Ok((graph, crop))
+        Ok(graph)
     }
 
     fn build_render(&self, views: usize, grid: TargetGrid, outputs: Outputs) -> Result<RenderGraph> {
