@@ -59,9 +59,7 @@ impl Intrinsics {
     }
 
     fn check(&self) -> Result<()> {
-        if self.width == 0 || self.height == 0 {
-            return Err(Error::Camera(format!("image size {}x{} is empty", self.width, self.height)));
-        }
+        crate::image::check_image_size(self.width, self.height).map_err(Error::Camera)?;
         let values = [self.fx, self.fy, self.cx, self.cy];
         if values.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
             return Err(Error::Camera(format!(
@@ -222,7 +220,7 @@ impl Camera {
         if grid.width == 0 || grid.height == 0 || k == 0 {
             return Err(Error::Camera(format!("ray grid {}x{} (k={k}) is empty", grid.width, grid.height)));
         }
-        if grid.directions.len() != grid.width * grid.height {
+        if Some(grid.directions.len()) != grid.width.checked_mul(grid.height) {
             return Err(Error::Camera(format!(
                 "ray grid has {} rays, expected width x height = {}x{}",
                 grid.directions.len(),
@@ -236,7 +234,8 @@ impl Camera {
                 grid.directions[i]
             )));
         }
-        let (width, height) = (grid.width * k, grid.height * k);
+        let (width, height) = (grid.width.saturating_mul(k), grid.height.saturating_mul(k));
+        crate::image::check_image_size(width, height).map_err(Error::Camera)?;
         Ok(Camera { position, width, height, projection: Projection::Rays { grid, per_ray: k } })
     }
 

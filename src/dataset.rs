@@ -46,6 +46,8 @@ pub struct SceneData {
     pub inputs: Vec<InputView>,
     /// Cameras to render.
     pub targets: Vec<TargetView>,
+    /// Every file that was read (outputs must not overwrite them).
+    pub files: Vec<PathBuf>,
 }
 
 impl SceneData {
@@ -63,7 +65,19 @@ impl SceneData {
     /// pixel, or one per patch with the image size in `target_images` or the `target_size` metadata).
     pub fn from_file(path: impl AsRef<Path>) -> Result<SceneData> {
         let path = path.as_ref();
-        let file = raypatch_model::load_scene(path)?;
+        let mut data = SceneData::from_scene_file(raypatch_model::load_scene(path)?)?;
+        data.files = vec![path.to_path_buf()];
+        Ok(data)
+    }
+
+    /// Reads a scene from the bytes of a scene file (e.g. one embedded in a program); `name` stands for the
+    /// file in messages.
+    pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<SceneData> {
+        let file = raypatch_model::TensorFile::parse(name, bytes)?;
+        SceneData::from_scene_file(raypatch_model::scene::scene_from_file(&file)?)
+    }
+
+    fn from_scene_file(file: raypatch_model::SceneFile) -> Result<SceneData> {
         let (n, h, w) = (file.inputs.count, file.inputs.height, file.inputs.width);
         let position = |pos: &[f32], i: usize| Vec3::from_slice(&pos[3 * i..3 * i + 3]).as_dvec3();
         let grid = |rays: &[f32], i: usize, gh: usize, gw: usize| RayGrid {
@@ -93,7 +107,8 @@ impl SceneData {
                 path: file.path.clone(),
                 key: "target_rays".into(),
                 reason: format!(
-                    "ray grid {gh}x{gw} is neither the target size {th}x{tw} nor that size divided by a patch size"
+                    "ray grid {gw}x{gh} is neither the target size {tw}x{th} nor that size divided by a patch size \
+                     (width x height)"
                 ),
             }));
         };
@@ -107,7 +122,8 @@ impl SceneData {
                 Ok(TargetView { camera, image: image.transpose()? })
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(SceneData { source: SceneSource::File(path.to_path_buf()), inputs, targets })
+        let source = SceneSource::File(PathBuf::from(&file.path));
+        Ok(SceneData { source, inputs, targets, files: Vec::new() })
     }
 
     /// Reads a folder with a NeRF-style `transforms.json`: intrinsics as `camera_angle_x` (and optionally
@@ -120,19 +136,33 @@ impl SceneData {
         let json_path = dir.join("transforms.json");
         let shown = json_path.display().to_string();
         let err = |reason: String| Error::Cameras { path: shown.clone(), reason };
-        let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, "cannot read", e))?;
+        let text = read_json_text(&json_path)?;
         let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
         let frames = root.get("frames").and_then(Value::as_array).ok_or_else(|| err("no `frames` list".into()))?;
         if frames.is_empty() {
             return Err(err("`frames` is empty: the scene has no view".into()));
         }
+        if frames.len() > MAX_FRAMES {
+            return Err(err(format!("{} frames; at most {MAX_FRAMES} are read", frames.len())));
+        }
         let mut inputs: Vec<InputView> = Vec::with_capacity(frames.len());
+        let mut files = Vec::with_capacity(frames.len() + 1);
+        files.push(json_path.clone());
+        let mut pixels = 0usize;
         for (i, frame) in frames.iter().enumerate() {
             let name = frame
                 .get("file_path")
                 .and_then(Value::as_str)
                 .ok_or_else(|| err(format!("frame {i}: no `file_path`")))?;
-            let image = Image::load_png(frame_image_path(dir, name))?;
+            let file = frame_image_path(dir, name).map_err(|reason| err(format!("frame {i}: `file_path` {reason}")))?;
+            let image = Image::load_png(&file)?;
+            pixels += image.width() * image.height();
+            if pixels > MAX_SCENE_PIXELS {
+                return Err(err(format!(
+                    "frames 0 to {i} hold more than {MAX_SCENE_PIXELS} pixels, the most a scene may have"
+                )));
+            }
+            files.push(file);
             if let Some(first) = inputs.first() {
                 let (w, h) = (first.image.width(), first.image.height());
                 if (image.width(), image.height()) != (w, h) {
@@ -149,17 +179,29 @@ impl SceneData {
         }
         let targets =
             inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
-        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets })
+        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets, files })
     }
 }
 
-fn frame_image_path(dir: &Path, name: &str) -> PathBuf {
-    let path = dir.join(name);
-    if path.extension().is_none() && !path.exists() {
-        path.with_extension("png")
-    } else {
-        path
+/// Most frames read from a `transforms.json`.
+pub const MAX_FRAMES: usize = 10_000;
+/// Most pixels over all the frames of a folder (1 GiB of f32 RGB).
+pub const MAX_SCENE_PIXELS: usize = 1 << 26;
+/// Largest JSON file read (a `transforms.json` of 10 000 frames is a few MB).
+const MAX_JSON_BYTES: u64 = 64 << 20;
+
+fn read_json_text(path: &Path) -> Result<String> {
+    raypatch_model::files::read_regular_text(path, MAX_JSON_BYTES).map_err(|e| Error::io(path, "cannot read", e.into()))
+}
+
+/// The image of a frame: `name` inside `dir` (see [`raypatch_model::files::resolve_inside`]), with `.png`
+/// added when `name` has no extension and no such file exists.
+fn frame_image_path(dir: &Path, name: &str) -> std::result::Result<PathBuf, String> {
+    let as_given = raypatch_model::files::resolve_inside(dir, name);
+    if as_given.is_err() && Path::new(name).extension().is_none() {
+        return raypatch_model::files::resolve_inside(dir, &format!("{name}.png"));
     }
+    as_given
 }
 
 /// Reads a camera-to-world pose file: JSON with a 4×4 `transform_matrix` (OpenGL axes, as in
@@ -179,11 +221,18 @@ fn frame_image_path(dir: &Path, name: &str) -> PathBuf {
 pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
     let path = path.as_ref();
     let err = |reason: String| Error::Cameras { path: path.display().to_string(), reason };
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "cannot read", e))?;
+    let text = read_json_text(path)?;
     let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
     let has_intrinsics = ["camera_angle_x", "fl_x"].iter().any(|k| root.get(k).is_some());
     let (w, h) = (number(&root, &root, "w").map_err(&err)?, number(&root, &root, "h").map_err(&err)?);
-    let (width, height) = (w.map_or(like.width(), |v| v as usize), h.map_or(like.height(), |v| v as usize));
+    let size = |v: Option<f64>, key: &str, default: usize| match v {
+        None => Ok(default),
+        Some(v) if v.fract() == 0.0 && (1.0..=crate::MAX_IMAGE_SIDE as f64).contains(&v) => Ok(v as usize),
+        Some(v) => {
+            Err(err(format!("`{key}` is {v}, expected a whole number of pixels, 1 to {}", crate::MAX_IMAGE_SIDE)))
+        }
+    };
+    let (width, height) = (size(w, "w", like.width())?, size(h, "h", like.height())?);
     let camera = if has_intrinsics {
         nerf_camera(&root, &root, width, height)
     } else {

@@ -3,7 +3,30 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
+use crate::output::write_atomic;
 use crate::Region;
+
+/// Longest image side accepted, in pixels: images are checked before they are decoded or rendered.
+pub const MAX_IMAGE_SIDE: usize = 16384;
+/// Most pixels in one image (4096 x 4096): 200 MB as f32 RGB, beyond what one GPU buffer of the encoder or
+/// the decoder holds on most adapters.
+pub const MAX_IMAGE_PIXELS: usize = 1 << 24;
+/// Largest PNG file read.
+const MAX_PNG_BYTES: u64 = 1 << 30;
+
+/// Checks an image size against [`MAX_IMAGE_SIDE`] and [`MAX_IMAGE_PIXELS`]; the reason, width x height.
+pub fn check_image_size(width: usize, height: usize) -> std::result::Result<(), String> {
+    if width == 0 || height == 0 {
+        return Err(format!("image size {width}x{height} (width x height) is empty"));
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE || width.saturating_mul(height) > MAX_IMAGE_PIXELS {
+        return Err(format!(
+            "image size {width}x{height} (width x height) is larger than raypatch accepts \
+             ({MAX_IMAGE_SIDE} pixels a side, {MAX_IMAGE_PIXELS} pixels in all)"
+        ));
+    }
+    Ok(())
+}
 
 /// An RGB image: `width` × `height` pixels, row-major from the top row, three f32 channels per pixel; the
 /// model's inputs and outputs are in [0, 1].
@@ -25,14 +48,11 @@ pub struct Image {
 impl Image {
     /// An image from `width * height * 3` values; NaN and infinity are rejected.
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Image> {
-        if data.len() != width * height * 3 {
+        let expected = width.checked_mul(height).and_then(|p| p.checked_mul(3));
+        if Some(data.len()) != expected {
             return Err(Error::Image {
                 path: "image".into(),
-                reason: format!(
-                    "{} values for {width}x{height} RGB pixels (expected {})",
-                    data.len(),
-                    width * height * 3
-                ),
+                reason: format!("{} values for {width}x{height} RGB pixels (expected 3 per pixel)", data.len()),
             });
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
@@ -45,13 +65,22 @@ impl Image {
     }
 
     /// Reads a PNG (8 or 16 bits, grey or RGB, with or without alpha). Alpha is composited onto white, the
-    /// background of NeRF's Blender scenes.
+    /// background of NeRF's Blender scenes. The size the PNG declares is checked against
+    /// [`MAX_IMAGE_SIDE`] and [`MAX_IMAGE_PIXELS`] before anything is decoded.
     pub fn load_png(path: impl AsRef<Path>) -> Result<Image> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, "cannot read", e))?;
-        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
-            Error::Image { path: path.display().to_string(), reason: format!("not a readable PNG: {e}") }
-        })?;
+        let bytes = raypatch_model::files::read_regular(path, MAX_PNG_BYTES)
+            .map_err(|e| Error::io(path, "cannot read", e.into()))?;
+        let bad = |reason: String| Error::Image { path: path.display().to_string(), reason };
+        let reader = || image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
+        let (width, height) = reader().into_dimensions().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
+        check_image_size(width as usize, height as usize).map_err(bad)?;
+        let mut limits = image::Limits::default();
+        // The decoder's buffers for an image of the checked size, with room for 16-bit RGBA.
+        limits.max_alloc = Some(width as u64 * height as u64 * 8 + (1 << 20));
+        let mut reader = reader();
+        reader.limits(limits);
+        let decoded = reader.decode().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
         let rgba = decoded.into_rgba32f();
         let (width, height) = (rgba.width() as usize, rgba.height() as usize);
         let data = rgba.pixels().flat_map(|p| {
@@ -61,17 +90,19 @@ impl Image {
         Ok(Image { width, height, data: data.collect() })
     }
 
-    /// Writes an 8-bit RGB PNG through a temporary file and a rename, so a failed write leaves no file.
-    pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
-        let path = path.as_ref();
+    /// The image as an 8-bit RGB PNG.
+    pub fn encode_png(&self) -> Result<Vec<u8>> {
         let rgb = image::RgbImage::from_raw(self.width as u32, self.height as u32, self.to_rgb8())
             .expect("an Image always holds width * height * 3 values");
         let mut png = Vec::new();
-        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| Error::Image {
-            path: path.display().to_string(),
-            reason: format!("cannot encode PNG: {e}"),
-        })?;
-        write_atomic(path, &png)
+        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .map_err(|e| Error::Image { path: "image".into(), reason: format!("cannot encode PNG: {e}") })?;
+        Ok(png)
+    }
+
+    /// Writes an 8-bit RGB PNG through a temporary file and a rename (see [`write_atomic`]).
+    pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
+        write_atomic(path.as_ref(), &self.encode_png()?)
     }
 
     /// Width in pixels.
@@ -111,7 +142,9 @@ impl Image {
     /// ```
     pub fn crop(&self, region: Region) -> Result<Image> {
         let Region { x, y, width, height } = region;
-        if x + width > self.width || y + height > self.height {
+        if x.checked_add(width).is_none_or(|end| end > self.width)
+            || y.checked_add(height).is_none_or(|end| end > self.height)
+        {
             return Err(Error::Image {
                 path: "image".into(),
                 reason: format!(
@@ -127,16 +160,4 @@ impl Image {
         }
         Ok(Image { width, height, data })
     }
-}
-
-/// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so that no partial
-/// file is left behind; the temporary file is removed when the write fails.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp"));
-    let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
-    written.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::io(path, "cannot write", e)
-    })
 }

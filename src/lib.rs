@@ -35,12 +35,14 @@ mod dataset;
 mod error;
 mod image;
 pub mod metrics;
+mod output;
 mod render;
 
 pub use camera::{Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
-pub use image::{write_atomic, Image};
+pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
+pub use output::{check_output_path, write_all_atomic, write_atomic};
 pub use raypatch_engine::{AdapterChoice, OpTimes, Outputs, Region, RenderStats, Request};
 pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 

@@ -41,6 +41,24 @@ pub struct Adapter {
     pub driver: String,
 }
 
+impl Adapter {
+    fn from_info(info: &raypatch_engine::wgpu::AdapterInfo) -> Adapter {
+        Adapter {
+            name: info.name.clone(),
+            kind: format!("{:?}", info.device_type),
+            backend: format!("{:?}", info.backend),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        }
+    }
+
+    /// Whether this is a real GPU: a discrete, integrated or virtual one, not a CPU rasteriser such as
+    /// lavapipe or llvmpipe, and not reached through OpenGL (wgpu's fallback when no Vulkan, Metal or DX12
+    /// driver is found).
+    pub fn is_gpu(&self) -> bool {
+        matches!(self.kind.as_str(), "DiscreteGpu" | "IntegratedGpu" | "VirtualGpu") && self.backend != "Gl"
+    }
+}
+
 impl std::fmt::Display for Adapter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{} ({}, {}, {})", self.name, self.kind, self.backend, self.driver)
@@ -70,7 +88,8 @@ impl Engine {
         })
     }
 
-    /// Every adapter wgpu can see, in the order [`AdapterChoice::Auto`] prefers them.
+    /// Every adapter wgpu can see that runs compute shaders, in the order [`AdapterChoice::Auto`] prefers
+    /// them: the first is the default.
     ///
     /// ```
     /// for adapter in raypatch::Engine::adapters() {
@@ -78,20 +97,17 @@ impl Engine {
     /// }
     /// ```
     pub fn adapters() -> Vec<Adapter> {
-        raypatch_engine::gpu::list_adapters()
-            .into_iter()
-            .map(|info| Adapter {
-                name: info.name,
-                kind: format!("{:?}", info.device_type),
-                backend: format!("{:?}", info.backend),
-                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
-            })
-            .collect()
+        raypatch_engine::gpu::list_adapters().iter().map(Adapter::from_info).collect()
     }
 
     /// The adapter in use, as "name (backend, driver)".
     pub fn adapter(&self) -> String {
         self.gpu.describe()
+    }
+
+    /// The adapter in use, in detail.
+    pub fn adapter_details(&self) -> Adapter {
+        Adapter::from_info(&self.gpu.info)
     }
 
     /// Loads a model file (safetensors with the official key names and the config in its metadata, see
@@ -106,6 +122,13 @@ impl Engine {
     /// ```
     pub fn load(&self, path: impl AsRef<Path>) -> Result<Model> {
         Ok(Model { inner: raypatch_engine::Model::load(self.gpu.clone(), path)? })
+    }
+
+    /// Loads a model from the bytes of a model file (e.g. one embedded in a program); `name` stands for the
+    /// file in messages.
+    pub fn load_bytes(&self, name: &str, bytes: &[u8]) -> Result<Model> {
+        let loaded = raypatch_model::weights::model_from_file(raypatch_model::TensorFile::parse(name, bytes)?)?;
+        Ok(Model { inner: raypatch_engine::Model::from_loaded(self.gpu.clone(), &loaded)? })
     }
 
     /// What the GPU has done so far (pipelines compiled, buffers created, submits, dispatches): for checking
@@ -176,13 +199,71 @@ impl Model {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
+        self.check_inputs(views)?;
         Ok(Scene { inner: self.inner.encode(&input_views(views)?)? })
+    }
+
+    /// Checks input views against what this model takes (see [`check_camera`](Self::check_camera)); returns
+    /// the warnings.
+    pub fn check_inputs(&self, views: &[InputView]) -> Result<Vec<String>> {
+        let mut warnings = Vec::new();
+        for (i, view) in views.iter().enumerate() {
+            let octaves = &self.config().encoder.pos_octaves;
+            warnings.extend(check_camera(&view.camera, octaves, &format!("input view {i}"))?);
+        }
+        Ok(warnings)
+    }
+
+    /// Checks a target camera against what this model takes: an error for what its contract rules out (rays
+    /// that are not unit directions; a camera so far out that the positional encoding keeps no phase in
+    /// float32), warnings for legal values beyond the range where the engine matches PyTorch to float32
+    /// rounding.
+    pub fn check_camera(&self, camera: &Camera) -> Result<Vec<String>> {
+        check_camera(camera, &self.config().decoder.pos_octaves, "target camera")
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
     pub fn profile_encode(&self, views: &[InputView]) -> Result<OpTimes> {
         Ok(self.inner.encode_profiled(&input_views(views)?)?.1)
     }
+}
+
+/// How far a ray's length may be from 1: patch rays, resized from unit rays without renormalising, stay
+/// within 1e-3 of it; a scaled or unnormalised ray is far outside.
+const UNIT_RAY_TOLERANCE: f32 = 0.01;
+/// Positional-encoding arguments (coordinate times multiplier) beyond this keep no phase in float32 (its
+/// spacing there is 2 radians): the model cannot see where the camera is.
+const MAX_ENCODING_ARGUMENT: f64 = (1u64 << 24) as f64;
+/// Up to this the engine's sine and cosine match PyTorch's to float32 rounding (`shaders/posenc.wgsl`).
+const ACCURATE_ENCODING_ARGUMENT: f64 = (1u64 << 20) as f64;
+
+fn check_camera(camera: &Camera, octaves: &raypatch_model::Octaves, what: &str) -> Result<Vec<String>> {
+    let rays = camera.rays();
+    if let Some((i, d)) =
+        rays.directions.iter().enumerate().find(|(_, d)| (d.length() - 1.0).abs() > UNIT_RAY_TOLERANCE)
+    {
+        return Err(Error::Camera(format!(
+            "{what}: ray {i} is {d} of length {}; this model takes unit ray directions",
+            d.length()
+        )));
+    }
+    let top = octaves.max_multiplier();
+    let position = camera.position();
+    let argument = position.abs().max_element() * top;
+    if argument > MAX_ENCODING_ARGUMENT {
+        return Err(Error::Camera(format!(
+            "{what}: camera position {position} times the largest positional-encoding multiplier ({top:.1}) is \
+             {argument:.3e}, beyond 2^24 where float32 keeps no phase: the model cannot encode this camera"
+        )));
+    }
+    let mut warnings = Vec::new();
+    if argument > ACCURATE_ENCODING_ARGUMENT {
+        warnings.push(format!(
+            "{what}: camera position {position} is far out for this model (positional-encoding argument \
+             {argument:.3e} > 2^20): the render may differ from PyTorch's beyond float32 rounding"
+        ));
+    }
+    Ok(warnings)
 }
 
 fn input_views(views: &[InputView]) -> Result<InputViews> {
@@ -262,6 +343,7 @@ impl Scene<'_> {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
+        check_camera(camera, &self.inner.model().config.decoder.pos_octaves, "target camera")?;
         let frame = self.inner.render(&camera.target_views(), *request)?;
         let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
         Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })

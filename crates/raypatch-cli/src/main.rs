@@ -9,29 +9,21 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    metrics, write_atomic, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs, Region, Request,
-    SceneData, SceneSource,
+    metrics, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs, Region, Request, SceneData,
+    SceneSource,
 };
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 
-/// The bundled model and scene rendered when none is given (the trained RP-SRT k=4 and a held-out test scene,
-/// see docs/QUALITY.md), relative to the repository root.
-const DEFAULT_MODEL: &str = "assets/models/rpsrt_k4.safetensors";
-const DEFAULT_SCENE: &str = "assets/scenes/scene-2000000.safetensors";
+/// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
+/// that it renders them wherever it is installed.
+const DEFAULT_MODEL: (&str, &[u8]) =
+    ("assets/models/rpsrt_k4.safetensors", include_bytes!("../../../assets/models/rpsrt_k4.safetensors"));
+const DEFAULT_SCENE: (&str, &[u8]) =
+    ("assets/scenes/scene-2000000.safetensors", include_bytes!("../../../assets/scenes/scene-2000000.safetensors"));
 const DEFAULT_OUT: &str = "render.png";
-
-/// A bundled file: relative to the current folder when run from the repository root, else in the repository
-/// this binary was built from.
-fn bundled(relative: &str) -> PathBuf {
-    let here = PathBuf::from(relative);
-    if here.exists() {
-        return here;
-    }
-    let root =
-        Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).expect("crates/raypatch-cli is two levels deep");
-    root.join(relative)
-}
+/// Most renders one run makes (turntable frames, repeats): each takes at least milliseconds of GPU time.
+const MAX_RENDERS: usize = 100_000;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -42,11 +34,11 @@ fn bundled(relative: &str) -> PathBuf {
 )]
 struct Args {
     /// Model file (safetensors with the official key names and the config in its metadata) [default: the
-    /// bundled assets/golden/rpsrt_k4/model.safetensors].
+    /// bundled assets/models/rpsrt_k4.safetensors, built into this binary].
     #[arg(long, value_name = "FILE")]
     model: Option<PathBuf>,
     /// Scene: a scene safetensors file (docs/FORMATS.md), or a folder of PNGs with a NeRF-style transforms.json
-    /// [default: the bundled assets/golden/rpsrt_k4/scene.safetensors].
+    /// [default: the bundled assets/scenes/scene-2000000.safetensors, built into this binary].
     #[arg(long, value_name = "PATH")]
     scene: Option<PathBuf>,
     /// Input views to encode: comma-separated indices or `all` [default: all of a scene file's inputs; for a
@@ -65,14 +57,15 @@ struct Args {
     #[arg(long, value_name = "FILE")]
     pose: Option<PathBuf>,
     /// Render a turntable of N frames (360/N degrees apart, about the world z axis) of the first target camera.
-    #[arg(long, value_name = "N", conflicts_with = "pose")]
+    #[arg(long, value_name = "N", conflicts_with = "pose", value_parser = parse_count)]
     orbit_frames: Option<usize>,
-    /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder (view_000.png
-    /// per target view, frame_000.png per turntable frame, render.png for one novel view).
+    /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder: a name
+    /// without extension or an existing folder (view_000.png per target view, frame_000.png per turntable
+    /// frame, render.png for one novel view).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
-    /// Safetensors file to write the raw outputs into: `rgb` [T,H,W,3] f32 after the sigmoid, and `logdepth`
-    /// [T,H,W] with --logdepth.
+    /// `.safetensors` file to write the raw outputs into: `rgb` [T,H,W,3] f32 after the sigmoid, and
+    /// `logdepth` [T,H,W] with --logdepth.
     #[arg(long, value_name = "FILE")]
     out_raw: Option<PathBuf>,
     /// Also compute the log-depth (models with 4 output channels) and write it into --out-raw.
@@ -91,17 +84,28 @@ struct Args {
     #[arg(long)]
     list_adapters: bool,
     /// Largest GPU buffer to use, in MiB (default: the adapter's limit); larger renders run in row bands.
-    #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(1..=MAX_BUFFER_MIB))]
     max_buffer_mib: Option<u64>,
     /// Print load, encode and render times and the planned peak GPU memory.
     #[arg(long)]
     timings: bool,
     /// Render this many times more after the first render and report the median (with --timings).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = parse_count)]
     repeat: usize,
     /// Time every op of the encode and render plans (run one by one) and print the slowest.
     #[arg(long)]
     profile: bool,
+}
+
+/// Largest --max-buffer-mib (1 TiB): above any adapter's binding limit.
+const MAX_BUFFER_MIB: u64 = 1 << 20;
+
+/// A count of renders, 0 to [`MAX_RENDERS`].
+fn parse_count(text: &str) -> Result<usize, String> {
+    match text.trim().parse::<usize>() {
+        Ok(n) if n <= MAX_RENDERS => Ok(n),
+        _ => Err(format!("expected a whole number from 0 to {MAX_RENDERS}")),
+    }
 }
 
 fn parse_region(text: &str) -> Result<Region, String> {
@@ -122,7 +126,16 @@ fn main() -> ExitCode {
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("render-frame: error: {}", one_line(&e));
+            let too_large = e.chain().any(|c| {
+                matches!(
+                    c.downcast_ref(),
+                    Some(raypatch::Error::Engine(raypatch::raypatch_engine::EngineError::TooLarge { .. }))
+                )
+            });
+            match args.max_buffer_mib.filter(|_| too_large) {
+                Some(mib) => eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", one_line(&e)),
+                None => eprintln!("render-frame: error: {}", one_line(&e)),
+            }
             ExitCode::from(2)
         }
     }
@@ -173,20 +186,25 @@ struct Shot {
 
 fn run(args: &Args) -> Result<()> {
     if args.list_adapters {
-        for adapter in Engine::adapters() {
-            println!("{adapter}");
+        for (i, adapter) in Engine::adapters().iter().enumerate() {
+            println!("{adapter}{}", if i == 0 { "  [default]" } else { "" });
         }
         return Ok(());
     }
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let max_buffer_bytes = args.max_buffer_mib.map(|mib| mib << 20);
     let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes }).context("--adapter")?;
-    let model_path = args.model.clone().unwrap_or_else(|| bundled(DEFAULT_MODEL));
-    let scene_path = args.scene.clone().unwrap_or_else(|| bundled(DEFAULT_SCENE));
     let start = Instant::now();
-    let model = engine.load(&model_path)?;
+    let model = match &args.model {
+        Some(path) => engine.load(path)?,
+        None => engine.load_bytes(DEFAULT_MODEL.0, DEFAULT_MODEL.1)?,
+    };
     let load_time = start.elapsed();
-    let data = SceneData::load(&scene_path)?;
+    let data = match &args.scene {
+        Some(path) => SceneData::load(path)?,
+        None => SceneData::from_bytes(DEFAULT_SCENE.0, DEFAULT_SCENE.1)?,
+    };
+    let scene_path = args.scene.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_SCENE.0));
 
     let frames = matches!(data.source, SceneSource::Frames(_));
     let default_view = if frames { data.targets.len() - 1 } else { 0 };
@@ -207,6 +225,15 @@ fn run(args: &Args) -> Result<()> {
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
     let shots = shots(args, &data, &views)?;
+    let output_files = check_outputs(args, &shots, &data)?;
+    let mut warnings = model.check_inputs(&inputs)?;
+    for shot in &shots {
+        warnings.extend(model.check_camera(&shot.camera).with_context(|| shot.label.clone())?);
+    }
+    warnings.dedup();
+    for warning in &warnings {
+        eprintln!("render-frame: warning: {warning}");
+    }
     if args.metrics && shots.iter().any(|s| s.truth.is_none()) {
         bail!(
             "--metrics: needs target views with ground-truth images (scene `target_images`, or frames), \
@@ -226,7 +253,6 @@ fn run(args: &Args) -> Result<()> {
         scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
     }
     let plan_time = start.elapsed();
-    check_outputs(args, &shots)?;
     let progress = if args.orbit_frames.is_some() {
         let bar = ProgressBar::new(shots.len() as u64);
         bar.set_style(
@@ -254,26 +280,13 @@ fn run(args: &Args) -> Result<()> {
 
     let images: Vec<Image> = rendered.iter().map(|r| r.rgb.clone().expect("rgb is always requested")).collect();
     let metric_lines = if args.metrics { metrics_report(&shots, &images, request.region)? } else { Vec::new() };
-    let mut written = Vec::new();
-    let write_all = |written: &mut Vec<PathBuf>| -> Result<()> {
-        for (shot, image) in shots.iter().zip(&images) {
-            image.save_png(&shot.png)?;
-            written.push(shot.png.clone());
-        }
-        if let Some(path) = &args.out_raw {
-            let depths = rendered.iter().map(|r| r.logdepth.clone()).collect::<Option<Vec<_>>>();
-            write_raw(path, &images, depths)?;
-            written.push(path.clone());
-        }
-        Ok(())
-    };
-    if let Err(e) = write_all(&mut written) {
-        // Leave nothing of a run that failed half-way.
-        for path in &written {
-            let _ = std::fs::remove_file(path);
-        }
-        return Err(e);
+    let mut contents = images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?;
+    if args.out_raw.is_some() {
+        let depths = rendered.iter().map(|r| r.logdepth.clone()).collect::<Option<Vec<_>>>();
+        contents.push(raw_bytes(&images, depths)?);
     }
+    output_files.write(&contents)?;
+    let written = &output_files.files;
 
     let k = model.patch_size();
     let first = &images[0];
@@ -334,6 +347,15 @@ fn run(args: &Args) -> Result<()> {
         print_profile("encode", &model.profile_encode(&inputs)?);
         print_profile("render", &scene.profile_render(&shots[0].camera, &request)?);
     }
+    // On stderr, after the run, so that a failing run still prints exactly one line.
+    let adapter = engine.adapter_details();
+    if !adapter.is_gpu() {
+        eprintln!(
+            "render-frame: note: ran on {} ({} adapter, {} backend), not a GPU: rendering is slow \
+             (--list-adapters shows what wgpu found)",
+            adapter.name, adapter.kind, adapter.backend
+        );
+    }
     Ok(())
 }
 
@@ -356,7 +378,14 @@ fn summary(times: &[Duration]) -> String {
 
 /// The images to render: the chosen target views, or novel cameras made from the first of them.
 fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
-    let folder = args.out.extension().is_none_or(|e| !e.eq_ignore_ascii_case("png"));
+    let folder = match args.out.extension() {
+        Some(e) if e.eq_ignore_ascii_case("png") => false,
+        Some(_) if !args.out.is_dir() => bail!(
+            "--out {}: expected a .png file, or a folder (a name without extension, or an existing folder)",
+            args.out.display()
+        ),
+        _ => true,
+    };
     let reference = &data.targets[views[0]].camera;
     if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
         bail!("--orbit {degrees}: expected a finite angle in degrees");
@@ -400,29 +429,79 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
     Ok(shots)
 }
 
-/// Fails before any GPU work when an output cannot be written: the folder must exist (or be creatable, for
-/// an --out folder) and accept a new file.
-fn check_outputs(args: &Args, shots: &[Shot]) -> Result<()> {
-    let folder_of =
-        |path: &Path| path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
-    let mut checks: Vec<(String, PathBuf)> = shots.iter().map(|s| ("--out".to_string(), folder_of(&s.png))).collect();
+/// The files a run writes (PNGs, then the raw outputs), checked before any GPU work, written all or none.
+struct OutputFiles {
+    files: Vec<PathBuf>,
+    /// An --out folder to create when writing, and to remove again if the writes fail.
+    new_folder: Option<PathBuf>,
+}
+
+impl OutputFiles {
+    fn write(&self, contents: &[Vec<u8>]) -> Result<()> {
+        if let Some(folder) = &self.new_folder {
+            std::fs::create_dir(folder)
+                .with_context(|| format!("--out {}: cannot create the folder", folder.display()))?;
+        }
+        let files: Vec<(&Path, &[u8])> =
+            self.files.iter().map(PathBuf::as_path).zip(contents.iter().map(Vec::as_slice)).collect();
+        let written = raypatch::write_all_atomic(&files);
+        if let (Err(_), Some(folder)) = (&written, &self.new_folder) {
+            let _ = std::fs::remove_dir(folder);
+        }
+        Ok(written?)
+    }
+}
+
+/// Where a path points, for comparing outputs with each other and with the inputs: the canonical folder
+/// joined with the file name (the file itself may not exist yet).
+fn identity(path: &Path) -> PathBuf {
+    let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());
+    folder.join(path.file_name().unwrap_or_default())
+}
+
+/// Fails before any GPU work when an output cannot be written: its folder must exist (or be creatable, for
+/// an --out folder), anything already at its path must be a regular file, and no output may be another
+/// output or one of the inputs.
+fn check_outputs(args: &Args, shots: &[Shot], data: &SceneData) -> Result<OutputFiles> {
+    let mut named: Vec<(&str, PathBuf)> = shots.iter().map(|s| ("--out", s.png.clone())).collect();
     if let Some(path) = &args.out_raw {
-        checks.push(("--out-raw".into(), folder_of(path)));
-    }
-    checks.dedup();
-    for (flag, dir) in checks {
-        if flag == "--out" && dir == args.out && !dir.exists() {
-            std::fs::create_dir_all(&dir)
-                .with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
+        if path.extension().is_none_or(|e| !e.eq_ignore_ascii_case("safetensors")) {
+            bail!("--out-raw {}: expected a file name ending in .safetensors", path.display());
         }
-        if !dir.is_dir() {
-            bail!("{flag}: folder {} does not exist", dir.display());
-        }
-        let probe = dir.join(format!(".render-frame-probe-{}", std::process::id()));
-        std::fs::write(&probe, b"").with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
-        std::fs::remove_file(&probe).with_context(|| format!("{flag}: cannot write into folder {}", dir.display()))?;
+        named.push(("--out-raw", path.clone()));
     }
-    Ok(())
+    let out_is_folder = shots.iter().any(|s| s.png.parent() == Some(args.out.as_path()));
+    let new_folder = (out_is_folder && !args.out.exists()).then(|| args.out.clone());
+    if let Some(folder) = &new_folder {
+        let parent = folder.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        if !parent.is_dir() {
+            bail!("--out {}: cannot create the folder: {} is not a folder", folder.display(), parent.display());
+        }
+    }
+    let mut inputs: Vec<(String, PathBuf)> = data.files.iter().map(|f| ("--scene".to_string(), identity(f))).collect();
+    for (flag, path) in [("--model", &args.model), ("--pose", &args.pose)] {
+        if let Some(path) = path {
+            inputs.push((flag.to_string(), identity(path)));
+        }
+    }
+    let mut seen: Vec<(&str, PathBuf)> = Vec::new();
+    for (flag, path) in &named {
+        let id = identity(path);
+        if let Some((other, _)) = seen.iter().find(|(_, p)| *p == id) {
+            bail!("{flag} {}: the same file as an output of {other}", path.display());
+        }
+        if let Some((input, _)) = inputs.iter().find(|(_, p)| *p == id) {
+            bail!("{flag} {}: would overwrite the input given by {input}", path.display());
+        }
+        if new_folder.as_deref() != path.parent() {
+            raypatch::check_output_path(path).with_context(|| flag.to_string())?;
+        } else if std::fs::symlink_metadata(path).is_ok() {
+            bail!("{flag} {}: exists", path.display());
+        }
+        seen.push((flag, id));
+    }
+    Ok(OutputFiles { files: named.into_iter().map(|(_, p)| p).collect(), new_folder })
 }
 
 /// PSNR and SSIM of each rendered view against its ground truth (cropped to the region), and their means.
@@ -459,8 +538,8 @@ fn print_profile(what: &str, ops: &OpTimes) {
     }
 }
 
-/// Writes `rgb` [T,H,W,3] and, when given, `logdepth` [T,H,W] (one `Vec` per view).
-fn write_raw(path: &Path, images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Result<()> {
+/// A safetensors file of `rgb` [T,H,W,3] and, when given, `logdepth` [T,H,W] (one `Vec` per view).
+fn raw_bytes(images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Result<Vec<u8>> {
     let (h, w) = (images[0].height(), images[0].width());
     let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![(
         "rgb".into(),
@@ -475,8 +554,7 @@ fn write_raw(path: &Path, images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Re
         .map(|(name, bytes, shape)| Ok((name.clone(), TensorView::new(Dtype::F32, shape.clone(), bytes)?)))
         .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
     let metadata = HashMap::from([("format".to_string(), "raypatch-frame/1".to_string())]);
-    let bytes = safetensors::serialize(views, Some(metadata))?;
-    Ok(write_atomic(path, &bytes)?)
+    Ok(safetensors::serialize(views, Some(metadata))?)
 }
 
 fn f32_bytes(values: impl Iterator<Item = f32>) -> Vec<u8> {

@@ -1,121 +1,16 @@
 //! render-frame as a subprocess: good runs write what they say; every bad input exits with code 2, one line
 //! on stderr naming the file, tensor or flag and what was expected, and leaves no output file behind.
 
-use std::collections::{BTreeMap, HashMap};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
+use std::path::Path;
+
+use common::*;
 use glam::DMat4;
 use raypatch::raypatch_model::TensorFile;
 use raypatch::{Camera, Image};
-use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 use tempfile::TempDir;
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).unwrap().to_path_buf()
-}
-
-fn golden(case: &str, file: &str) -> String {
-    root().join("assets/golden").join(case).join(file).display().to_string()
-}
-
-struct Run {
-    code: i32,
-    stdout: String,
-    stderr: String,
-}
-
-/// Runs render-frame in `dir` with `args`.
-fn run(dir: &Path, args: &[&str]) -> Run {
-    let out = Command::new(env!("CARGO_BIN_EXE_render-frame")).args(args).current_dir(dir).output().unwrap();
-    Run {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
-}
-
-/// Every file under `dir`, relative.
-fn files(dir: &Path) -> Vec<String> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
-        let name = path.strip_prefix(dir).unwrap().display().to_string();
-        if path.is_dir() {
-            found.extend(files(&path).into_iter().map(|f| format!("{name}/{f}")));
-        }
-        found.push(name);
-    }
-    found.sort();
-    found
-}
-
-/// Runs a bad input in `dir` and checks: exit code 2, one stderr line containing each of `expected`, and no
-/// file created in `dir`.
-fn fails(dir: &Path, args: &[&str], expected: &[&str]) {
-    let before = files(dir);
-    let r = run(dir, args);
-    assert_eq!(r.code, 2, "{args:?}: exit code {} (stderr: {})", r.code, r.stderr);
-    let lines: Vec<&str> = r.stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert!(lines.len() == 1 || lines[0].starts_with("error:"), "{args:?}: not one line: {:?}", r.stderr);
-    for text in expected {
-        assert!(r.stderr.contains(text), "{args:?}: {:?} does not mention {text:?}", r.stderr);
-    }
-    assert!(!r.stderr.contains("panicked"), "{args:?}: panicked: {}", r.stderr);
-    assert_eq!(files(dir), before, "{args:?}: files were left behind");
-}
-
-fn png_size(path: &Path) -> (usize, usize) {
-    let image = Image::load_png(path).unwrap();
-    (image.width(), image.height())
-}
-
-/// The tensors of a safetensors file as (name, dtype, shape, bytes), in name order.
-type Tensors = BTreeMap<String, (Dtype, Vec<usize>, Vec<u8>)>;
-
-fn read_f32_tensors(path: &str) -> (Tensors, HashMap<String, String>) {
-    let file = TensorFile::open(Path::new(path)).unwrap();
-    let tensors = file
-        .keys()
-        .map(|k| {
-            let t = file.f32(k).unwrap();
-            (k.to_string(), (Dtype::F32, t.shape, t.data.iter().flat_map(|v| v.to_le_bytes()).collect()))
-        })
-        .collect();
-    (tensors, file.metadata.clone())
-}
-
-fn write_tensors(path: &Path, tensors: &Tensors, metadata: &HashMap<String, String>) {
-    let views: Vec<(String, TensorView)> = tensors
-        .iter()
-        .map(|(name, (dtype, shape, bytes))| (name.clone(), TensorView::new(*dtype, shape.clone(), bytes).unwrap()))
-        .collect();
-    std::fs::write(path, safetensors::serialize(views, Some(metadata.clone())).unwrap()).unwrap();
-}
-
-/// A copy of a scene or model file with `edit` applied to its tensors, written into `dir`.
-fn edited(dir: &Path, source: &str, name: &str, edit: impl FnOnce(&mut Tensors)) -> String {
-    let (mut tensors, metadata) = read_f32_tensors(source);
-    edit(&mut tensors);
-    let path = dir.join(name);
-    write_tensors(&path, &tensors, &metadata);
-    path.display().to_string()
-}
-
-fn set_f32(tensors: &mut Tensors, key: &str, index: usize, value: f32) {
-    tensors.get_mut(key).unwrap().2[4 * index..4 * index + 4].copy_from_slice(&value.to_le_bytes());
-}
-
-/// A safetensors file whose header is `header` (JSON) followed by `data`.
-fn raw_file(dir: &Path, name: &str, header: &str, data: &[u8]) -> String {
-    let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
-    bytes.extend_from_slice(header.as_bytes());
-    bytes.extend_from_slice(data);
-    let path = dir.join(name);
-    std::fs::write(&path, bytes).unwrap();
-    path.display().to_string()
-}
 
 #[test]
 fn no_arguments_renders_the_bundled_scene_into_render_png() {
@@ -216,26 +111,6 @@ fn novel_views_turntables_poses_and_depth() {
     let r = run(dir.path(), &["--list-adapters"]);
     assert_eq!(r.code, 0);
     assert!(!r.stdout.trim().is_empty());
-}
-
-/// A folder of `count` frames (32x24 PNGs) with MSN cameras written as NeRF poses in transforms.json.
-fn frames_folder(dir: &Path, count: usize) -> PathBuf {
-    let folder = dir.join("frames");
-    std::fs::create_dir_all(&folder).unwrap();
-    let mut frames = Vec::new();
-    for i in 0..count {
-        let angle = (40.0 + 70.0 * i as f64).to_radians();
-        let position = glam::DVec3::new(7.0 * angle.cos(), 7.0 * angle.sin(), 2.5);
-        let (_, cv) = Camera::msn(position, 32, 24).unwrap().as_pinhole().unwrap();
-        let gl = DMat4::from_cols(cv.x_axis, -cv.y_axis, -cv.z_axis, cv.w_axis);
-        let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
-        frames.push(serde_json::json!({ "file_path": format!("./r_{i}"), "transform_matrix": rows }));
-        let pixels = (0..32 * 24 * 3).map(|v| ((v * (i + 3)) % 256) as f32 / 255.0).collect();
-        Image::new(32, 24, pixels).unwrap().save_png(folder.join(format!("r_{i}.png"))).unwrap();
-    }
-    let transforms = serde_json::json!({ "camera_angle_x": 2.0 * (0.016f64 / 0.035).atan(), "frames": frames });
-    std::fs::write(folder.join("transforms.json"), serde_json::to_string_pretty(&transforms).unwrap()).unwrap();
-    folder
 }
 
 #[test]
@@ -384,7 +259,7 @@ fn wrong_tensors_in_scenes_and_models() {
         r.1 = vec![2, 32, 42, 3];
         r.2.truncate(2 * 32 * 42 * 12);
     });
-    fails(d, &["--scene", &f], &["target", "32x42", "not divisible by the model's patch size k=4"]);
+    fails(d, &["--scene", &f], &["target", "42x32 (width x height)", "not divisible by the model's patch size k=4"]);
 }
 
 #[test]
@@ -417,7 +292,7 @@ fn bad_cameras_and_frames() {
     Image::new(16, 24, vec![0.5; 16 * 24 * 3]).unwrap().save_png(folder.join("r_2.png")).unwrap();
     fails(d, &["--scene", &scene], &["transforms.json", "frame 2 (./r_2) is 16x24, frame 0 is 32x24", "same size"]);
     std::fs::remove_file(folder.join("r_2.png")).unwrap();
-    fails(d, &["--scene", &scene], &["r_2.png", "cannot read"]);
+    fails(d, &["--scene", &scene], &["r_2.png", "no such file in the scene folder"]);
     std::fs::write(folder.join("r_2.png"), b"not a png").unwrap();
     fails(d, &["--scene", &scene], &["r_2.png", "not a readable PNG"]);
     std::fs::write(folder.join("transforms.json"), r#"{"frames": []}"#).unwrap();

@@ -10,6 +10,8 @@ pub enum EngineError {
     TooLarge { what: String, bytes: u64, max: u64 },
     #[error(transparent)]
     Model(#[from] raypatch_model::ModelError),
+    #[error("{what}: values first become NaN or infinity in op `{op}` (tensor `{tensor}`): the model's weights or the inputs overflow float32 there")]
+    NonFinite { what: String, op: String, tensor: String },
     #[error("invalid request: {0}")]
     Request(String),
 }

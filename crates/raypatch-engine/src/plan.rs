@@ -88,7 +88,7 @@ impl TensorInfo {
         self.dtype.row_bytes(self.cols) as u64
     }
     fn bytes(&self) -> u64 {
-        self.rows as u64 * self.row_bytes()
+        (self.rows as u64).saturating_mul(self.row_bytes())
     }
 }
 
@@ -96,6 +96,8 @@ impl TensorInfo {
 pub struct PlanBuilder {
     tensors: Vec<TensorInfo>,
     ops: Vec<Op>,
+    /// The first tensor too large for the kernels' u32 element offsets: [`build`](Self::build) reports it.
+    unindexable: Option<(String, u64)>,
 }
 
 impl PlanBuilder {
@@ -104,7 +106,11 @@ impl PlanBuilder {
     }
 
     fn add(&mut self, name: &str, rows: usize, cols: usize, dtype: Dtype, storage: Storage) -> TensorId {
-        self.tensors.push(TensorInfo { name: name.to_string(), rows, cols, dtype, storage });
+        let info = TensorInfo { name: name.to_string(), rows, cols, dtype, storage };
+        if rows.saturating_mul(dtype.ld(cols)) > u32::MAX as usize && self.unindexable.is_none() {
+            self.unindexable = Some((info.name.clone(), info.bytes()));
+        }
+        self.tensors.push(info);
         TensorId(self.tensors.len() - 1)
     }
 
@@ -150,6 +156,12 @@ impl PlanBuilder {
         View { id, row_start, rows }
     }
 
+    /// Whether a tensor of the plan is too large to index; kernel wrappers record nothing more then, and
+    /// [`build`](Self::build) fails with [`EngineError::TooLarge`].
+    pub fn failed(&self) -> bool {
+        self.unindexable.is_some()
+    }
+
     pub fn push(&mut self, op: Op) {
         self.ops.push(op);
     }
@@ -164,7 +176,10 @@ impl PlanBuilder {
     }
 
     pub fn build(self, gpu: &Gpu) -> Result<Plan> {
-        let PlanBuilder { tensors, ops } = self;
+        let PlanBuilder { tensors, ops, unindexable } = self;
+        if let Some((what, bytes)) = unindexable {
+            return Err(EngineError::TooLarge { what, bytes, max: gpu.max_buffer_bytes });
+        }
         let storage_align = gpu.limits.min_storage_buffer_offset_alignment as u64;
         let uniform_align = gpu.limits.min_uniform_buffer_offset_alignment as u64;
 
@@ -428,20 +443,52 @@ impl Plan {
     /// Runs the ops one submit at a time and reads back every tensor each op wrote, in order.
     pub fn execute_debug(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
         let mut outputs = Vec::new();
+        self.run_debug(gpu, |output| {
+            outputs.push(output);
+            true
+        })?;
+        Ok(outputs)
+    }
+
+    /// Runs the ops one at a time and returns the first op output holding NaN or infinity, if any: where a
+    /// render that came out non-finite went wrong.
+    pub fn first_non_finite(&self, gpu: &Gpu) -> Result<Option<OpOutput>> {
+        let mut found = None;
+        self.run_debug(gpu, |output| {
+            if output.data.iter().all(|v| v.is_finite()) {
+                return true;
+            }
+            found = Some(output);
+            false
+        })?;
+        Ok(found)
+    }
+
+    /// Runs the ops one submit at a time, handing what each wrote to `visit` until it returns false.
+    fn run_debug(&self, gpu: &Gpu, mut visit: impl FnMut(OpOutput) -> bool) -> Result<()> {
         for op in &self.ops {
             self.record(gpu, std::slice::from_ref(op));
             for view in &op.written {
                 let (name, _, cols, _) = &self.infos[view.id.0];
                 let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
-                outputs.push(OpOutput {
-                    op: op.label.clone(),
-                    tensor: name.clone(),
-                    rows: view.rows,
-                    cols: *cols,
-                    data,
-                });
+                let output =
+                    OpOutput { op: op.label.clone(), tensor: name.clone(), rows: view.rows, cols: *cols, data };
+                if !visit(output) {
+                    return Ok(());
+                }
             }
         }
-        Ok(outputs)
+        Ok(())
+    }
+
+    /// Checks values read back from this plan: when any is NaN or infinity, finds the op where they first
+    /// appear and reports it (`what` names the render or encode).
+    pub fn check_finite(&self, gpu: &Gpu, what: &str, values: &[f32]) -> Result<()> {
+        if values.iter().all(|v| v.is_finite()) {
+            return Ok(());
+        }
+        let culprit = self.first_non_finite(gpu)?;
+        let (op, tensor) = culprit.map_or(("(not reproduced op by op)".into(), "?".into()), |o| (o.op, o.tensor));
+        Err(EngineError::NonFinite { what: what.to_string(), op, tensor })
     }
 }

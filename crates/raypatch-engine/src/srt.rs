@@ -346,7 +346,16 @@ impl Model {
             })
             .collect();
 
-        let plan = b.build(gpu)?;
+        let plan = b.build(gpu).map_err(|e| match e {
+            EngineError::TooLarge { what, bytes, max } => EngineError::TooLarge {
+                what: format!(
+                    "encoding {n} input view(s) of {width}x{height} (too many input views, or too large): {what}"
+                ),
+                bytes,
+                max,
+            },
+            other => other,
+        })?;
         let mut host_input = vec![0.0f32; pixels * in_dim];
         for (row, rgb) in host_input.chunks_exact_mut(in_dim).zip(inputs.images.chunks_exact(3)) {
             row[..3].copy_from_slice(rgb);
@@ -361,6 +370,7 @@ impl Model {
             gpu.wait()?;
             Vec::new()
         };
+        plan.check_finite(gpu, "encode", &gpu.read(&plan.tensor(latent))?)?;
         let scene = EncodedScene {
             model: self,
             latent: plan.tensor(latent),
@@ -423,6 +433,9 @@ impl EncodedScene<'_> {
         graph.plan.execute(gpu);
         let read = |id: Option<TensorId>| id.map(|id| gpu.read(&graph.plan.tensor(id))).transpose();
         let (rgb, logdepth) = (read(graph.ids.rgb)?, read(graph.ids.logdepth)?);
+        for values in [&rgb, &logdepth].into_iter().flatten() {
+            graph.plan.check_finite(gpu, "render", values)?;
+        }
         let region = crop.region;
         Ok(Frame {
             views: targets.count,
@@ -507,11 +520,9 @@ impl EncodedScene<'_> {
         }
         let full = Region { x: 0, y: 0, width: image.width, height: image.height };
         let region = request.region.unwrap_or(full);
-        if region.width == 0
-            || region.height == 0
-            || region.x + region.width > image.width
-            || region.y + region.height > image.height
-        {
+        let inside =
+            |start: usize, len: usize, size: usize| len > 0 && start.checked_add(len).is_some_and(|end| end <= size);
+        if !inside(region.x, region.width, image.width) || !inside(region.y, region.height, image.height) {
             return Err(EngineError::Request(format!(
                 "region x={} y={} width={} height={} is empty or not inside the {}x{} (width x height) image",
                 region.x, region.y, region.width, region.height, image.width, image.height

@@ -16,6 +16,39 @@ pub struct Octaves {
     pub end: Option<f64>,
 }
 
+impl Octaves {
+    /// Multiplier `i`: 2^(start + i)·π, or the `i`-th linspace value from start to end, times π.
+    pub fn multiplier(&self, i: usize) -> f64 {
+        let octave = match self.end {
+            None => (self.start + i as f64).exp2(),
+            Some(end) if self.count > 1 => self.start + (end - self.start) * i as f64 / (self.count - 1) as f64,
+            Some(_) => self.start,
+        };
+        octave * std::f64::consts::PI
+    }
+
+    /// The largest multiplier in magnitude (they are monotonic, so the first or the last).
+    pub fn max_multiplier(&self) -> f64 {
+        let last = self.count.saturating_sub(1);
+        self.multiplier(0).abs().max(self.multiplier(last).abs())
+    }
+
+    /// The first multiplier that is not a normal finite float32, if any: one that overflows makes every
+    /// encoding NaN, one that underflows encodes nothing.
+    pub fn multipliers_out_of_f32_range(&self) -> Option<f64> {
+        // A linspace may start at 0; a power of two never reaches it.
+        let normal = |m: f64| {
+            (m == 0.0 && self.end.is_some()) || (f32::MIN_POSITIVE as f64..=f32::MAX as f64).contains(&m.abs())
+        };
+        [0, self.count.saturating_sub(1)].into_iter().map(|i| self.multiplier(i)).find(|&m| !normal(m))
+    }
+}
+
+/// Most encoder conv blocks: each halves the image, so 14 take the largest accepted image to one pixel.
+pub const MAX_CONV_BLOCKS: usize = 14;
+/// Widest layer accepted: a square weight of this width alone would be 4 TiB.
+pub const MAX_WIDTH: usize = 1 << 20;
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct EncoderConfig {
     pub num_conv_blocks: usize,
@@ -262,7 +295,7 @@ impl ModelConfig {
             ("decoder_kwargs.heads", d.heads),
             ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
             ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
-            ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count + d.ray_octaves.count),
+            ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count.saturating_add(d.ray_octaves.count)),
         ];
         for (key, value) in positive {
             if value == 0 {
@@ -284,6 +317,44 @@ impl ModelConfig {
                 path,
                 format!("`encoder_kwargs.num_octaves` is {}; at most 32 are supported", e.pos_octaves.count),
             ));
+        }
+        // Counts and widths beyond these cannot be real models (no weight or image could be stored), and
+        // bounding them keeps every size computed from them far from integer overflow.
+        if e.num_conv_blocks > MAX_CONV_BLOCKS {
+            return Err(config_err(
+                path,
+                format!("`encoder_kwargs.num_conv_blocks` is {}; at most {MAX_CONV_BLOCKS}", e.num_conv_blocks),
+            ));
+        }
+        let widths = [
+            (
+                "encoder_kwargs.conv_hidden (doubled per conv block)",
+                e.conv_hidden.saturating_mul(1 << e.num_conv_blocks),
+            ),
+            ("encoder_kwargs.token_dim", e.token_dim),
+            ("encoder_kwargs.heads x dim_head", e.heads.saturating_mul(e.dim_head)),
+            ("encoder_kwargs.latent_dim", e.ff_hidden),
+            ("decoder_kwargs.latent_dim", d.kv_dim),
+            ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
+            ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
+            ("rp_kwargs.conv_features", self.ray_patch.as_ref().map_or(0, |rp| rp.conv_features)),
+        ];
+        for (key, width) in widths {
+            if width > MAX_WIDTH {
+                return Err(config_err(path, format!("`{key}` is {width}; at most {MAX_WIDTH} is supported")));
+            }
+        }
+        for (key, octaves) in [
+            ("encoder_kwargs.pos_start_octave", &e.pos_octaves),
+            ("decoder_kwargs.pos_octaves", &d.pos_octaves),
+            ("decoder_kwargs.ray_octaves", &d.ray_octaves),
+        ] {
+            if let Some(m) = octaves.multipliers_out_of_f32_range() {
+                return Err(config_err(
+                    path,
+                    format!("`{key}` gives a Fourier multiplier of {m:e}, outside float32's normal range"),
+                ));
+            }
         }
         if d.dim_head > 128 || e.dim_head > 128 {
             return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
@@ -375,6 +446,26 @@ impl ModelConfig {
             c *= 2;
         }
         widths
+    }
+
+    /// Checks the config's layer counts against a file holding `tensors` tensors, before anything as large as
+    /// a count is built: each layer has at least one tensor, so a count above the file's is a lie.
+    pub fn check_counts(&self, path: &str, tensors: usize) -> Result<(), ModelError> {
+        let counts = [
+            ("encoder_kwargs.num_conv_blocks", self.encoder.num_conv_blocks),
+            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
+            ("decoder_kwargs.num_att_blocks", self.decoder.num_att_blocks),
+            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
+        ];
+        for (key, count) in counts {
+            if count > tensors {
+                return Err(config_err(
+                    path,
+                    format!("`{key}` is {count}, but the file holds only {tensors} tensors (at least one per layer)"),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Every tensor of the official state_dict for this config (without `num_batches_tracked`), in order.

@@ -3,6 +3,7 @@
 
 pub mod config;
 pub mod error;
+pub mod files;
 pub mod layout;
 pub mod scene;
 pub mod tensor_file;

@@ -68,8 +68,19 @@ fn read(file: &TensorFile, key: &str, lead: &[Option<usize>], what: &str) -> Res
     Ok(t)
 }
 
+/// What a scene path must be, for messages.
+const SCENE_FILE: &str = "a scene .safetensors file (docs/FORMATS.md) or a folder with transforms.json";
+
 pub fn load_scene(path: impl AsRef<Path>) -> Result<SceneFile, ModelError> {
-    scene_from_file(&TensorFile::open(path.as_ref())?)
+    let file = TensorFile::open_as(path.as_ref(), SCENE_FILE)?;
+    if !file.contains("input_images") && file.metadata.contains_key("config") {
+        return Err(ModelError::Value {
+            path: file.path.clone(),
+            key: "input_images".into(),
+            reason: format!("missing: this is a model file, expected {SCENE_FILE}"),
+        });
+    }
+    scene_from_file(&file)
 }
 
 pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
@@ -83,13 +94,7 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
             reason: format!("shape {:?}: the scene needs at least one non-empty input view", images.shape),
         });
     }
-    if let Some(i) = images.data.iter().position(|v| !(0.0..=1.0).contains(v)) {
-        return Err(ModelError::Value {
-            path: path.into(),
-            key: "input_images".into(),
-            reason: format!("element {i} is {}, expected values in [0, 1]", images.data[i]),
-        });
-    }
+    check_unit_interval(path, "input_images", &images.data)?;
     let camera_pos = read(file, "input_camera_pos", &[Some(n)], &format!("[{n},3] (one position per input view)"))?;
     let rays = read(file, "input_rays", &[Some(n), Some(h), Some(w)], &format!("[{n},{h},{w},3] (like input_images)"))?;
     check_unit_rays(path, "input_rays", &rays.data)?;
@@ -107,7 +112,9 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
         read(file, "target_rays", &[Some(t), None, None], &format!("[{t},Ht,Wt,3] (one grid per target view)"))?;
     check_unit_rays(path, "target_rays", &target_rays.data)?;
     let target_images = if file.contains("target_images") {
-        Some(read(file, "target_images", &[Some(t), None, None], &format!("[{t},Ht,Wt,3]"))?)
+        let images = read(file, "target_images", &[Some(t), None, None], &format!("[{t},Ht,Wt,3]"))?;
+        check_unit_interval(path, "target_images", &images.data)?;
+        Some(images)
     } else {
         None
     };
@@ -143,6 +150,18 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
     })
 }
 
+/// Images are RGB in [0, 1] (a 0-255 image would give meaningless renders and metrics).
+fn check_unit_interval(path: &str, key: &str, values: &[f32]) -> Result<(), ModelError> {
+    match values.iter().position(|v| !(0.0..=1.0).contains(v)) {
+        None => Ok(()),
+        Some(i) => Err(ModelError::Value {
+            path: path.into(),
+            key: key.into(),
+            reason: format!("element {i} is {}, expected RGB values in [0, 1]", values[i]),
+        }),
+    }
+}
+
 /// Rays are directions; a zero vector cannot be encoded meaningfully and is a sign of a broken file.
 fn check_unit_rays(path: &str, key: &str, rays: &[f32]) -> Result<(), ModelError> {
     for (i, r) in rays.chunks_exact(3).enumerate() {
@@ -172,8 +191,8 @@ impl InputViews {
                 path: path.into(),
                 key: "input_images".into(),
                 reason: format!(
-                    "input size {}x{} is not divisible by {d} (the model's {} conv blocks each halve it)",
-                    self.height, self.width, config.encoder.num_conv_blocks
+                    "input size {}x{} (width x height) is not divisible by {d} (the model's {} conv blocks each halve it)",
+                    self.width, self.height, config.encoder.num_conv_blocks
                 ),
             });
         }
@@ -190,10 +209,14 @@ impl TargetViews {
         let (height, width) = self.declared_size.unwrap_or((rh, rw));
         let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
         if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
-            return Err(err(format!("target size {height}x{width} is not divisible by the model's patch size k={k}")));
+            return Err(err(format!(
+                "target size {width}x{height} (width x height) is not divisible by the model's patch size k={k}"
+            )));
         }
         if height < k || width < k {
-            return Err(err(format!("target size {height}x{width} is smaller than one patch (k={k})")));
+            return Err(err(format!(
+                "target size {width}x{height} (width x height) is smaller than one patch (k={k})"
+            )));
         }
         let rays_are_patches = if (rh, rw) == (height, width) {
             false
@@ -201,9 +224,10 @@ impl TargetViews {
             true
         } else {
             return Err(err(format!(
-                "ray grid {rh}x{rw} matches neither the target size {height}x{width} nor its patch grid {}x{} (k={k})",
-                height / k,
-                width / k
+                "ray grid {rw}x{rh} matches neither the target size {width}x{height} nor its patch grid {}x{} \
+                 (width x height, k={k})",
+                width / k,
+                height / k
             )));
         };
         Ok(TargetGrid { height, width, rays_are_patches })

@@ -7,6 +7,22 @@ use safetensors::{Dtype, SafeTensors};
 
 use crate::error::ModelError;
 
+/// The largest safetensors file read (16 GiB): far above any model this engine can hold on one GPU, and a
+/// bound on what a bad path can make it allocate.
+pub const MAX_TENSOR_FILE_BYTES: u64 = 16 << 30;
+
+/// What a file that is not safetensors looks like, from its first bytes.
+fn sniff(bytes: &[u8]) -> Option<&'static str> {
+    let kinds: [(&[u8], &str); 5] = [
+        (b"\x89PNG", "a PNG image"),
+        (b"\xff\xd8\xff", "a JPEG image"),
+        (b"PK\x03\x04", "a zip archive (a PyTorch checkpoint? convert it with tools/convert_checkpoint.py)"),
+        (b"\x80", "a pickle (a PyTorch checkpoint? convert it with tools/convert_checkpoint.py)"),
+        (b"{", "a JSON file"),
+    ];
+    kinds.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, kind)| *kind)
+}
+
 /// A row-major f32 tensor on the host.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HostTensor {
@@ -31,10 +47,28 @@ pub struct TensorFile {
 }
 
 impl TensorFile {
+    /// Reads and parses a safetensors file (a regular file, see [`crate::files`]).
     pub fn open(path: &Path) -> Result<TensorFile, ModelError> {
         let shown = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: shown.clone(), source })?;
-        Self::parse(&shown, &bytes)
+        Self::parse(&shown, &Self::read(path)?)
+    }
+
+    /// Like [`open`](Self::open), for a file that should be `expected` (e.g. "a model .safetensors file"):
+    /// a file that is not safetensors at all is reported as what it looks like, and what was expected.
+    pub fn open_as(path: &Path, expected: &str) -> Result<TensorFile, ModelError> {
+        let bytes = Self::read(path)?;
+        Self::parse(&path.display().to_string(), &bytes).map_err(|e| match e {
+            ModelError::Format { path, reason } => {
+                let looks_like = sniff(&bytes).map_or(String::new(), |kind| format!("it looks like {kind}; "));
+                ModelError::Format { path, reason: format!("{reason} ({looks_like}expected {expected})") }
+            }
+            other => other,
+        })
+    }
+
+    fn read(path: &Path) -> Result<Vec<u8>, ModelError> {
+        crate::files::read_regular(path, MAX_TENSOR_FILE_BYTES)
+            .map_err(|e| ModelError::Io { path: path.display().to_string(), source: e.into() })
     }
 
     /// Parses file contents; `path` names the file in errors. [`check_layout`](crate::layout::check_layout)

@@ -33,13 +33,15 @@ impl LoadedModel {
 }
 
 pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
-    let file = TensorFile::open(path.as_ref())?;
-    model_from_file(file)
+    model_from_file(TensorFile::open_as(path.as_ref(), "a model .safetensors file (docs/FORMATS.md)")?)
 }
 
 pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
     let path = file.path.clone();
     let config_err = |reason: String| ModelError::Config { path: path.clone(), reason };
+    if !file.metadata.contains_key("config") && file.contains("input_images") {
+        return Err(config_err("this is a scene file, expected a model .safetensors file (docs/FORMATS.md)".into()));
+    }
     if let Some(format) = file.metadata.get("format") {
         if format != MODEL_FORMAT {
             return Err(config_err(format!("metadata format is {format:?}, expected {MODEL_FORMAT:?}")));
@@ -54,6 +56,7 @@ pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
     let raw =
         serde_json::from_str(text).map_err(|e| config_err(format!("`config` metadata is not valid JSON: {e}")))?;
     let config = ModelConfig::from_value(&path, raw)?;
+    config.check_counts(&path, file.keys().count())?;
 
     let expected = config.expected_tensors();
     let mut weights = HashMap::with_capacity(expected.len());

@@ -38,6 +38,9 @@ pub fn attention(
     dim_head: usize,
     scale: f32,
 ) {
+    if plan.failed() {
+        return; // a tensor is too large to index: the plan will not be built
+    }
     let inner = heads * dim_head;
     assert!(heads >= 1, "{label}: attention needs at least one head");
     assert!((1..=MAX_DIM_HEAD).contains(&dim_head), "{label}: dim_head {dim_head} outside 1..={MAX_DIM_HEAD}");
