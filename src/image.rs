@@ -71,8 +71,14 @@ impl Image {
         let path = path.as_ref();
         let bytes = raypatch_model::files::read_regular(path, MAX_PNG_BYTES)
             .map_err(|e| Error::io(path, "cannot read", e.into()))?;
-        let bad = |reason: String| Error::Image { path: path.display().to_string(), reason };
-        let reader = || image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
+        Image::decode_png(&path.display().to_string(), &bytes)
+    }
+
+    /// Decodes the bytes of a PNG file as [`load_png`](Self::load_png) does; `name` stands for the file in
+    /// messages.
+    pub fn decode_png(name: &str, bytes: &[u8]) -> Result<Image> {
+        let bad = |reason: String| Error::Image { path: name.to_string(), reason };
+        let reader = || image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
         let (width, height) = reader().into_dimensions().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
         check_image_size(width as usize, height as usize).map_err(bad)?;
         let mut limits = image::Limits::default();

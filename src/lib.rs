@@ -33,6 +33,8 @@
 mod camera;
 mod dataset;
 mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 mod image;
 pub mod metrics;
 mod output;
