@@ -32,7 +32,8 @@ for t in safetensors_file model_file scene_file frames_folder; do
     echo "fuzz: $t for ${seconds}s"
     # -rss_limit_mb: memory must stay bounded on any input; -timeout: no input may hang.
     status=0
-    cargo +nightly fuzz run --sanitizer none "$t" "$work/$t" -- \
+    # --dev: a debug build (compiles in a fraction of the time, and overflow checks catch more).
+    cargo +nightly fuzz run --dev --sanitizer none "$t" "$work/$t" -- \
         -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=10 -max_len=1048576 -print_final_stats=1 \
         > "$work/$t.log" 2>&1 || status=$?
     grep -E '^stat::(number_of_executed_units|peak_rss_mb)' "$work/$t.log" || true
