@@ -13,6 +13,12 @@ nothing) and instance masks (0 = floor, 1..n = objects in generation order).
 
 A scene is a pure function of its seed (numpy PCG64): it renders to the same bytes alone or in any batch. Seeds
 select the split (SPLITS); docs/FORMATS.md describes the scene and shard files.
+
+For per-scene fitting, --extra-views N writes instead, per seed, views-SEED.safetensors: the scene's view 0 and N
+views from other cameras drawn from the scenes' own camera distribution, none within --exclude-deg of the cameras
+of --exclude-views (default: the scene's target views 1 and 2, which stay held out):
+
+    python3 tools/make_scenes.py --seed 2000000 --count 1 --extra-views 2000 --out /work/data/fit-2000000/train
 """
 
 import argparse
@@ -22,7 +28,7 @@ import struct
 import sys
 import time
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +55,9 @@ SHADOW_OFFSET = 1e-3  # shadow rays start this far off the surface, along the no
 AMBIENT = 0.22
 SKY_COLOUR = np.array((0.75, 0.8, 0.88), np.float32)
 GAMMA = 2.2
+CAMERA_RADIUS = (9.5, 11.5)  # the scenes' camera distance range (uniform)
+CAMERA_ELEVATION = (28.0, 42.0)  # and elevation range in degrees (uniform); azimuths go round the circle
+VIEWS_FORMAT = "raypatch-views/1"
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -133,8 +142,8 @@ def sample_scene(seed):
     floor_colour = hsv_to_rgb(rng.uniform(), rng.uniform(0.0, 0.15), grey)
     light_pos = look_at_positions(rng.uniform(0, 360), rng.uniform(10, 14), rng.uniform(40, 70))[0]
     first_azimuth = rng.uniform(0, 360)
-    camera_pos = look_at_positions(first_azimuth + 120.0 * np.arange(VIEWS), rng.uniform(9.5, 11.5),
-                                   rng.uniform(28, 42))
+    camera_pos = look_at_positions(first_azimuth + 120.0 * np.arange(VIEWS), rng.uniform(*CAMERA_RADIUS),
+                                   rng.uniform(*CAMERA_ELEVATION))
     return SceneSpec(seed, kinds, np.array(centres), np.array(yaws), np.array(sizes), np.array(colours), materials,
                      floor_colour, light_pos.astype(np.float64), camera_pos)
 
@@ -365,7 +374,8 @@ def shade(objects, specs, origins, dirs, t, hit):
 
 
 def camera_rays(specs, height, width):
-    """Unit rays [3, B, VIEWS·height·width] (views, rows, columns) and per-ray origins, float32."""
+    """Unit rays [3, B, V·height·width] (views, rows, columns) and per-ray origins, float32; V is the number of
+    camera positions of each scene (VIEWS for sampled scenes; all scenes of a batch must have the same V)."""
     rays = np.stack([np.stack([get_camera_rays(pos, width, height) for pos in s.camera_pos]) for s in specs])
     origins = np.stack([s.camera_pos for s in specs]).astype(np.float32)
     origins = np.broadcast_to(origins[:, :, None, None, :], rays.shape)
@@ -374,27 +384,87 @@ def camera_rays(specs, height, width):
 
 
 def render(specs, height, width, supersample=1):
-    """Renders the VIEWS views of each scene. Returns images uint8 [B, V, H, W, 3], depth float32 [B, V, H, W],
-    masks uint8 [B, V, H, W] and camera_pos float32 [B, V, 3].
+    """Renders the views of each scene (one per row of its camera_pos: VIEWS for sampled scenes, any V for
+    with_cameras). Returns images uint8 [B, V, H, W, 3], depth float32 [B, V, H, W], masks uint8 [B, V, H, W] and
+    camera_pos float32 [B, V, 3].
 
     With supersample S > 1 the colour of a pixel is the mean over the centres of its S×S sub-pixels (rays of an
     S-times finer camera); depth and masks always come from the pixel-centre rays.
     """
     objects = ObjectTable(specs)
     batch = len(specs)
+    views = len(specs[0].camera_pos)
     dirs, origins = camera_rays(specs, height, width)
     t, hit = trace(objects, origins, dirs)
-    depth = np.where(hit >= 0, t, 0).reshape(batch, VIEWS, height, width)
-    masks = np.where(hit > 0, hit, 0).astype(np.uint8).reshape(batch, VIEWS, height, width)
+    depth = np.where(hit >= 0, t, 0).reshape(batch, views, height, width)
+    masks = np.where(hit > 0, hit, 0).astype(np.uint8).reshape(batch, views, height, width)
     if supersample > 1:
         dirs, origins = camera_rays(specs, height * supersample, width * supersample)
         t, hit = trace(objects, origins, dirs)
     rgb = np.moveaxis(shade(objects, specs, origins, dirs, t, hit), 0, -1)
-    rgb = rgb.reshape(batch, VIEWS, height, supersample, width, supersample, 3).mean((3, 5))
+    rgb = rgb.reshape(batch, views, height, supersample, width, supersample, 3).mean((3, 5))
     display = np.clip(rgb, 0, 1) ** (1 / GAMMA)
     images = np.round(display * 255).astype(np.uint8)
     camera_pos = np.stack([s.camera_pos for s in specs]).astype(np.float32)
     return images, depth.astype(np.float32), masks, camera_pos
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Extra views of one scene (per-scene fitting)
+
+
+def angle_between_deg(a, b):
+    """Angles in degrees between the directions from the origin of positions a [n, 3] and b [m, 3] -> [n, m]."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(a @ b.T, -1, 1)))
+
+
+def extra_cameras(spec, count, camera_seed, exclude_views, exclude_deg, exclude_positions=()):
+    """count camera positions float32 [count, 3] drawn from the scenes' own camera distribution (azimuth uniform
+    round the circle, distance uniform in CAMERA_RADIUS, elevation uniform in CAMERA_ELEVATION), rejecting every
+    one whose direction from the scene centre lies within exclude_deg (> 0) of the scene's views exclude_views or
+    of the cameras exclude_positions [m, 3], so that those views stay held out. A pure function of its arguments."""
+    if exclude_deg <= 0:
+        raise ValueError(f"--exclude-deg {exclude_deg}: must be > 0 (held-out cameras must differ from training ones)")
+    rng = np.random.default_rng([camera_seed, spec.seed])
+    excluded = np.concatenate((spec.camera_pos[list(exclude_views)], np.reshape(exclude_positions, (-1, 3))))
+    chosen = []
+    while len(chosen) < count:
+        positions = look_at_positions(rng.uniform(0, 360, 256), rng.uniform(*CAMERA_RADIUS, 256),
+                                      rng.uniform(*CAMERA_ELEVATION, 256))
+        if len(excluded):
+            positions = positions[angle_between_deg(positions, excluded).min(1) > exclude_deg]
+        chosen.extend(positions[:count - len(chosen)])
+    return np.stack(chosen).astype(np.float32)
+
+
+def render_extra_views(spec, camera_pos, height, width, supersample=1, chunk=32):
+    """The scene of spec seen from any cameras camera_pos [V, 3]: images [V, H, W, 3], depth, masks (as render)."""
+    parts = [render([replace(spec, camera_pos=camera_pos[i:i + chunk])], height, width, supersample)
+             for i in range(0, len(camera_pos), chunk)]
+    return tuple(np.concatenate([part[n][0] for part in parts]) for n in range(3))
+
+
+def write_views(path, spec, images, depth, masks, camera_pos, command, cameras):
+    """A views file: one scene seen from V cameras (docs in tools/README.md), readable by load_views."""
+    metadata = {"format": VIEWS_FORMAT, "seed": str(spec.seed), "split": split_of(spec.seed), "views": str(len(images)),
+                "generator": command, "scene": json.dumps(spec.describe()), "cameras": json.dumps(cameras)}
+    tensors = {"images": images[None], "depth": depth[None], "masks": masks[None], "camera_pos": camera_pos[None]}
+    save_safetensors(path, {name: torch.from_numpy(np.ascontiguousarray(v)) for name, v in tensors.items()},
+                     metadata)
+
+
+def views_strip(images, count=8, scale=3):
+    """The first count views side by side with 2-pixel white gaps."""
+    images = images[:count]
+    height, width = images.shape[1:3]
+    strip = np.full((height, len(images) * (width + 2) - 2, 3), 255, np.uint8)
+    for v, image in enumerate(images):
+        strip[:, v * (width + 2):v * (width + 2) + width] = image
+    return strip.repeat(scale, 0).repeat(scale, 1)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -436,22 +506,25 @@ def write_shard(path, first_seed, images, depth, masks, camera_pos, command):
 
 
 def load_views(folder):
-    """All scenes of a folder of scene files or shards, as arrays over scenes and views: images uint8
-    [S, V, H, W, 3], camera_pos float32 [S, V, 3], seeds int64 [S]. Scene files give V = inputs + targets."""
+    """All scenes of a folder of scene files, shards or views files (--extra-views), as arrays over scenes and
+    views: images uint8 [S, V, H, W, 3], camera_pos float32 [S, V, 3], seeds int64 [S]. Scene files give
+    V = inputs + targets, shards V = VIEWS, views files their view count (all files must agree)."""
     folder = Path(folder)
     shards = sorted(folder.glob("shard-*.safetensors"))
     scenes = sorted(folder.glob("scene-*.safetensors"))
-    if not shards and not scenes:
-        raise ValueError(f"{folder}: no shard-*.safetensors or scene-*.safetensors files")
+    views = sorted(folder.glob("views-*.safetensors"))
+    if not shards and not scenes and not views:
+        raise ValueError(f"{folder}: no shard-*.safetensors, scene-*.safetensors or views-*.safetensors files")
     images, camera_pos, seeds = [], [], []
-    for path in shards:
+    for path, expected in [(p, SHARD_FORMAT) for p in shards] + [(p, VIEWS_FORMAT) for p in views]:
         with safe_open(path, "np") as file:  # reads only the tensors asked for
             metadata = file.metadata()
-            if metadata.get("format") != SHARD_FORMAT:
-                raise ValueError(f"{path}: metadata format is {metadata.get('format')!r}, expected {SHARD_FORMAT!r}")
+            if metadata.get("format") != expected:
+                raise ValueError(f"{path}: metadata format is {metadata.get('format')!r}, expected {expected!r}")
             images.append(file.get_tensor("images"))
             camera_pos.append(file.get_tensor("camera_pos"))
-        seeds.append(int(metadata["first_seed"]) + np.arange(len(images[-1])))
+        first = int(metadata["first_seed"] if expected == SHARD_FORMAT else metadata["seed"])
+        seeds.append(first + np.arange(len(images[-1])))
     for path in scenes:
         with safe_open(path, "np") as file:
             seed = int(file.metadata()["seed"])
@@ -460,6 +533,9 @@ def load_views(folder):
         images.append(np.round(views * 255).astype(np.uint8)[None])
         camera_pos.append(np.concatenate((tensors["input_camera_pos"], tensors["target_camera_pos"]))[None])
         seeds.append(np.array([seed]))
+    if len({image.shape[1:] for image in images}) > 1:
+        raise ValueError(f"{folder}: files with different view counts or sizes "
+                         f"{sorted({image.shape[1:4] for image in images})}")
     return np.concatenate(images), np.concatenate(camera_pos), np.concatenate(seeds)
 
 
@@ -538,17 +614,65 @@ def main(argv=None):
     parser.add_argument("--supersample", type=int, default=1, help="S×S colour samples per pixel (default 1)")
     parser.add_argument("--pngs", type=int, default=16, help="preview sheets for the first N scenes (default 16)")
     parser.add_argument("--batch", type=int, default=32, help="scenes rendered together (memory vs speed)")
+    parser.add_argument("--extra-views", type=int, default=0,
+                        help="instead of scene files: per seed a views file views-SEED.safetensors holding the "
+                             "scene's view 0 and this many views from other cameras (per-scene fitting)")
+    parser.add_argument("--camera-seed", type=int, default=0, help="seed of the --extra-views cameras")
+    parser.add_argument("--exclude-views", default="1,2",
+                        help="scene views whose cameras no extra view may come near (default 1,2: the targets)")
+    parser.add_argument("--exclude-cameras", type=Path,
+                        help="a views file whose extra cameras (views 1..) the extra views keep away from too "
+                             "(a validation set held out like the targets)")
+    parser.add_argument("--exclude-deg", type=float, default=5.0,
+                        help="minimum angle at the scene centre between an extra camera and an excluded one")
     args = parser.parse_args(argv)
     try:
         first_seed = resolve_seeds(args)
-        if args.supersample < 1 or args.batch < 1 or args.shard_size < 0 or args.pngs < 0:
-            raise ValueError("--supersample and --batch must be >= 1, --shard-size and --pngs >= 0")
+        if args.supersample < 1 or args.batch < 1 or args.shard_size < 0 or args.pngs < 0 or args.extra_views < 0:
+            raise ValueError("--supersample and --batch must be >= 1, --shard-size, --pngs and --extra-views >= 0")
+        exclude_views = [int(v) for v in args.exclude_views.split(",") if v.strip()]
+        if any(not 0 <= v < VIEWS for v in exclude_views):
+            raise ValueError(f"--exclude-views {args.exclude_views!r}: views are 0 to {VIEWS - 1}")
+        if args.extra_views and args.exclude_deg <= 0:
+            raise ValueError(f"--exclude-deg {args.exclude_deg}: must be > 0")
+        exclude_positions = np.zeros((0, 3), np.float32)
+        if args.exclude_cameras:
+            with safe_open(args.exclude_cameras, "np") as file:
+                if file.metadata().get("format") != VIEWS_FORMAT:
+                    raise ValueError(f"--exclude-cameras {args.exclude_cameras}: not a {VIEWS_FORMAT} file")
+                exclude_positions = file.get_tensor("camera_pos")[0, 1:]
         args.out.mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError) as error:
         print(f"make_scenes: error: {error}", file=sys.stderr)
         return 2
     command = "python3 tools/make_scenes.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     height, width = args.size
+    if args.extra_views:
+        start = time.perf_counter()
+        for seed in range(first_seed, first_seed + args.count):
+            spec = sample_scene(seed)
+            extra = extra_cameras(spec, args.extra_views, args.camera_seed, exclude_views, args.exclude_deg,
+                                  exclude_positions)
+            camera_pos = np.concatenate((spec.camera_pos[:1], extra)).astype(np.float32)
+            images, depth, masks = render_extra_views(spec, camera_pos, height, width, args.supersample)
+            nearest = angle_between_deg(extra, spec.camera_pos[exclude_views]).min(0) if exclude_views else []
+            cameras = {"view_0": "the scene's view 0 (its input view)",
+                       "extra_views": f"views 1..{args.extra_views}: azimuth uniform in [0, 360), distance uniform "
+                                      f"in {list(CAMERA_RADIUS)}, elevation uniform in {list(CAMERA_ELEVATION)} deg",
+                       "camera_seed": args.camera_seed, "excluded_scene_views": exclude_views,
+                       "exclude_deg": args.exclude_deg,
+                       "nearest_extra_to_excluded_deg": [round(float(a), 3) for a in nearest]}
+            if args.exclude_cameras:
+                cameras["excluded_cameras_of"] = str(args.exclude_cameras)
+                cameras["nearest_extra_to_those_deg"] = round(float(angle_between_deg(extra, exclude_positions).min()), 3)
+            write_views(args.out / f"views-{seed:07d}.safetensors", spec, images, depth, masks, camera_pos, command,
+                        cameras)
+            if seed - first_seed < args.pngs:
+                write_png(args.out / f"views-{seed:07d}.png", views_strip(images))
+        seconds = time.perf_counter() - start
+        print(f"wrote views of {args.count} scenes (view 0 and {args.extra_views} extra views each, {height}x{width}, "
+              f"supersample {args.supersample}) to {args.out} in {seconds:.1f} s")
+        return 0
     group = args.shard_size or args.batch  # scenes rendered and written together
     start = time.perf_counter()
     for group_start in range(first_seed, first_seed + args.count, group):

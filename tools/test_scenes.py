@@ -148,6 +148,68 @@ class SceneTests(unittest.TestCase):
             np.testing.assert_array_equal(from_scenes[2], seed + np.arange(3))
             self.assertTrue((folder / "scenes" / f"scene-{seed:07d}.png").read_bytes().startswith(b"\x89PNG"))
 
+    def test_bundled_scenes_are_what_the_generator_renders(self):
+        """Extending the generator must not change a scene: the bundled files' tensors are regenerated exactly."""
+        bundled = sorted((TOOLS.parent / "assets" / "scenes").glob("scene-*.safetensors"))
+        self.assertTrue(bundled)
+        for path in bundled:
+            with safe_open(path, "np") as file:
+                metadata = file.metadata()
+            spec = make_scenes.sample_scene(int(metadata["seed"]))
+            self.assertEqual(json.loads(metadata["scene"]), json.loads(json.dumps(spec.describe())))
+            stored = load_file(path)
+            images, depth, masks, camera_pos = (x[0] for x in make_scenes.render([spec], 60, 80))
+            fresh = make_scenes.scene_tensors(images, depth, masks, camera_pos, 60, 80)
+            self.assertEqual(set(fresh), set(stored))
+            for name, tensor in fresh.items():
+                np.testing.assert_array_equal(tensor.numpy(), stored[name], err_msg=f"{path.name} {name}")
+
+    def test_extra_views_of_one_scene(self):
+        seed = make_scenes.SPLITS["test"][0] + 3
+        spec = make_scenes.sample_scene(seed)
+        with tempfile.TemporaryDirectory() as folder:
+            folder = Path(folder)
+            common = ["--seed", str(seed), "--count", "1", "--size", "20x24", "--pngs", "1"]
+            self.assertEqual(make_scenes.main(common + ["--extra-views", "4", "--camera-seed", "1", "--exclude-deg",
+                                                        "8", "--out", str(folder / "val")]), 0)
+            val_file = folder / "val" / f"views-{seed:07d}.safetensors"
+            argv = common + ["--extra-views", "50", "--exclude-deg", "8", "--exclude-cameras", str(val_file)]
+            self.assertEqual(make_scenes.main(argv + ["--out", str(folder / "a")]), 0)
+            self.assertEqual(make_scenes.main(argv + ["--out", str(folder / "b")]), 0)
+            path = folder / "a" / f"views-{seed:07d}.safetensors"
+            again = load_file(folder / "b" / path.name)
+            for name, tensor in load_file(path).items():  # deterministic
+                np.testing.assert_array_equal(tensor, again[name])
+            self.assertTrue((folder / "a" / f"views-{seed:07d}.png").read_bytes().startswith(b"\x89PNG"))
+            with safe_open(path, "np") as file:
+                metadata = file.metadata()
+            self.assertEqual((metadata["format"], metadata["seed"], metadata["views"]), ("raypatch-views/1", str(seed),
+                                                                                         "51"))
+            images, camera_pos, seeds = make_scenes.load_views(folder / "a")
+            self.assertEqual((images.shape, camera_pos.shape, seeds.tolist()), ((1, 51, 20, 24, 3), (1, 51, 3), [seed]))
+            # View 0 is the scene's own view 0, pixel for pixel; the others are the scene from other cameras.
+            scene_images, _, _, scene_pos = make_scenes.render([spec], 20, 24)
+            np.testing.assert_array_equal(images[0, 0], scene_images[0, 0])
+            np.testing.assert_array_equal(camera_pos[0, 0], scene_pos[0, 0])
+            alone = make_scenes.render([make_scenes.replace(spec, camera_pos=camera_pos[0, 7:8])], 20, 24)[0]
+            np.testing.assert_array_equal(images[0, 7], alone[0, 0])
+            # Extra cameras keep away from the held-out targets (views 1, 2) and the validation cameras, and
+            # follow the scenes' camera distribution.
+            extra = camera_pos[0, 1:].astype(np.float64)
+            held_out = np.concatenate((scene_pos[0, 1:], load_file(val_file)["camera_pos"][0, 1:]))
+            self.assertGreater(make_scenes.angle_between_deg(extra, held_out).min(), 8)
+            radius = np.linalg.norm(extra, axis=1)
+            elevation = np.degrees(np.arcsin(extra[:, 2] / radius))
+            self.assertTrue(((radius > 9.5 - 1e-4) & (radius < 11.5 + 1e-4)).all())
+            self.assertTrue(((elevation > 28 - 1e-3) & (elevation < 42 + 1e-3)).all())
+            azimuth = np.degrees(np.arctan2(extra[:, 1], extra[:, 0])) % 360
+            self.assertEqual(len(np.unique(azimuth // 90)), 4)  # all round the circle
+            cameras = json.loads(metadata["cameras"])
+            self.assertEqual(cameras["excluded_scene_views"], [1, 2])
+            self.assertGreater(min(cameras["nearest_extra_to_excluded_deg"]), 8)
+            self.assertEqual(make_scenes.main(common + ["--extra-views", "3", "--exclude-deg", "0", "--out",
+                                                        str(folder / "c")]), 2)
+
     def test_splits_are_disjoint_and_enforced(self):
         ranges = sorted(make_scenes.SPLITS.values())
         self.assertTrue(all(a[1] <= b[0] for a, b in zip(ranges, ranges[1:])))
@@ -262,6 +324,41 @@ class TrainingTests(unittest.TestCase):
                 for a, b in zip(torch.load(straight / "checkpoint.pt")["model"].values(),
                                 torch.load(resumed / "checkpoint.pt")["model"].values()):
                     torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+    def test_fitting_one_scene_learns_resumes_and_says_so(self):
+        seed = make_scenes.SPLITS["test"][0]
+        with tempfile.TemporaryDirectory() as folder:
+            folder = Path(folder)
+            common = ["--seed", str(seed), "--count", "1", "--size", "20x24", "--pngs", "0"]
+            make_scenes.main(common + ["--extra-views", "4", "--camera-seed", "1", "--out", str(folder / "val")])
+            make_scenes.main(common + ["--extra-views", "12", "--out", str(folder / "train")])
+            make_scenes.main(["--seed", str(seed), "--count", "1", "--size", "20x24", "--pngs", "0", "--out",
+                              str(folder / "heldout")])
+            argv = ["--fit-scene", "--k", "2", "--train", str(folder / "train"), "--val", str(folder / "val"),
+                    "--watch", str(folder / "heldout"), "--targets-per-step", "4", "--lr", "3e-3", "--warmup", "1",
+                    "--decay-it", "100", "--log-every", "2", "--val-every", "4", "--checkpoint-every", "2",
+                    "--threads", "1"]
+            straight, resumed = folder / "straight", folder / "resumed"
+            self.assertEqual(train.main(argv + ["--out", str(straight), "--steps", "8"]), 0)
+            self.assertEqual(train.main(argv + ["--out", str(resumed), "--steps", "4"]), 0)
+            self.assertEqual(train.main(argv + ["--out", str(resumed), "--steps", "8"]), 0)
+            for a, b in zip(torch.load(straight / "checkpoint.pt")["model"].values(),
+                            torch.load(resumed / "checkpoint.pt")["model"].values()):
+                torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+            rows = (straight / "curve.csv").read_text().splitlines()
+            self.assertEqual(rows[0], "step,train_seconds,lr,loss,val_psnr,heldout_psnr")
+            self.assertEqual(len([r for r in rows[1:] if r.split(",")[5]]), 2)  # steps 4 and 8
+            with safe_open(straight / "model.safetensors", "pt") as file:
+                metadata = file.metadata()
+            record = json.loads(metadata["training"])
+            self.assertEqual((record["fitted_to_scene"], record["train_views"], record["train_scenes"]), (seed, 12, 1))
+            self.assertIn("does not generalise", record["note"])
+            self.assertIn(f"fitted to scene {seed} only", metadata["source"])
+            self.assertEqual([row[0] for row in record["heldout"]["curve"]], [4, 8])
+            # A training folder of several scenes, or a batch above 1, is refused.
+            self.assertEqual(train.main(argv + ["--out", str(folder / "bad"), "--steps", "2", "--batch", "2"]), 2)
+            self.assertEqual(train.main(argv + ["--out", str(folder / "bad"), "--steps", "2", "--targets-per-step",
+                                                "13"]), 2)
 
 
 if __name__ == "__main__":

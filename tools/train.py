@@ -15,6 +15,13 @@ What follows the official code (train.py, src/model.py, src/data/multishapenetEa
 Differences: widths (--preset; raypatch config extensions, docs/FORMATS.md) and 2 conv blocks for 60x80 inputs
 (15x20 tokens, as the official 3 blocks give at 120x160; the engine needs sizes divisible by 2^blocks).
 
+Per-scene fitting (--fit-scene): --train holds one views file of tools/make_scenes.py --extra-views (one scene, its
+view 0 and many views from other cameras). Every step encodes view 0, the view the scene's own renders condition on,
+and renders --targets-per-step of the other views (each once per epoch, shuffled). The model learns that one scene,
+not scenes in general: its metadata says so. --watch DIR renders a folder of scenes (e.g. the scene's own file,
+whose target views the views file leaves out) at every validation into curve.csv's heldout_psnr column; it plays no
+part in training.
+
 The run folder holds checkpoint.pt (written every --checkpoint-every steps; a run restarts from it), curve.csv
 (step, training seconds, learning rate, mean training loss since the previous row, validation PSNR) and, at the end,
 model.safetensors: the weights, the config and a `training` JSON record in the metadata.
@@ -49,10 +56,14 @@ OFFICIAL_POINTS_FRACTION = 8192 / (2 * 120 * 160)
 PRESETS = {
     "cpu": {"token_dim": 64, "heads": 4, "conv_hidden": 16, "encoder_layers": 3, "decoder_layers": 2,
             "input_mlp_hidden": 180, "out_mlp_hidden": 128, "conv_features": 64},
+    # Per-scene fitting (--fit-scene): the cpu preset with a wider patch decoder.
+    "fit": {"token_dim": 64, "heads": 4, "conv_hidden": 16, "encoder_layers": 3, "decoder_layers": 2,
+            "input_mlp_hidden": 180, "out_mlp_hidden": 256, "conv_features": 128},
     "gpu": {"token_dim": 160, "heads": 5, "conv_hidden": 32, "encoder_layers": 5, "decoder_layers": 2,
             "input_mlp_hidden": 360, "out_mlp_hidden": 320, "conv_features": 128},
 }
 CURVE_FIELDS = ("step", "train_seconds", "lr", "loss", "val_psnr")
+WATCH_FIELD = "heldout_psnr"  # curve.csv column of --watch
 
 
 def model_config(k, preset, height, width, lr, warmup, decay_it):
@@ -122,9 +133,22 @@ def epoch_order(seed, epoch, scenes, views):
     return order // views, order % views
 
 
+@functools.lru_cache(maxsize=1)
+def fit_order(seed, epoch, views):
+    """Target views 1..views-1 of one epoch of per-scene fitting, shuffled; a pure function like epoch_order."""
+    return np.random.default_rng([seed, epoch]).permutation(views - 1) + 1
+
+
+def fit_batch(images, camera_pos, targets, device):
+    """One step of per-scene fitting: input view 0 of the single scene, the given views as targets."""
+    views = [0] + [int(t) for t in targets]
+    return scene_batch(images[:1, views], camera_pos[:1, views], [0], [0], device)
+
+
 def write_curve(path, rows):
+    fields = CURVE_FIELDS + ((WATCH_FIELD,) if any(WATCH_FIELD in row for row in rows) else ())
     with open(path, "w", newline="") as file:
-        writer = csv.DictWriter(file, CURVE_FIELDS)
+        writer = csv.DictWriter(file, fields)
         writer.writeheader()
         writer.writerows(rows)
 
@@ -143,7 +167,13 @@ def main(argv=None):
     parser.add_argument("--val", type=Path, required=True, help="validation scenes")
     parser.add_argument("--out", type=Path, required=True, help="run folder (created; an existing run resumes)")
     parser.add_argument("--steps", type=int, required=True, help="optimizer steps")
-    parser.add_argument("--batch", type=int, default=16, help="scenes per step (official: 32)")
+    parser.add_argument("--batch", type=int, help="scenes per step (official: 32; default 16, 1 with --fit-scene)")
+    parser.add_argument("--fit-scene", action="store_true",
+                        help="per-scene fitting: --train is one views file (make_scenes.py --extra-views); input "
+                             "view 0, --targets-per-step of its other views as targets")
+    parser.add_argument("--targets-per-step", type=int, default=8, help="target views per step with --fit-scene")
+    parser.add_argument("--watch", type=Path,
+                        help="scenes rendered at every validation into curve.csv's heldout_psnr (not trained on)")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="model widths")
     parser.add_argument("--lr", type=float, default=1e-4, help="peak learning rate (official: 1e-4)")
     parser.add_argument("--warmup", type=int, help="warmup steps (default: the official fraction of --steps)")
@@ -160,13 +190,28 @@ def main(argv=None):
     command = "python3 tools/train.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
 
     torch.set_num_threads(args.threads)
+    if args.batch is None:
+        args.batch = 1 if args.fit_scene else 16
     try:
         train_images, train_pos, train_seeds = load_views(args.train)
         val_images, val_pos, val_seeds = load_views(args.val)
+        watch = load_views(args.watch) if args.watch else None
         if args.steps < 1 or args.batch < 1 or args.batch > len(train_images) * train_images.shape[1]:
             raise ValueError(f"--steps must be >= 1 and --batch between 1 and the {len(train_images)} scenes' "
                              f"{len(train_images) * train_images.shape[1]} (scene, view) pairs")
-        if train_images.shape[1:] != val_images.shape[1:]:
+        if args.fit_scene:
+            if len(train_images) != 1 or args.batch != 1:
+                raise ValueError(f"--fit-scene needs one scene in --train ({len(train_images)} found) and --batch 1")
+            if not 1 <= args.targets_per_step <= train_images.shape[1] - 1:
+                raise ValueError(f"--targets-per-step must be between 1 and the {train_images.shape[1] - 1} views "
+                                 f"other than view 0")
+            if args.watch and any(int(seed) != int(train_seeds[0]) for seed in watch[2]):
+                raise ValueError(f"--watch holds seeds {watch[2].tolist()}, not only the fitted {train_seeds[0]}")
+        for name, other in (("validation", val_images), ("--watch", watch[0] if watch else None)):
+            if other is not None and other.shape[2:] != train_images.shape[2:]:
+                raise ValueError(f"training views {train_images.shape[2:4]} and {name} views {other.shape[2:4]} "
+                                 f"differ in size")
+        if not args.fit_scene and train_images.shape[1:] != val_images.shape[1:]:
             raise ValueError(f"training views {train_images.shape[1:4]} and validation views "
                              f"{val_images.shape[1:4]} differ in count or size")
         height, width = train_images.shape[2:4]
@@ -178,7 +223,8 @@ def main(argv=None):
         print(f"train: error: {error}", file=sys.stderr)
         return 2
     views = train_images.shape[1]
-    num_points = args.num_points or round(OFFICIAL_POINTS_FRACTION * (views - 1) * height * width)
+    targets = args.targets_per_step if args.fit_scene else views - 1
+    num_points = args.num_points or round(OFFICIAL_POINTS_FRACTION * targets * height * width)
     val_images, val_pos = val_images[:args.val_scenes], val_pos[:args.val_scenes]
 
     torch.manual_seed(args.seed)
@@ -204,9 +250,9 @@ def main(argv=None):
                                           "scheduler": scheduler.state_dict(), "step": step,
                                           "train_seconds": train_seconds, "curve": curve, "config": model_cfg})
 
-    def validate():
+    def validate(images, camera_pos):
         model.eval()
-        value, _ = evaluate(model, val_images, val_pos, device=args.device, ssim_definition=None)
+        value, _ = evaluate(model, images, camera_pos, device=args.device, ssim_definition=None)
         model.train()
         return value
 
@@ -215,7 +261,10 @@ def main(argv=None):
           f"scenes, {len(val_images)} validation scenes, {height}x{width}; batch {args.batch}, {args.steps} steps, "
           f"lr {args.lr} (warmup {warmup}, decay_it {decay_it})" + (f", {num_points} rays" if args.k == 1 else "")
           + f" on {args.device}")
-    batches_per_epoch = len(train_images) * views // args.batch
+    if args.fit_scene:
+        print(f"fitting scene {train_seeds[0]}: input view 0, {views - 1} other views, {args.targets_per_step} "
+              f"targets per step" + (f"; watching {args.watch} (not trained on)" if args.watch else ""))
+    batches_per_epoch = (views - 1) // args.targets_per_step if args.fit_scene else len(train_images) * views // args.batch
     model.train()
     losses = []
     cpu_seconds = 0.0  # this session's process CPU time in steps: less sensitive to other load than wall time
@@ -223,9 +272,14 @@ def main(argv=None):
     while step < args.steps:
         start, cpu_start = time.perf_counter(), time.process_time()
         epoch, position = divmod(step, batches_per_epoch)
-        scenes, input_views = epoch_order(args.seed, epoch, len(train_images), views)
-        chosen = slice(position * args.batch, (position + 1) * args.batch)
-        batch = scene_batch(train_images, train_pos, scenes[chosen], input_views[chosen], args.device)
+        if args.fit_scene:
+            order = fit_order(args.seed, epoch, views)
+            chosen = order[position * args.targets_per_step:(position + 1) * args.targets_per_step]
+            batch = fit_batch(train_images, train_pos, chosen, args.device)
+        else:
+            scenes, input_views = epoch_order(args.seed, epoch, len(train_images), views)
+            chosen = slice(position * args.batch, (position + 1) * args.batch)
+            batch = scene_batch(train_images, train_pos, scenes[chosen], input_views[chosen], args.device)
         loss = training_loss(model, batch, num_points, np.random.default_rng([args.seed, step]))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -240,14 +294,19 @@ def main(argv=None):
         step += 1
         steps_this_session += 1
         if step % args.log_every == 0 or step % args.val_every == 0 or step == args.steps:
-            val_psnr = validate() if step % args.val_every == 0 or step == args.steps else None
+            validating = step % args.val_every == 0 or step == args.steps
+            val_psnr = validate(val_images, val_pos) if validating else None
             curve.append({"step": step, "train_seconds": round(train_seconds, 2), "lr": lr,
                           "loss": float(np.mean(losses)), "val_psnr": val_psnr})
+            if watch is not None:
+                curve[-1][WATCH_FIELD] = validate(watch[0], watch[1]) if validating else None
             losses = []
             write_curve(args.out / "curve.csv", curve)
             print(f"step {step}: loss {curve[-1]['loss']:.5f}, lr {lr:.2e}, {train_seconds:.0f} s, "
                   f"{step / max(train_seconds, 1e-9):.2f} steps/s, {cpu_seconds / steps_this_session:.2f} CPU s/step"
-                  + (f", val PSNR {val_psnr:.2f} dB" if val_psnr is not None else ""), flush=True)
+                  + (f", val PSNR {val_psnr:.2f} dB" if val_psnr is not None else "")
+                  + (f", held-out PSNR {curve[-1][WATCH_FIELD]:.2f} dB" if curve[-1].get(WATCH_FIELD) else ""),
+                  flush=True)
         if step % args.checkpoint_every == 0 or step == args.steps:
             checkpoint()
 
@@ -263,9 +322,23 @@ def main(argv=None):
         "curve": [[row["step"], row["train_seconds"], round(row["loss"], 6), round(row["val_psnr"], 3)]
                   for row in validated],
     }
+    if args.fit_scene:
+        record.update({
+            "fitted_to_scene": int(train_seeds[0]),
+            "note": f"fitted to the one scene {int(train_seeds[0])} (per-scene fitting, like per-scene light-field "
+                    f"methods): it renders that scene from new cameras and does not generalise to other scenes",
+            "input_view": "view 0 of the scene", "train_views": views - 1,
+            "targets_per_step": args.targets_per_step, "rays_per_scene": num_points if args.k == 1 else "all patches",
+            "train_scenes": 1})
+    if watch is not None:
+        record["heldout"] = {"scenes": str(args.watch), "seeds": sorted({int(s) for s in watch[2]}),
+                             "curve": [[row["step"], round(row[WATCH_FIELD], 3)] for row in validated]}
     model_path = args.out / "model.safetensors"
+    source = f"trained by tools/train.py (run {args.out.name})"
+    if args.fit_scene:
+        source = f"fitted to scene {int(train_seeds[0])} only by tools/train.py --fit-scene (run {args.out.name})"
     write_model(model_path, inference_tensors(model.state_dict()), model_cfg,
-                {"source": f"trained by tools/train.py (run {args.out.name})", "training": json.dumps(record)})
+                {"source": source, "training": json.dumps(record)})
     print(f"wrote {model_path} ({parameters / 1e6:.3f} M parameters, final validation PSNR "
           f"{record['final_val_psnr']:.2f} dB, {train_seconds / 60:.1f} min of training)")
     return 0
