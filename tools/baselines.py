@@ -1,11 +1,11 @@
 """Trivial baselines on a folder of scenes: what PSNR and SSIM a renderer gets without any model.
 
-    python3 tools/baselines.py --scenes assets/scenes [--grey 0.5]
+    python3 tools/baselines.py --scenes assets/scenes [--grey 0.5 --grey 0.6]
 
 For every target view of every scene (each scene's view 0 is the input, the other views the targets, as
 tools/evaluate.py renders them) it predicts
 - input mean colour: every pixel the mean colour of the scene's input view;
-- constant grey: every pixel (--grey, --grey, --grey), 0.5 by default;
+- constant grey: every pixel (g, g, g) for each --grey g, 0.5 by default;
 and prints, per baseline, the mean PSNR and SSIM over the target views (the metrics of tools/evaluate.py and
 render-frame --metrics: per-image PSNR with data range 1, then the mean; SSIM as torchmetrics 1.x), and with
 --per-scene the means of each scene.
@@ -23,15 +23,16 @@ from evaluate import psnr, ssim  # noqa: E402
 from make_scenes import load_views  # noqa: E402
 
 
-def baselines(images, grey=0.5):
+def baselines(images, greys=(0.5,)):
     """{name: (psnr [S, T], ssim [S, T])} of the baselines on images uint8 [S, V, H, W, 3] (view 0 the input)."""
     pixels = torch.from_numpy(images).double() / 255
     inputs, targets = pixels[:, 0], pixels[:, 1:]
     scenes, views = targets.shape[:2]
     predictions = {
         "input mean colour": inputs.mean((1, 2))[:, None, None, None, :].expand_as(targets),
-        "constant grey": torch.full_like(targets, grey),
     }
+    for grey in greys:
+        predictions[f"constant grey ({grey:g})"] = torch.full_like(targets, grey)
     out = {}
     for name, pred in predictions.items():
         flat_pred, flat_target = pred.reshape(-1, *targets.shape[2:]), targets.reshape(-1, *targets.shape[2:])
@@ -43,7 +44,8 @@ def baselines(images, grey=0.5):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=Path, required=True, help="folder of scene-*.safetensors, shards or views")
-    parser.add_argument("--grey", type=float, default=0.5, help="value of the constant-grey prediction (0.5)")
+    parser.add_argument("--grey", type=float, action="append", help="value of a constant-grey prediction "
+                        "(repeatable; default 0.5)")
     parser.add_argument("--per-scene", action="store_true", help="also print each scene's means")
     args = parser.parse_args(argv)
     try:
@@ -53,10 +55,9 @@ def main(argv=None):
         return 2
     print(f"{len(images)} scenes, {len(images) * (images.shape[1] - 1)} target views, from {args.scenes}")
     print("| baseline | PSNR (dB) | SSIM |\n|---|---|---|")
-    results = baselines(images, args.grey)
+    results = baselines(images, args.grey or [0.5])
     for name, (psnrs, ssims) in results.items():
-        label = name if name != "constant grey" else f"constant grey ({args.grey:g})"
-        print(f"| {label} | {psnrs.mean():.2f} | {ssims.mean():.3f} |")
+        print(f"| {name} | {psnrs.mean():.2f} | {ssims.mean():.3f} |")
     if args.per_scene:
         for name, (psnrs, ssims) in results.items():
             for seed, p, s in zip(seeds, psnrs.mean(1), ssims.mean(1)):

@@ -3,7 +3,8 @@
     python3 tools/plot_curves.py --out docs/quality/training_curves.png NAME=RUN_DIR [NAME=RUN_DIR ...]
 
 Reads RUN_DIR/curve.csv (written by train.py) of each run, draws both panels into --out, and copies each curve
-next to it, named after the run folder (RUN_DIR's last component).csv.
+next to it, named after the run folder (RUN_DIR's last component).csv. A curve with a heldout_psnr column (train.py
+--watch) is drawn too, dashed.
 """
 
 import argparse
@@ -29,6 +30,8 @@ def read_curve(path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, required=True, help="PNG to write")
+    parser.add_argument("--psnr-title", default="validation PSNR (first --val-scenes validation scenes)",
+                        help="title of the PSNR panel")
     parser.add_argument("runs", nargs="+", help="NAME=RUN_DIR")
     args = parser.parse_args(argv)
     curves = {}
@@ -47,10 +50,14 @@ def main(argv=None):
         # Steps, not seconds: train_seconds is wall time, which depends on what else shares the machine.
         psnr_axes.plot([int(r["step"]) for r in validated], [float(r["val_psnr"]) for r in validated],
                        marker="o", markersize=3, label=name)
+        watched = [r for r in validated if r.get("heldout_psnr")]
+        if watched:
+            psnr_axes.plot([int(r["step"]) for r in watched], [float(r["heldout_psnr"]) for r in watched],
+                           marker="s", markersize=3, linestyle="--", label=f"{name}, held-out (--watch)")
         loss_axes.plot([int(r["step"]) for r in rows], [float(r["loss"]) for r in rows], label=name)
-    psnr_axes.set(xlabel="step", ylabel="validation PSNR (dB)",
-                  title="validation PSNR (first --val-scenes validation scenes)")
-    loss_axes.set(xlabel="step", ylabel="training MSE", yscale="log", title="training loss (mean over 50 steps)")
+    psnr_axes.set(xlabel="step", ylabel="PSNR (dB)", title=args.psnr_title)
+    loss_axes.set(xlabel="step", ylabel="training MSE", yscale="log",
+                  title="training loss (mean over the steps since the previous row)")
     for axes in (psnr_axes, loss_axes):
         axes.grid(alpha=0.3)
         axes.legend()
