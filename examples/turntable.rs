@@ -4,7 +4,7 @@
 //! cargo run --release --example turntable -- [MODEL SCENE OUT_DIR FRAMES]
 //! ```
 //!
-//! Defaults: the bundled Ray-Patch k=4 model and scene, `turntable/`, 12 frames.
+//! Defaults: the bundled RP-SRT k=4 model fitted to the bundled scene, that scene, `turntable/`, 12 frames.
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -23,10 +23,10 @@ fn main() -> ExitCode {
 }
 
 fn run() -> raypatch::Result<()> {
-    let golden = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden/rpsrt_k4");
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets");
     let mut args = std::env::args().skip(1);
-    let model_path = args.next().map_or(golden.join("model.safetensors"), Into::into);
-    let scene_path = args.next().map_or(golden.join("scene.safetensors"), Into::into);
+    let model_path = args.next().map_or(assets.join("models/fitted_scene-2000000_rpsrt_k4.safetensors"), Into::into);
+    let scene_path = args.next().map_or(assets.join("scenes/scene-2000000.safetensors"), Into::into);
     let out_dir = args.next().map_or("turntable".into(), std::path::PathBuf::from);
     let frames: usize = args.next().and_then(|n| n.parse().ok()).unwrap_or(12);
 

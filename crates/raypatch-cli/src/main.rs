@@ -17,8 +17,10 @@ use safetensors::Dtype;
 
 /// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
 /// that it renders them wherever it is installed.
-const DEFAULT_MODEL: (&str, &[u8]) =
-    ("assets/models/rpsrt_k4.safetensors", include_bytes!("../../../assets/models/rpsrt_k4.safetensors"));
+const DEFAULT_MODEL: (&str, &[u8]) = (
+    "assets/models/fitted_scene-2000000_rpsrt_k4.safetensors",
+    include_bytes!("../../../assets/models/fitted_scene-2000000_rpsrt_k4.safetensors"),
+);
 const DEFAULT_SCENE: (&str, &[u8]) =
     ("assets/scenes/scene-2000000.safetensors", include_bytes!("../../../assets/scenes/scene-2000000.safetensors"));
 const DEFAULT_OUT: &str = "render.png";
@@ -34,7 +36,7 @@ const MAX_RENDERS: usize = 100_000;
 )]
 struct Args {
     /// Model file (safetensors with the official key names and the config in its metadata) [default: the
-    /// bundled assets/models/rpsrt_k4.safetensors, built into this binary].
+    /// bundled assets/models/fitted_scene-2000000_rpsrt_k4.safetensors (fitted to the bundled scene), built into this binary].
     #[arg(long, value_name = "FILE")]
     model: Option<PathBuf>,
     /// Scene: a scene safetensors file (docs/FORMATS.md), or a folder of PNGs with a NeRF-style transforms.json
