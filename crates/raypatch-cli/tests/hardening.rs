@@ -151,12 +151,8 @@ fn sizes_and_counts_are_bounded_before_anything_is_allocated() {
     let model = golden("rpsrt_k4", "model.safetensors");
     for key in ["encoder_kwargs.num_att_blocks", "decoder_kwargs.num_att_blocks", "encoder_kwargs.num_conv_blocks"] {
         let (section, name) = key.split_once('.').unwrap();
-        let (tensors, mut metadata) = read_f32_tensors(&model);
-        let mut config: serde_json::Value = serde_json::from_str(&metadata["config"]).unwrap();
-        config[section][name] = serde_json::json!(1_000_000_000u64);
-        metadata.insert("config".into(), config.to_string());
-        let path = d.join("counts.safetensors");
-        write_tensors(&path, &tensors, &metadata);
+        let path =
+            with_config(d, &model, "counts.safetensors", |c| c[section][name] = serde_json::json!(1_000_000_000u64));
         fails(d, &["--model", "counts.safetensors"], &[key, "1000000000"]);
         std::fs::remove_file(path).unwrap();
     }
@@ -205,11 +201,7 @@ fn finite_but_meaningless_inputs_are_refused() {
         .unwrap();
     fails(d, &["--pose", "far.json"], &["cannot encode this camera"]);
 
-    let (tensors, mut metadata) = read_f32_tensors(&model);
-    let mut config: serde_json::Value = serde_json::from_str(&metadata["config"]).unwrap();
-    config["encoder_kwargs"]["pos_start_octave"] = serde_json::json!(1000);
-    metadata.insert("config".into(), config.to_string());
-    write_tensors(&d.join("octave.safetensors"), &tensors, &metadata);
+    with_config(d, &model, "octave.safetensors", |c| c["encoder_kwargs"]["pos_start_octave"] = serde_json::json!(1000));
     fails(
         d,
         &["--model", "octave.safetensors"],

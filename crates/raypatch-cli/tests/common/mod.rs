@@ -98,6 +98,17 @@ pub fn edited(dir: &Path, source: &str, name: &str, edit: impl FnOnce(&mut Tenso
     path.display().to_string()
 }
 
+/// A copy of a model file with `edit` applied to the config in its metadata, written into `dir`.
+pub fn with_config(dir: &Path, source: &str, name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> String {
+    let (tensors, mut metadata) = read_f32_tensors(source);
+    let mut config: serde_json::Value = serde_json::from_str(&metadata["config"]).unwrap();
+    edit(&mut config);
+    metadata.insert("config".into(), config.to_string());
+    let path = dir.join(name);
+    write_tensors(&path, &tensors, &metadata);
+    path.display().to_string()
+}
+
 pub fn set_f32(tensors: &mut Tensors, key: &str, index: usize, value: f32) {
     tensors.get_mut(key).unwrap().2[4 * index..4 * index + 4].copy_from_slice(&value.to_le_bytes());
 }
