@@ -297,6 +297,15 @@ impl Camera {
         }
     }
 
+    /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays));
+    /// `None` for a pinhole camera, whose rays [`rays`](Self::rays) computes as unit directions.
+    pub fn given_rays(&self) -> Option<&RayGrid> {
+        match &self.projection {
+            Projection::Rays { grid, .. } => Some(grid),
+            Projection::Pinhole { .. } => None,
+        }
+    }
+
     /// This camera turned by `degrees` about the world z axis through the origin: a turntable step for z-up
     /// scenes centred on the origin (MultiShapeNet, NeRF's Blender scenes). Positive angles turn from +x
     /// towards +y.

@@ -148,9 +148,7 @@ impl Image {
     /// ```
     pub fn crop(&self, region: Region) -> Result<Image> {
         let Region { x, y, width, height } = region;
-        if x.checked_add(width).is_none_or(|end| end > self.width)
-            || y.checked_add(height).is_none_or(|end| end > self.height)
-        {
+        if !region.lies_within(self.width, self.height) {
             return Err(Error::Image {
                 path: "image".into(),
                 reason: format!(

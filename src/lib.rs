@@ -44,7 +44,7 @@ pub use camera::{Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-pub use output::{check_output_path, write_all_atomic, write_atomic};
+pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
 pub use raypatch_engine::{AdapterChoice, OpTimes, Outputs, Region, RenderStats, Request};
 pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 

@@ -47,7 +47,7 @@ pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
     for (path, _) in files {
         check_output_path(path)?;
     }
-    let mut folders: Vec<PathBuf> = files.iter().map(|(p, _)| folder_of(p)).collect();
+    let mut folders: Vec<&Path> = files.iter().map(|(p, _)| folder_of(p)).collect();
     folders.dedup();
     for folder in &folders {
         remove_stale_temporaries(folder);
@@ -82,8 +82,9 @@ fn file_exists(path: &Path) -> bool {
     std::fs::symlink_metadata(path).is_ok()
 }
 
-fn folder_of(path: &Path) -> PathBuf {
-    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf()
+/// The folder a path's file is in: its parent, or `.` for a bare file name.
+pub fn folder_of(path: &Path) -> &Path {
+    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
 }
 
 fn temporary_for(path: &Path) -> PathBuf {

@@ -238,10 +238,10 @@ const MAX_ENCODING_ARGUMENT: f64 = (1u64 << 24) as f64;
 const ACCURATE_ENCODING_ARGUMENT: f64 = (1u64 << 20) as f64;
 
 fn check_camera(camera: &Camera, octaves: &raypatch_model::Octaves, what: &str) -> Result<Vec<String>> {
-    let rays = camera.rays();
-    if let Some((i, d)) =
-        rays.directions.iter().enumerate().find(|(_, d)| (d.length() - 1.0).abs() > UNIT_RAY_TOLERANCE)
-    {
+    // Only given rays need looking at: a pinhole camera's are unit directions by construction (and computing
+    // them here would do a render's ray work twice).
+    let given = camera.given_rays().map_or(&[][..], |grid| grid.directions.as_slice());
+    if let Some((i, d)) = given.iter().enumerate().find(|(_, d)| (d.length() - 1.0).abs() > UNIT_RAY_TOLERANCE) {
         return Err(Error::Camera(format!(
             "{what}: ray {i} is {d} of length {}; this model takes unit ray directions",
             d.length()

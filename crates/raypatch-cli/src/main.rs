@@ -457,7 +457,7 @@ impl OutputFiles {
 /// Where a path points, for comparing outputs with each other and with the inputs: the canonical folder
 /// joined with the file name (the file itself may not exist yet).
 fn identity(path: &Path) -> PathBuf {
-    let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let folder = raypatch::folder_of(path);
     let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());
     folder.join(path.file_name().unwrap_or_default())
 }
@@ -476,7 +476,7 @@ fn check_outputs(args: &Args, shots: &[Shot], data: &SceneData) -> Result<Output
     let out_is_folder = shots.iter().any(|s| s.png.parent() == Some(args.out.as_path()));
     let new_folder = (out_is_folder && !args.out.exists()).then(|| args.out.clone());
     if let Some(folder) = &new_folder {
-        let parent = folder.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let parent = raypatch::folder_of(folder);
         if !parent.is_dir() {
             bail!("--out {}: cannot create the folder: {} is not a folder", folder.display(), parent.display());
         }

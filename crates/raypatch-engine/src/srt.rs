@@ -79,6 +79,15 @@ pub struct Region {
     pub height: usize,
 }
 
+impl Region {
+    /// Whether the region lies inside a `width` x `height` image (an empty region at its edge does too); no
+    /// sum overflows, however large the numbers.
+    pub fn lies_within(&self, width: usize, height: usize) -> bool {
+        let fits = |start: usize, len: usize, size: usize| start.checked_add(len).is_some_and(|end| end <= size);
+        fits(self.x, self.width, width) && fits(self.y, self.height, height)
+    }
+}
+
 /// What a render computes: the outputs, and the region of the image (the whole image when `None`).
 ///
 /// Only the patches (one query each; pixels for SRT) that the region's pixels depend on are decoded: for
@@ -520,9 +529,7 @@ impl EncodedScene<'_> {
         }
         let full = Region { x: 0, y: 0, width: image.width, height: image.height };
         let region = request.region.unwrap_or(full);
-        let inside =
-            |start: usize, len: usize, size: usize| len > 0 && start.checked_add(len).is_some_and(|end| end <= size);
-        if !inside(region.x, region.width, image.width) || !inside(region.y, region.height, image.height) {
+        if region.width == 0 || region.height == 0 || !region.lies_within(image.width, image.height) {
             return Err(EngineError::Request(format!(
                 "region x={} y={} width={} height={} is empty or not inside the {}x{} (width x height) image",
                 region.x, region.y, region.width, region.height, image.width, image.height
