@@ -184,9 +184,9 @@ impl Model {
     }
 
     /// Encodes posed input images into a [`Scene`]: the latent tokens and each decoder layer's keys and
-    /// values, computed once and kept for every render. All views must have the same size, divisible by the
-    /// encoder's downsampling (2^conv blocks), values in [0, 1], and cameras of that size with one ray per
-    /// pixel.
+    /// values, computed once and kept for every render. All views must have the same size (any size: each
+    /// conv block halves it, rounding up, as in PyTorch), values in [0, 1], and cameras of that size with one
+    /// ray per pixel.
     ///
     /// ```
     /// # let engine = raypatch::Engine::new(Default::default())?;

@@ -2,7 +2,13 @@
 PyTorch reference (tools/raypatch_reference.py).
 
     python3 tools/make_golden.py --out assets/golden
+    python3 tools/make_golden.py --out assets/golden --cases srt_k1_in60x80,rpsrt_k4_in40x60_2views
     python3 tools/make_golden.py --full-size --out target/golden-full
+
+--cases writes only the named cases (what the full run writes for them) and the README table of all cases, leaving
+the other case folders as they are. Weights and scenes are the same everywhere; PyTorch builds on other machines
+round float32 sums differently, so regenerating a case elsewhere changes its outputs and calibrated output
+layers by float32 rounding (~1e-6), which is why adding a case should not regenerate the others.
 
 Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors and expected.safetensors
 (docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
@@ -88,6 +94,8 @@ def golden_cases():
                                             norm="Batch"))
     k16 = small_config("featurefield", width=16,
                        rp_kwargs=dict(upsample=4, h_in=2, w_in=4, conv_features=32, norm="Batch"))
+    k2_in60x80 = small_config("featurefield", width=16,
+                              rp_kwargs=dict(upsample=1, h_in=8, w_in=12, conv_features=16, norm="Batch"))
     return [
         Case("srt_k1", 1, small_config("lightfield"), (32, 32), (16, 24),
              description="light field, 1 input view"),
@@ -109,6 +117,16 @@ def golden_cases():
                          "nearest-resized to 60x80 as rp h_out/w_out ask"),
         Case("rpsrt_k16", 6, k16, (24, 32), (32, 64), num_targets=1,
              description="Ray-Patch k=16, conv_features 32"),
+        # Input sizes that 2^3 does not divide, as PyTorch takes them: each stride-2 conv (padding 1) maps a side s
+        # to ceil(s / 2), so 60x80 gives 30x40, 15x20, 8x10 tokens per view and 40x60 gives 20x30, 10x15, 5x8.
+        Case("srt_k1_in60x80", 9, small_config("lightfield", width=16), (60, 80), (16, 24),
+             description="light field, 1 input view of 60x80 (8 does not divide its 60 rows): 8x10 = 80 tokens"),
+        Case("srt_k1_in40x60", 10, small_config("lightfield", width=16), (40, 60), (16, 24), num_targets=1,
+             description="light field, 1 input view of 40x60 (8 does not divide its 60 columns): 5x8 = 40 tokens"),
+        Case("rpsrt_k2_in60x80_2views", 11, k2_in60x80, (60, 80), (16, 24), num_inputs=2,
+             description="Ray-Patch k=2, 2 input views of 60x80: 2·8x10 = 160 tokens"),
+        Case("rpsrt_k4_in40x60_2views", 12, copy.deepcopy(k4), (40, 60), (32, 48), num_inputs=2,
+             description="Ray-Patch k=4, 2 input views of 40x60: 2·5x8 = 80 tokens"),
     ]
 
 
@@ -280,24 +298,40 @@ computed as the official model computes them. Ray-Patch cases with full-resoluti
 float64 rgb differ by up to about 1e-3, because float32 rounds the arguments of the top sin/cos octaves (up to about
 2^14·π·|d| for rays, 2^9·π·|p| for positions).
 
-Models are small SRT configs with the raypatch width extensions: 3 conv blocks, 2 encoder and 2 decoder attention
-layers, 15 + 15 octaves, 4 heads, token width 32 (srt_k1, rpsrt_k2) or 16 (the others). rpsrt_k2 stores
+Sizes are height x width, rows first as the paper writes them: an input of 60x80 is 60 rows by 80 columns (the
+engine's messages write width x height). Input views of any size are taken, as PyTorch takes them: each conv
+block ends in a stride-2 3x3 convolution with padding 1, which maps a side s to ceil(s / 2), so n input views of
+HxW give n·ceil(H/8)·ceil(W/8) latent tokens (60x80: 30x40, 15x20, 8x10 = 80 tokens a view; 40x60: 20x30, 10x15,
+5x8 = 40). The `_in60x80` and `_in40x60` cases have input sizes that 8 does not divide.
+
+Models are small SRT configs with the raypatch width extensions and the official MSN-Easy runs' geometry: 3 conv
+blocks, encoder BatchNorm (none in rpsrt_k8), pos_start_octave -5; 2 encoder and 2 decoder attention layers,
+15 + 15 octaves, 4 heads, token width 32 (srt_k1, rpsrt_k2) or 16 (the others). rpsrt_k2 stores
 decoder_kwargs without `out_dims` like a config.yaml; the other Ray-Patch cases store `out_dims` = conv_features
 like an official checkpoint. Output layers are rescaled so that the pre-sigmoid outputs have mean 0 and standard
 deviation 1.5 on the case's own scene.
 
-| case | decoder | input views | targets | scene target_rays | what it covers |
+| case | decoder | input views (n x HxW) | targets (n x HxW) | scene target_rays | what it covers |
 |---|---|---|---|---|---|
 """
 
 
-def readme_row(case, scene):
-    k = 2 ** case.model_cfg["rp_kwargs"]["upsample"] if "rp_kwargs" in case.model_cfg else 1
+def patch_size(case):
+    return 2 ** case.model_cfg["rp_kwargs"]["upsample"] if "rp_kwargs" in case.model_cfg else 1
+
+
+def target_rays_shape(case):
+    """The shape of the case's scene target_rays: full resolution, or the patch grid with patch_rays."""
+    k = patch_size(case) if case.patch_rays else 1
+    return [case.num_targets, case.target_size[0] // k, case.target_size[1] // k, 3]
+
+
+def readme_row(case):
+    k = patch_size(case)
     decoder = "lightfield" if k == 1 else f"Ray-Patch k={k}"
     inputs = "{} x {}x{}".format(case.num_inputs, *case.input_size)
     targets = "{} x {}x{}".format(case.num_targets, *case.target_size)
-    return (f"| `{case.name}` | {decoder} | {inputs} | {targets} | {list(scene['target_rays'].shape)} "
-            f"| {case.description} |")
+    return f"| `{case.name}` | {decoder} | {inputs} | {targets} | {target_rays_shape(case)} | {case.description} |"
 
 
 def main(argv=None):
@@ -305,15 +339,24 @@ def main(argv=None):
     parser.add_argument("--out", required=True, type=Path, help="folder to write the case folders into")
     parser.add_argument("--full-size", action="store_true",
                         help="write only the official-size case rpsrt_k4_full (about 170 MB)")
+    parser.add_argument("--cases", help="comma-separated case names: write only these (and the README table)")
     args = parser.parse_args(argv)
 
+    # The command that writes every case; files written with --cases are the same as its, so they name it.
     command = "python3 tools/make_golden.py" + (" --full-size" if args.full_size else "") + f" --out {args.out}"
-    cases = [full_size_case()] if args.full_size else golden_cases()
-    rows = []
+    all_cases = [full_size_case()] if args.full_size else golden_cases()
+    cases = all_cases
+    if args.cases is not None:
+        names = [name.strip() for name in args.cases.split(",") if name.strip()]
+        unknown = [name for name in names if name not in {case.name for case in all_cases}]
+        if unknown or not names:
+            parser.error(("unknown case(s) " + ", ".join(unknown) if unknown else "--cases names no case")
+                         + "; the cases are " + ", ".join(case.name for case in all_cases))
+        cases = [case for case in all_cases if case.name in names]
     for case in cases:
         start = time.perf_counter()
         scene, expected = write_case(case, args.out, command)
-        rows.append(readme_row(case, scene))
+        assert list(scene["target_rays"].shape) == target_rays_shape(case), case.name
         rgb = expected["rgb"]
         shapes = ", ".join(f"{name} {list(tensor.shape)}" for name, tensor in {**scene, **expected}.items()
                            if not name.endswith("_f64"))
@@ -321,6 +364,7 @@ def main(argv=None):
               f"max |rgb - rgb_f64| {(rgb.double() - expected['rgb_f64']).abs().max():.2e}, "
               f"{time.perf_counter() - start:.1f} s")
     if not args.full_size:
+        rows = [readme_row(case) for case in all_cases]
         (args.out / "README.md").write_text(README_HEADER.format(command=command) + "\n".join(rows) + "\n")
     return 0
 

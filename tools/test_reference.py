@@ -188,6 +188,20 @@ def target_size_rules():
 
 
 @check
+def input_sizes_give_ceil_tokens():
+    """Inputs of any size encode, as in PyTorch: 3 stride-2 convs (padding 1) give ceil(H/8) x ceil(W/8) tokens a
+    view (60x80: 8x10, 40x60: 5x8, height x width)."""
+    model = random_model(make_golden.small_config("lightfield", width=16))
+    for num_views, height, width in ((1, 60, 80), (2, 40, 60), (1, 7, 9), (1, 1, 1)):
+        position = look_at_positions(np.full(num_views, 30.0), np.full(num_views, 8.0), np.full(num_views, 20.0))
+        rays = torch.from_numpy(np.stack([get_camera_rays(p, width, height) for p in position]))
+        images = torch.rand(num_views, 3, height, width)
+        with torch.no_grad():
+            z = model.encode(images[None], torch.from_numpy(position)[None], rays[None])
+        assert z.shape == (1, num_views * -(-height // 8) * -(-width // 8), 16), (num_views, height, width, z.shape)
+
+
+@check
 def depth_channel():
     case, scene = scene_tensors("srt_k1_depth")
     out = make_golden.run_model(random_model(case.model_cfg), scene, case.target_size, torch.float32)
@@ -389,13 +403,16 @@ def matches_official_code():
     for position in look_at_positions([10.0, 130.0, 250.0], [5.0, 8.0, 12.0], [15.0, 40.0, 70.0]):
         assert np.array_equal(get_camera_rays(position, 40, 30), official_rays(position, width=40, height=30))
 
-    _, scene = scene_tensors("rpsrt_k4")
-    images = scene["input_images"].permute(0, 3, 1, 2)[None]
-    for model_cfg in (SRT_MDBN_32, RPSRT_MDBN_4_32):
+    # rpsrt_k4's 2 views of 24x32, and input sizes that 8 does not divide (2 views of 40x60, 1 of 60x80).
+    for case_name, model_cfg in [("rpsrt_k4", SRT_MDBN_32), ("rpsrt_k4", RPSRT_MDBN_4_32),
+                                 ("rpsrt_k4_in40x60_2views", RPSRT_MDBN_4_32), ("srt_k1_in60x80", SRT_MDBN_32)]:
+        _, scene = scene_tensors(case_name)
+        images = scene["input_images"].permute(0, 3, 1, 2)[None]
         model_cfg = copy.deepcopy(model_cfg)
         featurefield = model_cfg["decoder"] == "featurefield"
-        if featurefield:  # the official decoder only knows its configured grid: the 8x12 patches of 32x48
-            model_cfg["rp_kwargs"].update(h_in=8, w_in=12)
+        if featurefield:  # the official decoder only knows its configured grid: the patch grid of the targets
+            model_cfg["rp_kwargs"].update(h_in=scene["target_rays"].shape[1] // 4,
+                                          w_in=scene["target_rays"].shape[2] // 4)
         model = random_model(model_cfg)
         encoder = official_encoder.SRTEncoder(**model_cfg["encoder_kwargs"])
         decoder_att = official_decoder.SRTDecoder(**{**model_cfg["decoder_kwargs"],
@@ -417,11 +434,13 @@ def matches_official_code():
             rays = scene["target_rays"]
             if featurefield:
                 rays = make_golden.patch_rays_of(model, scene)["target_rays"]
-            positions = scene["target_camera_pos"][:, None].expand(2, rays.shape[1] * rays.shape[2], 3)
+            positions = scene["target_camera_pos"][:, None].expand(-1, rays.shape[1] * rays.shape[2], 3)
             out = decoder_att(z_official, positions.reshape(1, -1, 3), rays.reshape(1, -1, 3))
             if featurefield:
                 out = decoder_rp(out).flatten(1, 3)
             rgb_official = torch.sigmoid(out)
+        num_views, height, width = images.shape[1], images.shape[3], images.shape[4]
+        assert z.shape[1] == num_views * -(-height // 8) * -(-width // 8), (case_name, z.shape)
         assert torch.allclose(z, z_official, atol=1e-5, rtol=1e-5), (z - z_official).abs().max()
         assert torch.allclose(rgb.reshape(1, -1, 3), rgb_official, atol=1e-5), \
             (rgb.reshape(1, -1, 3) - rgb_official).abs().max()

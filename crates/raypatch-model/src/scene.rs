@@ -183,18 +183,27 @@ fn parse_size(text: &str) -> Option<(usize, usize)> {
 }
 
 impl InputViews {
-    /// Checks that the model can encode these views.
-    pub fn check_for(&self, config: &ModelConfig, path: &str) -> Result<(), ModelError> {
-        let d = config.input_divisor();
-        if !self.height.is_multiple_of(d) || !self.width.is_multiple_of(d) {
-            return Err(ModelError::Value {
-                path: path.into(),
-                key: "input_images".into(),
-                reason: format!(
-                    "input size {}x{} (width x height) is not divisible by {d} (the model's {} conv blocks each halve it)",
-                    self.width, self.height, config.encoder.num_conv_blocks
-                ),
-            });
+    /// Checks that the model can encode these views: at least one non-empty view, and buffers that hold
+    /// `count` views of `height`×`width`. Any size is encodable, as in PyTorch: each of the model's conv
+    /// blocks ends in a stride-2 3×3 convolution with padding 1, which maps a side s to ceil(s / 2), so with
+    /// the official 3 blocks 60×80 inputs (height × width) give 30×40, 15×20, then 8×10 tokens per view.
+    pub fn check_for(&self, _config: &ModelConfig, path: &str) -> Result<(), ModelError> {
+        let err = |key: &str, reason: String| Err(ModelError::Value { path: path.into(), key: key.into(), reason });
+        let (n, h, w) = (self.count, self.height, self.width);
+        if n == 0 || h == 0 || w == 0 {
+            return err(
+                "input_images",
+                format!("{n} views of {w}x{h} (width x height): the model needs at least one non-empty input view"),
+            );
+        }
+        for (key, len, want, what) in [
+            ("input_images", self.images.len(), n * h * w * 3, "N*H*W*3"),
+            ("input_camera_pos", self.camera_pos.len(), n * 3, "N*3"),
+            ("input_rays", self.rays.len(), n * h * w * 3, "N*H*W*3"),
+        ] {
+            if len != want {
+                return err(key, format!("{len} values, expected {what} = {want} for {n} views of {w}x{h}"));
+            }
         }
         Ok(())
     }

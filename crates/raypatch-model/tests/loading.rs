@@ -3,7 +3,9 @@
 
 use std::collections::HashMap;
 
-use raypatch_model::{load_model, scene::scene_from_file, weights::model_from_file, ModelError, TensorFile};
+use raypatch_model::{
+    load_model, scene::scene_from_file, weights::model_from_file, InputViews, ModelError, TensorFile,
+};
 use safetensors::tensor::TensorView;
 use safetensors::{Dtype, SafeTensors};
 
@@ -142,4 +144,30 @@ fn scene_errors_are_named() {
         e.2 = vec![3, 1];
     });
     assert_mentions(&err, &["input_camera_pos", "expected"]);
+}
+
+/// The model check takes inputs of any size, as PyTorch does (60x80, height x width, gives 8x10 tokens a view;
+/// the golden cases `*_in60x80` and `*_in40x60` render such inputs), and refuses only empty views and buffers
+/// that do not hold `count` views of `height`x`width`.
+#[test]
+fn input_views_of_any_size_pass_the_model_check() {
+    let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
+    let config = load_model(&path).unwrap().config;
+    let views = |count: usize, height: usize, width: usize| InputViews {
+        count,
+        height,
+        width,
+        images: vec![0.5; count * height * width * 3],
+        camera_pos: vec![1.0; count * 3],
+        rays: vec![0.0; count * height * width * 3],
+    };
+    for (count, height, width) in [(1, 60, 80), (2, 40, 60), (1, 7, 9), (1, 1, 1)] {
+        views(count, height, width).check_for(&config, "inputs").unwrap();
+    }
+    let err = views(1, 0, 80).check_for(&config, "inputs").unwrap_err().to_string();
+    assert_mentions(&err, &["inputs", "input_images", "non-empty"]);
+    let mut short = views(2, 60, 80);
+    short.rays.truncate(60 * 80 * 3);
+    let err = short.check_for(&config, "inputs").unwrap_err().to_string();
+    assert_mentions(&err, &["input_rays", "14400 values", "28800"]);
 }
