@@ -57,7 +57,7 @@ fn transient_buffers_are_shared() {
 
 #[test]
 fn debug_mode_reads_back_every_op() {
-    use raypatch_engine::kernels::elementwise::{map_columns, Map};
+    use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
     use raypatch_engine::plan::PlanBuilder;
 
     let gpu = Gpu::new(&GpuOptions::default()).expect("no GPU adapter");
@@ -66,8 +66,8 @@ fn debug_mode_reads_back_every_op() {
     let y = b.transient("y", 2, 3);
     let z = b.output("z", 2, 3);
     let (xv, yv, zv) = (b.all(x), b.all(y), b.all(z));
-    map_columns(&mut b, "sigmoid", xv, 0, yv, Map::Sigmoid);
-    map_columns(&mut b, "copy", yv, 0, zv, Map::Identity);
+    map_columns(&mut b, "sigmoid", MapColumnsArgs { x: xv, col: 0, out: yv, map: Map::Sigmoid });
+    map_columns(&mut b, "copy", MapColumnsArgs { x: yv, col: 0, out: zv, map: Map::Identity });
     let plan = b.build(&gpu).unwrap();
     gpu.write(&plan.tensor(x), &[0.0, 1.0, -1.0, 2.0, -2.0, 10.0]);
     let outputs = plan.execute_debug(&gpu).unwrap();

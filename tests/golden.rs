@@ -121,7 +121,7 @@ fn full_size_rpsrt_k4_matches_pytorch() {
 /// the engine's patch rays must equal the ones the official loader makes, bit for bit.
 #[test]
 fn patch_rays_are_bit_exact() {
-    use raypatch_engine::kernels::resize::bilinear;
+    use raypatch_engine::kernels::resize::{bilinear, ResizeArgs};
     use raypatch_engine::plan::PlanBuilder;
 
     let gpu = shared_gpu();
@@ -142,7 +142,8 @@ fn patch_rays_are_bit_exact() {
         let rays = b.input("rays", t.count * t.rays_height * t.rays_width, 3);
         let patch = b.output("patch_rays", t.count * ph * pw, 3);
         let (src, dst) = (b.all(rays), b.all(patch));
-        bilinear(&mut b, "patch_rays", src, t.count, t.rays_height, t.rays_width, dst, ph, pw, false);
+        let (n, from) = (t.count, (t.rays_height, t.rays_width));
+        bilinear(&mut b, "patch_rays", ResizeArgs { x: src, n, from, out: dst, to: (ph, pw), accumulate: false });
         let plan = b.build(&gpu).unwrap();
         gpu.write(&plan.tensor(rays), &t.rays);
         plan.execute(&gpu);

@@ -4,7 +4,7 @@
 //!
 //! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
-use raypatch_engine::kernels::attention::attention;
+use raypatch_engine::kernels::attention::{attention, AttentionArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference;
 use raypatch_engine::tensor::padded_cols;
@@ -84,20 +84,19 @@ impl Case {
         let k = plan.rows_of(ids[self.k.tensor], self.k.row, self.nkv);
         let v = plan.rows_of(ids[self.v.tensor], self.v.row, self.nkv);
         let out = plan.rows_of(out_id, self.out_row, self.nq);
-        attention(
-            &mut plan,
-            "attn",
+        let args = AttentionArgs {
             q,
-            self.q.col,
+            q_col: self.q.col,
             k,
-            self.k.col,
+            k_col: self.k.col,
             v,
-            self.v.col,
+            v_col: self.v.col,
             out,
-            self.heads,
-            self.dim_head,
-            self.scale,
-        );
+            heads: self.heads,
+            dim_head: self.dim_head,
+            scale: self.scale,
+        };
+        attention(&mut plan, "attn", args);
         let plan = run(plan);
 
         let padded = gpu.read(&padded_out).unwrap();
@@ -389,5 +388,7 @@ fn attention_rejects_wrong_output_width() {
     let qkv = plan.input("qkv", 10, 3 * 16);
     let out = plan.output("out", 10, 15);
     let (qkv, out) = (plan.all(qkv), plan.all(out));
-    attention(&mut plan, "attn", qkv, 0, qkv, 16, qkv, 32, out, 2, 8, 0.35);
+    let (q, k, v) = (qkv, qkv, qkv);
+    let args = AttentionArgs { q, q_col: 0, k, k_col: 16, v, v_col: 32, out, heads: 2, dim_head: 8, scale: 0.35 };
+    attention(&mut plan, "attn", args);
 }

@@ -1,6 +1,6 @@
 //! conv3x3 against the float64 reference, and the placement helpers the resize tests share.
 
-use raypatch_engine::kernels::conv::{conv3x3, pack_conv3x3};
+use raypatch_engine::kernels::conv::{conv3x3, pack_conv3x3, Conv3x3Args};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::{PlanBuilder, View};
 use raypatch_engine::reference::conv as reference;
@@ -88,14 +88,14 @@ impl Case {
         let x = rng.vec_f32(n * h * w * cin, -1.0, 1.0);
         // Kaiming-like scale keeps outputs O(1) for every cin.
         let scale = (3.0 / (9 * cin) as f64).sqrt();
-        let weight = rng.vec_f32(cout * cin * 9, -scale, scale);
+        let weight_data = rng.vec_f32(cout * cin * 9, -scale, scale);
         let bias_data = bias.then(|| rng.vec_f32(cout, -1.0, 1.0));
         let init = rng.vec_f32(n * ho * wo * cout, -1.0, 1.0);
 
         let gpu = gpu();
         let xp = Placed::new(rng, "x", &x, cin, 0.0);
         let op = Placed::new(rng, "out", &init, cout, if accumulate { 0.0 } else { f32::NAN });
-        let wt = gpu.upload("w", cout, 9 * padded_cols(cin), &pack_conv3x3(&weight, cout, cin)).expect("upload");
+        let wt = gpu.upload("w", cout, 9 * padded_cols(cin), &pack_conv3x3(&weight_data, cout, cin)).expect("upload");
         let bt = bias_data.as_ref().map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
 
         let mut plan = PlanBuilder::new();
@@ -103,7 +103,10 @@ impl Case {
         let ov = op.view(&mut plan, "out");
         let wid = plan.external("w", &wt);
         let bid = bt.as_ref().map(|b| plan.external("b", b));
-        conv3x3(&mut plan, "conv", xv, n, h, w, cin, wid, bid, ov, cout, stride, upsample, act, accumulate);
+        let (weight, bias, upsample_input) = (wid, bid, upsample);
+        let args =
+            Conv3x3Args { x: xv, n, h, w, cin, weight, bias, out: ov, cout, stride, upsample_input, act, accumulate };
+        conv3x3(&mut plan, "conv", args);
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 
@@ -114,7 +117,7 @@ impl Case {
             h,
             w,
             cin,
-            &to_f64(&weight),
+            &to_f64(&weight_data),
             bias_data.map(|b| to_f64(&b)).as_deref(),
             cout,
             stride,

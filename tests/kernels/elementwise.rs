@@ -2,7 +2,7 @@
 
 use std::ops::Range;
 
-use raypatch_engine::kernels::elementwise::{map_columns, Map};
+use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::elementwise as reference;
 
@@ -29,7 +29,7 @@ fn run_map(
     let mut b = PlanBuilder::new();
     let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
     let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
-    map_columns(&mut b, "map", xv, columns.start, ov, f);
+    map_columns(&mut b, "map", MapColumnsArgs { x: xv, col: columns.start, out: ov, map: f });
     run(b);
     read_written_rows(&out, out_start..out_start + rows, SENTINEL)
 }

@@ -8,6 +8,7 @@ mod attention;
 mod conv;
 mod elementwise;
 mod matmul;
+mod multiply_adds;
 mod norm;
 mod posenc;
 mod resize;

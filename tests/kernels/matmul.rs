@@ -1,7 +1,7 @@
 //! `linear` against the float64 reference: random shapes (tails of the 256x8 workgroup tile), every
 //! activation, with and without bias, accumulate, row-range views; plus erf accuracy through GELU.
 
-use raypatch_engine::kernels::matmul::linear;
+use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::matmul as reference;
@@ -77,7 +77,8 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let out_id = plan.external("out", &out_t);
     let x_view = plan.rows_of(x_id, x_start, m);
     let out_view = plan.rows_of(out_id, out_start, m);
-    linear(&mut plan, "linear", x_view, w_id, bias_id, out_view, act, case.accumulate);
+    let args = LinearArgs { x: x_view, weight: w_id, bias: bias_id, out: out_view, act, accumulate: case.accumulate };
+    linear(&mut plan, "linear", args);
     run(plan);
     let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
 
@@ -207,7 +208,8 @@ fn gelu_erf_accuracy() {
     let w = plan.external("w", &w_t);
     let out = plan.output("gelu", points, 1);
     let (x_view, out_view) = (plan.all(x), plan.all(out));
-    linear(&mut plan, "gelu", x_view, w, None, out_view, Activation::Gelu, false);
+    let args = LinearArgs { x: x_view, weight: w, bias: None, out: out_view, act: Activation::Gelu, accumulate: false };
+    linear(&mut plan, "gelu", args);
     let plan = run(plan);
     let gelu = gpu.read(&plan.tensor(out)).unwrap();
 

@@ -2,7 +2,7 @@
 
 use std::ops::Range;
 
-use raypatch_engine::kernels::norm::layernorm;
+use raypatch_engine::kernels::norm::{layernorm, LayerNormArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::norm as reference;
 use raypatch_engine::GpuTensor;
@@ -34,7 +34,7 @@ fn run_layernorm(
     let (xi, gi, bi, oi) =
         (b.external("x", x), b.external("gamma", &gamma), b.external("beta", &beta), b.external("out", &out));
     let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
-    layernorm(&mut b, "ln", xv, gi, bi, ov, eps);
+    layernorm(&mut b, "ln", LayerNormArgs { x: xv, gamma: gi, beta: bi, out: ov, eps });
     run(b);
     read_written_rows(&out, out_start..out_start + rows, SENTINEL)
 }

@@ -1,6 +1,6 @@
 //! Fourier positional encoding against the float64 reference, and its multipliers against torch.
 
-use raypatch_engine::kernels::posenc::{fourier_encode, multipliers};
+use raypatch_engine::kernels::posenc::{fourier_encode, multipliers, FourierArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::posenc as reference;
 use raypatch_engine::tensor::padded_cols;
@@ -48,7 +48,8 @@ fn encode(
     let mut b = PlanBuilder::new();
     let (ci, oi) = (b.external("coords", &coords), b.external("out", &out_t));
     let (cv, ov) = (b.rows_of(ci, coords_start, coord_rows), b.rows_of(oi, out.start, out.rows));
-    fourier_encode(&mut b, "posenc", cv, repeat, first_row, m, ov, out.col);
+    let args = FourierArgs { coords: cv, repeat, first_row, multipliers: m, out: ov, col: out.col };
+    fourier_encode(&mut b, "posenc", args);
     run(b);
     let padded = gpu.read_rows(&out_t.buffer, 0, out.total, ld).unwrap();
     let ends_row = out.col + width == out.cols;

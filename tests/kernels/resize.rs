@@ -1,6 +1,6 @@
 //! Bilinear and nearest resizes against the float64 reference.
 
-use raypatch_engine::kernels::resize::{bilinear, nearest};
+use raypatch_engine::kernels::resize::{bilinear, nearest, ResizeArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::resize as reference;
 
@@ -19,7 +19,7 @@ fn check(rng: &mut Rng, accumulate: bool, n: usize, hi: usize, wi: usize, c: usi
     let mut plan = PlanBuilder::new();
     let xv = xp.view(&mut plan, "x");
     let ov = op.view(&mut plan, "out");
-    bilinear(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo, accumulate);
+    bilinear(&mut plan, "resize", ResizeArgs { x: xv, n, from: (hi, wi), out: ov, to: (ho, wo), accumulate });
     run(plan);
     let got = op.read_view(&what);
 
@@ -103,7 +103,8 @@ fn nearest_matches_reference_exactly() {
         let op = Placed::new(&mut rng, "out", &vec![0.0; n * ho * wo * c], c, f32::NAN);
         let mut plan = PlanBuilder::new();
         let (xv, ov) = (xp.view(&mut plan, "x"), op.view(&mut plan, "out"));
-        nearest(&mut plan, "resize", xv, n, hi, wi, ov, ho, wo);
+        let args = ResizeArgs { x: xv, n, from: (hi, wi), out: ov, to: (ho, wo), accumulate: false };
+        nearest(&mut plan, "resize", args);
         run(plan);
         let got = op.read_view(&what);
         assert_close(&what, &got, &reference::nearest(&to_f64(&x), n, hi, wi, c, ho, wo), 0.0, 0.0);

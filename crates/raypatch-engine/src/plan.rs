@@ -43,10 +43,13 @@ pub struct Op {
     pub label: String,
     pub shader: &'static Shader,
     pub entry: &'static str,
-    /// Uniform contents as 32-bit words (f32 params as `f32::to_bits`).
+    /// Uniform contents as 32-bit words: the kernel's `Params` struct cast with bytemuck (`kernels::params!`).
     pub params: Vec<u32>,
     pub bindings: Vec<(View, Access)>,
     pub workgroups: [u32; 3],
+    /// Multiply-adds of the op's arithmetic (matmuls, attention products, convolutions); 0 for ops whose
+    /// work is linear in their data (norms, encodings, resizes, elementwise maps).
+    pub multiply_adds: u64,
 }
 
 /// Workgroup grid for `groups` groups: WebGPU caps each dimension at 65535, so large counts spill into y.
@@ -168,6 +171,11 @@ impl PlanBuilder {
 
     pub fn op_count(&self) -> usize {
         self.ops.len()
+    }
+
+    /// Multiply-adds of the ops recorded so far.
+    pub fn multiply_adds(&self) -> u64 {
+        self.ops.iter().map(|op| op.multiply_adds).sum()
     }
 
     /// Bytes of the largest tensor the plan binds (what [`Gpu::check_binding_size`] must accept).
@@ -316,7 +324,8 @@ impl PlanBuilder {
         }
 
         let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols, t.dtype)).collect();
-        Ok(Plan { ops: planned, buffers, infos, peak_bytes, _uniforms: uniforms })
+        let multiply_adds = ops.iter().map(|op| op.multiply_adds).sum();
+        Ok(Plan { ops: planned, buffers, infos, peak_bytes, multiply_adds, _uniforms: uniforms })
     }
 }
 
@@ -336,6 +345,7 @@ pub struct Plan {
     buffers: Vec<Arc<wgpu::Buffer>>,
     infos: Vec<(String, usize, usize, Dtype)>,
     peak_bytes: u64,
+    multiply_adds: u64,
     _uniforms: wgpu::Buffer,
 }
 
@@ -357,6 +367,11 @@ impl Plan {
 
     pub fn dispatch_count(&self) -> usize {
         self.ops.len()
+    }
+
+    /// Multiply-adds of one execution: the sum of its ops' [`Op::multiply_adds`].
+    pub fn multiply_adds(&self) -> u64 {
+        self.multiply_adds
     }
 
     pub fn op_labels(&self) -> impl Iterator<Item = &str> {

@@ -15,10 +15,14 @@ use raypatch_model::{InputViews, LoadedModel, ModelConfig, Octaves, TargetGrid, 
 
 use crate::error::{EngineError, Result};
 use crate::gpu::Gpu;
-use crate::kernels::elementwise::{map_columns, Map};
-use crate::kernels::{
-    attention::attention, conv::conv3x3, matmul::linear, norm::layernorm, posenc, resize, Activation,
-};
+use crate::kernels::attention::{attention, AttentionArgs};
+use crate::kernels::conv::{conv3x3, Conv3x3Args};
+use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use crate::kernels::matmul::{linear, LinearArgs};
+use crate::kernels::norm::{layernorm, LayerNormArgs};
+use crate::kernels::posenc::{self, FourierArgs};
+use crate::kernels::resize::{self, ResizeArgs};
+use crate::kernels::Activation;
 use crate::plan::{Plan, PlanBuilder, TensorId, View};
 use crate::tensor::{padded_cols, GpuTensor};
 use crate::weights::{Conv3x3, KeptF32, LayerNorm, Linear, LoadOptions, SrtWeights};
@@ -263,17 +267,12 @@ impl Model {
         let (pos_view, input_view, rays_view) = (b.all(camera_pos), b.all(input), b.all(rays));
         let pos_mult = multipliers(&e.pos_octaves);
         let ray_mult = multipliers(&e.ray_octaves);
-        posenc::fourier_encode(&mut b, "encoder.pos_enc", pos_view, height * width, 0, &pos_mult, input_view, 3);
-        posenc::fourier_encode(
-            &mut b,
-            "encoder.ray_enc",
-            rays_view,
-            1,
-            0,
-            &ray_mult,
-            input_view,
-            3 + 6 * pos_mult.len(),
-        );
+        let (repeat, multipliers) = (height * width, &pos_mult[..]);
+        let args = FourierArgs { coords: pos_view, repeat, first_row: 0, multipliers, out: input_view, col: 3 };
+        posenc::fourier_encode(&mut b, "encoder.pos_enc", args);
+        let (multipliers, col) = (&ray_mult[..], 3 + 6 * pos_mult.len());
+        let args = FourierArgs { coords: rays_view, repeat: 1, first_row: 0, multipliers, out: input_view, col };
+        posenc::fourier_encode(&mut b, "encoder.ray_enc", args);
 
         // SRTConvBlocks: conv(stride 1) → BN → ReLU → conv(stride 2) → BN → ReLU, BN folded.
         let (mut x, mut h, mut wd) = (input, height, width);
@@ -326,7 +325,9 @@ impl Model {
             let heads_out = b.transient(&format!("{p}.attention"), tokens, inner);
             let (q, o) = (b.all(qkv), b.all(heads_out));
             let scale = (e.dim_head as f32).powf(-0.5);
-            attention(&mut b, &format!("{p}.0.fn.attend"), q, 0, q, inner, q, 2 * inner, o, e.heads, e.dim_head, scale);
+            let (k, v, out, heads, dim_head) = (q, q, o, e.heads, e.dim_head);
+            let args = AttentionArgs { q, q_col: 0, k, k_col: inner, v, v_col: 2 * inner, out, heads, dim_head, scale };
+            attention(&mut b, &format!("{p}.0.fn.attend"), args);
             dense(&mut b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, latent, Activation::None, true);
             feed_forward(&mut b, &p, latent, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
@@ -638,7 +639,9 @@ impl EncodedScene<'_> {
             let full = b.input("target_rays", views * grid.height * grid.width, 3);
             let patch = b.transient("patch_rays", queries, 3);
             let (src, dst) = (b.all(full), b.all(patch));
-            resize::bilinear(&mut b, "patch_rays", src, views, grid.height, grid.width, dst, ph, pw, false);
+            let from = (grid.height, grid.width);
+            let args = ResizeArgs { x: src, n: views, from, out: dst, to: (ph, pw), accumulate: false };
+            resize::bilinear(&mut b, "patch_rays", args);
             (full, patch)
         } else {
             let rays = b.input("target_rays", queries, 3);
@@ -688,20 +691,22 @@ impl EncodedScene<'_> {
             // The official RayPatchDecoder's F.interpolate(output, (h_out, w_out)): nearest, to the target size.
             let resized = b.transient("decoder_rp.resize_out", views * grid.height * grid.width, channels);
             let (src, dst) = (b.all(image), b.all(resized));
-            resize::nearest(&mut b, "decoder_rp.resize_out", src, views, ph * k, pw * k, dst, grid.height, grid.width);
+            let (from, to) = ((ph * k, pw * k), (grid.height, grid.width));
+            let args = ResizeArgs { x: src, n: views, from, out: dst, to, accumulate: false };
+            resize::nearest(&mut b, "decoder_rp.resize_out", args);
             image = resized;
         }
         let pixels = views * grid.height * grid.width;
         let rgb = outputs.rgb.then(|| {
             let rgb = b.output("rgb", pixels, 3);
             let (src, dst) = (b.all(image), b.all(rgb));
-            map_columns(&mut b, "sigmoid", src, 0, dst, Map::Sigmoid);
+            map_columns(&mut b, "sigmoid", MapColumnsArgs { x: src, col: 0, out: dst, map: Map::Sigmoid });
             rgb
         });
         let logdepth = outputs.logdepth.then(|| {
             let depth = b.output("logdepth", pixels, 1);
             let (src, dst) = (b.all(image), b.all(depth));
-            map_columns(&mut b, "logdepth", src, 3, dst, Map::Identity);
+            map_columns(&mut b, "logdepth", MapColumnsArgs { x: src, col: 3, out: dst, map: Map::Identity });
             depth
         });
         (b, RenderIds { target_pos, target_rays, rgb, logdepth, queries })
@@ -730,8 +735,12 @@ impl EncodedScene<'_> {
         // q = cat(posenc(camera_pos), posenc(ray)); the position is broadcast over its view's rays.
         let query = b.transient(&tag("query"), rows, cfg.query_dim());
         let (pos, q) = (b.all(target_pos), b.all(query));
-        posenc::fourier_encode(b, &tag("pos_enc"), pos, queries_per_view, start, pos_mult, q, 0);
-        posenc::fourier_encode(b, &tag("ray_enc"), rays, 1, 0, ray_mult, q, 6 * pos_mult.len());
+        let (repeat, multipliers) = (queries_per_view, pos_mult);
+        let args = FourierArgs { coords: pos, repeat, first_row: start, multipliers, out: q, col: 0 };
+        posenc::fourier_encode(b, &tag("pos_enc"), args);
+        let (multipliers, col) = (ray_mult, 6 * pos_mult.len());
+        let args = FourierArgs { coords: rays, repeat: 1, first_row: 0, multipliers, out: q, col };
+        posenc::fourier_encode(b, &tag("ray_enc"), args);
 
         let hidden = b.transient(&tag("input_mlp.hidden"), rows, d.input_mlp_hidden);
         dense(b, &tag("ray_predictor.input_mlp.0"), query, &w.input_mlp.0, hidden, Activation::Relu, false);
@@ -746,8 +755,10 @@ impl EncodedScene<'_> {
             let q = b.transient(&format!("{p}.q"), rows, inner);
             dense(b, &format!("{p}.0.fn.to_q"), normed, &layer.to_q, q, Activation::None, false);
             let heads_out = b.transient(&format!("{p}.attention"), rows, inner);
-            let (qv, kvv, o) = (b.all(q), b.all(kv), b.all(heads_out));
-            attention(b, &format!("{p}.0.fn.attend"), qv, 0, kvv, 0, kvv, inner, o, d.heads, d.dim_head, scale);
+            let (q, k, out) = (b.all(q), b.all(kv), b.all(heads_out));
+            let (v, heads, dim_head) = (k, d.heads, d.dim_head);
+            let args = AttentionArgs { q, q_col: 0, k, k_col: 0, v, v_col: inner, out, heads, dim_head, scale };
+            attention(b, &format!("{p}.0.fn.attend"), args);
             dense(b, &format!("{p}.0.fn.to_out"), heads_out, &layer.to_out, x, Activation::None, true);
             feed_forward(b, &p, x, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
@@ -786,7 +797,8 @@ fn ray_patch_decoder(
     conv(b, &format!("{p}.conv_0"), features, views, h, w, &rp.conv_0, first_skip, 1, false, Activation::None, false);
     let mut skip = b.transient(&format!("{p}.skip.0"), views * 4 * h * w, channels);
     let (src, dst) = (b.all(first_skip), b.all(skip));
-    resize::bilinear(b, &format!("{p}.skip.0"), src, views, h, w, dst, 2 * h, 2 * w, false);
+    let args = ResizeArgs { x: src, n: views, from: (h, w), out: dst, to: (2 * h, 2 * w), accumulate: false };
+    resize::bilinear(b, &format!("{p}.skip.0"), args);
     let mut x = features;
     for (i, (feature_conv, to_rgb)) in rp.blocks.iter().enumerate() {
         let (h2, w2) = (2 * h, 2 * w);
@@ -798,7 +810,9 @@ fn ray_patch_decoder(
         if i + 1 < rp.blocks.len() {
             let next = b.transient(&format!("{p}.skip.{}", i + 1), views * 4 * h2 * w2, channels);
             let (src, dst) = (b.all(skip), b.all(next));
-            resize::bilinear(b, &format!("{p}.skip.{}", i + 1), src, views, h2, w2, dst, 2 * h2, 2 * w2, false);
+            let (from, to) = ((h2, w2), (2 * h2, 2 * w2));
+            let args = ResizeArgs { x: src, n: views, from, out: dst, to, accumulate: false };
+            resize::bilinear(b, &format!("{p}.skip.{}", i + 1), args);
             skip = next;
         }
         (x, h, w) = (up, h2, w2);
@@ -898,7 +912,7 @@ fn dense(
 fn dense_view(b: &mut PlanBuilder, label: &str, x: View, lin: &Linear, out: View, act: Activation, accumulate: bool) {
     let weight = b.external(label, &lin.weight);
     let bias = lin.bias.as_ref().map(|t| b.external(label, t));
-    linear(b, label, x, weight, bias, out, act, accumulate);
+    linear(b, label, LinearArgs { x, weight, bias, out, act, accumulate });
 }
 
 fn norm(b: &mut PlanBuilder, label: &str, x: TensorId, ln: &LayerNorm) -> TensorId {
@@ -906,7 +920,7 @@ fn norm(b: &mut PlanBuilder, label: &str, x: TensorId, ln: &LayerNorm) -> Tensor
     let gamma = b.external(label, &ln.gamma);
     let beta = b.external(label, &ln.beta);
     let (xv, ov) = (b.all(x), b.all(out));
-    layernorm(b, label, xv, gamma, beta, ov, LAYER_NORM_EPS);
+    layernorm(b, label, LayerNormArgs { x: xv, gamma, beta, out: ov, eps: LAYER_NORM_EPS });
     out
 }
 
@@ -936,5 +950,8 @@ fn conv(
     let weight = b.external(label, &c.weight);
     let bias = c.bias.as_ref().map(|t| b.external(label, t));
     let (xv, ov) = (b.all(x), b.all(out));
-    conv3x3(b, label, xv, n, h, w, c.cin, weight, bias, ov, c.cout, stride, upsample_input, act, accumulate);
+    let (cin, cout) = (c.cin, c.cout);
+    let args =
+        Conv3x3Args { x: xv, n, h, w, cin, weight, bias, out: ov, cout, stride, upsample_input, act, accumulate };
+    conv3x3(b, label, args);
 }

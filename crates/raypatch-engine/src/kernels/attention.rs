@@ -9,6 +9,39 @@ const ROWS_PER_GROUP: usize = 64 * 8;
 /// Largest `dim_head`: the kernel keeps a head of each query in private arrays of `MAX_CHUNKS * 4` floats.
 pub const MAX_DIM_HEAD: usize = 128;
 
+params! {
+    /// The uniform of `shaders/attention.wgsl`.
+    AttentionParams {
+        nq: u32,
+        nkv: u32,
+        heads: u32,
+        dim_head: u32,
+        q_ld: u32,
+        q_col: u32,
+        k_ld: u32,
+        k_col: u32,
+        v_ld: u32,
+        v_col: u32,
+        out_ld: u32,
+        scale: f32,
+    }
+}
+
+/// An attention op's operands: see [`attention`]. Each `*_col` is where that matrix starts within its rows.
+#[derive(Clone, Copy, Debug)]
+pub struct AttentionArgs {
+    pub q: View,
+    pub q_col: usize,
+    pub k: View,
+    pub k_col: usize,
+    pub v: View,
+    pub v_col: usize,
+    pub out: View,
+    pub heads: usize,
+    pub dim_head: usize,
+    pub scale: f32,
+}
+
 /// Multi-head attention, PyTorch's `softmax(q kᵀ · scale) v` per head with heads split as `(h d)`.
 ///
 /// For each query row `i` and head `h` (`dh = dim_head`):
@@ -23,21 +56,9 @@ pub const MAX_DIM_HEAD: usize = 128;
 ///
 /// Columns need not be multiples of 4. The softmax is computed online (running max and sum per query and
 /// head, max-subtracted, so logits of any magnitude are safe); memory use does not depend on `nq * nkv`.
-#[allow(clippy::too_many_arguments)]
-pub fn attention(
-    plan: &mut PlanBuilder,
-    label: &str,
-    q: View,
-    q_col: usize,
-    k: View,
-    k_col: usize,
-    v: View,
-    v_col: usize,
-    out: View,
-    heads: usize,
-    dim_head: usize,
-    scale: f32,
-) {
+/// Records `2·nq·nkv·dim_head·heads` multiply-adds (the scores and the weighted sum of values).
+pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
+    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
     if plan.failed() {
         return; // a tensor is too large to index: the plan will not be built
     }
@@ -58,29 +79,28 @@ pub fn attention(
     }
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
 
-    let params = [
-        q.rows,
-        k.rows,
-        heads,
-        dim_head,
-        plan.ld(q.id),
-        q_col,
-        plan.ld(k.id),
-        k_col,
-        plan.ld(v.id),
-        v_col,
-        plan.ld(out.id),
-    ]
-    .iter()
-    .map(|&x| u32::try_from(x).expect("attention param exceeds u32"))
-    .chain([scale.to_bits()])
-    .collect();
+    let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
+    let params = AttentionParams {
+        nq: word(q.rows),
+        nkv: word(k.rows),
+        heads: word(heads),
+        dim_head: word(dim_head),
+        q_ld: word(plan.ld(q.id)),
+        q_col: word(q_col),
+        k_ld: word(plan.ld(k.id)),
+        k_col: word(k_col),
+        v_ld: word(plan.ld(v.id)),
+        v_col: word(v_col),
+        out_ld: word(plan.ld(out.id)),
+        scale,
+    };
     plan.push(Op {
         label: label.to_string(),
         shader: &ATTENTION,
         entry: "attention",
-        params,
+        params: params.words(),
         bindings: vec![(q, Access::Read), (k, Access::Read), (v, Access::Read), (out, Access::Write)],
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
+        multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
     });
 }

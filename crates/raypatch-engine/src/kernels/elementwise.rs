@@ -25,9 +25,38 @@ impl Map {
     }
 }
 
+params! {
+    /// The uniform of `shaders/elementwise.wgsl`.
+    ElementwiseParams {
+        rows: u32,
+        /// x's row stride in floats.
+        x_ld: u32,
+        /// First column of x read.
+        col: u32,
+        /// out's columns.
+        cols: u32,
+        /// out's row stride in vec4s.
+        ld4: u32,
+        /// The [`Map`]'s code.
+        f: u32,
+    }
+}
+
+/// A column map's operands: see [`map_columns`].
+#[derive(Clone, Copy, Debug)]
+pub struct MapColumnsArgs {
+    pub x: View,
+    /// First column of `x` read.
+    pub col: usize,
+    pub out: View,
+    pub map: Map,
+}
+
 /// `out[r, j] = f(x[r, col + j])` for `j < cols(out)` and every row of the views; zero padding in `out`.
-/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute.
-pub fn map_columns(plan: &mut PlanBuilder, label: &str, x: View, col: usize, out: View, f: Map) {
+/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute. Records no multiply-adds
+/// (elementwise work is not counted).
+pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
+    let MapColumnsArgs { x, col, out, map: f } = args;
     let cols = plan.cols(out.id);
     assert!(cols > 0, "map_columns {label}: out has no columns");
     assert!(
@@ -39,13 +68,21 @@ pub fn map_columns(plan: &mut PlanBuilder, label: &str, x: View, col: usize, out
     assert_eq!(out.rows, x.rows, "map_columns {label}: out has {} rows, x has {}", out.rows, x.rows);
     assert!(x.id != out.id, "map_columns {label}: cannot run in place");
     let ld4 = plan.ld(out.id) / 4;
-    let params = vec![x.rows as u32, plan.ld(x.id) as u32, col as u32, cols as u32, ld4 as u32, f.code()];
+    let params = ElementwiseParams {
+        rows: x.rows as u32,
+        x_ld: plan.ld(x.id) as u32,
+        col: col as u32,
+        cols: cols as u32,
+        ld4: ld4 as u32,
+        f: f.code(),
+    };
     plan.push(Op {
         label: label.to_string(),
         shader: &ELEMENTWISE,
         entry: "map_columns",
-        params,
+        params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::Write)],
         workgroups: grid((x.rows * ld4).div_ceil(GROUP_SIZE)),
+        multiply_adds: 0, // elementwise: not multiply-add work worth counting
     });
 }

@@ -1,12 +1,65 @@
 //! Kernel wrappers: each records one op of its WGSL kernel family into a [`PlanBuilder`](crate::plan::PlanBuilder).
 //!
-//! Conventions shared by every kernel (see also `shaders/README.md`):
-//! - binding 0 is the op's params (a uniform struct of 32-bit scalars); tensors follow from binding 1;
+//! Conventions shared by every kernel (`shaders/README.md` has them from the shader side):
+//! - binding 0 is the op's params: a uniform `struct Params` of 32-bit scalars (and, for posenc, an array
+//!   of vec4s), mirrored field for field by a `#[repr(C)]` Rust struct declared with `params!`;
+//!   `tests/uniforms.rs` checks that both sides agree. Tensors follow from binding 1;
 //! - tensors are row-major `[rows, cols]` with rows padded to `ld = round_up(cols, 4)`; a kernel writes
 //!   zeros into the padding of the rows it produces;
 //! - images are NHWC: one row per pixel, one column per channel;
 //! - workgroups are laid out with [`grid`](crate::plan::grid); a kernel takes its flat group index as
 //!   `wid.x + wid.y * nwg.x` and returns early past the end.
+//!
+//! Each op also records its multiply-adds ([`Op::multiply_adds`](crate::plan::Op::multiply_adds)).
+
+/// One field of a kernel's uniform as Rust lays it out: its name, byte offset and type as written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Field {
+    pub name: &'static str,
+    pub offset: usize,
+    pub ty: &'static str,
+}
+
+/// A kernel's uniform as Rust declares it, to compare with its shader's `Params` (`tests/uniforms.rs`).
+#[derive(Clone, Copy, Debug)]
+pub struct ParamsLayout {
+    /// The Rust struct's name.
+    pub name: &'static str,
+    pub fields: &'static [Field],
+    /// `size_of` the struct in bytes.
+    pub size: usize,
+}
+
+/// Declares a kernel's uniform: a `#[repr(C)]` [`bytemuck::Pod`] struct that mirrors the shader's
+/// `struct Params` field for field (same names, same order, f32 fields as `f32`), and its
+/// [`ParamsLayout`] as the associated const `LAYOUT` (names, `offset_of!` offsets, types).
+macro_rules! params {
+    ($(#[$meta:meta])* $name:ident { $($(#[$fmeta:meta])* $field:ident: $ty:ty,)* }) => {
+        $(#[$meta])*
+        #[repr(C)]
+        #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+        pub struct $name {
+            $($(#[$fmeta])* pub $field: $ty,)*
+        }
+
+        impl $name {
+            pub const LAYOUT: $crate::kernels::ParamsLayout = $crate::kernels::ParamsLayout {
+                name: stringify!($name),
+                fields: &[$($crate::kernels::Field {
+                    name: stringify!($field),
+                    offset: std::mem::offset_of!($name, $field),
+                    ty: stringify!($ty),
+                },)*],
+                size: std::mem::size_of::<$name>(),
+            };
+
+            /// The uniform as the 32-bit words [`Op::params`](crate::plan::Op::params) holds.
+            pub fn words(&self) -> Vec<u32> {
+                bytemuck::cast_slice(std::slice::from_ref(self)).to_vec()
+            }
+        }
+    };
+}
 
 pub mod attention;
 pub mod conv;
@@ -56,24 +109,63 @@ macro_rules! shader {
     };
 }
 
-pub static MATMUL: Shader = shader!("matmul", "activation");
-/// `matmul` with f16 weights: the same source with the weights' vector type replaced (f32 arithmetic).
-pub static MATMUL_F16: Shader = Shader {
-    name: "matmul_f16",
-    prefix: "enable f16;\n",
-    replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
-    features: wgpu::Features::SHADER_F16,
-    ..shader!("matmul", "activation")
-};
-pub static ATTENTION: Shader = shader!("attention");
-pub static LAYERNORM: Shader = shader!("layernorm");
-pub static POSENC: Shader = shader!("posenc");
-pub static RESIZE: Shader = shader!("resize");
-pub static CONV: Shader = shader!("conv", "activation");
-pub static ELEMENTWISE: Shader = shader!("elementwise");
+/// The one list of shaders: each line declares a `pub static` [`Shader`] and pairs it with the Rust
+/// struct of its uniform; [`ALL_SHADERS`], [`VARIANTS`] and [`UNIFORMS`] are made from it.
+/// - under `shaders`, `NAME = "file" ["prelude", ...] => Params`: `shaders/file.wgsl` after the preludes;
+/// - under `variants`, `NAME = BASE { name, prefix, replace, features } => Params`: BASE's source
+///   compiled with a prefix and text replacements, for optional features.
+macro_rules! shaders {
+    (
+        shaders {
+            $($(#[$meta:meta])* $name:ident = $file:literal [$($prelude:literal),*] => $params:ty;)*
+        }
+        variants {
+            $($(#[$vmeta:meta])* $vname:ident = $base:ident {
+                name: $vfile:literal, prefix: $prefix:expr, replace: $replace:expr, features: $features:expr $(,)?
+            } => $vparams:ty;)*
+        }
+    ) => {
+        $($(#[$meta])* pub static $name: Shader = shader!($file $(, $prelude)*);)*
+        $($(#[$vmeta])* pub static $vname: Shader = Shader {
+            name: $vfile,
+            source: $base.source,
+            prefix: $prefix,
+            replace: $replace,
+            features: $features,
+        };)*
 
-/// Variants of the shaders above that need optional features.
-pub static VARIANTS: [&Shader; 1] = [&MATMUL_F16];
+        const SHADER_COUNT: usize = [$(stringify!($name)),*].len();
+        const VARIANT_COUNT: usize = [$(stringify!($vname)),*].len();
 
-/// Every shader, for validation tests and pipeline warm-up.
-pub static ALL_SHADERS: [&Shader; 7] = [&MATMUL, &ATTENTION, &LAYERNORM, &POSENC, &RESIZE, &CONV, &ELEMENTWISE];
+        /// Every shader, for validation tests and pipeline warm-up.
+        pub static ALL_SHADERS: [&Shader; SHADER_COUNT] = [$(&$name),*];
+
+        /// Variants of the shaders above that need optional features.
+        pub static VARIANTS: [&Shader; VARIANT_COUNT] = [$(&$vname),*];
+
+        /// Every shader and variant with the Rust layout of its `Params` uniform (`tests/uniforms.rs`).
+        pub static UNIFORMS: [(&Shader, ParamsLayout); SHADER_COUNT + VARIANT_COUNT] =
+            [$((&$name, <$params>::LAYOUT),)* $((&$vname, <$vparams>::LAYOUT),)*];
+    };
+}
+
+shaders! {
+    shaders {
+        MATMUL = "matmul" ["activation"] => matmul::MatmulParams;
+        ATTENTION = "attention" [] => attention::AttentionParams;
+        LAYERNORM = "layernorm" [] => norm::LayerNormParams;
+        POSENC = "posenc" [] => posenc::PosencParams;
+        RESIZE = "resize" [] => resize::ResizeParams;
+        CONV = "conv" ["activation"] => conv::ConvParams;
+        ELEMENTWISE = "elementwise" [] => elementwise::ElementwiseParams;
+    }
+    variants {
+        /// `matmul` with f16 weights: the same source with the weights' vector type replaced (f32 arithmetic).
+        MATMUL_F16 = MATMUL {
+            name: "matmul_f16",
+            prefix: "enable f16;\n",
+            replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
+            features: wgpu::Features::SHADER_F16,
+        } => matmul::MatmulParams;
+    }
+}

@@ -3,6 +3,29 @@
 use super::LAYERNORM;
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 
+params! {
+    /// The uniform of `shaders/layernorm.wgsl`.
+    LayerNormParams {
+        rows: u32,
+        cols: u32,
+        /// Row stride in vec4s.
+        ld4: u32,
+        eps: f32,
+    }
+}
+
+/// A layer norm's operands: see [`layernorm`].
+#[derive(Clone, Copy, Debug)]
+pub struct LayerNormArgs {
+    pub x: View,
+    /// `[1, C]` tensor.
+    pub gamma: TensorId,
+    /// `[1, C]` tensor.
+    pub beta: TensorId,
+    pub out: View,
+    pub eps: f32,
+}
+
 /// Rows per workgroup: one invocation per row.
 const ROWS_PER_GROUP: usize = 64;
 
@@ -17,7 +40,10 @@ const ROWS_PER_GROUP: usize = 64;
 /// (four partial sums per row) plus its own rounding, so ≤ 1e-3 for any C ≤ 2048 and a spread ≤ 8 std,
 /// whatever the row's mean (a row with mean 1e4 and std 1e-2 included), and ~1e-6 on typical rows. A
 /// constant row gives exactly `beta`.
-pub fn layernorm(plan: &mut PlanBuilder, label: &str, x: View, gamma: TensorId, beta: TensorId, out: View, eps: f32) {
+///
+/// Records no multiply-adds: its work is linear in the data, not multiply-add work worth counting.
+pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
+    let LayerNormArgs { x, gamma, beta, out, eps } = args;
     let cols = plan.cols(x.id);
     assert!(cols > 0, "layernorm {label}: x has no columns");
     assert!(
@@ -37,15 +63,16 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, x: View, gamma: TensorId, 
         );
     }
     assert!(eps > 0.0 && eps.is_finite(), "layernorm {label}: eps {eps} must be positive");
-    let params = vec![x.rows as u32, cols as u32, (plan.ld(x.id) / 4) as u32, eps.to_bits()];
+    let params = LayerNormParams { rows: x.rows as u32, cols: cols as u32, ld4: (plan.ld(x.id) / 4) as u32, eps };
     let bindings =
         vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
     plan.push(Op {
         label: label.to_string(),
         shader: &LAYERNORM,
         entry: "layernorm",
-        params,
+        params: params.words(),
         bindings,
         workgroups: grid(x.rows.div_ceil(ROWS_PER_GROUP)),
+        multiply_adds: 0,
     });
 }

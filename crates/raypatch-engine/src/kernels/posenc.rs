@@ -9,6 +9,46 @@ const ROWS_PER_GROUP: usize = 64;
 /// Most multipliers one op takes (the params block holds 8 vec4s).
 pub const MAX_OCTAVES: usize = 32;
 
+params! {
+    /// The uniform of `shaders/posenc.wgsl`.
+    PosencParams {
+        /// Output rows in the view.
+        rows: u32,
+        /// Output rows per coordinate row: coordinate row = (first_row + r) / repeat.
+        repeat: u32,
+        first_row: u32,
+        /// N, the number of multipliers.
+        octaves: u32,
+        /// First output column this op writes.
+        col: u32,
+        /// Output row stride in floats.
+        ld: u32,
+        /// First padding column to zero (ld when this op does not write the last columns).
+        pad_from: u32,
+        /// Always 0: the shader XORs the bits of c·m with it so that c·m is rounded to f32 before the reduction.
+        opaque_zero: u32,
+        /// The multipliers, `m[i / 4][i % 4]`, zero past N (uniform arrays need a 16-byte element stride).
+        m: [[f32; 4]; 8],
+    }
+}
+const _: () = assert!(MAX_OCTAVES == 4 * 8, "PosencParams::m holds MAX_OCTAVES multipliers");
+
+/// A Fourier encoding's operands: see [`fourier_encode`].
+#[derive(Clone, Copy, Debug)]
+pub struct FourierArgs<'a> {
+    /// `[R, 3]` coordinates.
+    pub coords: View,
+    /// Output rows per coordinate row.
+    pub repeat: usize,
+    /// Index of `out`'s first row in the broadcast.
+    pub first_row: usize,
+    /// At most [`MAX_OCTAVES`].
+    pub multipliers: &'a [f32],
+    pub out: View,
+    /// First column of `out` written.
+    pub col: usize,
+}
+
 /// The official multipliers as f32, as the reference PyTorch code builds them (in float32 whatever the
 /// input dtype).
 /// - `end` None (arange form): `m_i = f32(2^(start+i)) · f32(π)`, `i < num_octaves`.
@@ -54,17 +94,10 @@ pub fn multipliers(num_octaves: usize, start: f64, end: Option<f64>) -> Vec<f32>
 ///
 /// The argument is rounded to f32 before sin/cos, as torch does; sin and cos are then accurate to
 /// 1.2e-7 absolute for `|c_d · m_i| ≤ 2^20` (explicit range reduction, not the built-in sin/cos).
-#[allow(clippy::too_many_arguments)]
-pub fn fourier_encode(
-    plan: &mut PlanBuilder,
-    label: &str,
-    coords: View,
-    repeat: usize,
-    first_row: usize,
-    multipliers: &[f32],
-    out: View,
-    col: usize,
-) {
+///
+/// Records no multiply-adds: encodings are not multiply-add work worth counting.
+pub fn fourier_encode(plan: &mut PlanBuilder, label: &str, args: FourierArgs) {
+    let FourierArgs { coords, repeat, first_row, multipliers, out, col } = args;
     let n = multipliers.len();
     let cols = plan.cols(out.id);
     assert_eq!(plan.cols(coords.id), 3, "fourier_encode {label}: coords must have 3 columns");
@@ -80,16 +113,28 @@ pub fn fourier_encode(
     assert!(coords.id != out.id, "fourier_encode {label}: coords and out must be different tensors");
     let ld = plan.ld(out.id);
     let pad_from = if col + 6 * n == cols { cols } else { ld };
-    let mut params =
-        vec![out.rows as u32, repeat as u32, first_row as u32, n as u32, col as u32, ld as u32, pad_from as u32, 0];
-    params.extend(multipliers.iter().map(|m| m.to_bits()));
-    params.resize(8 + MAX_OCTAVES, 0);
+    let mut m = [[0.0; 4]; MAX_OCTAVES / 4];
+    for (i, &multiplier) in multipliers.iter().enumerate() {
+        m[i / 4][i % 4] = multiplier;
+    }
+    let params = PosencParams {
+        rows: out.rows as u32,
+        repeat: repeat as u32,
+        first_row: first_row as u32,
+        octaves: n as u32,
+        col: col as u32,
+        ld: ld as u32,
+        pad_from: pad_from as u32,
+        opaque_zero: 0,
+        m,
+    };
     plan.push(Op {
         label: label.to_string(),
         shader: &POSENC,
         entry: "fourier_encode",
-        params,
+        params: params.words(),
         bindings: vec![(coords, Access::Read), (out, Access::ReadWrite)],
         workgroups: grid(out.rows.div_ceil(ROWS_PER_GROUP)),
+        multiply_adds: 0,
     });
 }

@@ -7,19 +7,42 @@ use crate::kernels::RESIZE;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
 use crate::tensor::padded_cols;
 
-/// Checks the shapes and records one resize op.
-#[allow(clippy::too_many_arguments)]
-fn resize(
-    plan: &mut PlanBuilder,
-    label: &str,
-    entry: &'static str,
-    x: View,
-    n: usize,
-    (hi, wi): (usize, usize),
-    out: View,
-    (ho, wo): (usize, usize),
-    accumulate: bool,
-) {
+params! {
+    /// The uniform of `shaders/resize.wgsl`.
+    ResizeParams {
+        hi: u32,
+        wi: u32,
+        ho: u32,
+        wo: u32,
+        /// ld(c) / 4: vec4s per row of x and out.
+        c4: u32,
+        /// n*ho*wo*c4: invocations that write.
+        total: u32,
+        scale_h: f32,
+        scale_w: f32,
+        /// bilinear only: out += result instead of out = result.
+        accumulate: u32,
+    }
+}
+
+/// A resize's operands: see [`bilinear`] and [`nearest`]. Sizes are `(height, width)`.
+#[derive(Clone, Copy, Debug)]
+pub struct ResizeArgs {
+    /// `[n*from.0*from.1, c]` NHWC view.
+    pub x: View,
+    pub n: usize,
+    pub from: (usize, usize),
+    /// `[n*to.0*to.1, c]` NHWC view.
+    pub out: View,
+    pub to: (usize, usize),
+    /// `out += ...` instead of `out = ...` (bilinear only).
+    pub accumulate: bool,
+}
+
+/// Checks the shapes and records one resize op (no multiply-adds: resizes are not multiply-add work worth
+/// counting).
+fn resize(plan: &mut PlanBuilder, label: &str, entry: &'static str, args: ResizeArgs) {
+    let ResizeArgs { x, n, from: (hi, wi), out, to: (ho, wo), accumulate } = args;
     if plan.failed() {
         return; // a tensor is too large to index: the plan will not be built
     }
@@ -31,24 +54,26 @@ fn resize(
     let c4 = padded_cols(c) / 4;
     let total = n * ho * wo * c4;
     // PyTorch's scale: input size over output size, as f32 (for scale_factor = 2 this is 1/2, the same value).
-    let scale = |i: usize, o: usize| (i as f32 / o as f32).to_bits();
+    let scale = |i: usize, o: usize| i as f32 / o as f32;
+    let params = ResizeParams {
+        hi: hi as u32,
+        wi: wi as u32,
+        ho: ho as u32,
+        wo: wo as u32,
+        c4: c4 as u32,
+        total: total as u32,
+        scale_h: scale(hi, ho),
+        scale_w: scale(wi, wo),
+        accumulate: accumulate as u32,
+    };
     plan.push(Op {
         label: label.to_string(),
         shader: &RESIZE,
         entry,
-        params: vec![
-            hi as u32,
-            wi as u32,
-            ho as u32,
-            wo as u32,
-            c4 as u32,
-            total as u32,
-            scale(hi, ho),
-            scale(wi, wo),
-            accumulate as u32,
-        ],
+        params: params.words(),
         bindings: vec![(x, Access::Read), (out, if accumulate { Access::ReadWrite } else { Access::Write })],
         workgroups: grid(total.div_ceil(64)),
+        multiply_adds: 0,
     });
 }
 
@@ -60,36 +85,16 @@ fn resize(
 ///
 /// `x` and `out` are views of tensors with the same number of columns `c` (any `c >= 1`); the padding columns
 /// of `out` are written with zeros (or stay zero when accumulating). `out` must not overlap `x`.
-#[allow(clippy::too_many_arguments)]
-pub fn bilinear(
-    plan: &mut PlanBuilder,
-    label: &str,
-    x: View,
-    n: usize,
-    hi: usize,
-    wi: usize,
-    out: View,
-    ho: usize,
-    wo: usize,
-    accumulate: bool,
-) {
-    resize(plan, label, "bilinear", x, n, (hi, wi), out, (ho, wo), accumulate);
+/// `from = (hi, wi)`, `to = (ho, wo)`.
+pub fn bilinear(plan: &mut PlanBuilder, label: &str, args: ResizeArgs) {
+    resize(plan, label, "bilinear", args);
 }
 
 /// Nearest resize as PyTorch mode='nearest': src = min(floor(dst · (in/out as f32)), in − 1).
 ///
-/// Same layouts as [`bilinear`]; `out` is overwritten, padding columns included.
-#[allow(clippy::too_many_arguments)]
-pub fn nearest(
-    plan: &mut PlanBuilder,
-    label: &str,
-    x: View,
-    n: usize,
-    hi: usize,
-    wi: usize,
-    out: View,
-    ho: usize,
-    wo: usize,
-) {
-    resize(plan, label, "nearest", x, n, (hi, wi), out, (ho, wo), false);
+/// Same layouts as [`bilinear`]; `out` is overwritten, padding columns included: `args.accumulate` must
+/// be false.
+pub fn nearest(plan: &mut PlanBuilder, label: &str, args: ResizeArgs) {
+    assert!(!args.accumulate, "{label}: nearest resize cannot accumulate");
+    resize(plan, label, "nearest", args);
 }

@@ -1,0 +1,62 @@
+//! Each op records its multiply-adds: `m·n·k` for a linear layer, `n·ho·wo·cout·9·cin` for a convolution,
+//! `2·nq·nkv·dim_head·heads` for attention, none for the elementwise kernels; plans sum them.
+
+use raypatch_engine::kernels::attention::{attention, AttentionArgs};
+use raypatch_engine::kernels::conv::{conv3x3, Conv3x3Args};
+use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use raypatch_engine::kernels::matmul::{linear, LinearArgs};
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::tensor::padded_cols;
+
+use crate::common::*;
+
+#[test]
+fn multiply_adds_are_counted() {
+    let mut plan = PlanBuilder::new();
+
+    // Linear: x [5, 3] · wᵀ ([7, 3]) → [5, 7]: 5·7·3 = 105.
+    let x = plan.input("x", 5, 3);
+    let weight = plan.input("w", 7, 3);
+    let bias = Some(plan.input("b", 1, 7));
+    let y = plan.transient("y", 5, 7);
+    let (xv, yv) = (plan.all(x), plan.all(y));
+    let act = Activation::Relu;
+    linear(&mut plan, "linear", LinearArgs { x: xv, weight, bias, out: yv, act, accumulate: false });
+    assert_eq!(plan.multiply_adds(), 105);
+
+    // Conv: 2 images of 4×6 with cin = 3, stride 2 → 2×3, cout = 5: 2·2·3·5·9·3 = 1620.
+    let (n, h, w, cin, cout) = (2, 4, 6, 3, 5);
+    let image = plan.input("image", n * h * w, cin);
+    let weight = plan.input("conv.w", cout, 9 * padded_cols(cin));
+    let conv_out = plan.transient("conv", n * 2 * 3, cout);
+    let (x, out) = (plan.all(image), plan.all(conv_out));
+    let (stride, upsample_input, act, accumulate) = (2, false, Activation::None, false);
+    let bias = None;
+    let args = Conv3x3Args { x, n, h, w, cin, weight, bias, out, cout, stride, upsample_input, act, accumulate };
+    conv3x3(&mut plan, "conv", args);
+    assert_eq!(plan.multiply_adds(), 105 + 1620);
+
+    // Attention: 5 queries, 5 keys, 2 heads of 4: 2·5·5·4·2 = 400 (qᵀk and the weighted values).
+    let qkv = plan.input("qkv", 5, 24);
+    let heads_out = plan.transient("attention", 5, 8);
+    let (q, out) = (plan.all(qkv), plan.all(heads_out));
+    let (k, v) = (q, q);
+    let args = AttentionArgs { q, q_col: 0, k, k_col: 8, v, v_col: 16, out, heads: 2, dim_head: 4, scale: 0.5 };
+    attention(&mut plan, "attention", args);
+    assert_eq!(plan.multiply_adds(), 105 + 1620 + 400);
+
+    // Elementwise ops count nothing.
+    let copied = plan.output("copied", 5, 8);
+    let (x, out) = (plan.all(heads_out), plan.all(copied));
+    map_columns(&mut plan, "copy", MapColumnsArgs { x, col: 0, out, map: Map::Identity });
+    let conv_copy = plan.output("conv_copy", n * 2 * 3, cout);
+    let (x, out) = (plan.all(conv_out), plan.all(conv_copy));
+    map_columns(&mut plan, "conv_copy", MapColumnsArgs { x, col: 0, out, map: Map::Identity });
+    let y_copy = plan.output("y_copy", 5, 7);
+    let (x, out) = (plan.all(y), plan.all(y_copy));
+    map_columns(&mut plan, "y_copy", MapColumnsArgs { x, col: 0, out, map: Map::Sigmoid });
+    assert_eq!(plan.multiply_adds(), 2125);
+
+    assert_eq!(run(plan).multiply_adds(), 2125, "the built plan keeps the count");
+}
