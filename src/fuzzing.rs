@@ -11,11 +11,11 @@ pub fn safetensors_file(data: &[u8]) -> bool {
 }
 
 /// A model file: the layout, then the config in its metadata, its counts against the file, and every
-/// tensor's name, shape and dtype.
+/// tensor's name, shape and dtype as the model's module tree fetches them (no GPU).
 pub fn model_file(data: &[u8]) -> bool {
     raypatch_model::TensorFile::parse("fuzz.safetensors", data)
         .and_then(raypatch_model::weights::model_from_file)
-        .is_ok()
+        .is_ok_and(|loaded| raypatch_engine::models::build(&loaded).is_ok())
 }
 
 /// A scene file: the layout, the scene tensors, and the cameras built from them.

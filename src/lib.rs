@@ -21,7 +21,7 @@
 //! // A MultiShapeNet-style camera: looks at the origin, z up; 48x32 pixels (Ray-Patch k=4 divides both).
 //! let camera = Camera::msn(DVec3::new(7.0, -2.0, 3.0), 48, 32)?;
 //! let rendered = scene.render(&camera, &Request::default())?;
-//! let rgb = rendered.rgb.expect("rgb is rendered by default");
+//! let rgb = rendered.rgb().expect("rgb is rendered by default");
 //! rgb.save_png(std::env::temp_dir().join("raypatch-doc-view.png"))?;
 //! assert_eq!((rgb.width(), rgb.height()), (48, 32));
 //! # Ok::<(), raypatch::Error>(())
@@ -45,7 +45,7 @@ pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
-pub use raypatch_engine::{AdapterChoice, OpTimes, Outputs, Region, RenderStats, Request};
+pub use raypatch_engine::{AdapterChoice, OpTimes, Output, Outputs, Region, RenderStats, Request};
 pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 
 pub use raypatch_engine;

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, RenderStats, Request};
+use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, Output, Outputs, RenderStats, Request};
 use raypatch_model::{InputViews, ModelConfig};
 
 use crate::camera::Camera;
@@ -170,7 +170,12 @@ impl Model {
 
     /// Whether the model predicts log-depth (4 output channels).
     pub fn has_depth(&self) -> bool {
-        self.inner.config.image_channels() == 4
+        self.inner.outputs().contains(Output::LogDepth)
+    }
+
+    /// The outputs this model renders (see [`Output`]).
+    pub fn outputs(&self) -> Outputs {
+        self.inner.outputs()
     }
 
     /// Number of parameters in the file (BatchNorm statistics included).
@@ -208,7 +213,7 @@ impl Model {
     pub fn check_inputs(&self, views: &[InputView]) -> Result<Vec<String>> {
         let mut warnings = Vec::new();
         for (i, view) in views.iter().enumerate() {
-            let octaves = &self.config().encoder.pos_octaves;
+            let octaves = self.config().position_octaves().0;
             warnings.extend(check_camera(&view.camera, octaves, &format!("input view {i}"))?);
         }
         Ok(warnings)
@@ -219,7 +224,7 @@ impl Model {
     /// float32), warnings for legal values beyond the range where the engine matches PyTorch to float32
     /// rounding.
     pub fn check_camera(&self, camera: &Camera) -> Result<Vec<String>> {
-        check_camera(camera, &self.config().decoder.pos_octaves, "target camera")
+        check_camera(camera, self.config().position_octaves().1, "target camera")
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
@@ -314,10 +319,26 @@ pub struct Scene<'m> {
 pub struct Rendered {
     /// Where the pixels lie in the camera's image.
     pub region: Region,
-    /// The colour image (region-sized), when requested.
-    pub rgb: Option<Image>,
+    /// The requested outputs, each `[height, width, channels]` row-major over the region.
+    pub outputs: Vec<raypatch_engine::Rendered>,
+}
+
+impl Rendered {
+    /// The values of `output`, `[height, width, channels]`, when it was requested.
+    pub fn get(&self, output: Output) -> Option<&[f32]> {
+        self.outputs.iter().find(|r| r.output == output).map(|r| r.values.as_slice())
+    }
+
+    /// The colour image, when requested.
+    pub fn rgb(&self) -> Option<Image> {
+        let values = self.get(Output::Rgb)?.to_vec();
+        Some(Image::new(self.region.width, self.region.height, values).expect("a frame's rgb has its region's size"))
+    }
+
     /// Log-depth, `[height, width]` row-major, when requested.
-    pub logdepth: Option<Vec<f32>>,
+    pub fn logdepth(&self) -> Option<&[f32]> {
+        self.get(Output::LogDepth)
+    }
 }
 
 impl Scene<'_> {
@@ -337,16 +358,15 @@ impl Scene<'_> {
     /// let full = scene.render(&camera, &Request::default())?;
     /// let corner = Region { x: 40, y: 0, width: 8, height: 8 };
     /// let part = scene.render(&camera, &Request { region: Some(corner), ..Request::default() })?;
-    /// let (full, part) = (full.rgb.unwrap(), part.rgb.unwrap());
+    /// let (full, part) = (full.rgb().unwrap(), part.rgb().unwrap());
     /// assert_eq!((full.width(), full.height(), part.width()), (48, 32, 8));
     /// assert!(full.crop(corner)?.data().iter().zip(part.data()).all(|(a, b)| (a - b).abs() < 1e-6));
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
-        check_camera(camera, &self.inner.model().config.decoder.pos_octaves, "target camera")?;
+        check_camera(camera, self.inner.model().config.position_octaves().1, "target camera")?;
         let frame = self.inner.render(&camera.target_views(), *request)?;
-        let rgb = frame.rgb.map(|rgb| Image::new(frame.width, frame.height, rgb)).transpose()?;
-        Ok(Rendered { region: frame.region, rgb, logdepth: frame.logdepth })
+        Ok(Rendered { region: frame.region, outputs: frame.outputs })
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
@@ -365,9 +385,10 @@ impl Scene<'_> {
         self.inner.encode_peak_bytes
     }
 
-    /// Bytes the scene keeps on the GPU: the latent tokens and the decoder's keys and values.
+    /// Bytes the scene keeps on the GPU: the latent and what renders read (for SRT, the decoder's keys and
+    /// values).
     pub fn cache_bytes(&self) -> u64 {
-        self.inner.latent.bytes() + self.inner.keys_values.iter().map(|t| t.bytes()).sum::<u64>()
+        self.inner.latent.bytes() + self.inner.cached.iter().map(|t| t.bytes()).sum::<u64>()
     }
 
     /// Render plans built so far.
@@ -375,7 +396,7 @@ impl Scene<'_> {
         self.inner.cached_render_plans()
     }
 
-    /// The engine-level scene (latent, keys and values, plan labels), for tools that look inside.
+    /// The engine-level scene (latent, cached tensors, plan labels), for tools that look inside.
     pub fn engine_scene(&self) -> &EncodedScene<'_> {
         &self.inner
     }

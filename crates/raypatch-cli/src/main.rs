@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    metrics, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Outputs, Region, Request, SceneData,
+    metrics, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Output, Outputs, Region, Request, SceneData,
     SceneSource,
 };
 use safetensors::tensor::TensorView;
@@ -66,11 +66,15 @@ struct Args {
     /// frame, render.png for one novel view).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
-    /// `.safetensors` file to write the raw outputs into: `rgb` [T,H,W,3] f32 after the sigmoid, and
-    /// `logdepth` [T,H,W] with --logdepth.
+    /// `.safetensors` file to write the raw outputs into, each as a tensor of its name: `rgb` [T,H,W,3] f32
+    /// after the sigmoid, `logdepth` [T,H,W].
     #[arg(long, value_name = "FILE")]
     out_raw: Option<PathBuf>,
-    /// Also compute the log-depth (models with 4 output channels) and write it into --out-raw.
+    /// The outputs to compute, comma-separated: `rgb` (always, for the PNGs), `logdepth` (models with 4
+    /// output channels; written into --out-raw).
+    #[arg(long, value_name = "LIST", default_value = "rgb", value_parser = parse_outputs)]
+    outputs: Outputs,
+    /// Short for `--outputs rgb,logdepth`.
     #[arg(long, requires = "out_raw")]
     logdepth: bool,
     /// Print PSNR and SSIM of each target view against the scene's target images, and their means.
@@ -108,6 +112,14 @@ fn parse_count(text: &str) -> Result<usize, String> {
         Ok(n) if n <= MAX_RENDERS => Ok(n),
         _ => Err(format!("expected a whole number from 0 to {MAX_RENDERS}")),
     }
+}
+
+fn parse_outputs(text: &str) -> Result<Outputs, String> {
+    let names = || Output::ALL.iter().map(|o| o.name()).collect::<Vec<_>>().join(", ");
+    text.split(',').try_fold(Outputs::NONE, |set, name| match Output::from_name(name.trim()) {
+        Some(output) => Ok(set.with(output)),
+        None => Err(format!("unknown output {name:?}: expected a comma-separated list of {}", names())),
+    })
 }
 
 fn parse_region(text: &str) -> Result<Region, String> {
@@ -242,7 +254,15 @@ fn run(args: &Args) -> Result<()> {
              not --orbit, --orbit-frames or --pose"
         );
     }
-    let outputs = Outputs { rgb: true, logdepth: args.logdepth };
+    let mut outputs = args.outputs.with(Output::Rgb);
+    if args.logdepth {
+        outputs = outputs.with(Output::LogDepth);
+    }
+    if args.out_raw.is_none() {
+        if let Some(extra) = outputs.without(Output::Rgb).iter().next() {
+            bail!("--outputs {}: only --out-raw FILE writes it", extra.name());
+        }
+    }
     let request = Request { outputs, region: args.region };
 
     let start = Instant::now();
@@ -280,12 +300,11 @@ fn run(args: &Args) -> Result<()> {
         repeats.push(start.elapsed());
     }
 
-    let images: Vec<Image> = rendered.iter().map(|r| r.rgb.clone().expect("rgb is always requested")).collect();
+    let images: Vec<Image> = rendered.iter().map(|r| r.rgb().expect("rgb is always requested")).collect();
     let metric_lines = if args.metrics { metrics_report(&shots, &images, request.region)? } else { Vec::new() };
     let mut contents = images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?;
     if args.out_raw.is_some() {
-        let depths = rendered.iter().map(|r| r.logdepth.clone()).collect::<Option<Vec<_>>>();
-        contents.push(raw_bytes(&images, depths)?);
+        contents.push(raw_bytes(&rendered)?);
     }
     output_files.write(&contents)?;
     let written = &output_files.files;
@@ -540,17 +559,22 @@ fn print_profile(what: &str, ops: &OpTimes) {
     }
 }
 
-/// A safetensors file of `rgb` [T,H,W,3] and, when given, `logdepth` [T,H,W] (one `Vec` per view).
-fn raw_bytes(images: &[Image], depths: Option<Vec<Vec<f32>>>) -> Result<Vec<u8>> {
-    let (h, w) = (images[0].height(), images[0].width());
-    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![(
-        "rgb".into(),
-        f32_bytes(images.iter().flat_map(|i| i.data().iter().copied())),
-        vec![images.len(), h, w, 3],
-    )];
-    if let Some(depths) = depths {
-        tensors.push(("logdepth".into(), f32_bytes(depths.into_iter().flatten()), vec![images.len(), h, w]));
-    }
+/// A safetensors file with one tensor per output, named by the output: `[T,H,W,channels]`, or `[T,H,W]` for
+/// one channel.
+fn raw_bytes(rendered: &[raypatch::Rendered]) -> Result<Vec<u8>> {
+    let region = rendered[0].region;
+    let tensors: Vec<(String, Vec<u8>, Vec<usize>)> = rendered[0]
+        .outputs
+        .iter()
+        .map(|first| {
+            let values = rendered.iter().flat_map(|r| r.get(first.output).unwrap_or_default().iter().copied());
+            let mut shape = vec![rendered.len(), region.height, region.width, first.channels];
+            if first.channels == 1 {
+                shape.pop();
+            }
+            (first.output.name().to_string(), f32_bytes(values), shape)
+        })
+        .collect();
     let views = tensors
         .iter()
         .map(|(name, bytes, shape)| Ok((name.clone(), TensorView::new(Dtype::F32, shape.clone(), bytes)?)))

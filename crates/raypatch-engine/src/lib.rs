@@ -1,20 +1,27 @@
-//! raypatch-engine: WGSL kernels, the plan/executor, and the SRT / RP-SRT graphs.
+//! raypatch-engine: WGSL kernels, the plan/executor, `nn` modules, the model families and the scene core.
 //!
-//! Data path: safetensors weights (`raypatch-model`) → GPU weights (`model`) → a [`plan::Plan`] per
-//! (model, input views, target size, outputs) → kernels (`kernels`, one WGSL file each in `shaders/`) → frame.
+//! Data path: safetensors weights (`raypatch-model`) → a family's module tree (`models`, built from `nn`
+//! modules that fetch their weights by official name) → GPU weights → per scene an encode plan, per
+//! (view count, computed size, outputs) a render plan (`scene`, recorded through `graph` into `plan`) →
+//! kernels (`kernels`, one WGSL file each in `shaders/`) → frame (`frame`).
 
 pub mod error;
+pub mod frame;
 pub mod gpu;
+pub mod graph;
 pub mod kernels;
+pub mod models;
+pub mod nn;
 pub mod plan;
 pub mod reference;
-pub mod srt;
+pub mod scene;
 pub mod tensor;
-pub mod weights;
 
 pub use error::{EngineError, Result};
+pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
-pub use srt::{EncodedScene, Frame, Model, OpTimes, Outputs, Region, RenderStats, Request};
+pub use nn::{KeptF32, LoadOptions, WeightStorage};
+pub use scene::{EncodedScene, Model, OpTimes};
 pub use tensor::GpuTensor;
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
 pub use wgpu;

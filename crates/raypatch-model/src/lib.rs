@@ -9,7 +9,7 @@ pub mod scene;
 pub mod tensor_file;
 pub mod weights;
 
-pub use config::{DecoderConfig, EncoderConfig, ModelConfig, Octaves, RayPatchConfig};
+pub use config::{DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, RayPatchConfig, SrtConfig};
 pub use error::ModelError;
 pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use tensor_file::{HostTensor, TensorFile};

@@ -1,7 +1,9 @@
-//! Loading a model file: the config from the metadata, and every official tensor checked by name, dtype
-//! and shape against what that config implies.
+//! Loading a model file: the config from the metadata, and the tensors, fetched by name and shape by whoever
+//! builds the model (the engine's module tree declares each weight where it fetches it; see
+//! `raypatch_engine::nn::Vars`). A tensor nobody fetched means the file was made for another
+//! architecture or config: [`LoadedModel::check_all_fetched`].
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 
 use crate::config::ModelConfig;
@@ -11,24 +13,42 @@ use crate::tensor_file::{HostTensor, TensorFile};
 /// The metadata `format` value of model files.
 pub const MODEL_FORMAT: &str = "raypatch-model/1";
 
-/// A model file, validated: its config and its weights under their official names.
+/// A model file with a valid config; its tensors are checked as they are fetched.
 #[derive(Debug)]
 pub struct LoadedModel {
     pub path: String,
     pub config: ModelConfig,
     pub metadata: HashMap<String, String>,
-    weights: HashMap<String, HostTensor>,
+    file: TensorFile,
 }
 
 impl LoadedModel {
-    /// The weight `key`. Every key of [`ModelConfig::expected_tensors`] is present after loading.
-    pub fn weight(&self, key: &str) -> &HostTensor {
-        self.weights.get(key).unwrap_or_else(|| panic!("weight {key} is not part of this model"))
+    /// The F32 weight `key` of shape `shape`: an error naming the file and the tensor when it is missing,
+    /// has another shape or dtype, or holds NaN or infinity.
+    pub fn weight(&self, key: &str, shape: &[usize]) -> Result<HostTensor, ModelError> {
+        self.file.f32_shaped(key, shape)
     }
 
-    /// Total number of parameters (BatchNorm running statistics included).
+    /// Checks that every tensor of the file but BatchNorm's `num_batches_tracked` is in `fetched`.
+    pub fn check_all_fetched(&self, fetched: &BTreeSet<String>) -> Result<(), ModelError> {
+        match self.file.keys().find(|key| !fetched.contains(*key) && !key.ends_with(".num_batches_tracked")) {
+            Some(key) => Err(ModelError::Unexpected {
+                path: self.path.clone(),
+                key: key.to_string(),
+                found: self.file.shape(key).unwrap_or_default().to_vec(),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Total number of parameters (BatchNorm running statistics included, `num_batches_tracked` not).
     pub fn parameter_count(&self) -> usize {
-        self.weights.values().map(|t| t.data.len()).sum()
+        self.file
+            .keys()
+            .filter(|key| !key.ends_with(".num_batches_tracked"))
+            .filter_map(|key| self.file.shape(key))
+            .map(|shape| shape.iter().product::<usize>())
+            .sum()
     }
 }
 
@@ -36,6 +56,7 @@ pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
     model_from_file(TensorFile::open_as(path.as_ref(), "a model .safetensors file (docs/FORMATS.md)")?)
 }
 
+/// Reads the config of a parsed model file (its tensors are checked when the model is built).
 pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
     let path = file.path.clone();
     let config_err = |reason: String| ModelError::Config { path: path.clone(), reason };
@@ -57,21 +78,5 @@ pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
         serde_json::from_str(text).map_err(|e| config_err(format!("`config` metadata is not valid JSON: {e}")))?;
     let config = ModelConfig::from_value(&path, raw)?;
     config.check_counts(&path, file.keys().count())?;
-
-    let expected = config.expected_tensors();
-    let mut weights = HashMap::with_capacity(expected.len());
-    for (key, shape) in &expected {
-        weights.insert(key.clone(), file.f32_shaped(key, shape)?);
-    }
-    // Anything else in the file means it was made for another architecture or config.
-    for key in file.keys() {
-        if !weights.contains_key(key) && !key.ends_with(".num_batches_tracked") {
-            return Err(ModelError::Unexpected {
-                path: path.clone(),
-                key: key.to_string(),
-                found: file.shape(key).unwrap_or_default().to_vec(),
-            });
-        }
-    }
-    Ok(LoadedModel { path, config, metadata: file.metadata, weights })
+    Ok(LoadedModel { path, config, metadata: file.metadata.clone(), file })
 }

@@ -1,5 +1,5 @@
 //! Float64 CPU reference of the whole SRT / RP-SRT model, composed from the kernel references of this module
-//! and computing what `srt.rs` computes, op for op (the official `SRTEncoder`, `SRTDecoder` and
+//! and computing what `models/srt.rs` records, op for op (the official `SRTEncoder`, `SRTDecoder` and
 //! `RayPatchDecoder`). The benchmark harness measures the engine's error against it, and the numerical stress
 //! suite renders extreme scenes with both. It matches a float64 PyTorch run of the official model
 //! (`rgb_f64` in the golden files) to ~1e-12 with [`Argument::Float64`].
@@ -9,7 +9,11 @@
 //! error of a float32 engine (its arguments are rounded as torch rounds them), [`Argument::Float64`] to
 //! measure its distance from the float64 model.
 
-use raypatch_model::{InputViews, LoadedModel, ModelConfig, ModelError, Octaves, TargetViews};
+use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, Octaves, SrtConfig, TargetViews};
+
+use crate::error::EngineError;
+use crate::models::srt::Srt;
+use crate::nn::{self, transformer::Projections, Param, Source};
 
 use super::attention::attention;
 use super::conv::conv3x3;
@@ -22,9 +26,8 @@ use super::resize::{bilinear, linear_source, nearest};
 use crate::kernels::elementwise::Map;
 use crate::kernels::{posenc::multipliers, Activation};
 
-/// The official modules' constants (PyTorch defaults), as `srt.rs` and `weights.rs` use them.
+/// LayerNorm eps of the official modules (PyTorch's default), as `nn::norm` uses it.
 const LAYER_NORM_EPS: f64 = 1e-5;
-const BATCH_NORM_EPS: f64 = 1e-5;
 /// LeakyReLU slopes (out_mlp, Ray-Patch conv decoder) as float64 torch has them: the kernels' `Activation`
 /// holds an f32 slope, 2e-8 away from 0.01 relatively, so the reference applies these itself.
 const OUT_MLP_SLOPE: f64 = 0.01;
@@ -63,7 +66,8 @@ impl Norm {
     }
 }
 
-/// A 3×3 convolution (PyTorch layout `[cout, cin, 3, 3]`) with its eval-mode BatchNorm folded in.
+/// A 3×3 convolution (PyTorch layout `[cout, cin, 3, 3]`) with its eval-mode BatchNorm folded in (by
+/// `nn::Conv3x3`, in float64).
 struct Conv {
     w: Vec<f64>,
     b: Option<Vec<f64>>,
@@ -86,19 +90,10 @@ impl Conv {
     }
 }
 
-struct EncoderLayer {
+/// One transformer layer: self-attention (`projections` = [to_qkv]) or cross-attention ([to_q, to_kv]).
+struct Layer {
     attn_norm: Norm,
-    to_qkv: Dense,
-    to_out: Dense,
-    ff_norm: Norm,
-    ff_in: Dense,
-    ff_out: Dense,
-}
-
-struct DecoderLayer {
-    attn_norm: Norm,
-    to_q: Dense,
-    to_kv: Dense,
+    projections: Vec<Dense>,
     to_out: Dense,
     ff_norm: Norm,
     ff_in: Dense,
@@ -108,12 +103,13 @@ struct DecoderLayer {
 /// The whole model in float64, read from a [`LoadedModel`].
 pub struct ReferenceModel {
     config: ModelConfig,
+    srt: SrtConfig,
     argument: Argument,
     conv_blocks: Vec<(Conv, Conv)>,
     per_patch_linear: Dense,
-    encoder_layers: Vec<EncoderLayer>,
+    encoder_layers: Vec<Layer>,
     input_mlp: (Dense, Dense),
-    decoder_layers: Vec<DecoderLayer>,
+    decoder_layers: Vec<Layer>,
     out_mlp: Vec<Dense>,
     /// The Ray-Patch conv decoder: conv_0, then per block (feature conv, rgb conv).
     ray_patch: Option<(Conv, Vec<(Conv, Conv)>)>,
@@ -145,103 +141,48 @@ fn f64s(v: &[f32]) -> Vec<f64> {
 }
 
 impl ReferenceModel {
-    /// Converts the model's weights to float64, folding each eval-mode BatchNorm into its convolution.
-    pub fn new(model: &LoadedModel, argument: Argument) -> ReferenceModel {
+    /// Reads the model's weights through the engine's module tree (the same names, shapes and BatchNorm
+    /// fold, in float64), into the reference's own float64 layers.
+    pub fn new(model: &LoadedModel, argument: Argument) -> Result<ReferenceModel, EngineError> {
         let config = model.config.clone();
-        let get = |key: &str| f64s(&model.weight(key).data);
-        let dense = |prefix: &str, bias: bool| {
-            let w = model.weight(&format!("{prefix}.weight"));
-            let n = w.shape[0];
-            Dense { w: f64s(&w.data), b: bias.then(|| get(&format!("{prefix}.bias"))), n, k: w.data.len() / n }
-        };
-        let norm =
-            |prefix: &str| Norm { gamma: get(&format!("{prefix}.weight")), beta: get(&format!("{prefix}.bias")) };
-        // BatchNorm (eval): y = (conv(x) + b - μ)·γ/√(σ²+ε) + β, folded into the weights and bias.
-        let conv = |weight: &str, bias: Option<&str>, batch_norm: Option<&str>| {
-            let shape = &model.weight(weight).shape;
-            let (cout, cin) = (shape[0], shape[1]);
-            let mut w = get(weight);
-            let mut b = bias.map(get);
-            if let Some(bn) = batch_norm {
-                let (gamma, beta) = (get(&format!("{bn}.weight")), get(&format!("{bn}.bias")));
-                let (mean, var) = (get(&format!("{bn}.running_mean")), get(&format!("{bn}.running_var")));
-                let mut folded = Vec::with_capacity(cout);
-                for c in 0..cout {
-                    let scale = gamma[c] / (var[c] + BATCH_NORM_EPS).sqrt();
-                    w[c * cin * 9..(c + 1) * cin * 9].iter_mut().for_each(|v| *v *= scale);
-                    folded.push(beta[c] + (b.as_ref().map_or(0.0, |b| b[c]) - mean[c]) * scale);
-                }
-                b = Some(folded);
-            }
-            Conv { w, b, cin, cout }
-        };
-        let bn = |on: bool, key: String| on.then_some(key);
-
-        let e = &config.encoder;
-        let conv_blocks = (0..e.num_conv_blocks)
-            .map(|i| {
-                let p = format!("encoder.conv_blocks.{i}.layers");
-                (
-                    conv(&format!("{p}.0.weight"), None, bn(e.batch_norm, format!("{p}.1")).as_deref()),
-                    conv(&format!("{p}.3.weight"), None, bn(e.batch_norm, format!("{p}.4")).as_deref()),
-                )
-            })
-            .collect();
-        let encoder_layers = (0..e.num_att_blocks)
-            .map(|l| {
-                let p = format!("encoder.transformer.layers.{l}");
-                EncoderLayer {
-                    attn_norm: norm(&format!("{p}.0.norm")),
-                    to_qkv: dense(&format!("{p}.0.fn.to_qkv"), false),
-                    to_out: dense(&format!("{p}.0.fn.to_out.1"), true),
-                    ff_norm: norm(&format!("{p}.1.norm")),
-                    ff_in: dense(&format!("{p}.1.fn.net.0"), true),
-                    ff_out: dense(&format!("{p}.1.fn.net.3"), true),
-                }
-            })
-            .collect();
-        let rp = "decoder_att.ray_predictor";
-        let decoder_layers = (0..config.decoder.num_att_blocks)
-            .map(|l| {
-                let p = format!("{rp}.transformer.layers.{l}");
-                DecoderLayer {
-                    attn_norm: norm(&format!("{p}.0.norm")),
-                    to_q: dense(&format!("{p}.0.fn.to_q"), false),
-                    to_kv: dense(&format!("{p}.0.fn.to_kv"), false),
-                    to_out: dense(&format!("{p}.0.fn.to_out.1"), true),
-                    ff_norm: norm(&format!("{p}.1.norm")),
-                    ff_in: dense(&format!("{p}.1.fn.net.0"), true),
-                    ff_out: dense(&format!("{p}.1.fn.net.3"), true),
-                }
-            })
-            .collect();
-        let ray_patch = config.ray_patch.as_ref().map(|cfg| {
-            let p = "decoder_rp.conv_decoder";
-            let conv_0 = conv(&format!("{p}.conv_0.weight"), Some(&format!("{p}.conv_0.bias")), None);
-            let blocks = (0..cfg.upsample)
-                .map(|i| {
-                    let b = format!("{p}.conv_blocks.{i}");
-                    let feature = conv(
-                        &format!("{b}.0.1.weight"),
-                        Some(&format!("{b}.0.1.bias")),
-                        bn(cfg.batch_norm, format!("{b}.0.2")).as_deref(),
-                    );
-                    (feature, conv(&format!("{b}.1.weight"), Some(&format!("{b}.1.bias")), None))
+        let Family::Srt(srt_config) = &config.family;
+        let (srt, weights) = nn::build(Source::File(model), |vars| Srt::new(vars, srt_config))?;
+        let get = |p: Param| weights.get(p).data.to_f64();
+        let dense = |l: &nn::Linear| Dense { w: get(l.weight), b: l.bias.map(get), n: l.out_dim, k: l.in_dim };
+        let norm = |n: &nn::LayerNorm| Norm { gamma: get(n.gamma), beta: get(n.beta) };
+        let conv = |c: &nn::Conv3x3| Conv { w: get(c.weight), b: c.bias.map(get), cin: c.cin, cout: c.cout };
+        let layers = |t: &nn::Transformer| -> Vec<Layer> {
+            t.layers
+                .iter()
+                .map(|l| Layer {
+                    attn_norm: norm(&l.attn_norm),
+                    projections: match &l.attn.projections {
+                        Projections::SelfAttention { to_qkv } => vec![dense(to_qkv)],
+                        Projections::Cross { to_q, to_kv } => vec![dense(to_q), dense(to_kv)],
+                    },
+                    to_out: dense(&l.attn.to_out),
+                    ff_norm: norm(&l.ff_norm),
+                    ff_in: dense(&l.ff.net_0),
+                    ff_out: dense(&l.ff.net_3),
                 })
-                .collect();
-            (conv_0, blocks)
-        });
-        ReferenceModel {
+                .collect()
+        };
+        let (e, d) = (&srt.encoder, &srt.decoder);
+        let rp = &d.ray_predictor;
+        Ok(ReferenceModel {
             argument,
-            conv_blocks,
-            per_patch_linear: dense("encoder.per_patch_linear", true),
-            encoder_layers,
-            input_mlp: (dense(&format!("{rp}.input_mlp.0"), true), dense(&format!("{rp}.input_mlp.2"), true)),
-            decoder_layers,
-            out_mlp: [0, 2, 4, 6, 8].iter().map(|i| dense(&format!("decoder_att.out_mlp.{i}"), true)).collect(),
-            ray_patch,
+            conv_blocks: e.conv_blocks.iter().map(|b| (conv(&b.conv_0), conv(&b.conv_3))).collect(),
+            per_patch_linear: dense(&e.per_patch_linear),
+            encoder_layers: layers(&e.transformer),
+            input_mlp: (dense(&rp.input_mlp_0), dense(&rp.input_mlp_2)),
+            decoder_layers: layers(&rp.transformer),
+            out_mlp: d.out_mlp.iter().map(dense).collect(),
+            ray_patch: srt.ray_patch.as_ref().map(|rp| {
+                (conv(&rp.conv_0), rp.blocks.iter().map(|b| (conv(&b.features), conv(&b.to_rgb))).collect())
+            }),
+            srt: srt_config.clone(),
             config,
-        }
+        })
     }
 
     pub fn config(&self) -> &ModelConfig {
@@ -256,7 +197,7 @@ impl ReferenceModel {
     /// `SRTEncoder`: the latent tokens of posed input views, and the decoder's keys and values.
     pub fn encode(&self, inputs: &InputViews) -> Result<ReferenceScene, ModelError> {
         inputs.check_for(&self.config, "input views")?;
-        let e = &self.config.encoder;
+        let e = &self.srt.encoder;
         let (n, h, w) = (inputs.count, inputs.height, inputs.width);
         let pixels = n * h * w;
         // [rgb, posenc(camera position), posenc(ray)] per pixel (NHWC), the position broadcast over its view.
@@ -282,7 +223,7 @@ impl ReferenceModel {
         let inner = e.heads * e.dim_head;
         let scale = (e.dim_head as f64).powf(-0.5);
         for layer in &self.encoder_layers {
-            let qkv = layer.to_qkv.apply(&layer.attn_norm.apply(&z), Activation::None, None);
+            let qkv = layer.projections[0].apply(&layer.attn_norm.apply(&z), Activation::None, None);
             let heads = parallel_rows(tokens, inner, |rows| {
                 let q = &qkv[rows.start * 3 * inner..rows.end * 3 * inner];
                 let (ld, (nq, nkv)) = (3 * inner, (rows.len(), tokens));
@@ -291,7 +232,7 @@ impl ReferenceModel {
             z = layer.to_out.apply(&heads, Activation::None, Some(&z));
             z = feed_forward(&z, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
-        let keys_values = self.decoder_layers.iter().map(|l| l.to_kv.apply(&z, Activation::None, None)).collect();
+        let keys_values = self.decoder_layers.iter().map(|l| l.projections[1].apply(&z, Activation::None, None)).collect();
         Ok(ReferenceScene { latent: z, tokens, keys_values })
     }
 
@@ -300,9 +241,9 @@ impl ReferenceModel {
     /// official loader makes them (bilinear), in f32 with [`Argument::RoundedToF32`] (PyTorch's float32
     /// operation order, which the engine reproduces bit for bit) and in f64 otherwise.
     pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
-        let cfg = &self.config;
+        let cfg = &self.srt;
         let k = cfg.patch_size();
-        let grid = cfg.target_grid(targets, "target views")?;
+        let grid = self.config.target_grid(targets, "target views")?;
         let (views, ph, pw) = (targets.count, grid.height / k, grid.width / k);
         let (rh, rw) = (targets.rays_height, targets.rays_width);
         let rays = if k > 1 && !grid.rays_are_patches {
@@ -370,7 +311,7 @@ impl ReferenceModel {
         start: usize,
         rays: &[f64],
     ) -> Vec<f64> {
-        let d = &self.config.decoder;
+        let d = &self.srt.decoder;
         let rows = rays.len() / 3;
         let pos = self.encoding(positions, per_view, start, rows, &d.pos_octaves);
         let ray = self.encoding(rays, 1, 0, rows, &d.ray_octaves);
@@ -386,7 +327,7 @@ impl ReferenceModel {
         let inner = d.heads * d.dim_head;
         let scale = (d.dim_head as f64).powf(-0.5);
         for (layer, kv) in self.decoder_layers.iter().zip(&scene.keys_values) {
-            let q = layer.to_q.apply(&layer.attn_norm.apply(&x), Activation::None, None);
+            let q = layer.projections[0].apply(&layer.attn_norm.apply(&x), Activation::None, None);
             let heads = parallel_rows(rows, inner, |r| {
                 let q = &q[r.start * inner..r.end * inner];
                 let (ld, nkv) = (2 * inner, scene.tokens);

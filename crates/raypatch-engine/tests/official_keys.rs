@@ -1,5 +1,7 @@
-//! The config resolves the official run configs into exactly the official state_dict names and shapes.
+//! The SRT module tree built from the official run configs fetches exactly the official state_dict names
+//! and shapes (`models::expected_tensors`, no file, no GPU).
 
+use raypatch_engine::models::expected_tensors;
 use raypatch_model::ModelConfig;
 use serde_json::json;
 
@@ -37,7 +39,7 @@ fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
 
 fn check(decoder: &str, file: &str) {
     let config = ModelConfig::from_value("official", official(decoder)).unwrap();
-    let mut ours = config.expected_tensors();
+    let mut ours = expected_tensors(&config).unwrap();
     let mut theirs = official_keys(file);
     ours.sort();
     theirs.sort();
@@ -59,8 +61,9 @@ fn rpsrt_k4_keys_match_official() {
 
 #[test]
 fn official_dimensions() {
-    let c = ModelConfig::from_value("official", official("featurefield")).unwrap();
-    assert_eq!(c.patch_size(), 4);
+    let config = ModelConfig::from_value("official", official("featurefield")).unwrap();
+    assert_eq!(config.patch_size(), 4);
+    let c = config.srt().unwrap();
     assert_eq!(c.query_dim(), 180);
     assert_eq!(c.encoder_input_dim(), 183);
     assert_eq!((c.decoder.heads, c.decoder.dim_head, c.decoder.ff_hidden), (12, 64, 1536));

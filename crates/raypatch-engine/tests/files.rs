@@ -1,8 +1,10 @@
 //! Loading a model or scene file that is wrong in one way gives an error naming the file, the tensor and
-//! what was expected. The good files are the bundled golden case `srt_k1`.
+//! what was expected. The good files are the bundled golden case `srt_k1`. A model's tensors are checked as
+//! its module tree fetches them (`raypatch_engine::models::build`, no GPU).
 
 use std::collections::HashMap;
 
+use raypatch_engine::{models, EngineError};
 use raypatch_model::{
     load_model, scene::scene_from_file, weights::model_from_file, InputViews, ModelError, TensorFile,
 };
@@ -36,7 +38,8 @@ fn model_error(edit: impl FnOnce(&mut Tensors, &mut HashMap<String, String>)) ->
     let (mut tensors, mut metadata) = unpack(&golden("model.safetensors"));
     edit(&mut tensors, &mut metadata);
     let file = TensorFile::parse("edited.safetensors", &pack(&tensors, &metadata)).unwrap();
-    model_from_file(file).unwrap_err().to_string()
+    let built = model_from_file(file).map_err(EngineError::from).and_then(|loaded| models::build(&loaded).map(drop));
+    built.unwrap_err().to_string()
 }
 
 fn scene_error(edit: impl FnOnce(&mut Tensors, &mut HashMap<String, String>)) -> String {
@@ -56,6 +59,7 @@ fn assert_mentions(err: &str, parts: &[&str]) {
 fn golden_model_loads() {
     let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
     let model = load_model(&path).unwrap();
+    models::build(&model).unwrap();
     assert_eq!(model.config.patch_size(), 1);
     assert!(model.parameter_count() > 0);
 }

@@ -1,0 +1,93 @@
+//! Model families. Each is one file that builds its module tree from `nn` modules and implements
+//! [`LightField`]: what the scene core ([`crate::scene`]) needs to encode a scene once and render any
+//! crop of any target view. `ray_patch` is the Ray-Patch decoder every family can use.
+//!
+//! Adding a family: its config type in `raypatch-model/src/config/` (an arm of `Family`), its file here
+//! (modules + `impl LightField`), an arm in [`build`]. Outputs it adds go in [`Output`].
+
+pub mod ray_patch;
+pub mod srt;
+
+use std::ops::Range;
+
+use raypatch_model::{Family, LoadedModel, ModelConfig, TargetGrid};
+
+use crate::error::Result;
+use crate::frame::{Output, Outputs};
+use crate::graph::{Graph, ImageSize, Tensor};
+use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use crate::nn::{self, Source, Vars, WeightSet};
+use crate::tensor::{padded_cols, GpuTensor};
+
+/// A light-field model as the scene core uses it.
+pub trait LightField: Send + Sync {
+    /// The outputs this model can render.
+    fn outputs(&self) -> Outputs;
+
+    /// Pixels per decoder query along each axis: 1, or k for Ray-Patch.
+    fn patch_size(&self) -> usize;
+
+    /// The query patches `first..=last`, along an axis of `patches`, that output pixels `lo..=hi` depend on.
+    fn patch_span(&self, lo: usize, hi: usize, patches: usize) -> (usize, usize);
+
+    /// Records the encoder on input views of `size`: the latent, and the tensors every render reads (plan
+    /// outputs, kept with the scene).
+    fn encode(&self, g: &mut Graph, size: ImageSize) -> Encoded;
+
+    /// Records a render of `views` target views on `grid` (the computed crop), reading the scene's cached
+    /// tensors, computing only `outputs`: each output as `[views·height·width, channels]`.
+    fn render(&self, g: &mut Graph, scene: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs)
+        -> Vec<(Output, Tensor)>;
+}
+
+/// What an encode plan produces.
+pub struct Encoded {
+    pub latent: Tensor,
+    pub cached: Vec<Tensor>,
+}
+
+/// The module tree of a model file, with its weights on the host (checked against the file: every tensor
+/// fetched, of its shape, nothing left over).
+pub fn build(loaded: &LoadedModel) -> Result<(Box<dyn LightField>, WeightSet)> {
+    build_from(&loaded.config, Source::File(loaded))
+}
+
+/// Every tensor of the official state_dict for `config` (without `num_batches_tracked`), in order.
+pub fn expected_tensors(config: &ModelConfig) -> Result<Vec<(String, Vec<usize>)>> {
+    Ok(build_from(config, Source::Declare)?.1.declared)
+}
+
+fn build_from(config: &ModelConfig, source: Source) -> Result<(Box<dyn LightField>, WeightSet)> {
+    nn::build(source, |vars: &Vars| {
+        Ok(match &config.family {
+            Family::Srt(c) => Box::new(srt::Srt::new(vars, c)?) as Box<dyn LightField>,
+        })
+    })
+}
+
+/// The outputs of a pre-sigmoid image `[pixels, 3 or 4]`: rgb = sigmoid of its first three channels,
+/// log-depth = its fourth.
+pub fn image_outputs(g: &mut Graph, image: Tensor, outputs: Outputs) -> Vec<(Output, Tensor)> {
+    let mut out = Vec::new();
+    for (output, col, map, label) in [(Output::Rgb, 0, Map::Sigmoid, "sigmoid"), (Output::LogDepth, 3, Map::Identity, "logdepth")] {
+        if outputs.contains(output) {
+            let t = g.output(output.name(), image.rows(), output.channels());
+            map_columns(&mut g.b, label, MapColumnsArgs { x: image.view, col, out: t.view, map });
+            out.push((output, t));
+        }
+    }
+    out
+}
+
+/// Decoder queries are processed in chunks whose widest intermediate stays under this many bytes, so that
+/// memory is bounded at any resolution. Chunks start at multiples of 64 rows (buffer offset alignment).
+const CHUNK_BYTES: usize = 32 << 20;
+const CHUNK_ALIGN: usize = 64;
+
+/// The query chunks of `queries` rows whose widest intermediate has `widest` columns.
+pub fn query_chunks(g: &Graph, queries: usize, widest: usize) -> Vec<Range<usize>> {
+    let chunk_bytes = CHUNK_BYTES.min(usize::try_from(g.max_buffer_bytes).unwrap_or(usize::MAX));
+    let chunk = (chunk_bytes / (4 * padded_cols(widest))) / CHUNK_ALIGN * CHUNK_ALIGN;
+    let chunk = chunk.clamp(CHUNK_ALIGN, queries.div_ceil(CHUNK_ALIGN) * CHUNK_ALIGN);
+    (0..queries).step_by(chunk).map(|start| start..(start + chunk).min(queries)).collect()
+}

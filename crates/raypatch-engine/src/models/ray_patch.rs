@@ -1,0 +1,123 @@
+//! Ray-Patch querying, shared by every family: one ray per k×k patch (`patch_rays`), and the
+//! `RayPatchDecoder` (official `src/decoder.py`) that turns the patch features into the image: per 2× step,
+//! nearest upsample → conv → BN → LeakyReLU(0.2) on the features, and an RGB conv added to the bilinearly
+//! upsampled RGB skip. Also the region walk: which patches a region of the output depends on.
+
+use raypatch_model::RayPatchConfig;
+
+use crate::error::Result;
+use crate::graph::{Graph, ImageSize, Tensor};
+use crate::kernels::resize::{bilinear, nearest, ResizeArgs};
+use crate::kernels::Activation;
+use crate::nn::{Conv3x3, Resample, Vars};
+
+/// LeakyReLU slope of the conv decoder's feature convs.
+pub const CONV_DECODER_SLOPE: f32 = 0.2;
+
+/// One 2× step: the feature conv (`conv_blocks.{i}.0.1`, BN at `.0.2`) and its RGB conv (`conv_blocks.{i}.1`).
+pub struct UpBlock {
+    pub features: Conv3x3,
+    pub to_rgb: Conv3x3,
+}
+
+/// `RayPatchDecoder.conv_decoder`.
+pub struct RayPatchDecoder {
+    pub path: String,
+    /// The first RGB skip, from the patch features.
+    pub conv_0: Conv3x3,
+    pub blocks: Vec<UpBlock>,
+}
+
+impl RayPatchDecoder {
+    pub fn new(vars: &Vars, c: &RayPatchConfig) -> Result<Self> {
+        let blocks = (0..c.upsample)
+            .map(|i| {
+                let (cin, cout) = (c.conv_features >> i, c.conv_features >> (i + 1));
+                let block = vars.pp("conv_blocks").pp(i);
+                let bn = c.batch_norm.then(|| block.pp("0.2"));
+                Ok(UpBlock {
+                    features: Conv3x3::new(&block.pp("0.1"), cin, cout, true, bn)?,
+                    to_rgb: Conv3x3::new(&block.pp(1), cout, c.out_dims, true, None)?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(RayPatchDecoder {
+            path: vars.path().to_string(),
+            conv_0: Conv3x3::new(&vars.pp("conv_0"), c.conv_features, c.out_dims, true, None)?,
+            blocks,
+        })
+    }
+
+    /// Patch rays: the full-resolution rays bilinearly downsampled to the patch grid, not renormalised
+    /// (torchvision Resize, as the official data loader makes them).
+    pub fn patch_rays(&self, g: &mut Graph, rays: Tensor, patches: ImageSize) -> Tensor {
+        let out = g.image("patch_rays", patches, 3);
+        let full = rays.size();
+        let args =
+            ResizeArgs { x: rays.view, n: full.n, from: (full.h, full.w), out: out.view, to: (patches.h, patches.w), accumulate: false };
+        bilinear(&mut g.b, "patch_rays", args);
+        out
+    }
+
+    /// The image `[views·H·W, channels]` before the sigmoid from the patch features (an image of the patch
+    /// grid), nearest-resized to `size` (height, width) when k does not divide it (the official
+    /// `F.interpolate(output, (h_out, w_out))`).
+    pub fn forward(&self, g: &mut Graph, features: Tensor, size: (usize, usize)) -> Tensor {
+        let first = self.conv_0.forward(g, features, Resample::Same, Activation::None);
+        let mut skip = self.upsample_skip(g, first, 0);
+        let mut x = features;
+        for (i, block) in self.blocks.iter().enumerate() {
+            x = block.features.forward(g, x, Resample::Up2, Activation::LeakyRelu(CONV_DECODER_SLOPE));
+            // x_out = conv_out(x) + skip, accumulated into the upsampled skip.
+            block.to_rgb.forward_into(g, x, skip, Resample::Same, Activation::None, true);
+            if i + 1 < self.blocks.len() {
+                skip = self.upsample_skip(g, skip, i + 1);
+            }
+        }
+        let computed = skip.size();
+        if (computed.h, computed.w) == size {
+            return skip;
+        }
+        let label = format!("{}.resize_out", self.path);
+        let to = ImageSize { h: size.0, w: size.1, ..computed };
+        let resized = g.image(&label, to, skip.cols);
+        let args =
+            ResizeArgs { x: skip.view, n: to.n, from: (computed.h, computed.w), out: resized.view, to: size, accumulate: false };
+        nearest(&mut g.b, &label, args);
+        resized
+    }
+
+    /// The RGB skip bilinearly upsampled 2× (`skip.{i}`).
+    fn upsample_skip(&self, g: &mut Graph, skip: Tensor, i: usize) -> Tensor {
+        let label = format!("{}.skip.{i}", self.path);
+        let from = skip.size();
+        let to = Resample::Up2.output(from);
+        let out = g.image(&label, to, skip.cols);
+        let args = ResizeArgs { x: skip.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
+        bilinear(&mut g.b, &label, args);
+        out
+    }
+
+    /// The patches `first..=last` along an axis of `patches` patches whose features the output pixels
+    /// `lo..=hi` depend on: a 3×3 conv reads one pixel further each side, and each 2× step (the nearest
+    /// upsampling before a block's conv, the bilinear rgb skip) reads source pixels
+    /// `floor((lo-1)/2) ..= floor((hi+1)/2)`. Reads past the image edge are padding in a full render too, so
+    /// spans are clipped there. With these patches decoded, the pixels equal those of a full render.
+    pub fn patch_span(&self, lo: usize, hi: usize, patches: usize) -> (usize, usize) {
+        type Span = (isize, isize);
+        let upsample = self.blocks.len();
+        let clip = |(lo, hi): Span, level: usize| (lo.max(0), hi.min(((patches << level) - 1) as isize));
+        let grow = |(lo, hi): Span| (lo - 1, hi + 1);
+        let half = |(lo, hi): Span| ((lo - 1).div_euclid(2), (hi + 1).div_euclid(2));
+        let hull = |a: Span, b: Span| (a.0.min(b.0), a.1.max(b.1));
+        // At each level: the skip (rgb) pixels needed, and the feature pixels needed (`x` of the next block's
+        // conv, and the input of this level's to-rgb conv, which writes the skip).
+        let mut skip: Span = (lo as isize, hi as isize);
+        let mut features = clip(grow(skip), upsample);
+        for level in (0..upsample).rev() {
+            skip = clip(half(skip), level);
+            features = clip(hull(half(features), grow(skip)), level);
+        }
+        (features.0 as usize, features.1 as usize)
+    }
+}

@@ -1,0 +1,251 @@
+//! SRT and RP-SRT (`base: srt`), as the official modules build them (tberriel/RayPatchQuerying
+//! `src/encoder.py` `SRTEncoder`, `src/decoder.py` `SRTDecoder`/`RayPredictor`, `src/model.py` `SRT`):
+//! posed images → conv blocks → tokens → transformer → latent z; ray queries → input MLP → cross-attention
+//! to z → out MLP → per-ray colour (SRT) or patch features for the Ray-Patch decoder (RP-SRT).
+
+use raypatch_model::{SrtConfig, TargetGrid};
+
+use super::ray_patch::RayPatchDecoder;
+use super::{image_outputs, query_chunks, Encoded, LightField};
+use crate::error::Result;
+use crate::frame::{Output, Outputs};
+use crate::graph::{Graph, HostInput, ImageSize, Tensor};
+use crate::kernels::Activation;
+use crate::nn::{Conv3x3, FourierEncoding, Linear, Resample, Transformer, TransformerDims, Vars};
+use crate::tensor::GpuTensor;
+
+/// LeakyReLU slope of the decoder's out_mlp (nn.LeakyReLU default).
+pub const OUT_MLP_SLOPE: f32 = 0.01;
+
+/// `SRTConvBlock`: conv(stride 1) → BN → ReLU → conv(stride 2) → BN → ReLU (`layers.0..5`), BN folded.
+pub struct SrtConvBlock {
+    pub conv_0: Conv3x3,
+    pub conv_3: Conv3x3,
+}
+
+/// `SRTEncoder`.
+pub struct SrtEncoder {
+    pub pos_enc: FourierEncoding,
+    pub ray_enc: FourierEncoding,
+    pub conv_blocks: Vec<SrtConvBlock>,
+    /// A 1×1 conv: conv features → tokens.
+    pub per_patch_linear: Linear,
+    pub transformer: Transformer,
+    pub token_dim: usize,
+}
+
+/// `RayPredictor`: query encodings → input MLP → cross-attention layers.
+pub struct RayPredictor {
+    pub pos_enc: FourierEncoding,
+    pub ray_enc: FourierEncoding,
+    pub input_mlp_0: Linear,
+    pub input_mlp_2: Linear,
+    pub transformer: Transformer,
+}
+
+/// `SRTDecoder` (`decoder_att`): the ray predictor, then the out MLP (four LeakyReLU layers and the output).
+pub struct SrtDecoder {
+    pub ray_predictor: RayPredictor,
+    pub out_mlp: Vec<Linear>,
+    /// The widest intermediate row of a query (sizes the query chunks).
+    widest: usize,
+}
+
+/// SRT, or RP-SRT when `ray_patch` is set.
+pub struct Srt {
+    pub config: SrtConfig,
+    pub encoder: SrtEncoder,
+    pub decoder: SrtDecoder,
+    pub ray_patch: Option<RayPatchDecoder>,
+}
+
+impl SrtConvBlock {
+    fn new(vars: &Vars, cin: usize, hidden: usize, cout: usize, batch_norm: bool) -> Result<Self> {
+        let layers = vars.pp("layers");
+        let bn = |i: usize| batch_norm.then(|| layers.pp(i));
+        Ok(SrtConvBlock {
+            conv_0: Conv3x3::new(&layers.pp(0), cin, hidden, false, bn(1))?,
+            conv_3: Conv3x3::new(&layers.pp(3), hidden, cout, false, bn(4))?,
+        })
+    }
+
+    fn forward(&self, g: &mut Graph, x: Tensor) -> Tensor {
+        let hidden = self.conv_0.forward(g, x, Resample::Same, Activation::Relu);
+        self.conv_3.forward(g, hidden, Resample::Down2, Activation::Relu)
+    }
+}
+
+impl SrtEncoder {
+    fn new(vars: &Vars, c: &SrtConfig) -> Result<Self> {
+        let e = &c.encoder;
+        let mut conv_blocks = Vec::with_capacity(e.num_conv_blocks);
+        let (mut cin, mut hidden) = (c.encoder_input_dim(), e.conv_hidden);
+        for i in 0..e.num_conv_blocks {
+            conv_blocks.push(SrtConvBlock::new(&vars.pp("conv_blocks").pp(i), cin, hidden, 2 * hidden, e.batch_norm)?);
+            // The first block widens to 2·conv_hidden; each later block doubles its input.
+            cin = 2 * hidden;
+            hidden = cin;
+        }
+        let dims = TransformerDims {
+            dim: e.token_dim,
+            depth: e.num_att_blocks,
+            heads: e.heads,
+            dim_head: e.dim_head,
+            mlp_dim: e.ff_hidden,
+            kv_dim: None,
+        };
+        Ok(SrtEncoder {
+            pos_enc: FourierEncoding::new(vars.pp("pos_enc").path(), &e.pos_octaves),
+            ray_enc: FourierEncoding::new(vars.pp("ray_enc").path(), &e.ray_octaves),
+            conv_blocks,
+            per_patch_linear: Linear::conv1x1(&vars.pp("per_patch_linear"), cin, e.token_dim)?,
+            transformer: Transformer::new(&vars.pp("transformer"), dims)?,
+            token_dim: e.token_dim,
+        })
+    }
+
+    /// The latent tokens z `[n·h'·w', token_dim]` of `size` posed input views, into a plan output.
+    fn forward(&self, g: &mut Graph, size: ImageSize) -> Tensor {
+        let (pos, ray) = (self.pos_enc.width(), self.ray_enc.width());
+        // [rgb, posenc(camera position), posenc(ray)] per pixel: RGB written by the host, encodings by the
+        // GPU; the position is broadcast over its view's pixels.
+        let x = g.input("encoder_input", size.pixels(), 3 + pos + ray, HostInput::InputImages { col: 0 }, Some(size));
+        let camera_pos = g.input("input_camera_pos", size.n, 3, HostInput::InputCameraPos, None);
+        let rays = g.input("input_rays", size.pixels(), 3, HostInput::InputRays, None);
+        self.pos_enc.forward_into(g, camera_pos, size.h * size.w, 0, x, 3);
+        self.ray_enc.forward_into(g, rays, 1, 0, x, 3 + pos);
+        let x = self.conv_blocks.iter().fold(x, |x, block| block.forward(g, x));
+        // per_patch_linear over NHWC rows gives the tokens in the official order: row-major per image,
+        // images concatenated.
+        let z = g.output("latent", x.rows(), self.token_dim);
+        self.per_patch_linear.forward_into(g, x, z, Activation::None, false);
+        self.transformer.forward(g, z);
+        z
+    }
+}
+
+impl SrtDecoder {
+    fn new(vars: &Vars, c: &SrtConfig) -> Result<Self> {
+        let d = &c.decoder;
+        let rp = vars.pp("ray_predictor");
+        let q = c.query_dim();
+        let dims = TransformerDims {
+            dim: q,
+            depth: d.num_att_blocks,
+            heads: d.heads,
+            dim_head: d.dim_head,
+            mlp_dim: d.ff_hidden,
+            kv_dim: Some(d.kv_dim),
+        };
+        let h = d.out_mlp_hidden;
+        let out_mlp = [(0, q, h), (2, h, h), (4, h, h), (6, h, h), (8, h, d.out_dims)]
+            .into_iter()
+            .map(|(i, inp, out)| Linear::new(&vars.pp("out_mlp").pp(i), inp, out))
+            .collect::<Result<Vec<_>>>()?;
+        let widest = [d.out_mlp_hidden, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, q].into_iter().max();
+        Ok(SrtDecoder {
+            ray_predictor: RayPredictor {
+                pos_enc: FourierEncoding::new(vars.pp("pos_enc").path(), &d.pos_octaves),
+                ray_enc: FourierEncoding::new(vars.pp("ray_enc").path(), &d.ray_octaves),
+                input_mlp_0: Linear::new(&rp.pp("input_mlp.0"), q, d.input_mlp_hidden)?,
+                input_mlp_2: Linear::new(&rp.pp("input_mlp.2"), d.input_mlp_hidden, q)?,
+                transformer: Transformer::new(&rp.pp("transformer"), dims)?,
+            },
+            out_mlp,
+            widest: widest.unwrap_or(1),
+        })
+    }
+
+    /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view) into `out`:
+    /// q = cat(posenc(camera position), posenc(ray)), input MLP, cross-attention, out MLP.
+    #[allow(clippy::too_many_arguments)]
+    fn forward(&self, g: &mut Graph, camera_pos: Tensor, per_view: usize, start: usize, rays: Tensor, kv: &[Tensor], out: Tensor) {
+        let rp = &self.ray_predictor;
+        let pos = rp.pos_enc.width();
+        let query = g.transient("decoder_att.query", rays.rows(), pos + rp.ray_enc.width());
+        rp.pos_enc.forward_into(g, camera_pos, per_view, start, query, 0);
+        rp.ray_enc.forward_into(g, rays, 1, 0, query, pos);
+        let hidden = rp.input_mlp_0.forward(g, query, Activation::Relu);
+        let x = rp.input_mlp_2.forward(g, hidden, Activation::None);
+        rp.transformer.forward_cross(g, x, kv);
+        let (last, hidden_layers) = self.out_mlp.split_last().expect("out_mlp has five layers");
+        let h = hidden_layers.iter().fold(x, |h, lin| lin.forward(g, h, Activation::LeakyRelu(OUT_MLP_SLOPE)));
+        last.forward_into(g, h, out, Activation::None, false);
+    }
+}
+
+impl Srt {
+    /// The module tree of `config` at `vars` (the model's root).
+    pub fn new(vars: &Vars, config: &SrtConfig) -> Result<Srt> {
+        Ok(Srt {
+            encoder: SrtEncoder::new(&vars.pp("encoder"), config)?,
+            decoder: SrtDecoder::new(&vars.pp("decoder_att"), config)?,
+            ray_patch: match &config.ray_patch {
+                Some(rp) => Some(RayPatchDecoder::new(&vars.pp("decoder_rp.conv_decoder"), rp)?),
+                None => None,
+            },
+            config: config.clone(),
+        })
+    }
+}
+
+impl LightField for Srt {
+    fn outputs(&self) -> Outputs {
+        if self.config.image_channels() == 4 {
+            Outputs::of(&[Output::Rgb, Output::LogDepth])
+        } else {
+            Outputs::of(&[Output::Rgb])
+        }
+    }
+
+    fn patch_size(&self) -> usize {
+        self.config.patch_size()
+    }
+
+    fn patch_span(&self, lo: usize, hi: usize, patches: usize) -> (usize, usize) {
+        match &self.ray_patch {
+            Some(rp) => rp.patch_span(lo, hi, patches),
+            None => (lo, hi),
+        }
+    }
+
+    fn encode(&self, g: &mut Graph, size: ImageSize) -> Encoded {
+        let latent = self.encoder.forward(g, size);
+        // The decoder's keys and values depend only on z: project them once per scene.
+        let transformer = &self.decoder.ray_predictor.transformer;
+        let keys_values: Vec<Tensor> = (0..transformer.layers.len())
+            .map(|l| g.output(&format!("decoder.layers.{l}.kv"), latent.rows(), transformer.kv_width()))
+            .collect();
+        transformer.keys_values(g, latent, &keys_values);
+        Encoded { latent, cached: keys_values }
+    }
+
+    fn render(&self, g: &mut Graph, scene: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs) -> Vec<(Output, Tensor)> {
+        let k = self.patch_size();
+        let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
+        let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);
+        let rays = match &self.ray_patch {
+            Some(rp) if !grid.rays_are_patches => {
+                let full = ImageSize { n: views, h: grid.height, w: grid.width };
+                let rays = g.input("target_rays", full.pixels(), 3, HostInput::TargetRays, Some(full));
+                rp.patch_rays(g, rays, patches)
+            }
+            _ => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
+        };
+        let kv: Vec<Tensor> =
+            scene.iter().enumerate().map(|(l, t)| g.external(&format!("decoder.layers.{l}.kv"), t)).collect();
+        let features = g.image("decoder_features", patches, self.config.decoder.out_dims);
+        for chunk in query_chunks(g, patches.pixels(), self.decoder.widest) {
+            let (start, rows) = (chunk.start, chunk.len());
+            g.with_suffix(format!("[{start}..{}]", chunk.end), |g| {
+                let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
+                self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &kv, out)
+            });
+        }
+        let image = match &self.ray_patch {
+            Some(rp) => rp.forward(g, features, (grid.height, grid.width)),
+            None => features,
+        };
+        image_outputs(g, image, outputs)
+    }
+}

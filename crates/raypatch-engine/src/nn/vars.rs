@@ -1,0 +1,235 @@
+//! Weights by path, in the spirit of candle's `VarBuilder`: a module fetches each of its weights with
+//! `vars.pp("to_out.1").matrix("weight", out, in)`, which declares the official name and shape and returns a
+//! [`Param`] in the same call. Building a model's module tree over a [`LoadedModel`] checks the file (every
+//! tensor present, of its shape, and nothing else); over [`Source::Declare`] it lists the tensors a config
+//! implies, with no file and no GPU. The prepared host weights ([`WeightSet`]) go to the GPU once
+//! ([`WeightSet::upload`]); the float64 reference reads the same set.
+
+use std::cell::RefCell;
+use std::collections::BTreeSet;
+
+use raypatch_model::{HostTensor, LoadedModel};
+
+use crate::error::{EngineError, Result};
+use crate::gpu::Gpu;
+use crate::kernels::conv::pack_conv3x3;
+use crate::tensor::GpuTensor;
+
+/// Where a module tree's weights come from.
+pub enum Source<'a> {
+    /// A model file: each fetch is checked against the file.
+    File(&'a LoadedModel),
+    /// No file: each fetch is recorded and returns zeros (to list the tensors a config implies).
+    Declare,
+}
+
+/// A weight of the module tree: an index into its [`WeightSet`] (and, once uploaded, into the GPU weights).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Param(usize);
+
+impl Param {
+    pub fn index(self) -> usize {
+        self.0
+    }
+}
+
+/// How a prepared weight is laid out on the GPU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// A `[rows, cols]` linear weight: may be stored as f16 (see `WeightStorage`).
+    Matrix { rows: usize, cols: usize },
+    /// A `[1, len]` row: biases, norm scales.
+    Row,
+    /// A 3×3 conv weight `[cout, cin, 3, 3]`, packed for `conv.wgsl` at upload (`pack_conv3x3`).
+    Conv3x3 { cout: usize, cin: usize },
+}
+
+/// A weight ready for the GPU, in float64 when it was computed (BatchNorm folded) rather than read.
+pub struct Prepared {
+    /// The official name it was read from (the conv weight's, for a folded conv).
+    pub name: String,
+    pub layout: Layout,
+    pub data: Data,
+}
+
+pub enum Data {
+    F32(Vec<f32>),
+    F64(Vec<f64>),
+}
+
+impl Data {
+    pub fn to_f64(&self) -> Vec<f64> {
+        match self {
+            Data::F32(v) => v.iter().map(|&x| x as f64).collect(),
+            Data::F64(v) => v.clone(),
+        }
+    }
+    fn to_f32(&self) -> std::borrow::Cow<'_, [f32]> {
+        match self {
+            Data::F32(v) => v.as_slice().into(),
+            Data::F64(v) => v.iter().map(|&x| x as f32).collect::<Vec<_>>().into(),
+        }
+    }
+}
+
+/// Everything a module tree fetched: the prepared weights (by [`Param`]) and the official names read.
+#[derive(Default)]
+pub struct WeightSet {
+    pub prepared: Vec<Prepared>,
+    /// Official `(name, shape)` of every tensor fetched, in fetch order.
+    pub declared: Vec<(String, Vec<usize>)>,
+}
+
+impl WeightSet {
+    pub fn get(&self, p: Param) -> &Prepared {
+        &self.prepared[p.0]
+    }
+}
+
+struct Store<'a> {
+    source: Source<'a>,
+    set: WeightSet,
+}
+
+/// A path into the module tree, over a shared store.
+#[derive(Clone)]
+pub struct Vars<'s, 'a> {
+    store: &'s RefCell<Store<'a>>,
+    path: String,
+}
+
+/// Builds a module tree over `source` with `build`, and returns it with its weights. Over a file, also
+/// checks that the tree fetched every tensor of the file.
+pub fn build<T>(source: Source<'_>, build: impl FnOnce(&Vars) -> Result<T>) -> Result<(T, WeightSet)> {
+    let file = match source {
+        Source::File(f) => Some(f),
+        Source::Declare => None,
+    };
+    let store = RefCell::new(Store { source, set: WeightSet::default() });
+    let root = Vars { store: &store, path: String::new() };
+    let tree = build(&root)?;
+    let set = store.into_inner().set;
+    if let Some(file) = file {
+        let fetched: BTreeSet<String> = set.declared.iter().map(|(name, _)| name.clone()).collect();
+        file.check_all_fetched(&fetched)?;
+    }
+    Ok((tree, set))
+}
+
+impl Vars<'_, '_> {
+    /// The sub-path `name` (dot-separated parts allowed): `vars.pp("transformer.layers").pp(l)`.
+    pub fn pp(&self, name: impl std::fmt::Display) -> Self {
+        let path = if self.path.is_empty() { name.to_string() } else { format!("{}.{name}", self.path) };
+        Vars { store: self.store, path }
+    }
+
+    /// This path: the module's name in the official state_dict, and its ops' label.
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// Fetches the tensor `name` under this path, declaring its shape.
+    pub fn tensor(&self, name: &str, shape: &[usize]) -> Result<HostTensor> {
+        let key = self.pp(name).path;
+        let mut store = self.store.borrow_mut();
+        let tensor = match store.source {
+            Source::File(file) => file.weight(&key, shape)?,
+            Source::Declare => HostTensor { shape: shape.to_vec(), data: vec![0.0; shape.iter().product()] },
+        };
+        store.set.declared.push((key, shape.to_vec()));
+        Ok(tensor)
+    }
+
+    /// Adds a prepared weight to the set.
+    pub fn prepared(&self, name: &str, layout: Layout, data: Data) -> Param {
+        let mut store = self.store.borrow_mut();
+        store.set.prepared.push(Prepared { name: self.pp(name).path, layout, data });
+        Param(store.set.prepared.len() - 1)
+    }
+
+    /// A linear weight `name` of shape `shape` (`[out, in]`, or `[out, in, 1, 1]` for a 1×1 conv).
+    pub fn matrix(&self, name: &str, shape: &[usize]) -> Result<Param> {
+        let t = self.tensor(name, shape)?;
+        let (rows, cols) = (shape[0], shape[1..].iter().product());
+        Ok(self.prepared(name, Layout::Matrix { rows, cols }, Data::F32(t.data)))
+    }
+
+    /// A vector `name` of `len` values, kept as a `[1, len]` row.
+    pub fn row(&self, name: &str, len: usize) -> Result<Param> {
+        let t = self.tensor(name, &[len])?;
+        Ok(self.prepared(name, Layout::Row, Data::F32(t.data)))
+    }
+}
+
+/// How the linear layers' weights are stored on the GPU (they are most of the bytes and of the time).
+/// Everything else (convolutions, biases, norms, activations) stays f32, and all arithmetic is f32.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum WeightStorage {
+    #[default]
+    F32,
+    /// f16 (needs the adapter's `SHADER_F16`). A layer with a weight beyond f16's range (|w| > 65504,
+    /// which f16 would turn into infinity) stays f32 and is listed in [`GpuWeights::kept_f32`].
+    F16,
+}
+
+/// Options for putting a model on the GPU.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LoadOptions {
+    pub weight_storage: WeightStorage,
+}
+
+/// A linear layer that stays f32 under [`WeightStorage::F16`], and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeptF32 {
+    pub tensor: String,
+    /// The largest |weight|, beyond f16's range.
+    pub max_abs: f32,
+}
+
+/// A model's weights on the GPU, indexed by [`Param`].
+pub struct GpuWeights {
+    pub tensors: Vec<GpuTensor>,
+    /// Bytes of GPU memory the weights take.
+    pub bytes: u64,
+    /// Linear layers kept in f32 under [`WeightStorage::F16`] because a weight is beyond f16's range.
+    pub kept_f32: Vec<KeptF32>,
+}
+
+impl WeightSet {
+    /// Puts every prepared weight on the GPU in the layout its kernel reads.
+    pub fn upload(&self, gpu: &Gpu, options: &LoadOptions) -> Result<GpuWeights> {
+        if options.weight_storage == WeightStorage::F16 && !gpu.features.contains(wgpu::Features::SHADER_F16) {
+            return Err(EngineError::Request(format!(
+                "f16 weights need shader-f16, which {} does not have",
+                gpu.info.name
+            )));
+        }
+        let mut weights = GpuWeights { tensors: Vec::with_capacity(self.prepared.len()), bytes: 0, kept_f32: Vec::new() };
+        for p in &self.prepared {
+            let data = p.data.to_f32();
+            let tensor = match p.layout {
+                Layout::Row => gpu.upload(&p.name, 1, data.len(), &data)?,
+                Layout::Conv3x3 { cout, cin } => {
+                    let packed = pack_conv3x3(&data, cout, cin);
+                    gpu.upload(&p.name, cout, packed.len() / cout, &packed)?
+                }
+                Layout::Matrix { rows, cols } => {
+                    let max_abs = data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                    match options.weight_storage {
+                        WeightStorage::F16 if half::f16::from_f32(max_abs).is_finite() => {
+                            gpu.upload_f16(&p.name, rows, cols, &data)?
+                        }
+                        WeightStorage::F16 => {
+                            weights.kept_f32.push(KeptF32 { tensor: p.name.clone(), max_abs });
+                            gpu.upload(&p.name, rows, cols, &data)?
+                        }
+                        WeightStorage::F32 => gpu.upload(&p.name, rows, cols, &data)?,
+                    }
+                }
+            };
+            weights.bytes += tensor.bytes();
+            weights.tensors.push(tensor);
+        }
+        Ok(weights)
+    }
+}

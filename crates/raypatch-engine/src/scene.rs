@@ -1,0 +1,451 @@
+//! The scene core, the same for every model family ([`LightField`]): a [`Model`] is a family's module tree
+//! with its weights on the GPU; [`Model::encode`] runs the encoder once per scene and keeps what renders read;
+//! [`EncodedScene::render`] records a render plan per (target count, computed size, outputs) on first use and
+//! reuses it, computes only the requested outputs, and for a region only the patches it depends on, in row
+//! bands when one plan would bind a buffer larger than the GPU allows.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use raypatch_model::{InputViews, LoadedModel, ModelConfig, TargetGrid, TargetViews};
+
+use crate::error::{EngineError, Result};
+use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
+use crate::gpu::Gpu;
+use crate::graph::{Graph, HostInput, ImageSize, Tensor};
+use crate::models::{self, LightField};
+use crate::nn::{GpuWeights, KeptF32, LoadOptions};
+use crate::plan::{Plan, PlanBuilder, TensorId};
+use crate::tensor::GpuTensor;
+
+/// Each op's label and wall time, in plan order (from the profiling entry points).
+pub type OpTimes = Vec<(String, std::time::Duration)>;
+
+/// A loaded model with its weights on the GPU.
+pub struct Model {
+    gpu: Arc<Gpu>,
+    pub config: ModelConfig,
+    pub path: String,
+    pub parameter_count: usize,
+    family: Box<dyn LightField>,
+    weights: GpuWeights,
+}
+
+/// A scene encoded by a model: the latent and the tensors its renders read (for SRT, each decoder layer's
+/// keys and values).
+pub struct EncodedScene<'m> {
+    model: &'m Model,
+    /// The latent: `[tokens, width]`.
+    pub latent: GpuTensor,
+    /// What every render reads, computed once (for SRT, per decoder layer `to_kv(z)`: keys, then values).
+    pub cached: Vec<GpuTensor>,
+    /// Bytes the encode plan allocated (its intermediates; freed after encoding).
+    pub encode_peak_bytes: u64,
+    /// Multiply-adds of the encode, counted from its ops.
+    pub encode_multiply_adds: u64,
+    render_plans: Mutex<HashMap<PlanKey, Arc<RenderPlan>>>,
+}
+
+/// A render plan serves every render of this many views of this computed size with these outputs; the
+/// region's position only changes which rays are uploaded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct PlanKey {
+    views: usize,
+    grid: TargetGrid,
+    outputs: Outputs,
+}
+
+/// A built render plan and the tensors the host writes and reads.
+struct RenderPlan {
+    plan: Plan,
+    host_inputs: Vec<(TensorId, HostInput)>,
+    outputs: Vec<(Output, TensorId)>,
+    queries: usize,
+    largest_tensor_bytes: u64,
+}
+
+impl Model {
+    pub fn load(gpu: Arc<Gpu>, path: impl AsRef<Path>) -> Result<Model> {
+        let loaded = raypatch_model::load_model(path)?;
+        Model::from_loaded(gpu, &loaded)
+    }
+
+    pub fn from_loaded(gpu: Arc<Gpu>, loaded: &LoadedModel) -> Result<Model> {
+        Model::from_loaded_with(gpu, loaded, &LoadOptions::default())
+    }
+
+    /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
+    pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
+        let (family, weights) = models::build(loaded)?;
+        let weights = weights.upload(&gpu, options)?;
+        Ok(Model {
+            gpu,
+            config: loaded.config.clone(),
+            path: loaded.path.clone(),
+            parameter_count: loaded.parameter_count(),
+            family,
+            weights,
+        })
+    }
+
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// The outputs this model can render.
+    pub fn outputs(&self) -> Outputs {
+        self.family.outputs()
+    }
+
+    /// Bytes of GPU memory the weights take.
+    pub fn weight_bytes(&self) -> u64 {
+        self.weights.bytes
+    }
+
+    /// Linear layers kept in f32 under f16 weight storage (a weight beyond f16's range).
+    pub fn weights_kept_f32(&self) -> &[KeptF32] {
+        &self.weights.kept_f32
+    }
+
+    /// Encodes posed input views into the latent and what renders read. Waits for the GPU.
+    pub fn encode(&self, inputs: &InputViews) -> Result<EncodedScene<'_>> {
+        self.encode_inner(inputs, false).map(|(scene, _)| scene)
+    }
+
+    /// Like [`encode`](Self::encode), running the ops one by one and timing each (slower; for profiling).
+    pub fn encode_profiled(&self, inputs: &InputViews) -> Result<(EncodedScene<'_>, OpTimes)> {
+        self.encode_inner(inputs, true)
+    }
+
+    /// Multiply-adds of encoding `count` input views of `height`×`width`, counted from the encode plan's ops
+    /// (recorded, not built: nothing is allocated).
+    pub fn encode_multiply_adds(&self, count: usize, height: usize, width: usize) -> u64 {
+        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
+        self.family.encode(&mut g, ImageSize { n: count, h: height, w: width });
+        g.b.multiply_adds()
+    }
+
+    fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
+        inputs.check_for(&self.config, "input views")?;
+        let gpu = &*self.gpu;
+        let size = ImageSize { n: inputs.count, h: inputs.height, w: inputs.width };
+        let mut g = Graph::new(gpu, &self.weights.tensors);
+        let encoded = self.family.encode(&mut g, size);
+        let Graph { b, host_inputs, .. } = g;
+        let multiply_adds = b.multiply_adds();
+        let plan = b.build(gpu).map_err(|e| match e {
+            EngineError::TooLarge { what, bytes, max } => EngineError::TooLarge {
+                what: format!(
+                    "encoding {} input view(s) of {}x{} (too many input views, or too large): {what}",
+                    size.n, size.w, size.h
+                ),
+                bytes,
+                max,
+            },
+            other => other,
+        })?;
+        for (id, input) in &host_inputs {
+            let tensor = plan.tensor(*id);
+            match input {
+                HostInput::InputImages { col } => {
+                    let mut rows = vec![0.0f32; tensor.rows * tensor.cols];
+                    for (row, rgb) in rows.chunks_exact_mut(tensor.cols).zip(inputs.images.chunks_exact(3)) {
+                        row[*col..col + 3].copy_from_slice(rgb);
+                    }
+                    gpu.write(&tensor, &rows);
+                }
+                HostInput::InputCameraPos => gpu.write(&tensor, &inputs.camera_pos),
+                HostInput::InputRays => gpu.write(&tensor, &inputs.rays),
+                other => unreachable!("an encoder reads only input views, not {other:?}"),
+            }
+        }
+        let times = if profile {
+            plan.profile(gpu)?
+        } else {
+            plan.execute(gpu);
+            gpu.wait()?;
+            Vec::new()
+        };
+        plan.check_finite(gpu, "encode", &gpu.read(&plan.tensor(encoded.latent.id()))?)?;
+        let scene = EncodedScene {
+            model: self,
+            latent: plan.tensor(encoded.latent.id()),
+            cached: encoded.cached.iter().map(|t| plan.tensor(t.id())).collect(),
+            encode_peak_bytes: plan.peak_bytes(),
+            encode_multiply_adds: multiply_adds,
+            render_plans: Mutex::new(HashMap::new()),
+        };
+        Ok((scene, times))
+    }
+}
+
+impl EncodedScene<'_> {
+    /// The model that encoded this scene.
+    pub fn model(&self) -> &Model {
+        self.model
+    }
+
+    /// Renders the target views: the requested outputs over the requested region (see [`Request`]). The plan
+    /// for this (view count, computed size, outputs) is built on first use and reused afterwards: no
+    /// allocation, no pipeline compilation, one submit. Waits for the GPU.
+    ///
+    /// When a buffer of the render would exceed the GPU's binding limit ([`Gpu::max_buffer_bytes`]: a
+    /// Ray-Patch decoder keeps full-resolution features, 157 MB at 960x1280 for the official k=2), the
+    /// region is rendered in row bands, each with the halo its pixels depend on, one plan and submit each,
+    /// and stitched: the same pixels as one render.
+    pub fn render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
+        let request = request.into();
+        let bands = self.plans(targets, &request)?;
+        let frames =
+            bands.iter().map(|(crop, plan)| self.render_band(targets, crop, plan)).collect::<Result<Vec<_>>>()?;
+        let [first, ..] = frames.as_slice() else { unreachable!("a render has at least one band") };
+        let region = Region { height: frames.iter().map(|f| f.height).sum(), ..first.region };
+        let outputs = first
+            .outputs
+            .iter()
+            .enumerate()
+            .map(|(i, out)| {
+                let mut values = Vec::with_capacity(targets.count * region.height * region.width * out.channels);
+                for v in 0..targets.count {
+                    for frame in &frames {
+                        let per_view = frame.height * frame.width * out.channels;
+                        values.extend_from_slice(&frame.outputs[i].values[v * per_view..(v + 1) * per_view]);
+                    }
+                }
+                Rendered { values, ..*out }
+            })
+            .collect();
+        Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
+    }
+
+    /// Renders one crop with its plan.
+    fn render_band(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> Result<Frame> {
+        self.upload_targets(targets, crop, plan);
+        let gpu = self.model.gpu();
+        plan.plan.execute(gpu);
+        let mut outputs = Vec::with_capacity(plan.outputs.len());
+        for &(output, id) in &plan.outputs {
+            let tensor = plan.plan.tensor(id);
+            let values = gpu.read(&tensor)?;
+            plan.plan.check_finite(gpu, "render", &values)?;
+            let values = crop.cut(&values, targets.count, tensor.cols);
+            outputs.push(Rendered { output, channels: tensor.cols, values });
+        }
+        let region = crop.region;
+        Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
+    }
+
+    /// Writes the target cameras and the crop's rays into a render plan's inputs.
+    fn upload_targets(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) {
+        let gpu = self.model.gpu();
+        let per_ray = if crop.image.rays_are_patches { self.model.family.patch_size() } else { 1 };
+        for (id, input) in &plan.host_inputs {
+            let tensor = plan.plan.tensor(*id);
+            match input {
+                HostInput::TargetCameraPos => gpu.write(&tensor, &targets.camera_pos),
+                HostInput::TargetRays => gpu.write(&tensor, &crop.rays(targets, per_ray)),
+                other => unreachable!("a render reads only target views, not {other:?}"),
+            }
+        }
+    }
+
+    /// Runs the render plans op by op, timing each (slower than [`render`](Self::render); for profiling).
+    pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
+        let mut times = OpTimes::new();
+        for (crop, plan) in self.plans(targets, &request.into())? {
+            self.upload_targets(targets, &crop, &plan);
+            times.extend(plan.plan.profile(self.model.gpu())?);
+        }
+        Ok(times)
+    }
+
+    /// What the render plans for these targets and this request compute (building the plans if needed).
+    /// Peak bytes add up the distinct plans of the bands, which stay cached together.
+    pub fn render_stats(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<RenderStats> {
+        let bands = self.plans(targets, &request.into())?;
+        let mut stats = RenderStats {
+            queries: 0,
+            pixels: 0,
+            dispatches: 0,
+            multiply_adds: 0,
+            peak_bytes: 0,
+            largest_buffer_bytes: 0,
+            bands: bands.len(),
+        };
+        let mut distinct: Vec<TargetGrid> = Vec::new();
+        for (crop, plan) in &bands {
+            stats.queries += plan.queries;
+            stats.pixels += crop.grid.height * crop.grid.width;
+            stats.dispatches += plan.plan.dispatch_count();
+            stats.multiply_adds += plan.plan.multiply_adds();
+            stats.largest_buffer_bytes = stats.largest_buffer_bytes.max(plan.largest_tensor_bytes);
+            if !distinct.contains(&crop.grid) {
+                distinct.push(crop.grid);
+                stats.peak_bytes += plan.plan.peak_bytes();
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Multiply-adds of rendering these targets with this request, counted from the recorded ops of the
+    /// request's crop (recorded, not built: nothing is allocated, so it serves to predict a render's cost).
+    pub fn render_multiply_adds(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<u64> {
+        let request = request.into();
+        let crop = self.crop(targets, &request)?;
+        Ok(self.record(targets.count, &crop, request.outputs).builder.multiply_adds())
+    }
+
+    /// Labels of the render plans' ops, in order (building the plans if needed).
+    pub fn render_op_labels(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<String>> {
+        let bands = self.plans(targets, &request.into())?;
+        Ok(bands.iter().flat_map(|(_, plan)| plan.plan.op_labels().map(String::from)).collect())
+    }
+
+    /// Number of render plans built so far (one per distinct target count, computed size and outputs).
+    pub fn cached_render_plans(&self) -> usize {
+        self.render_plans.lock().expect("render plan cache poisoned").len()
+    }
+
+    /// Drops the cached render plans and their buffers; the next render builds its plan again.
+    pub fn clear_render_plans(&self) {
+        self.render_plans.lock().expect("render plan cache poisoned").clear();
+    }
+
+    /// Checks the request against the model and the targets and works out which pixels to compute.
+    fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
+        let family = &*self.model.family;
+        let k = family.patch_size();
+        let image = self.model.config.target_grid(targets, "target views")?;
+        let outputs = request.outputs;
+        if outputs.is_empty() {
+            let names: Vec<&str> = family.outputs().iter().map(Output::name).collect();
+            return Err(EngineError::Request(format!("nothing to render: ask for one of {}", names.join(", "))));
+        }
+        if let Some(missing) = outputs.missing_from(family.outputs()).next() {
+            let lacks = match missing {
+                Output::Rgb => "no rgb output",
+                Output::LogDepth => "no depth channel",
+            };
+            return Err(EngineError::Request(format!("{} was requested but this model has {lacks}", missing.title())));
+        }
+        let full = Region { x: 0, y: 0, width: image.width, height: image.height };
+        let region = request.region.unwrap_or(full);
+        if region.width == 0 || region.height == 0 || !region.lies_within(image.width, image.height) {
+            return Err(EngineError::Request(format!(
+                "region x={} y={} width={} height={} is empty or not inside the {}x{} (width x height) image",
+                region.x, region.y, region.width, region.height, image.width, image.height
+            )));
+        }
+        if !image.height.is_multiple_of(k) || !image.width.is_multiple_of(k) {
+            // The decoder's output is resized to the image, which mixes every patch into every pixel's
+            // position: compute the whole image.
+            return Ok(Crop { image, region, y0: 0, x0: 0, grid: image });
+        }
+        let (py0, py1) = family.patch_span(region.y, region.y + region.height - 1, image.height / k);
+        let (px0, px1) = family.patch_span(region.x, region.x + region.width - 1, image.width / k);
+        let grid = TargetGrid {
+            height: (py1 + 1 - py0) * k,
+            width: (px1 + 1 - px0) * k,
+            rays_are_patches: image.rays_are_patches,
+        };
+        Ok(Crop { image, region, y0: py0 * k, x0: px0 * k, grid })
+    }
+
+    /// The crops a render runs as, each with its plan: the request's own crop when its plan binds no buffer
+    /// larger than the GPU allows, else its region cut into the fewest row bands (whole patches high) whose
+    /// plans fit. When nothing fits, the request's own, whose build then reports which buffer is too large.
+    /// Each plan is recorded once: measured, then built from the same recording, and cached.
+    fn plans(&self, targets: &TargetViews, request: &Request) -> Result<Vec<(Crop, Arc<RenderPlan>)>> {
+        let views = targets.count;
+        let crop = self.crop(targets, request)?;
+        let whole = match self.cached(views, &crop, request.outputs) {
+            Some(plan) => return Ok(vec![(crop, plan)]),
+            None => self.record(views, &crop, request.outputs),
+        };
+        if whole.fits {
+            return Ok(vec![(crop, self.build(views, crop.grid, request.outputs, whole)?)]);
+        }
+        let k = self.model.family.patch_size();
+        let region = crop.region;
+        let patch_rows = region.height.div_ceil(k);
+        let mut count = 2;
+        while count <= patch_rows {
+            let rows = patch_rows.div_ceil(count) * k;
+            let crops = (region.y..region.y + region.height)
+                .step_by(rows)
+                .map(|y| {
+                    let band = Region { y, height: rows.min(region.y + region.height - y), ..region };
+                    self.crop(targets, &Request { region: Some(band), ..*request })
+                })
+                .collect::<Result<Vec<_>>>()?;
+            if crops.iter().any(|c| c.grid.height >= crop.grid.height) {
+                break; // the bands do not shrink the computed rows (an output resize needs the whole image)
+            }
+            // One recording per distinct band size not built yet (equal bands share a plan).
+            let mut fresh: Vec<(TargetGrid, Recorded)> = Vec::new();
+            for c in &crops {
+                if self.cached(views, c, request.outputs).is_none() && !fresh.iter().any(|(grid, _)| *grid == c.grid) {
+                    fresh.push((c.grid, self.record(views, c, request.outputs)));
+                }
+            }
+            if fresh.iter().all(|(_, r)| r.fits) {
+                for (grid, recorded) in fresh {
+                    self.build(views, grid, request.outputs, recorded)?;
+                }
+                return Ok(crops
+                    .into_iter()
+                    .map(|c| {
+                        let plan = self.cached(views, &c, request.outputs).expect("every band's plan was built");
+                        (c, plan)
+                    })
+                    .collect());
+            }
+            count *= 2;
+        }
+        Ok(vec![(crop, self.build(views, crop.grid, request.outputs, whole)?)])
+    }
+
+    fn cached(&self, views: usize, crop: &Crop, outputs: Outputs) -> Option<Arc<RenderPlan>> {
+        let key = PlanKey { views, grid: crop.grid, outputs };
+        self.render_plans.lock().expect("render plan cache poisoned").get(&key).cloned()
+    }
+
+    /// Records the render of `views` target views of a crop (no buffer exists yet).
+    fn record(&self, views: usize, crop: &Crop, outputs: Outputs) -> Recorded {
+        let model = self.model;
+        let mut g = Graph::new(model.gpu(), &model.weights.tensors);
+        let rendered = model.family.render(&mut g, &self.cached, views, crop.grid, outputs);
+        let Graph { b, host_inputs, .. } = g;
+        let k = model.family.patch_size();
+        let queries = views * (crop.grid.height / k) * (crop.grid.width / k);
+        let fits = b.largest_tensor_bytes() <= model.gpu().max_buffer_bytes;
+        Recorded { builder: b, host_inputs, outputs: rendered, queries, fits }
+    }
+
+    /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
+    /// the same key first, that plan is kept and shared.
+    fn build(&self, views: usize, grid: TargetGrid, outputs: Outputs, recorded: Recorded) -> Result<Arc<RenderPlan>> {
+        let largest_tensor_bytes = recorded.builder.largest_tensor_bytes();
+        let plan = Arc::new(RenderPlan {
+            plan: recorded.builder.build(self.model.gpu())?,
+            host_inputs: recorded.host_inputs,
+            outputs: recorded.outputs.iter().map(|(o, t)| (*o, t.id())).collect(),
+            queries: recorded.queries,
+            largest_tensor_bytes,
+        });
+        let key = PlanKey { views, grid, outputs };
+        let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
+        Ok(plans.entry(key).or_insert(plan).clone())
+    }
+}
+
+/// A render recorded but not built.
+struct Recorded {
+    builder: PlanBuilder,
+    host_inputs: Vec<(TensorId, HostInput)>,
+    outputs: Vec<(Output, Tensor)>,
+    queries: usize,
+    /// Whether no tensor is larger than the GPU binds.
+    fits: bool,
+}

@@ -1,0 +1,271 @@
+//! The model config: the official `config.yaml` model section (stored as JSON in the safetensors metadata),
+//! resolved into every dimension the engine needs. The official `base` key names the family; each family's
+//! config is one type in its own file ([`srt`]), behind the [`Family`] enum. Absent keys take the official
+//! constructors' defaults; the raypatch extension keys (docs/FORMATS.md) default to the widths the official
+//! code hard-codes.
+
+pub mod srt;
+
+use serde_json::Value;
+
+use crate::error::ModelError;
+use crate::scene::{TargetGrid, TargetViews};
+pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, SrtConfig};
+
+/// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
+/// from `start` to `end` when `end` is set (the DeFiNe form).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Octaves {
+    pub count: usize,
+    pub start: f64,
+    pub end: Option<f64>,
+}
+
+impl Octaves {
+    /// Multiplier `i`: 2^(start + i)·π, or the `i`-th linspace value from start to end, times π.
+    pub fn multiplier(&self, i: usize) -> f64 {
+        let octave = match self.end {
+            None => (self.start + i as f64).exp2(),
+            Some(end) if self.count > 1 => self.start + (end - self.start) * i as f64 / (self.count - 1) as f64,
+            Some(_) => self.start,
+        };
+        octave * std::f64::consts::PI
+    }
+
+    /// The largest multiplier in magnitude (they are monotonic, so the first or the last).
+    pub fn max_multiplier(&self) -> f64 {
+        let last = self.count.saturating_sub(1);
+        self.multiplier(0).abs().max(self.multiplier(last).abs())
+    }
+
+    /// The first multiplier that is not a normal finite float32, if any: one that overflows makes every
+    /// encoding NaN, one that underflows encodes nothing.
+    pub fn multipliers_out_of_f32_range(&self) -> Option<f64> {
+        // A linspace may start at 0; a power of two never reaches it.
+        let normal = |m: f64| {
+            (m == 0.0 && self.end.is_some()) || (f32::MIN_POSITIVE as f64..=f32::MAX as f64).contains(&m.abs())
+        };
+        [0, self.count.saturating_sub(1)].into_iter().map(|i| self.multiplier(i)).find(|&m| !normal(m))
+    }
+}
+
+/// Most encoder conv blocks: each halves the image, so 14 take the largest accepted image to one pixel.
+pub const MAX_CONV_BLOCKS: usize = 14;
+/// Widest layer accepted: a square weight of this width alone would be 4 TiB.
+pub const MAX_WIDTH: usize = 1 << 20;
+
+/// A model's config: its family's resolved config, and the config as stored in the file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelConfig {
+    pub family: Family,
+    pub raw: Value,
+}
+
+/// The model families, named by the official `base` key.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Family {
+    /// `base: srt`: SRT (`decoder: lightfield`) and RP-SRT (`decoder: featurefield`).
+    Srt(SrtConfig),
+}
+
+/// The `base` values raypatch runs, for messages.
+const BASES: &str = "\"srt\"";
+
+impl ModelConfig {
+    /// Resolves the model section of a run config. `path` names the file in errors.
+    pub fn from_value(path: &str, raw: Value) -> Result<ModelConfig, ModelError> {
+        if !raw.is_object() {
+            return Err(config_err(path, format!("the model config must be a mapping, found {raw}")));
+        }
+        let family = match raw.get("base").and_then(Value::as_str) {
+            Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
+            Some(other) => {
+                return Err(config_err(
+                    path,
+                    format!("model base `{other}` is not supported (raypatch runs {BASES}: SRT and RP-SRT)"),
+                ))
+            }
+            None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
+        };
+        Ok(ModelConfig { family, raw })
+    }
+
+    /// The official `base` of this model.
+    pub fn base(&self) -> &'static str {
+        match self.family {
+            Family::Srt(_) => "srt",
+        }
+    }
+
+    /// The SRT config, for code that only runs SRT models.
+    pub fn srt(&self) -> Option<&SrtConfig> {
+        match &self.family {
+            Family::Srt(c) => Some(c),
+        }
+    }
+
+    /// Pixels per decoder query along each axis: 1 for per-pixel decoders, k for Ray-Patch.
+    pub fn patch_size(&self) -> usize {
+        match &self.family {
+            Family::Srt(c) => c.patch_size(),
+        }
+    }
+
+    /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
+    pub fn resizes_output(&self) -> bool {
+        match &self.family {
+            Family::Srt(c) => c.ray_patch.as_ref().is_some_and(|rp| rp.resize_out.is_some()),
+        }
+    }
+
+    /// Whether the model predicts a log-depth channel beside rgb.
+    pub fn has_depth(&self) -> bool {
+        match &self.family {
+            Family::Srt(c) => c.image_channels() == 4,
+        }
+    }
+
+    /// The Fourier encodings of camera positions: of input views (encoder), of target views (decoder).
+    pub fn position_octaves(&self) -> (&Octaves, &Octaves) {
+        match &self.family {
+            Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
+        }
+    }
+
+    /// The image size and ray resolution of target views for this model (see [`TargetViews::grid`]).
+    pub fn target_grid(&self, targets: &TargetViews, path: &str) -> Result<TargetGrid, ModelError> {
+        targets.grid(self.patch_size(), self.resizes_output(), path)
+    }
+
+    /// Checks the config's layer counts against a file holding `tensors` tensors, before anything as large as
+    /// a count is built: each layer has at least one tensor, so a count above the file's is a lie.
+    pub fn check_counts(&self, path: &str, tensors: usize) -> Result<(), ModelError> {
+        let counts = match &self.family {
+            Family::Srt(c) => c.layer_counts(),
+        };
+        for (key, count) in counts {
+            if count > tensors {
+                return Err(config_err(
+                    path,
+                    format!("`{key}` is {count}, but the file holds only {tensors} tensors (at least one per layer)"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Reads typed keys out of one section, naming the section and key in errors.
+pub(crate) struct Section<'a> {
+    path: &'a str,
+    name: &'a str,
+    value: Option<&'a Value>,
+}
+
+impl<'a> Section<'a> {
+    pub(crate) fn new(path: &'a str, root: &'a Value, name: &'a str) -> Result<Self, ModelError> {
+        let value = root.get(name).filter(|v| !v.is_null());
+        if let Some(v) = value {
+            if !v.is_object() {
+                return Err(config_err(path, format!("`{name}` must be a mapping, found {v}")));
+            }
+        }
+        Ok(Section { path, name, value })
+    }
+
+    pub(crate) fn get(&self, key: &str) -> Option<&'a Value> {
+        self.value.and_then(|v| v.get(key)).filter(|v| !v.is_null())
+    }
+
+    pub(crate) fn usize(&self, key: &str, default: usize) -> Result<usize, ModelError> {
+        match self.get(key) {
+            None => Ok(default),
+            Some(v) => v.as_u64().map(|x| x as usize).ok_or_else(|| {
+                config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {v}", self.name))
+            }),
+        }
+    }
+
+    pub(crate) fn f64(&self, key: &str, default: f64) -> Result<f64, ModelError> {
+        self.opt_f64(key).map(|v| v.unwrap_or(default))
+    }
+
+    pub(crate) fn opt_f64(&self, key: &str) -> Result<Option<f64>, ModelError> {
+        match self.get(key) {
+            None => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .map(Some)
+                .ok_or_else(|| config_err(self.path, format!("`{}.{key}` must be a number, found {v}", self.name))),
+        }
+    }
+
+    pub(crate) fn bool(&self, key: &str, default: bool) -> Result<bool, ModelError> {
+        match self.get(key) {
+            None => Ok(default),
+            Some(v) => v.as_bool().ok_or_else(|| {
+                config_err(self.path, format!("`{}.{key}` must be true or false, found {v}", self.name))
+            }),
+        }
+    }
+
+    /// `norm: Batch` → true; absent or null → false; anything else is an error.
+    pub(crate) fn batch_norm(&self) -> Result<bool, ModelError> {
+        match self.get("norm") {
+            None => Ok(false),
+            Some(Value::String(s)) if s == "Batch" => Ok(true),
+            Some(v) => Err(config_err(self.path, format!("`{}.norm` must be \"Batch\" or null, found {v}", self.name))),
+        }
+    }
+
+    pub(crate) fn octaves(
+        &self,
+        count_key: &str,
+        start_key: &str,
+        end_key: &str,
+        count: usize,
+        start: f64,
+    ) -> Result<Octaves, ModelError> {
+        Ok(Octaves {
+            count: self.usize(count_key, count)?,
+            start: self.f64(start_key, start)?,
+            end: self.opt_f64(end_key)?,
+        })
+    }
+}
+
+pub(crate) fn config_err(path: &str, reason: String) -> ModelError {
+    ModelError::Config { path: path.to_string(), reason }
+}
+
+/// Checks a list of `(key, value)` config values: each must be positive.
+pub(crate) fn check_positive(path: &str, values: &[(&str, usize)]) -> Result<(), ModelError> {
+    match values.iter().find(|(_, v)| *v == 0) {
+        Some((key, _)) => Err(config_err(path, format!("`{key}` must be positive"))),
+        None => Ok(()),
+    }
+}
+
+/// Checks layer widths against [`MAX_WIDTH`].
+pub(crate) fn check_widths(path: &str, widths: &[(&str, usize)]) -> Result<(), ModelError> {
+    match widths.iter().find(|(_, w)| *w > MAX_WIDTH) {
+        Some((key, width)) => Err(config_err(path, format!("`{key}` is {width}; at most {MAX_WIDTH} is supported"))),
+        None => Ok(()),
+    }
+}
+
+/// Checks Fourier encodings: at most 32 octaves, multipliers in float32's normal range.
+pub(crate) fn check_octaves(path: &str, encodings: &[(&str, &Octaves)]) -> Result<(), ModelError> {
+    for (key, octaves) in encodings {
+        if octaves.count > 32 {
+            return Err(config_err(path, format!("`{key}` is {}; at most 32 octaves are supported", octaves.count)));
+        }
+        if let Some(m) = octaves.multipliers_out_of_f32_range() {
+            return Err(config_err(
+                path,
+                format!("`{key}` gives a Fourier multiplier of {m:e}, outside float32's normal range"),
+            ));
+        }
+    }
+    Ok(())
+}

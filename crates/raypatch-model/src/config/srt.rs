@@ -1,0 +1,266 @@
+//! `base: srt`: the config of SRT (`decoder: lightfield`) and RP-SRT (`decoder: featurefield`), as the
+//! official `SRT` model class reads it (tberriel/RayPatchQuerying `src/model.py`, `encoder.py`, `decoder.py`).
+
+use serde_json::Value;
+
+use super::{check_octaves, check_positive, check_widths, config_err, Octaves, Section, MAX_CONV_BLOCKS};
+use crate::error::ModelError;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncoderConfig {
+    pub num_conv_blocks: usize,
+    pub num_att_blocks: usize,
+    pub pos_octaves: Octaves,
+    pub ray_octaves: Octaves,
+    pub batch_norm: bool,
+    /// Hidden width of the first conv block; its output is twice this, then each block doubles.
+    pub conv_hidden: usize,
+    /// Width of the latent tokens (per_patch_linear output, transformer width).
+    pub token_dim: usize,
+    pub heads: usize,
+    pub dim_head: usize,
+    pub ff_hidden: usize,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecoderConfig {
+    pub num_att_blocks: usize,
+    pub pos_octaves: Octaves,
+    pub ray_octaves: Octaves,
+    /// Width of the keys and values (= the latent token width).
+    pub kv_dim: usize,
+    pub heads: usize,
+    pub dim_head: usize,
+    pub ff_hidden: usize,
+    pub input_mlp_hidden: usize,
+    pub out_mlp_hidden: usize,
+    /// Width of the attention decoder's output: 3 or 4 (lightfield) or the Ray-Patch conv features.
+    pub out_dims: usize,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RayPatchConfig {
+    /// Number of 2× upsampling blocks; the patch size is k = 2^upsample.
+    pub upsample: usize,
+    pub conv_features: usize,
+    pub batch_norm: bool,
+    /// 3 (rgb) or 4 (rgb + log-depth).
+    pub out_dims: usize,
+    /// (h_out, w_out) when set: the official decoder nearest-resizes its output to this size. The engine
+    /// resizes to the target size instead (the official runs set h_out × w_out to their image size), which
+    /// lets such a model render sizes that k does not divide (the old repo's k=8 at 60×80).
+    pub resize_out: Option<(usize, usize)>,
+    /// The patch grid the model was configured with (h_in, w_in); informational.
+    pub grid_in: (usize, usize),
+}
+
+/// SRT and RP-SRT.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SrtConfig {
+    pub encoder: EncoderConfig,
+    pub decoder: DecoderConfig,
+    /// Present for `decoder: featurefield` (RP-SRT), absent for `lightfield` (SRT).
+    pub ray_patch: Option<RayPatchConfig>,
+}
+
+impl SrtConfig {
+    /// Resolves the model section of an SRT run config. `path` names the file in errors.
+    pub fn from_value(path: &str, raw: &Value) -> Result<SrtConfig, ModelError> {
+        let ray_patch_decoder = match raw.get("decoder").and_then(Value::as_str) {
+            Some("lightfield") => false,
+            Some("featurefield") => true,
+            other => {
+                return Err(config_err(
+                    path,
+                    format!("`decoder` must be \"lightfield\" (SRT) or \"featurefield\" (RP-SRT), found {other:?}"),
+                ))
+            }
+        };
+
+        let enc = Section::new(path, raw, "encoder_kwargs")?;
+        if enc.bool("max_pooling", false)? {
+            return Err(config_err(path, "`encoder_kwargs.max_pooling: true` is not supported".into()));
+        }
+        let num_octaves = enc.usize("num_octaves", 15)?;
+        let latent_dim = enc.usize("latent_dim", 768)?;
+        let encoder = EncoderConfig {
+            num_conv_blocks: enc.usize("num_conv_blocks", 4)?,
+            num_att_blocks: enc.usize("num_att_blocks", 10)?,
+            pos_octaves: Octaves { count: num_octaves, start: enc.f64("pos_start_octave", 0.0)?, end: None },
+            ray_octaves: Octaves { count: num_octaves, start: 0.0, end: None },
+            batch_norm: enc.batch_norm()?,
+            conv_hidden: enc.usize("conv_hidden", 96)?,
+            token_dim: enc.usize("token_dim", 768)?,
+            heads: enc.usize("heads", 12)?,
+            dim_head: enc.usize("dim_head", 64)?,
+            ff_hidden: 2 * latent_dim,
+        };
+
+        let rp = Section::new(path, raw, "rp_kwargs")?;
+        let ray_patch = if ray_patch_decoder {
+            let resize_out = match (rp.get("h_out"), rp.get("w_out")) {
+                (Some(_), Some(_)) => Some((rp.usize("h_out", 0)?, rp.usize("w_out", 0)?)),
+                _ => None,
+            };
+            Some(RayPatchConfig {
+                upsample: rp.usize("upsample", 3)?,
+                conv_features: rp.usize("conv_features", 128)?,
+                batch_norm: rp.batch_norm()?,
+                out_dims: rp.usize("out_dims", 3)?,
+                resize_out,
+                grid_in: (rp.usize("h_in", 16)?, rp.usize("w_in", 16)?),
+            })
+        } else {
+            None
+        };
+
+        let dec = Section::new(path, raw, "decoder_kwargs")?;
+        let kv_dim = dec.usize("latent_dim", 768)?;
+        let heads = dec.usize("heads", 12)?;
+        let decoder = DecoderConfig {
+            num_att_blocks: dec.usize("num_att_blocks", 2)?,
+            pos_octaves: dec.octaves("pos_octaves", "pos_start_octave", "pos_end_octave", 15, 0.0)?,
+            ray_octaves: dec.octaves("ray_octaves", "ray_start_octave", "ray_end_octave", 15, 0.0)?,
+            kv_dim,
+            heads,
+            // int(latent_dim / heads) as in the official RayPredictor.
+            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
+            ff_hidden: 2 * kv_dim,
+            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+            out_mlp_hidden: dec.usize("out_mlp_hidden", 1536)?,
+            // The official SRT model overrides the decoder's out_dims with the conv features for Ray-Patch.
+            out_dims: match &ray_patch {
+                Some(rp) => rp.conv_features,
+                None => dec.usize("out_dims", 3)?,
+            },
+        };
+
+        let config = SrtConfig { encoder, decoder, ray_patch };
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    fn validate(&self, path: &str) -> Result<(), ModelError> {
+        let e = &self.encoder;
+        let d = &self.decoder;
+        check_positive(
+            path,
+            &[
+                ("encoder_kwargs.num_conv_blocks", e.num_conv_blocks),
+                ("encoder_kwargs.num_octaves", e.pos_octaves.count),
+                ("encoder_kwargs.conv_hidden", e.conv_hidden),
+                ("encoder_kwargs.token_dim", e.token_dim),
+                ("encoder_kwargs.heads", e.heads),
+                ("encoder_kwargs.dim_head", e.dim_head),
+                ("encoder_kwargs.latent_dim", e.ff_hidden),
+                ("decoder_kwargs.latent_dim", d.kv_dim),
+                ("decoder_kwargs.heads", d.heads),
+                ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
+                ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
+                ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count.saturating_add(d.ray_octaves.count)),
+            ],
+        )?;
+        // Counts and widths beyond these cannot be real models (no weight or image could be stored), and
+        // bounding them keeps every size computed from them far from integer overflow.
+        if e.num_conv_blocks > MAX_CONV_BLOCKS {
+            return Err(config_err(
+                path,
+                format!("`encoder_kwargs.num_conv_blocks` is {}; at most {MAX_CONV_BLOCKS}", e.num_conv_blocks),
+            ));
+        }
+        check_widths(
+            path,
+            &[
+                (
+                    "encoder_kwargs.conv_hidden (doubled per conv block)",
+                    e.conv_hidden.saturating_mul(1 << e.num_conv_blocks),
+                ),
+                ("encoder_kwargs.token_dim", e.token_dim),
+                ("encoder_kwargs.heads x dim_head", e.heads.saturating_mul(e.dim_head)),
+                ("encoder_kwargs.latent_dim", e.ff_hidden),
+                ("decoder_kwargs.latent_dim", d.kv_dim),
+                ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
+                ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
+                ("rp_kwargs.conv_features", self.ray_patch.as_ref().map_or(0, |rp| rp.conv_features)),
+            ],
+        )?;
+        if e.pos_octaves.count > 32 {
+            return Err(config_err(
+                path,
+                format!("`encoder_kwargs.num_octaves` is {}; at most 32 are supported", e.pos_octaves.count),
+            ));
+        }
+        check_octaves(
+            path,
+            &[
+                ("encoder_kwargs.pos_start_octave", &e.pos_octaves),
+                ("decoder_kwargs.pos_octaves", &d.pos_octaves),
+                ("decoder_kwargs.ray_octaves", &d.ray_octaves),
+            ],
+        )?;
+        if d.dim_head > 128 || e.dim_head > 128 {
+            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
+        }
+        if d.kv_dim != e.token_dim {
+            return Err(config_err(
+                path,
+                format!(
+                    "`decoder_kwargs.latent_dim` ({}) must equal the encoder token width ({})",
+                    d.kv_dim, e.token_dim
+                ),
+            ));
+        }
+        let out_dims = match &self.ray_patch {
+            Some(rp) => {
+                if rp.upsample == 0 || rp.upsample > 6 {
+                    return Err(config_err(path, format!("`rp_kwargs.upsample` must be 1..6, found {}", rp.upsample)));
+                }
+                if rp.conv_features >> rp.upsample < 2 {
+                    return Err(config_err(
+                        path,
+                        format!(
+                            "`rp_kwargs.conv_features` {} must stay above 1 after {} halvings",
+                            rp.conv_features, rp.upsample
+                        ),
+                    ));
+                }
+                ("rp_kwargs.out_dims", rp.out_dims)
+            }
+            None => ("decoder_kwargs.out_dims", d.out_dims),
+        };
+        if out_dims.1 != 3 && out_dims.1 != 4 {
+            return Err(config_err(path, format!("`{}` must be 3 or 4, found {}", out_dims.0, out_dims.1)));
+        }
+        Ok(())
+    }
+
+    /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
+    pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
+        vec![
+            ("encoder_kwargs.num_conv_blocks", self.encoder.num_conv_blocks),
+            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
+            ("decoder_kwargs.num_att_blocks", self.decoder.num_att_blocks),
+            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
+        ]
+    }
+
+    /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.
+    pub fn patch_size(&self) -> usize {
+        self.ray_patch.as_ref().map_or(1, |rp| 1 << rp.upsample)
+    }
+
+    /// Channels of the final image before the sigmoid: 3, or 4 with log-depth.
+    pub fn image_channels(&self) -> usize {
+        self.ray_patch.as_ref().map_or(self.decoder.out_dims, |rp| rp.out_dims)
+    }
+
+    /// Width of a decoder query: position and ray encodings.
+    pub fn query_dim(&self) -> usize {
+        6 * (self.decoder.pos_octaves.count + self.decoder.ray_octaves.count)
+    }
+
+    /// Channels of the encoder's input: RGB, then the position and ray encodings.
+    pub fn encoder_input_dim(&self) -> usize {
+        3 + 6 * (self.encoder.pos_octaves.count + self.encoder.ray_octaves.count)
+    }
+}
