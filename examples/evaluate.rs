@@ -153,7 +153,7 @@ fn evaluate(
         e.encode_ms.push(start.elapsed().as_secs_f64() * 1e3);
         for (t, target) in data.targets.iter().enumerate() {
             let start = Instant::now();
-            let rgb = scene.render(&target.camera, &Request::default())?.rgb.expect("rgb was requested");
+            let rgb = scene.render(&target.camera, &Request::default())?.rgb().expect("rgb was requested");
             e.render_ms.push(start.elapsed().as_secs_f64() * 1e3);
             let truth = target.image.as_ref().ok_or_else(|| {
                 Error::Views(format!("{}: target view {t} has no target image to compare with", file.display()))

@@ -52,7 +52,7 @@ fn run() -> raypatch::Result<()> {
     for i in 0..frames {
         // Every frame has the same size, so all but the first reuse the first frame's plan and buffers.
         let camera = first.orbited(360.0 * i as f64 / frames as f64);
-        let rgb = scene.render(&camera, &Request::default())?.rgb.expect("rgb is rendered by default");
+        let rgb = scene.render(&camera, &Request::default())?.rgb().expect("rgb is rendered by default");
         rgb.save_png(out_dir.join(format!("frame_{i:03}.png")))?;
     }
     println!(

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch::metrics::{psnr, ssim};
 use raypatch::{
-    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Outputs, RayGrid, Region, Request,
-    SceneData,
+    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Output, Outputs, RayGrid, Region,
+    Request, SceneData,
 };
 
 /// Largest difference allowed between two ray directions that describe the same camera: both are rounded
@@ -165,10 +165,11 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
         let scene = model.encode(&data.inputs).unwrap();
         let camera = &data.targets[0].camera;
         let (width, height, k) = (camera.width(), camera.height(), model.patch_size());
-        let outputs = Outputs { rgb: true, logdepth: model.has_depth() };
+        let outputs =
+            if model.has_depth() { Outputs::of(&[Output::Rgb, Output::LogDepth]) } else { Outputs::default() };
         let full_request = Request { outputs, region: None };
         let full = scene.render(camera, &full_request).unwrap();
-        let full_rgb = full.rgb.unwrap();
+        let full_rgb = full.rgb().unwrap();
         let full_stats = scene.render_stats(camera, &full_request).unwrap();
         assert_eq!(full_stats.queries, width * height / (k * k), "{case}: one query per patch");
 
@@ -178,9 +179,9 @@ fn regions_render_the_full_renders_pixels_and_decode_only_their_patches() {
             assert_eq!(part.region, region);
             // The conv decoder sums in the same order wherever a pixel lies, so the pixels are equal; allow
             // one f32 rounding of the largest value in case a driver reassociates.
-            let err = max_diff(part.rgb.as_ref().unwrap().data(), full_rgb.crop(region).unwrap().data());
+            let err = max_diff(part.rgb().unwrap().data(), full_rgb.crop(region).unwrap().data());
             assert!(err <= 1e-6, "{case} {region:?}: region rgb differs from the full render by {err:e}");
-            if let (Some(d), Some(full_d)) = (&part.logdepth, &full.logdepth) {
+            if let (Some(d), Some(full_d)) = (part.logdepth(), full.logdepth()) {
                 let want = crop_map(full_d, width, region);
                 assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
             }
@@ -220,14 +221,14 @@ fn the_halo_is_needed() {
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
     let region = Region { x: 16, y: 8, width: 16, height: 16 };
-    let full = scene.render(camera, &Request::default()).unwrap().rgb.unwrap().crop(region).unwrap();
+    let full = scene.render(camera, &Request::default()).unwrap().rgb().unwrap().crop(region).unwrap();
     // The region's patches alone: a camera whose rays are exactly those of the region.
     let rays = camera.rays();
     let directions = (region.y..region.y + region.height)
         .flat_map(|y| rays.directions[y * rays.width + region.x..y * rays.width + region.x + region.width].to_vec())
         .collect();
     let alone = Camera::from_rays(camera.position(), RayGrid { width: 16, height: 16, directions }).unwrap();
-    let no_halo = scene.render(&alone, &Request::default()).unwrap().rgb.unwrap();
+    let no_halo = scene.render(&alone, &Request::default()).unwrap().rgb().unwrap();
     assert!(max_diff(no_halo.data(), full.data()) > 1e-3, "the region's patches alone already give its pixels");
 }
 
@@ -238,7 +239,10 @@ fn only_requested_outputs_are_computed() {
     let data = SceneData::load(golden("srt_k1_depth").join("scene.safetensors")).unwrap();
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
-    let request = |rgb, logdepth| Request { outputs: Outputs { rgb, logdepth }, region: None };
+    let request = |rgb: bool, logdepth: bool| {
+        let outputs = [(rgb, Output::Rgb), (logdepth, Output::LogDepth)].iter().filter(|(on, _)| *on);
+        Request { outputs: outputs.fold(Outputs::NONE, |set, (_, o)| set.with(*o)), region: None }
+    };
     let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
     let dispatches = |r: &Request| {
         scene.render(camera, r).unwrap(); // build and warm the plan
@@ -255,9 +259,9 @@ fn only_requested_outputs_are_computed() {
     let has = |r: &Request, op: &str| labels(r).iter().any(|l| l == op);
     assert!(has(&request(true, false), "sigmoid") && !has(&request(true, false), "logdepth"));
     assert!(!has(&request(false, true), "sigmoid") && has(&request(false, true), "logdepth"));
-    assert!(rgb_out.logdepth.is_none() && depth_out.rgb.is_none());
-    assert_eq!(rgb_out.rgb, both_out.rgb);
-    assert_eq!(depth_out.logdepth, both_out.logdepth);
+    assert!(rgb_out.logdepth().is_none() && depth_out.rgb().is_none());
+    assert_eq!(rgb_out.get(Output::Rgb), both_out.get(Output::Rgb));
+    assert_eq!(depth_out.logdepth(), both_out.logdepth());
     let stats = scene.render_stats(camera, &request(true, false)).unwrap();
     assert_eq!(stats.dispatches as u64, rgb_only, "a render runs its plan's dispatches and nothing else");
     let err = scene.render(camera, &request(false, false)).unwrap_err().to_string();
@@ -320,7 +324,7 @@ fn bad_requests_and_views_are_errors() {
     assert!(message(scene.render(camera, &outside)).contains("not inside the 48x32"));
     let odd = Camera::msn(DVec3::new(5.0, 1.0, 2.0), 50, 32).unwrap();
     assert!(message(scene.render(&odd, &Request::default())).contains("not divisible by the model's patch size k=4"));
-    let depth = Request { outputs: Outputs { rgb: true, logdepth: true }, region: None };
+    let depth = Request { outputs: Outputs::of(&[Output::Rgb, Output::LogDepth]), region: None };
     assert!(message(scene.render(camera, &depth)).contains("no depth channel"));
 }
 
@@ -407,7 +411,8 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
         // Targets large enough that the render's buffers, not the encoder's, are the largest.
         let (width, height) = if model.patch_size() == 1 { (256, 192) } else { (512, 384) };
         let camera = &Camera::msn(data.targets[0].camera.position(), width, height).unwrap();
-        let outputs = Outputs { rgb: true, logdepth: model.has_depth() };
+        let outputs =
+            if model.has_depth() { Outputs::of(&[Output::Rgb, Output::LogDepth]) } else { Outputs::default() };
         let full_request = Request { outputs, region: None };
         let scene = model.encode(&data.inputs).unwrap();
         let full = scene.render(camera, &full_request).unwrap();
@@ -431,10 +436,10 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
             assert_eq!(stats.bands > 1, bands_needed, "{case} {region:?}: {stats:?}");
             let region = region.unwrap_or(full.region);
             assert_eq!(banded.region, region, "{case}");
-            let want = full.rgb.as_ref().unwrap().crop(region).unwrap();
-            let err = max_diff(banded.rgb.as_ref().unwrap().data(), want.data());
+            let want = full.rgb().unwrap().crop(region).unwrap();
+            let err = max_diff(banded.rgb().unwrap().data(), want.data());
             assert!(err <= 1e-6, "{case} {region:?}: banded rgb differs from one render by {err:e}");
-            if let (Some(d), Some(full_d)) = (&banded.logdepth, &full.logdepth) {
+            if let (Some(d), Some(full_d)) = (banded.logdepth(), full.logdepth()) {
                 let want = crop_map(full_d, camera.width(), region);
                 assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
             }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use raypatch_engine::{Gpu, GpuOptions, Model, Outputs};
+use raypatch_engine::{Gpu, GpuOptions, Model, Output, Outputs};
 use raypatch_model::TensorFile;
 
 const RGB_MAX_ABS: f64 = 1e-4;
@@ -38,23 +38,24 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     let latent_err = max_abs(&latent, &want_latent.data) / scale;
 
     // Render twice: the second render reuses the plan and must give the same bytes.
-    let outputs = Outputs { logdepth: expected.contains("logdepth"), ..Outputs::default() };
+    let outputs =
+        if expected.contains("logdepth") { Outputs::of(&[Output::Rgb, Output::LogDepth]) } else { Outputs::default() };
     let start = Instant::now();
     let frame = encoded.render(&scene.targets, outputs).unwrap_or_else(|e| panic!("{name}: {e}"));
     let first_render = start.elapsed();
     let start = Instant::now();
     let again = encoded.render(&scene.targets, outputs).unwrap();
     let warm_render = start.elapsed();
-    assert_eq!(frame.rgb, again.rgb, "{name}: a second render differs");
+    assert_eq!(frame.get(Output::Rgb), again.get(Output::Rgb), "{name}: a second render differs");
     assert_eq!(encoded.cached_render_plans(), 1, "{name}: the second render built a new plan");
 
     let want_rgb = expected.f32("rgb").unwrap();
     assert_eq!(want_rgb.shape, vec![frame.views, frame.height, frame.width, 3], "{name}: rgb shape");
-    let rgb_err = max_abs(frame.rgb.as_deref().expect("rgb requested"), &want_rgb.data);
+    let rgb_err = max_abs(frame.get(Output::Rgb).expect("rgb requested"), &want_rgb.data);
     // Log-depth is the raw pre-sigmoid channel: compare it relative to its magnitude like the latent.
-    let depth_err = outputs.logdepth.then(|| {
+    let depth_err = outputs.contains(Output::LogDepth).then(|| {
         let want = expected.f32("logdepth").unwrap();
-        let got = frame.logdepth.as_ref().expect("log-depth requested");
+        let got = frame.get(Output::LogDepth).expect("log-depth requested");
         let scale = want.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
         max_abs(got, &want.data) / scale
     });

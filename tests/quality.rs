@@ -91,7 +91,7 @@ fn bundled_models_reach_the_psnr_and_ssim_quality_md_gives_on_the_bundled_scenes
         for data in chosen {
             let scene = model.encode(&data.inputs).unwrap();
             for target in &data.targets {
-                let rgb = scene.render(&target.camera, &Request::default()).unwrap().rgb.unwrap();
+                let rgb = scene.render(&target.camera, &Request::default()).unwrap().rgb().unwrap();
                 let truth = target.image.as_ref().expect("bundled scenes have target images");
                 psnrs.push(psnr(&rgb, truth).unwrap());
                 ssims.push(ssim(&rgb, truth).unwrap());

@@ -8,7 +8,7 @@
 
 use raypatch_bench::synthetic::{synthetic_scene, CameraRig};
 use raypatch_engine::reference::model::{Argument, ReferenceModel};
-use raypatch_engine::Outputs;
+use raypatch_engine::{Output, Outputs};
 
 use crate::common::max_abs_diff;
 use crate::{engine_model, golden_case};
@@ -30,12 +30,12 @@ fn far_and_polar_cameras_match_the_reference() {
     for case in ["srt_k1", "rpsrt_k4"] {
         let loaded = raypatch_model::load_model(golden_case(case).join("model.safetensors")).unwrap();
         let model = engine_model(&loaded);
-        let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32);
-        let float64 = ReferenceModel::new(&loaded, Argument::Float64);
+        let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32).unwrap();
+        let float64 = ReferenceModel::new(&loaded, Argument::Float64).unwrap();
         for (seed, (what, rig)) in rigs.iter().enumerate() {
             let (inputs, targets) = synthetic_scene(seed as u64, 2, (24, 32), 2, (16, 24), rig).unwrap();
             let frame = model.encode(&inputs).unwrap().render(&targets, Outputs::default()).unwrap();
-            let rgb = frame.rgb.expect("rgb");
+            let rgb = frame.take(Output::Rgb).expect("rgb");
             assert!(rgb.iter().all(|v| v.is_finite()), "{case}, cameras {what}: non-finite rgb");
             let want = reference.render(&reference.encode(&inputs).unwrap(), &targets).unwrap();
             let err = max_abs_diff(&rgb, &want.rgb);

@@ -4,7 +4,7 @@
 
 use raypatch_bench::synthetic::{model_from_tensors, Tensor};
 use raypatch_engine::reference::model::{Argument, ReferenceModel};
-use raypatch_engine::weights::{KeptF32, LoadOptions, WeightStorage};
+use raypatch_engine::{KeptF32, LoadOptions, Output, WeightStorage};
 use raypatch_engine::{Model, Outputs};
 use raypatch_model::{LoadedModel, TensorFile};
 
@@ -32,10 +32,15 @@ fn render_f16(loaded: &LoadedModel, case: &str) -> (Vec<KeptF32>, f64) {
     let scene = raypatch_model::load_scene(golden_case(case).join("scene.safetensors")).unwrap();
     let options = LoadOptions { weight_storage: WeightStorage::F16 };
     let model = Model::from_loaded_with(gpu(), loaded, &options).unwrap();
-    let rgb =
-        model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
+    let rgb = model
+        .encode(&scene.inputs)
+        .unwrap()
+        .render(&scene.targets, Outputs::default())
+        .unwrap()
+        .take(Output::Rgb)
+        .expect("rgb");
     assert!(rgb.iter().all(|v| v.is_finite()), "{case}: non-finite rgb with f16 weights");
-    let reference = ReferenceModel::new(loaded, Argument::RoundedToF32);
+    let reference = ReferenceModel::new(loaded, Argument::RoundedToF32).unwrap();
     let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
     (model.weights_kept_f32().to_vec(), max_abs_diff(&rgb, &want.rgb))
 }

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use raypatch_engine::{Gpu, GpuOptions, Model, Outputs};
+use raypatch_engine::{Gpu, GpuOptions, Model, Output, Outputs};
 
 use crate::golden_case;
 
@@ -29,12 +29,12 @@ fn a_thousand_renders_are_identical_and_allocate_nothing() {
     let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
     let model = Model::from_loaded(gpu.clone(), &loaded).unwrap();
     let encoded = model.encode(&scene.inputs).unwrap();
-    let first = encoded.render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
+    let first = encoded.render(&scene.targets, Outputs::default()).unwrap().take(Output::Rgb).expect("rgb");
     assert!(first.iter().all(|v| v.is_finite()), "non-finite rgb");
     let after_first = gpu.counters();
     let mut rss_at_100 = None;
     for i in 1..RENDERS {
-        let rgb = encoded.render(&scene.targets, Outputs::default()).unwrap().rgb.expect("rgb");
+        let rgb = encoded.render(&scene.targets, Outputs::default()).unwrap().take(Output::Rgb).expect("rgb");
         // Bit-for-bit: compare the bits, so that NaNs could not compare unequal to themselves unnoticed.
         let same = rgb.len() == first.len() && rgb.iter().zip(&first).all(|(a, b)| a.to_bits() == b.to_bits());
         assert!(same, "render {i} differs from the first");

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use raypatch_engine::reference::model::{Argument, ReferenceModel};
-use raypatch_engine::Outputs;
+use raypatch_engine::{Output, Outputs};
 use safetensors::{Dtype, SafeTensors};
 
 use crate::common::max_abs_diff;
@@ -66,7 +66,7 @@ fn reference_model_matches_float64_pytorch() {
         let model = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
         let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap();
         let expected = dir.join("expected.safetensors");
-        let reference = ReferenceModel::new(&model, Argument::Float64);
+        let reference = ReferenceModel::new(&model, Argument::Float64).unwrap();
         let encoded = reference.encode(&scene.inputs).unwrap();
         let frame = reference.render(&encoded, &scene.targets).unwrap();
 
@@ -90,12 +90,12 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
         let loaded = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
         let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap();
-        let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32);
+        let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32).unwrap();
         let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
 
         let model = engine_model(&loaded);
         let frame = model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap();
-        let engine_err = max_abs_diff(&frame.rgb.expect("rgb"), &want.rgb);
+        let engine_err = max_abs_diff(frame.get(Output::Rgb).expect("rgb"), &want.rgb);
         let torch_err = max_abs_diff(&f32_tensor(&dir.join("expected.safetensors"), "rgb"), &want.rgb);
         let f32_vs_f64 = max_diff(&want.rgb, &f64_tensor(&dir.join("expected.safetensors"), "rgb_f64"));
         eprintln!(

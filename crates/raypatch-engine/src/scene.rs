@@ -13,7 +13,7 @@ use raypatch_model::{InputViews, LoadedModel, ModelConfig, TargetGrid, TargetVie
 use crate::error::{EngineError, Result};
 use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 use crate::gpu::Gpu;
-use crate::graph::{Graph, HostInput, ImageSize, Tensor};
+use crate::graph::{Graph, HostInput, ImageSize};
 use crate::models::{self, LightField};
 use crate::nn::{GpuWeights, KeptF32, LoadOptions};
 use crate::plan::{Plan, PlanBuilder, TensorId};
@@ -56,13 +56,18 @@ struct PlanKey {
     outputs: Outputs,
 }
 
-/// A built render plan and the tensors the host writes and reads.
+/// A built render plan.
 struct RenderPlan {
     plan: Plan,
+    io: RenderIo,
+    largest_tensor_bytes: u64,
+}
+
+/// What the host writes into and reads from a render plan, and how many decoder queries it runs.
+struct RenderIo {
     host_inputs: Vec<(TensorId, HostInput)>,
     outputs: Vec<(Output, TensorId)>,
     queries: usize,
-    largest_tensor_bytes: u64,
 }
 
 impl Model {
@@ -224,8 +229,8 @@ impl EncodedScene<'_> {
         self.upload_targets(targets, crop, plan);
         let gpu = self.model.gpu();
         plan.plan.execute(gpu);
-        let mut outputs = Vec::with_capacity(plan.outputs.len());
-        for &(output, id) in &plan.outputs {
+        let mut outputs = Vec::with_capacity(plan.io.outputs.len());
+        for &(output, id) in &plan.io.outputs {
             let tensor = plan.plan.tensor(id);
             let values = gpu.read(&tensor)?;
             plan.plan.check_finite(gpu, "render", &values)?;
@@ -240,7 +245,7 @@ impl EncodedScene<'_> {
     fn upload_targets(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) {
         let gpu = self.model.gpu();
         let per_ray = if crop.image.rays_are_patches { self.model.family.patch_size() } else { 1 };
-        for (id, input) in &plan.host_inputs {
+        for (id, input) in &plan.io.host_inputs {
             let tensor = plan.plan.tensor(*id);
             match input {
                 HostInput::TargetCameraPos => gpu.write(&tensor, &targets.camera_pos),
@@ -275,7 +280,7 @@ impl EncodedScene<'_> {
         };
         let mut distinct: Vec<TargetGrid> = Vec::new();
         for (crop, plan) in &bands {
-            stats.queries += plan.queries;
+            stats.queries += plan.io.queries;
             stats.pixels += crop.grid.height * crop.grid.width;
             stats.dispatches += plan.plan.dispatch_count();
             stats.multiply_adds += plan.plan.multiply_adds();
@@ -420,7 +425,8 @@ impl EncodedScene<'_> {
         let k = model.family.patch_size();
         let queries = views * (crop.grid.height / k) * (crop.grid.width / k);
         let fits = b.largest_tensor_bytes() <= model.gpu().max_buffer_bytes;
-        Recorded { builder: b, host_inputs, outputs: rendered, queries, fits }
+        let outputs = rendered.iter().map(|(o, t)| (*o, t.id())).collect();
+        Recorded { builder: b, io: RenderIo { host_inputs, outputs, queries }, fits }
     }
 
     /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
@@ -429,9 +435,7 @@ impl EncodedScene<'_> {
         let largest_tensor_bytes = recorded.builder.largest_tensor_bytes();
         let plan = Arc::new(RenderPlan {
             plan: recorded.builder.build(self.model.gpu())?,
-            host_inputs: recorded.host_inputs,
-            outputs: recorded.outputs.iter().map(|(o, t)| (*o, t.id())).collect(),
-            queries: recorded.queries,
+            io: recorded.io,
             largest_tensor_bytes,
         });
         let key = PlanKey { views, grid, outputs };
@@ -443,9 +447,7 @@ impl EncodedScene<'_> {
 /// A render recorded but not built.
 struct Recorded {
     builder: PlanBuilder,
-    host_inputs: Vec<(TensorId, HostInput)>,
-    outputs: Vec<(Output, Tensor)>,
-    queries: usize,
+    io: RenderIo,
     /// Whether no tensor is larger than the GPU binds.
     fits: bool,
 }

@@ -36,8 +36,14 @@ pub trait LightField: Send + Sync {
 
     /// Records a render of `views` target views on `grid` (the computed crop), reading the scene's cached
     /// tensors, computing only `outputs`: each output as `[views·height·width, channels]`.
-    fn render(&self, g: &mut Graph, scene: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs)
-        -> Vec<(Output, Tensor)>;
+    fn render(
+        &self,
+        g: &mut Graph,
+        scene: &[GpuTensor],
+        views: usize,
+        grid: TargetGrid,
+        outputs: Outputs,
+    ) -> Vec<(Output, Tensor)>;
 }
 
 /// What an encode plan produces.
@@ -69,7 +75,9 @@ fn build_from(config: &ModelConfig, source: Source) -> Result<(Box<dyn LightFiel
 /// log-depth = its fourth.
 pub fn image_outputs(g: &mut Graph, image: Tensor, outputs: Outputs) -> Vec<(Output, Tensor)> {
     let mut out = Vec::new();
-    for (output, col, map, label) in [(Output::Rgb, 0, Map::Sigmoid, "sigmoid"), (Output::LogDepth, 3, Map::Identity, "logdepth")] {
+    for (output, col, map, label) in
+        [(Output::Rgb, 0, Map::Sigmoid, "sigmoid"), (Output::LogDepth, 3, Map::Identity, "logdepth")]
+    {
         if outputs.contains(output) {
             let t = g.output(output.name(), image.rows(), output.channels());
             map_columns(&mut g.b, label, MapColumnsArgs { x: image.view, col, out: t.view, map });

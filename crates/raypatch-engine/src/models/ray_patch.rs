@@ -53,8 +53,14 @@ impl RayPatchDecoder {
     pub fn patch_rays(&self, g: &mut Graph, rays: Tensor, patches: ImageSize) -> Tensor {
         let out = g.image("patch_rays", patches, 3);
         let full = rays.size();
-        let args =
-            ResizeArgs { x: rays.view, n: full.n, from: (full.h, full.w), out: out.view, to: (patches.h, patches.w), accumulate: false };
+        let args = ResizeArgs {
+            x: rays.view,
+            n: full.n,
+            from: (full.h, full.w),
+            out: out.view,
+            to: (patches.h, patches.w),
+            accumulate: false,
+        };
         bilinear(&mut g.b, "patch_rays", args);
         out
     }
@@ -81,8 +87,14 @@ impl RayPatchDecoder {
         let label = format!("{}.resize_out", self.path);
         let to = ImageSize { h: size.0, w: size.1, ..computed };
         let resized = g.image(&label, to, skip.cols);
-        let args =
-            ResizeArgs { x: skip.view, n: to.n, from: (computed.h, computed.w), out: resized.view, to: size, accumulate: false };
+        let args = ResizeArgs {
+            x: skip.view,
+            n: to.n,
+            from: (computed.h, computed.w),
+            out: resized.view,
+            to: size,
+            accumulate: false,
+        };
         nearest(&mut g.b, &label, args);
         resized
     }
@@ -93,7 +105,14 @@ impl RayPatchDecoder {
         let from = skip.size();
         let to = Resample::Up2.output(from);
         let out = g.image(&label, to, skip.cols);
-        let args = ResizeArgs { x: skip.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
+        let args = ResizeArgs {
+            x: skip.view,
+            n: from.n,
+            from: (from.h, from.w),
+            out: out.view,
+            to: (to.h, to.w),
+            accumulate: false,
+        };
         bilinear(&mut g.b, &label, args);
         out
     }

@@ -159,7 +159,16 @@ impl SrtDecoder {
     /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view) into `out`:
     /// q = cat(posenc(camera position), posenc(ray)), input MLP, cross-attention, out MLP.
     #[allow(clippy::too_many_arguments)]
-    fn forward(&self, g: &mut Graph, camera_pos: Tensor, per_view: usize, start: usize, rays: Tensor, kv: &[Tensor], out: Tensor) {
+    fn forward(
+        &self,
+        g: &mut Graph,
+        camera_pos: Tensor,
+        per_view: usize,
+        start: usize,
+        rays: Tensor,
+        kv: &[Tensor],
+        out: Tensor,
+    ) {
         let rp = &self.ray_predictor;
         let pos = rp.pos_enc.width();
         let query = g.transient("decoder_att.query", rays.rows(), pos + rp.ray_enc.width());
@@ -220,7 +229,14 @@ impl LightField for Srt {
         Encoded { latent, cached: keys_values }
     }
 
-    fn render(&self, g: &mut Graph, scene: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs) -> Vec<(Output, Tensor)> {
+    fn render(
+        &self,
+        g: &mut Graph,
+        scene: &[GpuTensor],
+        views: usize,
+        grid: TargetGrid,
+        outputs: Outputs,
+    ) -> Vec<(Output, Tensor)> {
         let k = self.patch_size();
         let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
         let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);

@@ -51,7 +51,8 @@ impl Conv3x3 {
             None => (Data::F32(weight), bias.map(Data::F32)),
             Some(bn) => {
                 let get = |name: &str| bn.tensor(name, &[cout]).map(|t| t.data);
-                let (gamma, beta, mean, var) = (get("weight")?, get("bias")?, get("running_mean")?, get("running_var")?);
+                let (gamma, beta, mean, var) =
+                    (get("weight")?, get("bias")?, get("running_mean")?, get("running_var")?);
                 let mut folded_w: Vec<f64> = weight.iter().map(|&v| v as f64).collect();
                 let mut folded_b = Vec::with_capacity(cout);
                 for c in 0..cout {
@@ -80,7 +81,15 @@ impl Conv3x3 {
     }
 
     /// `out = act(conv(x) + b)`, or `out += ...` when `accumulate`.
-    pub fn forward_into(&self, g: &mut Graph, x: Tensor, out: Tensor, resample: Resample, act: Activation, accumulate: bool) {
+    pub fn forward_into(
+        &self,
+        g: &mut Graph,
+        x: Tensor,
+        out: Tensor,
+        resample: Resample,
+        act: Activation,
+        accumulate: bool,
+    ) {
         let ImageSize { n, h, w } = x.size();
         let label = g.label(&self.path);
         let weight = g.param(&label, self.weight);

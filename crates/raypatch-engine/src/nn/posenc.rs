@@ -28,9 +28,18 @@ impl FourierEncoding {
 
     /// Encodes `coords` `[R, 3]` into columns `col..col + width()` of `out`, output row r reading coordinate
     /// row `(first_row + r) / repeat` (a camera position broadcast over its view's `repeat` rays).
-    pub fn forward_into(&self, g: &mut Graph, coords: Tensor, repeat: usize, first_row: usize, out: Tensor, col: usize) {
+    pub fn forward_into(
+        &self,
+        g: &mut Graph,
+        coords: Tensor,
+        repeat: usize,
+        first_row: usize,
+        out: Tensor,
+        col: usize,
+    ) {
         let label = g.label(&self.path);
-        let args = FourierArgs { coords: coords.view, repeat, first_row, multipliers: &self.multipliers, out: out.view, col };
+        let args =
+            FourierArgs { coords: coords.view, repeat, first_row, multipliers: &self.multipliers, out: out.view, col };
         fourier_encode(&mut g.b, &label, args);
     }
 }

@@ -204,7 +204,8 @@ impl WeightSet {
                 gpu.info.name
             )));
         }
-        let mut weights = GpuWeights { tensors: Vec::with_capacity(self.prepared.len()), bytes: 0, kept_f32: Vec::new() };
+        let mut weights =
+            GpuWeights { tensors: Vec::with_capacity(self.prepared.len()), bytes: 0, kept_f32: Vec::new() };
         for p in &self.prepared {
             let data = p.data.to_f32();
             let tensor = match p.layout {

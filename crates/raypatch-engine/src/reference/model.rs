@@ -177,9 +177,10 @@ impl ReferenceModel {
             input_mlp: (dense(&rp.input_mlp_0), dense(&rp.input_mlp_2)),
             decoder_layers: layers(&rp.transformer),
             out_mlp: d.out_mlp.iter().map(dense).collect(),
-            ray_patch: srt.ray_patch.as_ref().map(|rp| {
-                (conv(&rp.conv_0), rp.blocks.iter().map(|b| (conv(&b.features), conv(&b.to_rgb))).collect())
-            }),
+            ray_patch: srt
+                .ray_patch
+                .as_ref()
+                .map(|rp| (conv(&rp.conv_0), rp.blocks.iter().map(|b| (conv(&b.features), conv(&b.to_rgb))).collect())),
             srt: srt_config.clone(),
             config,
         })
@@ -232,7 +233,8 @@ impl ReferenceModel {
             z = layer.to_out.apply(&heads, Activation::None, Some(&z));
             z = feed_forward(&z, &layer.ff_norm, &layer.ff_in, &layer.ff_out);
         }
-        let keys_values = self.decoder_layers.iter().map(|l| l.projections[1].apply(&z, Activation::None, None)).collect();
+        let keys_values =
+            self.decoder_layers.iter().map(|l| l.projections[1].apply(&z, Activation::None, None)).collect();
         Ok(ReferenceScene { latent: z, tokens, keys_values })
     }
 
