@@ -132,7 +132,7 @@ impl Model {
     }
 
     fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
-        inputs.check_for(&self.config, "input views")?;
+        inputs.check("input views")?;
         let gpu = &*self.gpu;
         let size = ImageSize { n: inputs.count, h: inputs.height, w: inputs.width };
         let mut g = Graph::new(gpu, &self.weights.tensors);
@@ -321,7 +321,7 @@ impl EncodedScene<'_> {
     fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
         let family = &*self.model.family;
         let k = family.patch_size();
-        let image = self.model.config.target_grid(targets, "target views")?;
+        let image = targets.grid_for(&self.model.config, "target views")?;
         let outputs = request.outputs;
         if outputs.is_empty() {
             let names: Vec<&str> = family.outputs().iter().map(Output::name).collect();

@@ -183,11 +183,11 @@ fn parse_size(text: &str) -> Option<(usize, usize)> {
 }
 
 impl InputViews {
-    /// Checks that the model can encode these views: at least one non-empty view, and buffers that hold
+    /// Checks that a model can encode these views: at least one non-empty view, and buffers that hold
     /// `count` views of `height`×`width`. Any size is encodable, as in PyTorch: each of the model's conv
     /// blocks ends in a stride-2 3×3 convolution with padding 1, which maps a side s to ceil(s / 2), so with
     /// the official 3 blocks 60×80 inputs (height × width) give 30×40, 15×20, then 8×10 tokens per view.
-    pub fn check_for(&self, _config: &ModelConfig, path: &str) -> Result<(), ModelError> {
+    pub fn check(&self, path: &str) -> Result<(), ModelError> {
         let err = |key: &str, reason: String| Err(ModelError::Value { path: path.into(), key: key.into(), reason });
         let (n, h, w) = (self.count, self.height, self.width);
         if n == 0 || h == 0 || w == 0 {
@@ -210,6 +210,11 @@ impl InputViews {
 }
 
 impl TargetViews {
+    /// The image size and ray resolution of these target views for a model (see [`grid`](Self::grid)).
+    pub fn grid_for(&self, config: &ModelConfig, path: &str) -> Result<TargetGrid, ModelError> {
+        self.grid(config.patch_size(), config.resizes_output(), path)
+    }
+
     /// Resolves the image size and whether the rays are per patch, for patch size `k` (docs/FORMATS.md).
     /// A model that resizes its output (the official `rp_kwargs.h_out/w_out`) renders sizes that `k` does not
     /// divide: it decodes the `(height / k) × (width / k)` patch grid and resizes the result.

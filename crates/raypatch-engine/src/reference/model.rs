@@ -197,7 +197,7 @@ impl ReferenceModel {
 
     /// `SRTEncoder`: the latent tokens of posed input views, and the decoder's keys and values.
     pub fn encode(&self, inputs: &InputViews) -> Result<ReferenceScene, ModelError> {
-        inputs.check_for(&self.config, "input views")?;
+        inputs.check("input views")?;
         let e = &self.srt.encoder;
         let (n, h, w) = (inputs.count, inputs.height, inputs.width);
         let pixels = n * h * w;
@@ -245,7 +245,7 @@ impl ReferenceModel {
     pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
         let cfg = &self.srt;
         let k = cfg.patch_size();
-        let grid = self.config.target_grid(targets, "target views")?;
+        let grid = targets.grid_for(&self.config, "target views")?;
         let (views, ph, pw) = (targets.count, grid.height / k, grid.width / k);
         let (rh, rw) = (targets.rays_height, targets.rays_width);
         let rays = if k > 1 && !grid.rays_are_patches {

@@ -9,7 +9,6 @@ pub mod srt;
 use serde_json::Value;
 
 use crate::error::ModelError;
-use crate::scene::{TargetGrid, TargetViews};
 pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, SrtConfig};
 
 /// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
@@ -130,11 +129,6 @@ impl ModelConfig {
         match &self.family {
             Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
         }
-    }
-
-    /// The image size and ray resolution of target views for this model (see [`TargetViews::grid`]).
-    pub fn target_grid(&self, targets: &TargetViews, path: &str) -> Result<TargetGrid, ModelError> {
-        targets.grid(self.patch_size(), self.resizes_output(), path)
     }
 
     /// Checks the config's layer counts against a file holding `tensors` tensors, before anything as large as
