@@ -240,8 +240,8 @@ fn only_requested_outputs_are_computed() {
     let scene = model.encode(&data.inputs).unwrap();
     let camera = &data.targets[0].camera;
     let request = |rgb: bool, logdepth: bool| {
-        let outputs = [(rgb, Output::Rgb), (logdepth, Output::LogDepth)].iter().filter(|(on, _)| *on);
-        Request { outputs: outputs.fold(Outputs::NONE, |set, (_, o)| set.with(*o)), region: None }
+        let outputs = [(rgb, Output::Rgb), (logdepth, Output::LogDepth)].into_iter().filter(|(on, _)| *on);
+        Request { outputs: outputs.fold(Outputs::NONE, |set, (_, o)| set.with(o)), region: None }
     };
     let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
     let dispatches = |r: &Request| {
