@@ -20,6 +20,7 @@ const TOL: f64 = 1e-4;
 
 #[test]
 fn far_and_polar_cameras_match_the_reference() {
+    let _memory = crate::sharing_memory();
     let rigs = [
         ("1e3 away", CameraRig { distance: (900.0, 1000.0), elevation: (-60.0, 60.0) }),
         ("100 away", CameraRig { distance: (90.0, 100.0), elevation: (10.0, 60.0) }),
@@ -34,7 +35,7 @@ fn far_and_polar_cameras_match_the_reference() {
         let float64 = ReferenceModel::new(&loaded, Argument::Float64).unwrap();
         for (seed, (what, rig)) in rigs.iter().enumerate() {
             let (inputs, targets) = synthetic_scene(seed as u64, 2, (24, 32), 2, (16, 24), rig).unwrap();
-            let frame = model.encode(&inputs).unwrap().render(&targets, Outputs::default()).unwrap();
+            let mut frame = model.encode(&inputs).unwrap().render(&targets, Outputs::default()).unwrap();
             let rgb = frame.take(Output::Rgb).expect("rgb");
             assert!(rgb.iter().all(|v| v.is_finite()), "{case}, cameras {what}: non-finite rgb");
             let want = reference.render(&reference.encode(&inputs).unwrap(), &targets).unwrap();

@@ -55,6 +55,7 @@ fn has_f16() -> bool {
 
 #[test]
 fn f16_weights_stay_close_to_the_reference() {
+    let _memory = crate::sharing_memory();
     if !has_f16() {
         return;
     }
@@ -69,6 +70,7 @@ fn f16_weights_stay_close_to_the_reference() {
 
 #[test]
 fn weights_beyond_f16_range_keep_their_layer_in_f32() {
+    let _memory = crate::sharing_memory();
     if !has_f16() {
         return;
     }
@@ -109,6 +111,7 @@ fn weights_beyond_f16_range_keep_their_layer_in_f32() {
 
 #[test]
 fn f16_uploads_refuse_values_beyond_range() {
+    let _memory = crate::sharing_memory();
     if !has_f16() {
         return;
     }

@@ -23,6 +23,7 @@ fn resident_bytes() -> Option<u64> {
 
 #[test]
 fn a_thousand_renders_are_identical_and_allocate_nothing() {
+    let _memory = crate::measuring_memory();
     let loaded = raypatch_model::load_model(golden_case("rpsrt_k8").join("model.safetensors")).unwrap();
     let scene = raypatch_model::load_scene(golden_case("rpsrt_k8").join("scene.safetensors")).unwrap();
     // A GPU of its own: the other tests of this binary run in parallel and would move the shared counters.

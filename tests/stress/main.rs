@@ -31,7 +31,7 @@ mod long_runs;
 mod reference;
 
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use raypatch_engine::{Gpu, GpuOptions, Model};
 use raypatch_model::LoadedModel;
@@ -45,6 +45,18 @@ fn gpu() -> Arc<Gpu> {
         Arc::new(gpu)
     })
     .clone()
+}
+
+/// The process's resident memory is shared by the tests of this binary, which run in parallel: `long_runs`
+/// measures it alone (a write guard) while every other test holds a read guard.
+static MEMORY: RwLock<()> = RwLock::new(());
+
+fn sharing_memory() -> RwLockReadGuard<'static, ()> {
+    MEMORY.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn measuring_memory() -> RwLockWriteGuard<'static, ()> {
+    MEMORY.write().unwrap_or_else(|e| e.into_inner())
 }
 
 fn golden_case(name: &str) -> PathBuf {

@@ -61,6 +61,7 @@ fn golden_cases() -> Vec<PathBuf> {
 
 #[test]
 fn reference_model_matches_float64_pytorch() {
+    let _memory = crate::sharing_memory();
     for dir in golden_cases() {
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
         let model = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
@@ -86,6 +87,7 @@ fn reference_model_matches_float64_pytorch() {
 
 #[test]
 fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
+    let _memory = crate::sharing_memory();
     for dir in golden_cases() {
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
         let loaded = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
