@@ -1,68 +1,12 @@
-//! Work per encode and per rendered frame, counted from the model's shapes: the multiply-accumulates (MACs)
-//! of every linear layer, convolution and attention product that `srt.rs` records. Elementwise work (norms,
-//! activations, softmax exponentials, encodings, resizes) is linear in the activations and left out, as
-//! FLOP counters usually do. One MAC is two FLOPs.
-
-use raypatch_model::ModelConfig;
-
-/// Latent tokens of `n` input views of `h`×`w` (each conv block halves the size, rounding up).
-pub fn tokens(cfg: &ModelConfig, n: usize, h: usize, w: usize) -> usize {
-    let (mut h, mut w) = (h, w);
-    for _ in 0..cfg.encoder.num_conv_blocks {
-        (h, w) = (h.div_ceil(2), w.div_ceil(2));
-    }
-    n * h * w
-}
-
-/// MACs of encoding `n` views of `h`×`w`: conv blocks, per-patch linear, transformer, decoder keys/values.
-pub fn encode_macs(cfg: &ModelConfig, n: usize, h: usize, w: usize) -> u64 {
-    let e = &cfg.encoder;
-    let mut macs = 0u64;
-    let (mut h, mut w) = (h, w);
-    for (cin, hidden, cout) in cfg.encoder_conv_widths() {
-        macs += (n * h * w * hidden * cin * 9) as u64;
-        (h, w) = (h.div_ceil(2), w.div_ceil(2));
-        macs += (n * h * w * cout * hidden * 9) as u64;
-    }
-    let t = (n * h * w) as u64;
-    let conv_out = cfg.encoder_conv_widths().last().map_or(0, |c| c.2) as u64;
-    let (dim, inner, ff) = (e.token_dim as u64, (e.heads * e.dim_head) as u64, e.ff_hidden as u64);
-    macs += t * dim * conv_out;
-    let per_layer = t * (dim * 3 * inner + inner * dim + 2 * dim * ff) + 2 * t * t * inner;
-    macs += e.num_att_blocks as u64 * per_layer;
-    let d = &cfg.decoder;
-    macs += d.num_att_blocks as u64 * t * dim * 2 * (d.heads * d.dim_head) as u64;
-    macs
-}
-
-/// MACs of rendering `views` target views of `height`×`width` against `tokens` latent tokens: the decoder
-/// on every query (one per pixel, or per k×k patch) and the Ray-Patch conv decoder.
-pub fn render_macs(cfg: &ModelConfig, views: usize, height: usize, width: usize, tokens: usize) -> u64 {
-    let d = &cfg.decoder;
-    let k = cfg.patch_size();
-    let (ph, pw) = (height / k, width / k);
-    let queries = (views * ph * pw) as u64;
-    let (q, inner, t) = (cfg.query_dim() as u64, (d.heads * d.dim_head) as u64, tokens as u64);
-    let (mlp_in, mlp_out) = (d.input_mlp_hidden as u64, d.out_mlp_hidden as u64);
-    let per_layer = q * inner + 2 * t * inner + inner * q + 2 * q * d.ff_hidden as u64;
-    let per_query = 2 * q * mlp_in
-        + d.num_att_blocks as u64 * per_layer
-        + q * mlp_out
-        + 3 * mlp_out * mlp_out
-        + mlp_out * d.out_dims as u64;
-    let mut macs = queries * per_query;
-    if let Some(rp) = &cfg.ray_patch {
-        let channels = rp.out_dims as u64;
-        let mut pixels = queries;
-        macs += pixels * channels * rp.conv_features as u64 * 9;
-        for i in 0..rp.upsample {
-            let (cin, cout) = ((rp.conv_features >> i) as u64, (rp.conv_features >> (i + 1)) as u64);
-            pixels *= 4;
-            macs += pixels * (cout * cin + channels * cout) * 9;
-        }
-    }
-    macs
-}
+//! Work per encode and per rendered frame. The harness takes the multiply-adds from the engine, which counts
+//! them from the ops a plan records ([`raypatch_engine::RenderStats::multiply_adds`],
+//! [`raypatch_engine::EncodedScene::encode_multiply_adds`], and without building a plan
+//! [`raypatch_engine::Model::encode_multiply_adds`] and [`raypatch_engine::EncodedScene::render_multiply_adds`]):
+//! every linear layer, convolution and attention product. Elementwise work (norms, activations, softmax
+//! exponentials, encodings, resizes) is linear in the activations and counted as none, as FLOP counters
+//! usually do. One multiply-add is two FLOPs. The tests below check the counts against a hand count.
+//!
+//! What stays here is a quantity of the paper, not of our work: the bytes a materialised softmax would take.
 
 /// Bytes a decoder that materialised its softmax would hold at once for one frame: the `queries × tokens`
 /// score matrix per head in f32, the quantity of the paper's Figure 2a (the engine's online softmax never
@@ -71,28 +15,19 @@ pub fn attention_score_bytes(queries: usize, tokens: usize, heads: usize) -> u64
     (queries * tokens * heads * 4) as u64
 }
 
+/// Two FLOPs per multiply-add, in GFLOP.
+pub fn gflop(multiply_adds: u64) -> f64 {
+    2.0 * multiply_adds as f64 / 1e9
+}
+
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use crate::synthetic::{official_rpsrt_config, official_srt_config};
+    use std::sync::Arc;
 
-    /// Hand counts for the official SRT decoder (per query: input_mlp 2·180·360, per layer
-    /// 180·768 + 2·300·768 + 768·180 + 2·180·1536, out_mlp 180·1536 + 3·1536² + 1536·3).
-    #[test]
-    fn official_decoder_per_query() {
-        let cfg = ModelConfig::from_value("srt", official_srt_config()).unwrap();
-        let per_query: u64 = 2 * 180 * 360
-            + 2 * (180 * 768 + 2 * 300 * 768 + 768 * 180 + 2 * 180 * 1536)
-            + 180 * 1536
-            + 3 * 1536 * 1536
-            + 1536 * 3;
-        assert_eq!(render_macs(&cfg, 1, 60, 80, 300), 4800 * per_query);
-        assert_eq!(tokens(&cfg, 1, 120, 160), 300);
-        let rp = ModelConfig::from_value("rpsrt", official_rpsrt_config(2)).unwrap();
-        let per_patch = per_query - 1536 * 3 + 1536 * 128;
-        let convs: u64 = 1200 * 3 * 128 * 9 + 4800 * (64 * 128 + 3 * 64) * 9;
-        assert_eq!(render_macs(&rp, 1, 60, 80, 300), 1200 * per_patch + convs);
-    }
+    use raypatch_engine::{Gpu, GpuOptions, Model, Outputs};
+
+    use super::*;
+    use crate::synthetic::{random_model, small_config, synthetic_scene, CameraRig};
 
     /// The paper's example: a 960×1280 DeFiNe decode with 2048 latents and 8 heads is 75 GiB of scores,
     /// and ~0.3 GiB with k = 16.
@@ -101,5 +36,54 @@ mod tests {
         let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
         assert!((gib(attention_score_bytes(960 * 1280, 2048, 8)) - 75.0).abs() < 0.01);
         assert!((gib(attention_score_bytes(960 * 1280 / 256, 2048, 8)) - 0.293).abs() < 0.001);
+    }
+
+    /// The multiply-adds the engine counts from its ops, for the small SRT and RP-SRT k=2 models at width 8
+    /// (one 16×16 input view, one 8×8 target view), against a hand count of their layers. Built (and
+    /// rendered) on the default adapter: a GPU, or lavapipe.
+    #[test]
+    fn op_counts_equal_a_hand_count() {
+        // small_config(k, 8): encoder 3 conv blocks (input 3 + 90 + 90 = 183 channels, hidden 2 → 4, 4 → 8,
+        // 8 → 16), tokens 8 wide, 2 layers of 4 heads × 2, feed-forward 16; decoder queries 90 + 90 = 180
+        // wide, input MLP 24, 2 layers of 4 heads × 2 on keys/values 8 wide, feed-forward 16, out MLP 48.
+        let (q, inner, ff, mlp_in, mlp_out, dim) = (180u64, 8u64, 16u64, 24u64, 48u64, 8u64);
+        // 16×16 → 8×8 → 4×4 → 2×2: 4 tokens.
+        let t = 4u64;
+        // Each conv block: a conv at its input size, then a stride-2 conv to half the size.
+        let conv_blocks =
+            (256 * 2 * 183 + 64 * 4 * 2) * 9 + (64 * 4 * 4 + 16 * 8 * 4) * 9 + (16 * 8 * 8 + 4 * 16 * 8) * 9;
+        let per_patch_linear = t * 16 * dim;
+        // Per layer: to_qkv, to_out, feed-forward, q·kᵀ and ·v.
+        let transformer = 2 * (t * (dim * 3 * inner + inner * dim + dim * ff + ff * dim) + 2 * t * t * inner);
+        // The decoder's keys and values (to_kv per layer), once per scene.
+        let keys_values = 2 * t * dim * 2 * inner;
+        let encode = conv_blocks + per_patch_linear + transformer + keys_values;
+        // Per query: input MLP, 2 cross-attention layers (to_q, q·kᵀ and ·v, to_out, feed-forward), out MLP
+        // (four hidden layers, then the output).
+        let per_query = |out_dims: u64| {
+            (q * mlp_in + mlp_in * q)
+                + 2 * (q * inner + 2 * t * inner + inner * q + q * ff + ff * q)
+                + (q * mlp_out + 3 * mlp_out * mlp_out + mlp_out * out_dims)
+        };
+        // SRT: one query per pixel of 8×8.
+        let srt = 64 * per_query(3);
+        // RP-SRT k=2: 4×4 queries of 16 features; conv_0 (16 → 3) on the patch grid, then one 2× block: the
+        // feature conv (16 → 8) on the upsampled 8×8 grid and its rgb conv (8 → 3).
+        let rpsrt = 16 * per_query(16) + 16 * 16 * 3 * 9 + 64 * (16 * 8 + 8 * 3) * 9;
+
+        let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe"));
+        let (inputs, targets) = synthetic_scene(3, 1, (16, 16), 1, (8, 8), &CameraRig::default()).unwrap();
+        for (k, want_render) in [(1, srt), (2, rpsrt)] {
+            let (loaded, _) = random_model(&small_config(k, 8), 7, "small").unwrap();
+            let model = Model::from_loaded(gpu.clone(), &loaded).unwrap();
+            assert_eq!(model.encode_multiply_adds(1, 16, 16), encode, "k={k}: predicted encode");
+            let encoded = model.encode(&inputs).unwrap();
+            assert_eq!(encoded.latent.rows as u64, t);
+            assert_eq!(encoded.encode_multiply_adds, encode, "k={k}: encode plan");
+            assert_eq!(encoded.render_multiply_adds(&targets, Outputs::default()).unwrap(), want_render, "k={k}");
+            encoded.render(&targets, Outputs::default()).unwrap();
+            let stats = encoded.render_stats(&targets, Outputs::default()).unwrap();
+            assert_eq!(stats.multiply_adds, want_render, "k={k}: render plan");
+        }
     }
 }

@@ -1,16 +1,20 @@
-//! The benchmark run: which configurations are measured (quick and full), how each is measured, and where
-//! the results go.
+//! The benchmark run: the options, where the results go (`results.json`, CSV, tables, plots, and `replot`),
+//! and how one configuration is measured (encode, render timing, errors against the references and PyTorch),
+//! with the golden cases and `--model` files. Which random-weight configurations are swept is in
+//! `harness/sweep.rs`; the skips on and off and the per-kernel breakdown are in `harness/skips.rs`.
+
+mod skips;
+mod sweep;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
-use raypatch_engine::gpu::{GpuTimes, TimestampMode};
+use anyhow::{Context, Result};
+use raypatch_engine::gpu::TimestampMode;
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
-use raypatch_engine::weights::{LoadOptions, WeightStorage};
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, EngineError, Frame, Gpu, GpuOptions, Model, Outputs, Region, Request,
+    AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, Model, Output, Outputs, Request, WeightStorage,
 };
 use raypatch_model::{InputViews, LoadedModel, TargetViews};
 use serde::{Deserialize, Serialize};
@@ -31,8 +35,9 @@ pub struct Options {
     pub adapter: Option<String>,
     /// Measured runs per configuration (default 5, quick 3).
     pub repeats: Option<usize>,
-    /// Skip configurations whose render is predicted (from its FLOPs and the rate measured at the previous
-    /// size) to take longer than this (default 120 s, quick 1.5 s).
+    /// Skip configurations whose render is predicted (from its multiply-adds, counted from the ops its plan
+    /// would record, and the rate measured at the previous size) to take longer than this (default 120 s,
+    /// quick 1.5 s).
     pub max_render_seconds: Option<f64>,
     /// Time PyTorch on the same inputs when it is installed.
     pub pytorch: bool,
@@ -64,7 +69,8 @@ struct Bench {
     timestamps: bool,
     repeats: Repeats,
     max_render: Duration,
-    /// Reference renders are computed when their MACs are below this (the f64 CPU reference is slow).
+    /// Reference encodes and renders are computed when their multiply-adds (counted from the engine's ops)
+    /// are at most this (the f64 CPU reference is slow).
     reference_macs: u64,
     torch: std::result::Result<String, String>,
     scratch: PathBuf,
@@ -131,7 +137,7 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
         report::write_csv(&out.join("results.csv"), &results.results)?;
         report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
     }
-    let tables = report::markdown(&results.results, &results.kernels, &results.paper_comparison);
+    let tables = report::markdown(&results.results, &results.kernels) + &paper::markdown(&results.paper_comparison);
     report::write_file(&out.join("tables.md"), tables.as_bytes())?;
     plots::draw_all(&results.results, out)?;
     println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
@@ -214,7 +220,7 @@ pub fn run(options: &Options) -> Result<()> {
     bench.model_files(options, &mut records)?;
     let comparison = paper::compare(&records);
 
-    let tables = report::markdown(&records, &kernels, &comparison);
+    let tables = report::markdown(&records, &kernels) + &paper::markdown(&comparison);
     println!("\n{tables}");
     let results = Results {
         command: options.command.clone(),
@@ -283,14 +289,14 @@ impl Bench {
         Ok((stats, last.expect("at least one encode")))
     }
 
-    /// Both float64 references of a model and their encodings, when affordable.
-    fn references(&self, loaded: &LoadedModel, inputs: &InputViews) -> Result<Option<References>> {
-        let macs = flops::encode_macs(&loaded.config, inputs.count, inputs.height, inputs.width);
-        if macs > self.reference_macs {
+    /// Both float64 references of a model and their encodings, when affordable: the encode's multiply-adds,
+    /// counted from the ops `model`'s encode records (nothing is built), at most the limit.
+    fn references(&self, loaded: &LoadedModel, model: &Model, inputs: &InputViews) -> Result<Option<References>> {
+        if model.encode_multiply_adds(inputs.count, inputs.height, inputs.width) > self.reference_macs {
             return Ok(None);
         }
-        let f32_args = ReferenceModel::new(loaded, Argument::RoundedToF32);
-        let f64_args = ReferenceModel::new(loaded, Argument::Float64);
+        let f32_args = ReferenceModel::new(loaded, Argument::RoundedToF32)?;
+        let f64_args = ReferenceModel::new(loaded, Argument::Float64)?;
         let (a, b) = (f32_args.encode(inputs)?, f64_args.encode(inputs)?);
         Ok(Some((f32_args, a, f64_args, b)))
     }
@@ -311,13 +317,14 @@ impl Bench {
         Ok(Subject { name, group, loaded, file, model, storage, inputs, encode, encoded, references })
     }
 
-    /// The fields of a record that do not need a measurement: the configuration, its FLOPs, the memory a
-    /// materialised softmax would take.
+    /// The fields of a record that do not need a render: the configuration, the encode's FLOPs, the memory a
+    /// materialised softmax would take. The render's FLOPs come from its plan (or a prediction) later.
     fn record(&self, s: &Subject, views: usize, size: (usize, usize), variant: &str) -> Record {
         let cfg = &s.loaded.config;
         let k = cfg.patch_size();
-        let tokens = flops::tokens(cfg, s.inputs.count, s.inputs.height, s.inputs.width);
+        let tokens = s.encoded.latent.rows;
         let queries = views * (size.0 / k) * (size.1 / k);
+        let heads = cfg.srt().map_or(0, |c| c.decoder.heads);
         Record {
             group: s.group.to_string(),
             model: s.name.clone(),
@@ -338,9 +345,8 @@ impl Bench {
             encode_ms: s.encode.1.or(Some(s.encode.0)),
             encode_wall_ms: Some(s.encode.0),
             encode_peak_bytes: Some(s.encoded.encode_peak_bytes),
-            attention_scores_bytes: flops::attention_score_bytes(queries, tokens, cfg.decoder.heads),
-            encode_gflop: 2.0 * flops::encode_macs(cfg, s.inputs.count, s.inputs.height, s.inputs.width) as f64 / 1e9,
-            render_gflop: 2.0 * flops::render_macs(cfg, views, size.0, size.1, tokens) as f64 / 1e9,
+            attention_scores_bytes: flops::attention_score_bytes(queries, tokens, heads),
+            encode_gflop: flops::gflop(s.encoded.encode_multiply_adds),
             env: Some(self.env.clone()),
             ..Default::default()
         }
@@ -356,6 +362,7 @@ impl Bench {
         let stats = s.encoded.render_stats(targets, request)?;
         (record.render_peak_bytes, record.dispatches, record.queries) =
             (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
+        record.render_gflop = flops::gflop(stats.multiply_adds);
         // The first render was the warm-up (it built the plan).
         let repeats = Repeats { warmup: 0, ..self.repeats };
         let (wall, mut gpu) = measure::repeat(repeats, || self.render_sample(&s.encoded, targets, request))?;
@@ -370,10 +377,10 @@ impl Bench {
 
     /// Measures one render configuration of a subject. `truth`: PyTorch's rgb for these targets, if known.
     fn measure(&self, s: &Subject, targets: &TargetViews, truth: Option<&[f32]>, with_torch: bool) -> Result<Record> {
-        let grid = s.loaded.config.target_grid(targets, "target views")?;
+        let grid = targets.grid_for(&s.loaded.config, "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        let frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
-        let rgb = frame.rgb.context("a default render has rgb")?;
+        let mut frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
+        let rgb = frame.take(Output::Rgb).context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
         match s.references {
             Some((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
@@ -443,7 +450,7 @@ impl Bench {
             let scene = raypatch_model::load_scene(case.join("scene.safetensors"))?;
             let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?.f32("rgb")?.data;
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
-            let references = self.references(&loaded, &scene.inputs)?;
+            let references = self.references(&loaded, &model, &scene.inputs)?;
             let subject = self.subject(
                 name,
                 "golden",
@@ -455,253 +462,11 @@ impl Bench {
                 references.as_ref(),
             )?;
             records.push(self.measure(&subject, &scene.targets, Some(&truth), false)?);
-            if loaded.config.image_channels() == 4 {
+            if loaded.config.has_depth() {
                 records.extend(self.logdepth_skip(&subject, &scene.targets)?);
             }
         }
         Ok(())
-    }
-
-    /// Outputs not asked for are not computed: rgb only, rgb and log-depth, log-depth only.
-    fn logdepth_skip(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
-        let grid = s.loaded.config.target_grid(targets, "target views")?;
-        let mut rows = Vec::new();
-        let variants = [
-            ("outputs: rgb", Outputs { rgb: true, logdepth: false }),
-            ("outputs: rgb + log-depth", Outputs { rgb: true, logdepth: true }),
-            ("outputs: log-depth", Outputs { rgb: false, logdepth: true }),
-        ];
-        for (variant, outputs) in variants {
-            let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
-            record.group = "skips".into();
-            self.time_render(s, targets, outputs.into(), &mut record)?;
-            print_row(&record);
-            rows.push(record);
-        }
-        Ok(rows)
-    }
-
-    /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes.
-    fn sweep(&self, records: &mut Vec<Record>, kernels: &mut Vec<KernelTime>) -> Result<()> {
-        let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
-            (&QUICK_SIZES, vec![(8, &[(120, 160)])])
-        } else {
-            (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
-        };
-        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> =
-            PATCH_SIZES.iter().map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
-        for (k, sizes) in official {
-            let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
-            specs.push(("official", k, config, sizes));
-        }
-        println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
-        let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
-        if !self.only.is_empty() {
-            specs.retain(|(name, k, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
-        }
-        for (name, k, config, sizes) in specs {
-            let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
-            let (inputs, _) = scene(INPUT_SIZE)?;
-            let references = self.references(&loaded, &inputs)?;
-            let mut storages = vec![WeightStorage::F32];
-            if f16 && (name == "small" || !self.quick) {
-                storages.push(WeightStorage::F16);
-            }
-            let mut sizes: Vec<(usize, usize)> =
-                sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
-            for storage in storages {
-                let model =
-                    Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
-                let subject = self.subject(
-                    name.to_string(),
-                    "sweep",
-                    &loaded,
-                    Some(&file),
-                    &model,
-                    storage,
-                    &inputs,
-                    references.as_ref(),
-                )?;
-                let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
-                // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
-                let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
-                sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
-            }
-        }
-        Ok(())
-    }
-
-    /// One subject over target sizes (ascending): sizes predicted to render slower than the limit are skipped.
-    /// Returns the sizes rendered.
-    fn sweep_sizes(
-        &self,
-        s: &Subject,
-        sizes: &[(usize, usize)],
-        records: &mut Vec<Record>,
-        kernels: &mut Vec<KernelTime>,
-    ) -> Result<Vec<(usize, usize)>> {
-        let mut measured = Vec::new();
-        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
-        let mut rate: Option<f64> = None;
-        for &size in sizes {
-            let (_, targets) = scene(size)?;
-            let tokens = flops::tokens(&s.loaded.config, 1, INPUT_SIZE.0, INPUT_SIZE.1);
-            let macs = flops::render_macs(&s.loaded.config, 1, size.0, size.1, tokens);
-            if let Some(rate) = rate {
-                let predicted = macs as f64 / rate;
-                if predicted > self.max_render.as_secs_f64() {
-                    println!(
-                        "  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render",
-                        decoder_name(k),
-                        size_text(size)
-                    );
-                    records.push(self.skipped(s, &targets, predicted)?);
-                    continue;
-                }
-            }
-            let with_torch = f32_weights && self.torch_config(name, k, size);
-            let mut record = match self.measure(s, &targets, None, with_torch) {
-                Ok(record) => record,
-                // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
-                Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
-                    println!("  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}", decoder_name(k), size_text(size));
-                    let mut record = self.record(s, targets.count, size, "");
-                    record.note = format!("does not fit: {e}");
-                    records.push(record);
-                    s.encoded.clear_render_plans();
-                    continue;
-                }
-                Err(e) => return Err(e),
-            };
-            if !s.model.weights_kept_f32().is_empty() {
-                let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
-                record.note =
-                    format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
-            }
-            rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
-            records.push(record);
-            measured.push(size);
-            if f32_weights && self.breakdown_config(name, k, size) {
-                kernels.extend(self.kernel_breakdown(s, &targets)?);
-            }
-            let skips = (name == "small" && k == 4) || (!self.quick && name == "official" && k == 8);
-            if f32_weights && skips && size == (120, 160) {
-                records.extend(self.plan_and_encode_skips(s, &targets)?);
-            }
-            // Free this size's plan (its buffers) before the next, larger one.
-            s.encoded.clear_render_plans();
-        }
-        Ok(measured)
-    }
-
-    fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
-        match (self.quick, name) {
-            (true, _) => k == 4 && size == (60, 80) && name == "small",
-            (false, "small") => size == (120, 160) && (k == 1 || k == 4),
-            (false, _) => (size == (60, 80) && k <= 4) || (size == (120, 160) && k >= 4),
-        }
-    }
-
-    fn breakdown_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
-        size == (120, 160) && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
-    }
-
-    /// A size not rendered: its FLOPs and planned memory (the plan is built, not run) with the prediction.
-    fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64) -> Result<Record> {
-        let grid = s.loaded.config.target_grid(targets, "target views")?;
-        let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
-        match s.encoded.render_stats(targets, Outputs::default()) {
-            Ok(stats) => {
-                (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches))
-            }
-            Err(e @ EngineError::TooLarge { .. }) => record.note += &format!("; does not fit: {e}"),
-            Err(e) => return Err(e.into()),
-        }
-        s.encoded.clear_render_plans();
-        Ok(record)
-    }
-
-    /// The skips of the API, on and off: the plan cache, the per-scene encoding, and a region of interest.
-    fn plan_and_encode_skips(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
-        let full = Request::from(Outputs::default());
-        let grid = s.loaded.config.target_grid(targets, "target views")?;
-        let size = (grid.height, grid.width);
-        let row = |variant: &str, wall: Stats, request: Request| -> Result<Record> {
-            let mut record = self.record(s, targets.count, size, variant);
-            record.group = "skips".into();
-            record.timing = "wall clock".into();
-            set_times(&mut record, wall, None);
-            let stats = s.encoded.render_stats(targets, request)?;
-            (record.render_peak_bytes, record.dispatches, record.queries) =
-                (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
-            print_row(&record);
-            Ok(record)
-        };
-        let wall = |f: &dyn Fn() -> Result<()>| {
-            measure::repeat(self.repeats, || -> Result<Sample> {
-                let start = Instant::now();
-                f()?;
-                self.gpu.take_timestamps()?;
-                Ok(Sample { wall: start.elapsed(), gpu: None })
-            })
-            .map(|(wall, _)| wall)
-        };
-        let cached = wall(&|| s.encoded.render(targets, full).map(drop).map_err(Into::into))?;
-        // Without the plan cache every render builds its plan (buffers, params, bind groups) first.
-        let rebuilt = wall(&|| {
-            s.encoded.clear_render_plans();
-            s.encoded.render(targets, full)?;
-            Ok(())
-        })?;
-        let build = wall(&|| {
-            s.encoded.clear_render_plans();
-            s.encoded.render_stats(targets, full)?;
-            Ok(())
-        })?;
-        // Without the per-scene encoding every render encodes the input views (latent, keys, values) again.
-        let encode_each = wall(&|| {
-            let encoded = s.model.encode(s.inputs)?;
-            self.gpu.take_timestamps()?;
-            encoded.render(targets, full)?;
-            Ok(())
-        })?;
-        // A region of interest: the top-left quarter of the image; only the patches it needs are decoded.
-        let quarter = Request { region: Some(Region { x: 0, y: 0, width: size.1 / 2, height: size.0 / 2 }), ..full };
-        s.encoded.render(targets, quarter)?;
-        let region = wall(&|| s.encoded.render(targets, quarter).map(drop).map_err(Into::into))?;
-        Ok(vec![
-            row("plan cached, scene encoded once", cached, full)?,
-            row("plan rebuilt per render", rebuilt, full)?,
-            Record { fps: None, ..row("(plan build alone)", build, full)? },
-            row("scene encoded per render", encode_each, full)?,
-            row("region: top-left quarter", region, quarter)?,
-        ])
-    }
-
-    /// One render with a timestamp between every two ops, summed per op (layer indices and query chunks
-    /// folded) and per kernel.
-    fn kernel_breakdown(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<KernelTime>> {
-        if self.gpu.set_timestamps(TimestampMode::Ops).is_err() {
-            return Ok(Vec::new());
-        }
-        let times = (|| -> Result<Option<GpuTimes>> {
-            s.encoded.render(targets, Outputs::default())?;
-            Ok(self.gpu.take_timestamps()?)
-        })();
-        self.gpu.set_timestamps(TimestampMode::Plan)?;
-        let Some(times) = times? else { bail!("no timestamps came back") };
-        let k = s.loaded.config.patch_size();
-        let grid = s.loaded.config.target_grid(targets, "target views")?;
-        let config = format!(
-            "{} {} k={k} {}x{} {}",
-            s.name,
-            decoder_name(k),
-            grid.height,
-            grid.width,
-            precision_name(s.storage)
-        );
-        Ok(crate::kernels::fold(&config, &times))
     }
 
     /// Model files given on the command line, on their scene (or a synthetic one).
@@ -717,7 +482,7 @@ impl Bench {
             };
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-            let references = self.references(&loaded, &inputs)?;
+            let references = self.references(&loaded, &model, &inputs)?;
             let name = path.display().to_string();
             let subject = self.subject(
                 name,

@@ -1,10 +1,11 @@
 //! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, measured on an NVIDIA V100, and the
-//! attention-memory example of Section 5) beside ours where they apply.
+//! attention-memory example of Section 5) beside ours where they apply, and their section of `tables.md`.
+//! Reads the records of [`crate::report`] (which does not depend on this module).
 
 use serde::{Deserialize, Serialize};
 
 use crate::flops::attention_score_bytes;
-use crate::report::{bytes, Record};
+use crate::report::{bytes, table, Record};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Comparison {
@@ -104,4 +105,15 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
         }
     }
     rows
+}
+
+/// The comparison as the last section of `tables.md`.
+pub fn markdown(comparison: &[Comparison]) -> String {
+    let mut out = "### The paper's figures beside ours\n\n".to_string();
+    table(
+        &mut out,
+        &["", "paper", "ours"],
+        comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect(),
+    );
+    out
 }

@@ -45,6 +45,7 @@ pub struct Record {
     pub queries: usize,
     /// Kernel dispatches per render.
     pub dispatches: Option<usize>,
+    /// Latent tokens (rows of the encoded latent).
     pub tokens: usize,
     /// `gpu timestamps` (GPU time of the plan's pass) or `wall clock`.
     pub timing: String,
@@ -63,7 +64,10 @@ pub struct Record {
     pub render_peak_bytes: Option<u64>,
     /// What a decoder that materialised its softmax would hold (the paper's Figure 2a quantity).
     pub attention_scores_bytes: u64,
+    /// FLOPs of the encode: two per multiply-add the engine counts from the encode plan's ops.
     pub encode_gflop: f64,
+    /// FLOPs of one render of the record's request (a region's render counts its crop): from the render
+    /// plans' ops, or for a size not rendered, from the ops its plan records.
     pub render_gflop: f64,
     /// max |rgb − reference| against the float64 CPU reference with the encoding arguments rounded to f32
     /// as torch float32 rounds them: the engine's arithmetic error.
@@ -186,7 +190,8 @@ fn stats_text(s: Option<Stats>) -> String {
     s.map_or_else(|| "-".into(), |s| format!("{:.2} [{:.2}–{:.2}]", s.median_ms, s.min_ms, s.max_ms))
 }
 
-fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
+/// A Markdown table of `rows` under `header`, and a blank line, appended to `out`.
+pub fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
     *out += &format!("| {} |\n|{}\n", header.join(" | "), "---|".repeat(header.len()));
     for row in rows {
         *out += &format!("| {} |\n", row.join(" | "));
@@ -194,8 +199,9 @@ fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
     out.push('\n');
 }
 
-/// The results as Markdown tables (printed, and written to `tables.md` for docs/PERFORMANCE.md).
-pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate::paper::Comparison]) -> String {
+/// The results as Markdown tables (printed, and written to `tables.md` for docs/PERFORMANCE.md; the harness
+/// appends the comparison with the paper after them).
+pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
     let mut out = String::new();
     if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
         out += &format!("Adapter: {} ({}, {}). Machine: {}.\n\n", env.adapter, env.backend, env.driver, env.machine);
@@ -396,11 +402,5 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], comparison: &[crate:
         );
     }
 
-    out += "### The paper's figures beside ours\n\n";
-    table(
-        &mut out,
-        &["", "paper", "ours"],
-        comparison.iter().map(|c| vec![c.what.clone(), c.paper.clone(), c.ours.clone()]).collect(),
-    );
     out
 }

@@ -3,6 +3,7 @@
 //! them) and scenes seen by MSN-Easy cameras (`tools/cameras.py`).
 
 use raypatch_engine::reference::Rng;
+use raypatch_engine::EngineError;
 use raypatch_model::{InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
@@ -59,17 +60,18 @@ pub fn small_config(k: usize, width: usize) -> Value {
 /// Random weights for `config`, as `tools/make_golden.py` draws them: He-style normal weights (gain 1 for the
 /// attention projections and the output layers, √2 before the (Leaky)ReLUs), biases N(0, 0.1²), norm scales
 /// U(0.5, 1.5), BatchNorm statistics N(0, 0.2²) and U(0.5, 2). The model goes through the same safetensors
-/// parsing and checks as a file. Returns the model and its file bytes (for tools that need a file).
-pub fn random_model(config: &Value, seed: u64, name: &str) -> Result<(LoadedModel, Vec<u8>), ModelError> {
-    model_from_tensors(config, &random_tensors(config, seed, name)?, name)
+/// parsing and config checks as a file (its tensors are checked when the engine builds it). Returns the model
+/// and its file bytes (for tools that need a file).
+pub fn random_model(config: &Value, seed: u64, name: &str) -> Result<(LoadedModel, Vec<u8>), EngineError> {
+    Ok(model_from_tensors(config, &random_tensors(config, seed, name)?, name)?)
 }
 
-/// The tensors of [`random_model`]: (official name, shape, data).
-pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tensor>, ModelError> {
+/// The tensors of [`random_model`]: (official name, shape, data), the tensors the engine's model of `config`
+/// reads ([`raypatch_engine::models::expected_tensors`]).
+pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tensor>, EngineError> {
     let resolved = ModelConfig::from_value(name, config.clone())?;
     let mut rng = Rng::new(seed);
-    Ok(resolved
-        .expected_tensors()
+    Ok(raypatch_engine::models::expected_tensors(&resolved)?
         .into_iter()
         .map(|(key, shape)| {
             let count: usize = shape.iter().product();
@@ -303,10 +305,13 @@ mod tests {
             let (model, bytes) = random_model(&config, 1, "small").unwrap();
             assert_eq!(model.config.patch_size(), k);
             assert!(bytes.len() > 4 * model.parameter_count());
+            // The engine's module tree reads every tensor, of its shape, and nothing is left over.
+            raypatch_engine::models::build(&model).unwrap();
         }
         let official = ModelConfig::from_value("srt", official_srt_config()).unwrap();
-        assert_eq!((official.encoder.token_dim, official.decoder.out_mlp_hidden), (768, 1536));
+        let srt = official.srt().unwrap();
+        assert_eq!((srt.encoder.token_dim, srt.decoder.out_mlp_hidden), (768, 1536));
         let rp = ModelConfig::from_value("rpsrt", official_rpsrt_config(8)).unwrap();
-        assert_eq!((rp.patch_size(), rp.decoder.out_dims), (8, 128));
+        assert_eq!((rp.patch_size(), rp.srt().unwrap().decoder.out_dims), (8, 128));
     }
 }

@@ -1,0 +1,167 @@
+//! The sweep of random-weight models (small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, f32 and f16
+//! weights) over target sizes, with the skip of sizes predicted too slow: a size's render is predicted from
+//! the multiply-adds its plan would record (recorded, not built) and the rate measured at the previous size.
+
+use anyhow::Result;
+use raypatch_engine::{EngineError, LoadOptions, Model, Outputs, WeightStorage};
+use raypatch_model::TargetViews;
+
+use super::{
+    decoder_name, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
+    SMALL_WIDTH,
+};
+use crate::flops;
+use crate::report::{KernelTime, Record};
+use crate::synthetic;
+
+impl Bench {
+    /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes.
+    pub(super) fn sweep(&self, records: &mut Vec<Record>, kernels: &mut Vec<KernelTime>) -> Result<()> {
+        let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
+            (&QUICK_SIZES, vec![(8, &[(120, 160)])])
+        } else {
+            (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
+        };
+        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> =
+            PATCH_SIZES.iter().map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
+        for (k, sizes) in official {
+            let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
+            specs.push(("official", k, config, sizes));
+        }
+        println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
+        let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
+        if !self.only.is_empty() {
+            specs.retain(|(name, k, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
+        }
+        for (name, k, config, sizes) in specs {
+            let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
+            let (inputs, _) = scene(INPUT_SIZE)?;
+            // Whether the float64 references are affordable is decided from the first model's encode (the
+            // weight storage does not change the work), and they serve both storages.
+            let mut references = None;
+            let mut storages = vec![WeightStorage::F32];
+            if f16 && (name == "small" || !self.quick) {
+                storages.push(WeightStorage::F16);
+            }
+            let mut sizes: Vec<(usize, usize)> =
+                sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
+            for storage in storages {
+                let model =
+                    Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
+                if references.is_none() {
+                    references = Some(self.references(&loaded, &model, &inputs)?);
+                }
+                let subject = self.subject(
+                    name.to_string(),
+                    "sweep",
+                    &loaded,
+                    Some(&file),
+                    &model,
+                    storage,
+                    &inputs,
+                    references.as_ref().and_then(Option::as_ref),
+                )?;
+                let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
+                // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
+                let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
+                sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
+            }
+        }
+        Ok(())
+    }
+
+    /// One subject over target sizes (ascending): sizes predicted to render slower than the limit are skipped.
+    /// Returns the sizes rendered.
+    fn sweep_sizes(
+        &self,
+        s: &Subject,
+        sizes: &[(usize, usize)],
+        records: &mut Vec<Record>,
+        kernels: &mut Vec<KernelTime>,
+    ) -> Result<Vec<(usize, usize)>> {
+        let mut measured = Vec::new();
+        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
+        let mut rate: Option<f64> = None;
+        for &size in sizes {
+            let (_, targets) = scene(size)?;
+            // The render's multiply-adds, counted from the ops its plan would record (nothing is built).
+            let macs = s.encoded.render_multiply_adds(&targets, Outputs::default())?;
+            if let Some(rate) = rate {
+                let predicted = macs as f64 / rate;
+                if predicted > self.max_render.as_secs_f64() {
+                    println!(
+                        "  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render",
+                        decoder_name(k),
+                        size_text(size)
+                    );
+                    records.push(self.skipped(s, &targets, predicted, macs)?);
+                    continue;
+                }
+            }
+            let with_torch = f32_weights && self.torch_config(name, k, size);
+            let mut record = match self.measure(s, &targets, None, with_torch) {
+                Ok(record) => record,
+                // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
+                Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
+                    println!("  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}", decoder_name(k), size_text(size));
+                    let mut record = self.record(s, targets.count, size, "");
+                    record.render_gflop = flops::gflop(macs);
+                    record.note = format!("does not fit: {e}");
+                    records.push(record);
+                    s.encoded.clear_render_plans();
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            if !s.model.weights_kept_f32().is_empty() {
+                let kept: Vec<&str> = s.model.weights_kept_f32().iter().map(|k| k.tensor.as_str()).collect();
+                record.note =
+                    format!("{} kept in f32 (beyond f16 range): {}", record.note, kept.join(" ")).trim().to_string();
+            }
+            rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
+            records.push(record);
+            measured.push(size);
+            if f32_weights && self.breakdown_config(name, k, size) {
+                kernels.extend(self.kernel_breakdown(s, &targets)?);
+            }
+            let skips = (name == "small" && k == 4) || (!self.quick && name == "official" && k == 8);
+            if f32_weights && skips && size == (120, 160) {
+                records.extend(self.plan_and_encode_skips(s, &targets)?);
+            }
+            // Free this size's plan (its buffers) before the next, larger one.
+            s.encoded.clear_render_plans();
+        }
+        Ok(measured)
+    }
+
+    fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
+        match (self.quick, name) {
+            (true, _) => k == 4 && size == (60, 80) && name == "small",
+            (false, "small") => size == (120, 160) && (k == 1 || k == 4),
+            (false, _) => (size == (60, 80) && k <= 4) || (size == (120, 160) && k >= 4),
+        }
+    }
+
+    fn breakdown_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
+        size == (120, 160) && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
+    }
+
+    /// A size not rendered: its FLOPs (`multiply_adds`, as predicted; the built plan's count when it fits)
+    /// and planned memory (the plan is built, not run) with the prediction.
+    fn skipped(&self, s: &Subject, targets: &TargetViews, predicted: f64, multiply_adds: u64) -> Result<Record> {
+        let grid = targets.grid_for(&s.loaded.config, "target views")?;
+        let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
+        record.render_gflop = flops::gflop(multiply_adds);
+        record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
+        match s.encoded.render_stats(targets, Outputs::default()) {
+            Ok(stats) => {
+                (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches));
+                record.render_gflop = flops::gflop(stats.multiply_adds);
+            }
+            Err(e @ EngineError::TooLarge { .. }) => record.note += &format!("; does not fit: {e}"),
+            Err(e) => return Err(e.into()),
+        }
+        s.encoded.clear_render_plans();
+        Ok(record)
+    }
+}
