@@ -10,6 +10,7 @@ use crate::graph::{Graph, ImageSize, Tensor};
 use crate::kernels::resize::{bilinear, nearest, ResizeArgs};
 use crate::kernels::Activation;
 use crate::nn::{Conv3x3, Resample, Vars};
+use crate::plan::PlanBuilder;
 
 /// LeakyReLU slope of the conv decoder's feature convs.
 pub const CONV_DECODER_SLOPE: f32 = 0.2;
@@ -51,18 +52,7 @@ impl RayPatchDecoder {
     /// Patch rays: the full-resolution rays bilinearly downsampled to the patch grid, not renormalised
     /// (torchvision Resize, as the official data loader makes them).
     pub fn patch_rays(&self, g: &mut Graph, rays: Tensor, patches: ImageSize) -> Tensor {
-        let out = g.image("patch_rays", patches, 3);
-        let full = rays.size();
-        let args = ResizeArgs {
-            x: rays.view,
-            n: full.n,
-            from: (full.h, full.w),
-            out: out.view,
-            to: (patches.h, patches.w),
-            accumulate: false,
-        };
-        bilinear(&mut g.b, "patch_rays", args);
-        out
+        resized(g, "patch_rays", rays, patches, bilinear)
     }
 
     /// The image `[views·H·W, channels]` before the sigmoid from the patch features (an image of the patch
@@ -84,37 +74,14 @@ impl RayPatchDecoder {
         if (computed.h, computed.w) == size {
             return skip;
         }
-        let label = format!("{}.resize_out", self.path);
         let to = ImageSize { h: size.0, w: size.1, ..computed };
-        let resized = g.image(&label, to, skip.cols);
-        let args = ResizeArgs {
-            x: skip.view,
-            n: to.n,
-            from: (computed.h, computed.w),
-            out: resized.view,
-            to: size,
-            accumulate: false,
-        };
-        nearest(&mut g.b, &label, args);
-        resized
+        resized(g, &format!("{}.resize_out", self.path), skip, to, nearest)
     }
 
     /// The RGB skip bilinearly upsampled 2× (`skip.{i}`).
     fn upsample_skip(&self, g: &mut Graph, skip: Tensor, i: usize) -> Tensor {
-        let label = format!("{}.skip.{i}", self.path);
-        let from = skip.size();
-        let to = Resample::Up2.output(from);
-        let out = g.image(&label, to, skip.cols);
-        let args = ResizeArgs {
-            x: skip.view,
-            n: from.n,
-            from: (from.h, from.w),
-            out: out.view,
-            to: (to.h, to.w),
-            accumulate: false,
-        };
-        bilinear(&mut g.b, &label, args);
-        out
+        let to = Resample::Up2.output(skip.size());
+        resized(g, &format!("{}.skip.{i}", self.path), skip, to, bilinear)
     }
 
     /// The patches `first..=last` along an axis of `patches` patches whose features the output pixels
@@ -139,4 +106,20 @@ impl RayPatchDecoder {
         }
         (features.0 as usize, features.1 as usize)
     }
+}
+
+/// The image `x` resized to `to` by `resize` (a kernel of `kernels::resize`) into a new image `label`.
+fn resized(
+    g: &mut Graph,
+    label: &str,
+    x: Tensor,
+    to: ImageSize,
+    resize: fn(&mut PlanBuilder, &str, ResizeArgs),
+) -> Tensor {
+    let from = x.size();
+    let out = g.image(label, to, x.cols);
+    let args =
+        ResizeArgs { x: x.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
+    resize(&mut g.b, label, args);
+    out
 }
