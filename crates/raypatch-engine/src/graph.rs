@@ -138,9 +138,4 @@ impl<'w> Graph<'w> {
     pub fn param(&mut self, path: &str, p: Param) -> TensorId {
         self.b.external(path, &self.weights[p.index()])
     }
-
-    /// The whole of a tensor as a view (for kernels that take a `TensorId`'s rows).
-    pub fn all(&self, id: TensorId) -> View {
-        self.b.all(id)
-    }
 }
