@@ -4,7 +4,7 @@
 //! reuses it, computes only the requested outputs, and for a region only the patches it depends on, in row
 //! bands when one plan would bind a buffer larger than the GPU allows.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
@@ -45,6 +45,9 @@ pub struct EncodedScene<'m> {
     /// Multiply-adds of the encode, counted from its ops.
     pub encode_multiply_adds: u64,
     render_plans: Mutex<HashMap<PlanKey, Arc<RenderPlan>>>,
+    /// Crops whose plan would bind a buffer larger than the GPU allows: a later render of the same size goes
+    /// straight to its bands instead of recording the crop again to find that out.
+    too_large: Mutex<HashSet<PlanKey>>,
 }
 
 /// A render plan serves every render of this many views of this computed size with these outputs; the
@@ -180,6 +183,7 @@ impl Model {
             encode_peak_bytes: plan.peak_bytes(),
             encode_multiply_adds: multiply_adds,
             render_plans: Mutex::new(HashMap::new()),
+            too_large: Mutex::new(HashSet::new()),
         };
         Ok((scene, times))
     }
@@ -202,9 +206,12 @@ impl EncodedScene<'_> {
     pub fn render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
         let request = request.into();
         let bands = self.plans(targets, &request)?;
-        let frames =
+        let mut frames =
             bands.iter().map(|(crop, plan)| self.render_band(targets, crop, plan)).collect::<Result<Vec<_>>>()?;
-        let [first, ..] = frames.as_slice() else { unreachable!("a render has at least one band") };
+        if frames.len() == 1 {
+            return Ok(frames.remove(0));
+        }
+        let first = &frames[0];
         let region = Region { height: frames.iter().map(|f| f.height).sum(), ..first.region };
         let outputs = first
             .outputs
@@ -315,6 +322,7 @@ impl EncodedScene<'_> {
     /// Drops the cached render plans and their buffers; the next render builds its plan again.
     pub fn clear_render_plans(&self) {
         self.render_plans.lock().expect("render plan cache poisoned").clear();
+        self.too_large.lock().expect("render plan cache poisoned").clear();
     }
 
     /// Checks the request against the model and the targets and works out which pixels to compute.
@@ -362,21 +370,21 @@ impl EncodedScene<'_> {
     /// plans fit. When nothing fits, the request's own, whose build then reports which buffer is too large.
     /// Each plan is recorded once: measured, then built from the same recording, and cached.
     fn plans(&self, targets: &TargetViews, request: &Request) -> Result<Vec<(Crop, Arc<RenderPlan>)>> {
-        let views = targets.count;
+        let (views, outputs) = (targets.count, request.outputs);
         let crop = self.crop(targets, request)?;
-        let whole = match self.cached(views, &crop, request.outputs) {
-            Some(plan) => return Ok(vec![(crop, plan)]),
-            None => self.record(views, &crop, request.outputs),
-        };
-        if whole.fits {
-            return Ok(vec![(crop, self.build(views, crop.grid, request.outputs, whole)?)]);
+        if let Some(plan) = self.cached(views, &crop, outputs) {
+            return Ok(vec![(crop, plan)]);
+        }
+        if let Some(recorded) = self.record_if_fits(views, &crop, outputs) {
+            return Ok(vec![(crop, self.build(views, crop.grid, outputs, recorded)?)]);
         }
         let k = self.model.family.patch_size();
         let region = crop.region;
         let patch_rows = region.height.div_ceil(k);
         let mut count = 2;
-        while count <= patch_rows {
+        'counts: while count <= patch_rows {
             let rows = patch_rows.div_ceil(count) * k;
+            count *= 2;
             let crops = (region.y..region.y + region.height)
                 .step_by(rows)
                 .map(|y| {
@@ -390,25 +398,42 @@ impl EncodedScene<'_> {
             // One recording per distinct band size not built yet (equal bands share a plan).
             let mut fresh: Vec<(TargetGrid, Recorded)> = Vec::new();
             for c in &crops {
-                if self.cached(views, c, request.outputs).is_none() && !fresh.iter().any(|(grid, _)| *grid == c.grid) {
-                    fresh.push((c.grid, self.record(views, c, request.outputs)));
+                if self.cached(views, c, outputs).is_some() || fresh.iter().any(|(grid, _)| *grid == c.grid) {
+                    continue;
+                }
+                match self.record_if_fits(views, c, outputs) {
+                    Some(recorded) => fresh.push((c.grid, recorded)),
+                    None => continue 'counts,
                 }
             }
-            if fresh.iter().all(|(_, r)| r.fits) {
-                for (grid, recorded) in fresh {
-                    self.build(views, grid, request.outputs, recorded)?;
-                }
-                return Ok(crops
-                    .into_iter()
-                    .map(|c| {
-                        let plan = self.cached(views, &c, request.outputs).expect("every band's plan was built");
-                        (c, plan)
-                    })
-                    .collect());
+            for (grid, recorded) in fresh {
+                self.build(views, grid, outputs, recorded)?;
             }
-            count *= 2;
+            return Ok(crops
+                .into_iter()
+                .map(|c| {
+                    let plan = self.cached(views, &c, outputs).expect("every band's plan was built");
+                    (c, plan)
+                })
+                .collect());
         }
-        Ok(vec![(crop, self.build(views, crop.grid, request.outputs, whole)?)])
+        let recorded = self.record(views, &crop, outputs);
+        Ok(vec![(crop, self.build(views, crop.grid, outputs, recorded)?)])
+    }
+
+    /// Records the render of a crop when its plan binds no buffer larger than the GPU allows; remembers a
+    /// crop size that does not fit, so that no later render records it again.
+    fn record_if_fits(&self, views: usize, crop: &Crop, outputs: Outputs) -> Option<Recorded> {
+        let key = PlanKey { views, grid: crop.grid, outputs };
+        if self.too_large.lock().expect("render plan cache poisoned").contains(&key) {
+            return None;
+        }
+        let recorded = self.record(views, crop, outputs);
+        if recorded.builder.largest_tensor_bytes() <= self.model.gpu().max_buffer_bytes {
+            return Some(recorded);
+        }
+        self.too_large.lock().expect("render plan cache poisoned").insert(key);
+        None
     }
 
     fn cached(&self, views: usize, crop: &Crop, outputs: Outputs) -> Option<Arc<RenderPlan>> {
@@ -424,9 +449,8 @@ impl EncodedScene<'_> {
         let Graph { b, host_inputs, .. } = g;
         let k = model.family.patch_size();
         let queries = views * (crop.grid.height / k) * (crop.grid.width / k);
-        let fits = b.largest_tensor_bytes() <= model.gpu().max_buffer_bytes;
         let outputs = rendered.iter().map(|(o, t)| (*o, t.id())).collect();
-        Recorded { builder: b, io: RenderIo { host_inputs, outputs, queries }, fits }
+        Recorded { builder: b, io: RenderIo { host_inputs, outputs, queries } }
     }
 
     /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
@@ -448,6 +472,4 @@ impl EncodedScene<'_> {
 struct Recorded {
     builder: PlanBuilder,
     io: RenderIo,
-    /// Whether no tensor is larger than the GPU binds.
-    fits: bool,
 }
