@@ -118,7 +118,7 @@ pub fn conv3x3(plan: &mut PlanBuilder, label: &str, args: Conv3x3Args) {
     let cout4 = padded_cols(cout) / 4;
     let cout_tiles = cout4.div_ceil(COUT_VEC4S_PER_INVOCATION);
     let pixel_tiles = npix.div_ceil(64 * PIXELS_PER_INVOCATION);
-    let [act_code, slope] = act.params();
+    let (act_code, slope) = act.params();
     let params = ConvParams {
         h: h as u32,
         w: w as u32,
@@ -130,7 +130,7 @@ pub fn conv3x3(plan: &mut PlanBuilder, label: &str, args: Conv3x3Args) {
         stride: stride as u32,
         up: up as u32,
         act: act_code,
-        slope: f32::from_bits(slope),
+        slope,
         has_bias: bias.is_some() as u32,
         accumulate: accumulate as u32,
         npix: npix as u32,

@@ -72,7 +72,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
             plan.cols(b)
         );
     }
-    let [act_code, slope] = act.params();
+    let (act_code, slope) = act.params();
     let n4 = padded_cols(n) / 4;
     let params = MatmulParams {
         m: m as u32,
@@ -80,7 +80,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         k4: (padded_cols(k) / 4) as u32,
         n4: n4 as u32,
         act: act_code,
-        slope: f32::from_bits(slope),
+        slope,
         has_bias: bias.is_some() as u32,
         accumulate: accumulate as u32,
         w_ld4: (plan.ld(w) / 4) as u32,

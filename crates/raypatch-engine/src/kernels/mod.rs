@@ -82,13 +82,13 @@ pub enum Activation {
 }
 
 impl Activation {
-    /// (code, slope) as the shaders read them: 0 none, 1 relu, 2 leaky relu, 3 gelu.
-    pub fn params(self) -> [u32; 2] {
+    /// (code, slope) as the shaders' `Params` hold them: 0 none, 1 relu, 2 leaky relu, 3 gelu.
+    pub fn params(self) -> (u32, f32) {
         match self {
-            Activation::None => [0, 0],
-            Activation::Relu => [1, 0],
-            Activation::LeakyRelu(slope) => [2, slope.to_bits()],
-            Activation::Gelu => [3, 0],
+            Activation::None => (0, 0.0),
+            Activation::Relu => (1, 0.0),
+            Activation::LeakyRelu(slope) => (2, slope),
+            Activation::Gelu => (3, 0.0),
         }
     }
 }
