@@ -1,8 +1,9 @@
 """Model sections of the official MSN-Easy run configs of tberriel/RayPatchQuerying (297afbc), transcribed from
-runs/msn_easy/srt_MDBN_32/config.yaml and runs/msn_easy/rpsrt_MDBN_4_32/config.yaml (YAML Null -> None).
+runs/msn_easy/srt_MDBN_32/config.yaml, runs/msn_easy/rpsrt_MDBN_4_32/config.yaml, runs/msn_easy/osrt_MDBN_64/config.yaml
+and runs/msn_easy/rposrt_MDBN_8_64/config.yaml (YAML Null -> None).
 
-A checkpoint stores these with one change: the official SRT.__init__ writes the attention decoder width into
-decoder_kwargs.out_dims (128 for the Ray-Patch run) before Lightning saves the hyper-parameters.
+A checkpoint stores these with one change: the official SRT.__init__ / OSRT.__init__ writes the attention decoder
+width into decoder_kwargs.out_dims (128 for the Ray-Patch runs) before Lightning saves the hyper-parameters.
 """
 
 SRT_MDBN_32 = {
@@ -31,4 +32,34 @@ RPSRT_MDBN_4_32 = {
     "decay_it": 500000,
     "lr": 0.0001,
     "lr_warmup": 2500,
+}
+
+# runs/msn_easy/osrt_MDBN_64/config.yaml and runs/msn_easy/rposrt_MDBN_8_64/config.yaml. A checkpoint stores
+# decoder_kwargs.out_dims as well (3 for the light field, 128 = conv_features for Ray-Patch), written by the
+# official OSRT.__init__.
+OSRT_MDBN_64 = {
+    "base": "osrt",
+    "encoder_kwargs": {"max_pooling": False, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
+                       "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
+    "decoder": "lightfield",
+    "decoder_kwargs": {"pos_start_octave": -5},
+    "lr_config": "linear",
+    "lr": 0.0001,
+    "decay_it": 4000000,
+    "lr_warmup": 2500,
+    "gamma": 0.16,
+}
+
+RPOSRT_MDBN_8_64 = {
+    "base": "osrt",
+    "encoder_kwargs": {"max_pooling": False, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
+                       "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
+    "decoder": "featurefield",
+    "decoder_kwargs": {"pos_start_octave": -5},
+    "rp_kwargs": {"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20, "h_out": 120, "w_out": 160},
+    "lr_config": "linear",
+    "lr": 0.0001,
+    "decay_it": 4000000,
+    "lr_warmup": 2500,
+    "gamma": 0.16,
 }
