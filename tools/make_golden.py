@@ -14,7 +14,7 @@ Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors an
 (docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
 computes them, and `patch_rays` the patch rays made from full-resolution target rays; `latent_f64`, `rgb_f64`
 (`logdepth_f64`) are float64 tensors from a float64 copy of the same model on the same float32 inputs, for error
-analysis.
+analysis. OSRT cases (base osrt) add `set_latent`, `segmentation` (with their `_f64`) and `fg_ari`.
 """
 
 import argparse
@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cameras import get_camera_rays, look_at_positions  # noqa: E402
 from convert_checkpoint import write_model  # noqa: E402
 from official_configs import RPSRT_MDBN_4_32  # noqa: E402
-from raypatch_reference import SRT  # noqa: E402
+from raypatch_reference import OSRT, build_model, foreground_ari  # noqa: E402
 from safetensors_io import save_safetensors  # noqa: E402
 
 SCENE_FORMAT = "raypatch-scene/1"
@@ -65,6 +65,35 @@ def small_config(decoder="lightfield", encoder_norm="Batch", rp_kwargs=None, out
     return cfg
 
 
+def small_osrt_config(decoder="lightfield", encoder_norm="Batch", num_slots=5, slot_iters=1, layer_norm=False,
+                      rp_kwargs=None, out_dims=True):
+    """The official OSRT structure (3 conv blocks, 15 + 15 octaves, MSN octave starts) at small widths: tokens 16
+    wide (4 heads of 4, FF hidden 2·latent_dim = 32), slots 32 wide (slot MLP hidden 48), allocation transformer
+    with 4 heads of 8 over the slots, mixing attention 24 wide, render MLP hidden 40; 2 encoder and 2 decoder
+    attention layers. out_dims: store decoder_kwargs.out_dims as an official checkpoint does (3 for a light
+    field, conv_features for Ray-Patch), otherwise leave it out as config.yaml does."""
+    cfg = {
+        "base": "osrt",
+        "encoder_kwargs": {"num_conv_blocks": 3, "num_att_blocks": 2, "num_octaves": 15, "pos_start_octave": -5,
+                           "num_slots": num_slots, "slot_dim": 32, "slot_iters": slot_iters, "max_pooling": False,
+                           "norm": encoder_norm, "randomize_initial_slots": False, "latent_dim": 16,
+                           "conv_hidden": 4, "token_dim": 16, "heads": 4, "dim_head": 4, "slot_hidden": 48},
+        "decoder": decoder,
+        "decoder_kwargs": {"num_att_blocks": 2, "pos_start_octave": -5, "layer_norm": layer_norm, "mode": "efficient",
+                           "latent_dim": 32, "heads": 4, "input_mlp_hidden": 24, "att_dim": 24,
+                           "render_mlp_hidden": 40},
+        # Training keys the engine must ignore, as in the official configs.
+        "lr_config": "linear",
+        "lr": 0.0001,
+        "gamma": 0.16,
+    }
+    if rp_kwargs is not None:
+        cfg["rp_kwargs"] = rp_kwargs
+    if out_dims:
+        cfg["decoder_kwargs"]["out_dims"] = rp_kwargs["conv_features"] if rp_kwargs is not None else 3
+    return cfg
+
+
 @dataclass
 class Case:
     name: str
@@ -76,6 +105,7 @@ class Case:
     num_targets: int = 2
     patch_rays: bool = False  # store target rays at patch resolution (and the target size as metadata)
     target_images: bool = False
+    target_masks: bool = False  # scene target_masks (instance ids) and, for OSRT, the expected fg_ari
     description: str = ""
 
 
@@ -96,6 +126,33 @@ def golden_cases():
                        rp_kwargs=dict(upsample=4, h_in=2, w_in=4, conv_features=32, norm="Batch"))
     k2_in60x80 = small_config("featurefield", width=16,
                               rp_kwargs=dict(upsample=1, h_in=8, w_in=12, conv_features=16, norm="Batch"))
+    # OSRT: slot widths 32, 5 slots (the official MSN count) unless said otherwise.
+    osrt_k8 = small_osrt_config("featurefield", rp_kwargs=dict(
+        upsample=3, h_in=4, w_in=6, h_out=32, w_out=48, conv_features=16, norm="Batch", out_dims=3))
+    osrt_k4 = small_osrt_config("featurefield", num_slots=6, out_dims=False, rp_kwargs=dict(
+        upsample=2, h_in=30, w_in=40, conv_features=16, norm="Batch"))
+    # Keys left out take the official defaults: here num_slots 6 and the ones equal to the values above.
+    for key in ("num_slots", "num_octaves", "max_pooling", "randomize_initial_slots", "slot_iters"):
+        del osrt_k4["encoder_kwargs"][key]
+    for key in ("mode", "layer_norm"):
+        del osrt_k4["decoder_kwargs"][key]
+    osrt_cases = [
+        Case("osrt", 13, small_osrt_config("lightfield"), (24, 32), (16, 24), target_images=True, target_masks=True,
+             description="OSRT light field, 5 slots, 1 slot-attention iteration, encoder BatchNorm"),
+        Case("osrt_iters3_ln", 14, small_osrt_config("lightfield", encoder_norm=None, num_slots=4, slot_iters=3,
+                                                     layer_norm=True), (24, 32), (16, 24), num_inputs=2,
+             num_targets=1, target_images=True, target_masks=True,
+             description="OSRT light field, 2 input views, 4 slots, 3 slot-attention iterations, mixing-block "
+                         "LayerNorms, encoder without norm"),
+        Case("rposrt_k8", 15, osrt_k8, (24, 32), (32, 48), target_images=True, target_masks=True,
+             description="RP-OSRT k=8, 5 slots, rp h_out/w_out set (identity resize), segmentation bilinearly "
+                         "upsampled from the 4x6 patch grid"),
+        Case("rposrt_k4_patchrays", 16, osrt_k4, (24, 32), (32, 48), num_inputs=2, patch_rays=True,
+             target_images=True, target_masks=True,
+             description="RP-OSRT k=4, 2 input views, target rays given at patch resolution with target_size "
+                         "metadata, rp h_in/w_in 30x40 differ from the 8x12 grid; config leaves out keys with "
+                         "official defaults (6 slots, no decoder_kwargs.out_dims)"),
+    ]
     return [
         Case("srt_k1", 1, small_config("lightfield"), (32, 32), (16, 24),
              description="light field, 1 input view"),
@@ -127,7 +184,7 @@ def golden_cases():
              description="Ray-Patch k=2, 2 input views of 60x80: 2·8x10 = 160 tokens"),
         Case("rpsrt_k4_in40x60_2views", 12, copy.deepcopy(k4), (40, 60), (32, 48), num_inputs=2,
              description="Ray-Patch k=4, 2 input views of 40x60: 2·5x8 = 80 tokens"),
-    ]
+    ] + osrt_cases
 
 
 def full_size_case():
@@ -166,12 +223,50 @@ def randomize_weights(model):
                 uniform(module.running_var, 0.5, 2.0)
 
 
+def randomize_osrt_weights(model):
+    """randomize_weights, then unit gain for the slot-attention and mixing projections (their logits stay O(1)),
+    random GRU weights (std slot_dim^-1/2) and biases, random initial slots."""
+    randomize_weights(model)
+    slot_attention = model.encoder.slot_attention
+    mixing = model.decoder_att.mixing_block
+    with torch.no_grad():
+        for linear in (slot_attention.to_q, slot_attention.to_k, slot_attention.to_v, mixing.to_q, mixing.to_k):
+            linear.weight.copy_(torch.randn(linear.weight.shape) / math.sqrt(linear.in_features))
+        gru = slot_attention.gru
+        for weight in (gru.weight_ih, gru.weight_hh):
+            weight.copy_(torch.randn(weight.shape) / math.sqrt(gru.hidden_size))
+        for bias in (gru.bias_ih, gru.bias_hh):
+            bias.copy_(torch.randn(bias.shape) * 0.1)
+        slot_attention.initial_slots.copy_(torch.randn(slot_attention.initial_slots.shape))
+
+
+def calibrate_mixing(model, scene, target_size, logit_std=2.0):
+    """Spreads the segmentation over the slots: random mixing weights give every pixel nearly the same query
+    direction (the mean query), so one slot wins everywhere. On this scene, to_q is projected off the mean of its
+    inputs (each slot's mean logit over the pixels is then 0) and to_k rescaled so that the logits have standard
+    deviation logit_std."""
+    mixing = model.decoder_att.mixing_block
+    captured = {}
+    hooks = [mixing.to_q.register_forward_hook(lambda module, inputs, output: captured.update(x=inputs[0])),
+             mixing.to_k.register_forward_hook(lambda module, inputs, output: captured.update(k=output))]
+    run_model(model, scene, target_size, torch.float32)
+    for hook in hooks:
+        hook.remove()
+    with torch.no_grad():
+        mean = captured["x"].flatten(0, 1).mean(0)
+        mixing.to_q.weight.sub_(torch.outer(mixing.to_q.weight @ mean, mean) / mean.dot(mean))
+        logits = torch.einsum("bpd,bsd->bps", mixing.to_q(captured["x"]), captured["k"]) * mixing.scale
+        mixing.to_k.weight.mul_(logit_std / logits.std())
+
+
 def calibrate_output(model, scene, target_size, logit_std=1.5):
     """Rescales the output layers so that on this scene the pre-sigmoid outputs have per-channel mean 0 and
     standard deviation logit_std: random weights otherwise saturate many pixels at 0 or 1, hiding errors."""
     decoder_rp = model.decoder_rp
+    osrt = isinstance(model, OSRT)
     captured = []
-    hook = (decoder_rp if model.patch_size > 1 else model.decoder_att).register_forward_hook(
+    hook = (decoder_rp if model.patch_size > 1 else model.decoder_att.render_mlp if osrt
+            else model.decoder_att).register_forward_hook(
         lambda module, inputs, output: captured.append(output))
     run_model(model, scene, target_size, torch.float32)
     hook.remove()
@@ -182,6 +277,8 @@ def calibrate_output(model, scene, target_size, logit_std=1.5):
             # The output is a sum of conv_0 and every conv_out, bilinearly upsampled: linear in all of them,
             # and the last conv_out adds to it directly.
             convs = [decoder_rp.conv_decoder.conv_0] + [out for _, out in decoder_rp.conv_decoder.conv_blocks]
+        elif osrt:
+            convs = [model.decoder_att.render_mlp.net[8]]
         else:
             convs = [model.decoder_att.out_mlp[-1]]
         for conv in convs:
@@ -207,6 +304,22 @@ def structured_image(height, width, rng):
     return np.clip(image, 0, 1).astype(np.float32)
 
 
+def instance_masks(height, width, rng):
+    """Instance ids [H, W] uint8: background 0 and 3 or 4 overlapping discs and rectangles with ids 1, 2, …"""
+    y, x = np.meshgrid(np.linspace(0, 1, height), np.linspace(0, 1, width), indexing="ij")
+    masks = np.zeros((height, width), np.uint8)
+    for instance in range(1, rng.integers(3, 5) + 1):
+        cy, cx = rng.uniform(0.2, 0.8, 2)
+        if rng.uniform() < 0.5:
+            radius = rng.uniform(0.12, 0.3)
+            region = (y - cy) ** 2 + (x - cx) ** 2 < radius**2
+        else:
+            h, w = rng.uniform(0.15, 0.4, 2)
+            region = (abs(y - cy) < h / 2) & (abs(x - cx) < w / 2)
+        masks[region] = instance
+    return masks
+
+
 def make_scene(case, rng):
     """Input cameras on one side of the origin, targets elsewhere, all 5 to 12 units away."""
     input_pos = look_at_positions(rng.uniform(0, 360) + 70.0 * np.arange(case.num_inputs),
@@ -223,6 +336,8 @@ def make_scene(case, rng):
     }
     if case.target_images:
         scene["target_images"] = np.stack([structured_image(ht, wt, rng) for _ in range(case.num_targets)])
+    if case.target_masks:
+        scene["target_masks"] = np.stack([instance_masks(ht, wt, rng) for _ in range(case.num_targets)])
     return {name: torch.from_numpy(array) for name, array in scene.items()}
 
 
@@ -231,11 +346,18 @@ def run_model(model, scene, target_size, dtype):
     def batch(name):
         return scene[name].to(dtype)[None]
 
+    inputs = (batch("input_images").permute(0, 1, 4, 2, 3), batch("input_camera_pos"), batch("input_rays"))
+    targets = (batch("target_camera_pos"), batch("target_rays"), target_size)
     with torch.no_grad():
-        z = model.encode(batch("input_images").permute(0, 1, 4, 2, 3), batch("input_camera_pos"),
-                         batch("input_rays"))
-        rgb, logdepth = model.render_views(z, batch("target_camera_pos"), batch("target_rays"), target_size)
+        if isinstance(model, OSRT):
+            z, set_latent = model.encode(*inputs, return_set_latent=True)
+            rgb, logdepth, segmentation = model.render_views(z, *targets)
+        else:
+            z = model.encode(*inputs)
+            rgb, logdepth = model.render_views(z, *targets)
     out = {"latent": z[0], "rgb": rgb[0]}
+    if isinstance(model, OSRT):
+        out.update(set_latent=set_latent[0], segmentation=segmentation[0])
     if logdepth is not None:
         out["logdepth"] = logdepth[0]
     return out
@@ -250,16 +372,27 @@ def patch_rays_of(model, scene):
     return {**scene, "target_rays": rays.permute(0, 2, 3, 1).contiguous()}
 
 
+def fg_ari(segmentation, masks):
+    """FG-ARI [1] (float64) of a segmentation [T, H, W, S] against instance ids [T, H, W], the T views pooled."""
+    return foreground_ari(segmentation[None], masks[None])
+
+
 def write_case(case, out_dir, generator_command):
     seed = case.seed
     torch.manual_seed(seed)
-    model = SRT.from_config(case.model_cfg).eval()
-    randomize_weights(model)
+    model = build_model(case.model_cfg).eval()
+    osrt = isinstance(model, OSRT)
+    if osrt:
+        randomize_osrt_weights(model)
+    else:
+        randomize_weights(model)
     scene = make_scene(case, np.random.default_rng(seed))
+    if osrt:
+        calibrate_mixing(model, scene, case.target_size)
     calibrate_output(model, scene, case.target_size)
     scene_metadata = {"format": SCENE_FORMAT}
     if case.patch_rays:
-        rgb_from_full_rays = run_model(model, scene, case.target_size, torch.float32)["rgb"]
+        from_full_rays = run_model(model, scene, case.target_size, torch.float32)
         scene = patch_rays_of(model, scene)
         scene_metadata["target_size"] = "{}x{}".format(*case.target_size)
 
@@ -271,7 +404,11 @@ def write_case(case, out_dir, generator_command):
     expected.update({f"{name}_f64": tensor for name, tensor in expected_f64.items()})
     if case.patch_rays:
         # Patch rays given as such must render exactly what the model makes of the full-resolution rays.
-        assert torch.equal(expected["rgb"], rgb_from_full_rays)
+        assert torch.equal(expected["rgb"], from_full_rays["rgb"])
+        if osrt:
+            assert torch.equal(expected["segmentation"], from_full_rays["segmentation"])
+    if osrt and case.target_masks:
+        expected["fg_ari"] = fg_ari(expected["segmentation"], scene["target_masks"])
 
     case_dir = out_dir / case.name
     case_dir.mkdir(parents=True, exist_ok=True)
@@ -311,6 +448,22 @@ decoder_kwargs without `out_dims` like a config.yaml; the other Ray-Patch cases 
 like an official checkpoint. Output layers are rescaled so that the pre-sigmoid outputs have mean 0 and standard
 deviation 1.5 on the case's own scene.
 
+OSRT cases (`osrt`, `osrt_iters3_ln`, `rposrt_k8`, `rposrt_k4_patchrays`; base osrt) are small OSRT / RP-OSRT
+configs (tools/make_golden.py `small_osrt_config`): the SRT encoder above at token width 16 (4 heads of 4, FF
+hidden 32), slot attention with slots 32 wide (slot MLP hidden 48), allocation transformer of 2 layers with 4
+heads of 8 over the slots, mixing attention 24 wide, render MLP hidden 40. Their random weights include random
+GRU parameters and initial slots. On the case's scene the mixing block's to_q is projected off the mean of its
+inputs and its to_k rescaled so that the mixing logits have standard deviation 2 (random weights otherwise let one
+slot win every pixel), then the output layer (render_mlp.net.8, or the Ray-Patch convolutions) is rescaled as
+above. Mixing weights can come close: the smallest gap between a pixel's two largest slot weights is about 1e-5
+in the Ray-Patch cases, so an engine's argmax, and its FG-ARI, may differ on a few pixels.
+Their scenes hold `target_images` and `target_masks` (U8 [T, Ht, Wt] instance ids, 0 = background), and their
+expected files `set_latent` [tokens, token_dim] (the SRT-encoder output), `latent` = the slots [S, slot_dim],
+`segmentation` [T, Ht, Wt, S] (slot weights per pixel; for Ray-Patch those of the patch rays bilinearly resized,
+align_corners=False, to Ht x Wt, not renormalised), their `_f64` versions, and `fg_ari` (F64 [1]): the official
+compute_adjusted_rand_index of the float32 segmentation against the one-hot target_masks without channel 0, all
+target views of the scene pooled into one set of points, as the official OSRT test_step does.
+
 | case | decoder | input views (n x HxW) | targets (n x HxW) | scene target_rays | what it covers |
 |---|---|---|---|---|---|
 """
@@ -329,6 +482,8 @@ def target_rays_shape(case):
 def readme_row(case):
     k = patch_size(case)
     decoder = "lightfield" if k == 1 else f"Ray-Patch k={k}"
+    if case.model_cfg["base"] == "osrt":
+        decoder = "OSRT lightfield" if k == 1 else f"RP-OSRT k={k}"
     inputs = "{} x {}x{}".format(case.num_inputs, *case.input_size)
     targets = "{} x {}x{}".format(case.num_targets, *case.target_size)
     return f"| `{case.name}` | {decoder} | {inputs} | {targets} | {target_rays_shape(case)} | {case.description} |"
@@ -363,6 +518,11 @@ def main(argv=None):
         print(f"{case.name}: {shapes}\n    rgb mean {rgb.mean():.3f} std {rgb.std():.3f}, "
               f"max |rgb - rgb_f64| {(rgb.double() - expected['rgb_f64']).abs().max():.2e}, "
               f"{time.perf_counter() - start:.1f} s")
+        if "segmentation" in expected:
+            top2 = expected["segmentation"].topk(2, -1)[0]
+            print(f"    fg_ari {expected['fg_ari'].item():.6f}, smallest top-2 slot-weight gap "
+                  f"{(top2[..., 0] - top2[..., 1]).min():.2e}, max |segmentation - segmentation_f64| "
+                  f"{(expected['segmentation'].double() - expected['segmentation_f64']).abs().max():.2e}")
     if not args.full_size:
         rows = [readme_row(case) for case in all_cases]
         (args.out / "README.md").write_text(README_HEADER.format(command=command) + "\n".join(rows) + "\n")
