@@ -1,5 +1,26 @@
-// Activations fused into the end of matmul and conv (prepended to those shaders' sources by kernels/mod.rs).
-// `act` codes follow `Activation::params`: 0 none, 1 ReLU, 2 LeakyReLU(slope), 3 exact (erf) GELU.
+// Activations and the functions shaders share (prepended to the sources of matmul, conv, elementwise and gru
+// by kernels/mod.rs). `act` codes follow `Activation::params`: 0 none, 1 ReLU, 2 LeakyReLU(slope), 3 exact
+// (erf) GELU.
+
+// 1 / (1 + exp(-v)) without overflow: exp only ever sees -|v| ≤ 0, and for v < 0 the form e / (1 + e),
+// e = exp(v), keeps the relative accuracy of the small results.
+fn sigmoid(v: vec4<f32>) -> vec4<f32> {
+    let e = exp(-abs(v));
+    let q = 1.0 / (1.0 + e);
+    return select(e * q, q, v >= vec4<f32>(0.0));
+}
+
+// tanh without overflow (a GPU's tanh may be (e^2v - 1) / (e^2v + 1), NaN past |v| ≈ 44): with e = exp(-2|v|)
+// ≤ 1, tanh|v| = (1 - e) / (1 + e); for |v| < 0.25 the odd series to v^9 (relative error < 1e-8) keeps the
+// relative accuracy that 1 - e loses near 0.
+fn tanh_stable(v: vec4<f32>) -> vec4<f32> {
+    let a = abs(v);
+    let e = exp(-2.0 * a);
+    let large = (1.0 - e) / (1.0 + e);
+    let z = v * v;
+    let series = a * (1.0 + z * (-0.33333333 + z * (0.13333333 + z * (-0.053968254 + z * 0.021869488))));
+    return sign(v) * select(large, series, a < vec4<f32>(0.25));
+}
 
 // erf in f32, after FreeBSD's s_erff.c (Sun Microsystems 1993, freely redistributable): rational
 // approximations on |x| in [0, 0.84375), [0.84375, 1.25), [1.25, 1/0.35) and [1/0.35, 4), and ±1 beyond,

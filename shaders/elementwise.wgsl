@@ -1,5 +1,6 @@
 // Elementwise column map: out[r, j] = f(x[r, col + j]) for j < cols(out), zero in out's row padding.
-// f: 0 identity (copy a channel range), 1 sigmoid. One invocation per vec4 of out.
+// f: 0 identity (copy a channel range), 1 sigmoid, 2 exp. One invocation per vec4 of out.
+// `sigmoid` comes from the activation prelude (kernels/mod.rs).
 
 struct Params {
     rows: u32,
@@ -16,14 +17,6 @@ struct Params {
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;
 @group(0) @binding(2) var<storage, read_write> out: array<vec4<f32>>;
-
-// 1 / (1 + exp(-v)) without overflow: exp only ever sees -|v| ≤ 0, and for v < 0 the form e / (1 + e),
-// e = exp(v), keeps the relative accuracy of the small results.
-fn sigmoid(v: vec4<f32>) -> vec4<f32> {
-    let e = exp(-abs(v));
-    let q = 1.0 / (1.0 + e);
-    return select(e * q, q, v >= vec4<f32>(0.0));
-}
 
 @compute @workgroup_size(64)
 fn map_columns(
@@ -43,6 +36,8 @@ fn map_columns(
     var v = vec4<f32>(x[at.x], x[at.y], x[at.z], x[at.w]);
     if (p.f == 1u) {
         v = sigmoid(v);
+    } else if (p.f == 2u) {
+        v = exp(v);
     }
     out[idx] = select(vec4<f32>(0.0), v, valid);
 }

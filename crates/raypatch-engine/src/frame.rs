@@ -8,19 +8,25 @@ use raypatch_model::{TargetGrid, TargetViews};
 pub enum Output {
     /// The colour image, after the sigmoid: 3 channels.
     Rgb,
-    /// The log-depth channel of models with 4 output channels.
+    /// The log-depth channel of models with 4 output channels, as the official model returns it.
     LogDepth,
+    /// Depth = exp(log-depth): 1 channel.
+    Depth,
+    /// OSRT's slot-mixer weights per pixel: one channel per slot, summing to 1.
+    Segmentation,
 }
 
 impl Output {
     /// Every output, in the order frames list them.
-    pub const ALL: [Output; 2] = [Output::Rgb, Output::LogDepth];
+    pub const ALL: [Output; 4] = [Output::Rgb, Output::LogDepth, Output::Depth, Output::Segmentation];
 
     /// The output's name in the CLI, raw output files and messages.
     pub fn name(self) -> &'static str {
         match self {
             Output::Rgb => "rgb",
             Output::LogDepth => "logdepth",
+            Output::Depth => "depth",
+            Output::Segmentation => "segmentation",
         }
     }
 
@@ -29,14 +35,8 @@ impl Output {
         match self {
             Output::Rgb => "rgb",
             Output::LogDepth => "log-depth",
-        }
-    }
-
-    /// Channels per pixel.
-    pub fn channels(self) -> usize {
-        match self {
-            Output::Rgb => 3,
-            Output::LogDepth => 1,
+            Output::Depth => "depth",
+            Output::Segmentation => "segmentation",
         }
     }
 
@@ -51,7 +51,8 @@ impl Output {
 }
 
 /// A set of outputs. A render computes only those asked for: without rgb the sigmoid is not run, without
-/// log-depth the log-depth channel is not copied out.
+/// log-depth the log-depth channel is not copied out; an OSRT render without rgb (or depth) stops at the
+/// slot-mixer weights, and one without segmentation reads no weights back.
 ///
 /// ```
 /// use raypatch_engine::{Output, Outputs};

@@ -338,7 +338,8 @@ impl EncodedScene<'_> {
         if let Some(missing) = outputs.missing_from(family.outputs()).next() {
             let lacks = match missing {
                 Output::Rgb => "no rgb output",
-                Output::LogDepth => "no depth channel",
+                Output::LogDepth | Output::Depth => "no depth channel",
+                Output::Segmentation => "no object slots (segmentation is an OSRT output)",
             };
             return Err(EngineError::Request(format!("{} was requested but this model has {lacks}", missing.title())));
         }

@@ -65,7 +65,7 @@ fn official_dimensions() {
     assert_eq!(config.patch_size(), 4);
     let c = config.srt().unwrap();
     assert_eq!(c.query_dim(), 180);
-    assert_eq!(c.encoder_input_dim(), 183);
+    assert_eq!(c.encoder.input_dim(), 183);
     assert_eq!((c.decoder.heads, c.decoder.dim_head, c.decoder.ff_hidden), (12, 64, 1536));
     assert_eq!((c.encoder.heads, c.encoder.dim_head, c.encoder.ff_hidden), (12, 64, 1536));
     assert_eq!(c.decoder.out_dims, 128);

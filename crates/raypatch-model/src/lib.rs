@@ -9,7 +9,10 @@ pub mod scene;
 pub mod tensor_file;
 pub mod weights;
 
-pub use config::{DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, RayPatchConfig, SrtConfig};
+pub use config::{
+    DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, OsrtConfig, RayPatchConfig, SlotAttentionConfig,
+    SlotMixerConfig, SrtConfig,
+};
 pub use error::ModelError;
 pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use tensor_file::{HostTensor, TensorFile};

@@ -1,5 +1,5 @@
-//! Elementwise column maps (`shaders/elementwise.wgsl`): the model's final sigmoid, and copying a channel
-//! range out of a wider tensor.
+//! Elementwise column maps (`shaders/elementwise.wgsl`): the model's final sigmoid, depth = exp(log-depth),
+//! and copying a channel range out of a wider tensor.
 
 use super::ELEMENTWISE;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
@@ -13,6 +13,8 @@ pub enum Map {
     Identity,
     /// `1 / (1 + exp(-x))`, evaluated without overflow for any |x| (±inf give 1 and 0).
     Sigmoid,
+    /// `exp(x)`.
+    Exp,
 }
 
 impl Map {
@@ -21,6 +23,7 @@ impl Map {
         match self {
             Map::Identity => 0,
             Map::Sigmoid => 1,
+            Map::Exp => 2,
         }
     }
 }
@@ -53,7 +56,7 @@ pub struct MapColumnsArgs {
 }
 
 /// `out[r, j] = f(x[r, col + j])` for `j < cols(out)` and every row of the views; zero padding in `out`.
-/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute. Records no multiply-adds
+/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute, exp to a few ulp relative. Records no multiply-adds
 /// (elementwise work is not counted).
 pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
     let MapColumnsArgs { x, col, out, map: f } = args;

@@ -62,12 +62,16 @@ macro_rules! params {
 }
 
 pub mod attention;
+pub mod concat;
 pub mod conv;
 pub mod elementwise;
+pub mod gru;
 pub mod matmul;
+pub mod mix;
 pub mod norm;
 pub mod posenc;
 pub mod resize;
+pub mod softmax;
 
 use crate::gpu::Shader;
 
@@ -157,7 +161,11 @@ shaders! {
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
         CONV = "conv" ["activation"] => conv::ConvParams;
-        ELEMENTWISE = "elementwise" [] => elementwise::ElementwiseParams;
+        ELEMENTWISE = "elementwise" ["activation"] => elementwise::ElementwiseParams;
+        SOFTMAX = "softmax" [] => softmax::SoftmaxParams;
+        MIX = "mix" [] => mix::MixParams;
+        CONCAT = "concat" [] => concat::ConcatParams;
+        GRU = "gru" ["activation"] => gru::GruParams;
     }
     variants {
         /// `matmul` with f16 weights: the same source with the weights' vector type replaced (f32 arithmetic).

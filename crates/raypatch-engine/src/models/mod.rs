@@ -5,6 +5,7 @@
 //! Adding a family: its config type in `raypatch-model/src/config/` (an arm of `Family`), its file here
 //! (modules + `impl LightField`), an arm in [`build`]. Outputs it adds go in [`Output`].
 
+pub mod osrt;
 pub mod ray_patch;
 pub mod srt;
 
@@ -14,10 +15,11 @@ use raypatch_model::{Family, LoadedModel, ModelConfig, TargetGrid};
 
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
-use crate::graph::{Graph, ImageSize, Tensor};
+use crate::graph::{Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use crate::nn::{self, Source, Vars, WeightSet};
 use crate::tensor::{padded_cols, GpuTensor};
+use ray_patch::RayPatchDecoder;
 
 /// A light-field model as the scene core uses it.
 pub trait LightField: Send + Sync {
@@ -67,19 +69,58 @@ fn build_from(config: &ModelConfig, source: Source) -> Result<(Box<dyn LightFiel
     nn::build(source, |vars: &Vars| {
         Ok(match &config.family {
             Family::Srt(c) => Box::new(srt::Srt::new(vars, c)?) as Box<dyn LightField>,
+            Family::Osrt(c) => Box::new(osrt::Osrt::new(vars, c)?),
         })
     })
 }
 
+/// The target cameras, the decoder's rays and the query grid of a render of `views` target views on `grid`:
+/// one query per pixel (k = 1), or per k×k patch, the patch rays made from full-resolution rays by the
+/// Ray-Patch decoder's resize unless the grid holds patch rays already.
+pub fn target_queries(
+    g: &mut Graph,
+    ray_patch: Option<&RayPatchDecoder>,
+    k: usize,
+    views: usize,
+    grid: TargetGrid,
+) -> (Tensor, Tensor, ImageSize) {
+    let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
+    let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);
+    let rays = match ray_patch {
+        Some(rp) if !grid.rays_are_patches => {
+            let full = ImageSize { n: views, h: grid.height, w: grid.width };
+            let rays = g.input("target_rays", full.pixels(), 3, HostInput::TargetRays, Some(full));
+            rp.patch_rays(g, rays, patches)
+        }
+        _ => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
+    };
+    (camera_pos, rays, patches)
+}
+
+/// The outputs of a final image of `channels` channels: rgb, and log-depth and depth from a fourth channel.
+pub fn image_output_set(channels: usize) -> Outputs {
+    match channels {
+        4 => Outputs::of(&[Output::Rgb, Output::LogDepth, Output::Depth]),
+        _ => Outputs::of(&[Output::Rgb]),
+    }
+}
+
+/// Whether `outputs` needs the decoder's image (rgb, log-depth or depth).
+pub fn wants_image(outputs: Outputs) -> bool {
+    [Output::Rgb, Output::LogDepth, Output::Depth].into_iter().any(|o| outputs.contains(o))
+}
+
 /// The outputs of a pre-sigmoid image `[pixels, 3 or 4]`: rgb = sigmoid of its first three channels,
-/// log-depth = its fourth.
+/// log-depth = its fourth, depth = exp(log-depth).
 pub fn image_outputs(g: &mut Graph, image: Tensor, outputs: Outputs) -> Vec<(Output, Tensor)> {
     let mut out = Vec::new();
-    for (output, col, map, label) in
-        [(Output::Rgb, 0, Map::Sigmoid, "sigmoid"), (Output::LogDepth, 3, Map::Identity, "logdepth")]
-    {
+    for (output, col, channels, map, label) in [
+        (Output::Rgb, 0, 3, Map::Sigmoid, "sigmoid"),
+        (Output::LogDepth, 3, 1, Map::Identity, "logdepth"),
+        (Output::Depth, 3, 1, Map::Exp, "depth"),
+    ] {
         if outputs.contains(output) {
-            let t = g.output(output.name(), image.rows(), output.channels());
+            let t = g.output(output.name(), image.rows(), channels);
             map_columns(&mut g.b, label, MapColumnsArgs { x: image.view, col, out: t.view, map });
             out.push((output, t));
         }

@@ -108,6 +108,33 @@ impl RayPatchDecoder {
     }
 }
 
+/// The patches `first..=last` along an axis of `patches` patches of k pixels that a bilinear resize of the
+/// patch grid to the pixels (`align_corners=False`, scale 1/k) reads for output pixels `lo..=hi`: source
+/// `max((y + 0.5)/k - 0.5, 0)`, its floor and the next patch.
+pub fn bilinear_patch_span(lo: usize, hi: usize, patches: usize, k: usize) -> (usize, usize) {
+    // floor(max((2y + 1 - k) / 2k, 0)) in integers.
+    let source = |y: usize| (2 * y + 1).saturating_sub(k) / (2 * k);
+    (source(lo).min(patches - 1), (source(hi) + 1).min(patches - 1))
+}
+
+/// Values of the patch grid `x` (an image) bilinearly resized to `size` into the plan output `name` (the
+/// official OSRT.decoder's `F.interpolate(..., mode="bilinear")` of the slot weights).
+pub fn bilinear_output(g: &mut Graph, name: &str, x: Tensor, size: ImageSize) -> Tensor {
+    let from = x.size();
+    let out = g.output(name, size.pixels(), x.cols);
+    let label = g.label(name);
+    let args = ResizeArgs {
+        x: x.view,
+        n: from.n,
+        from: (from.h, from.w),
+        out: out.view,
+        to: (size.h, size.w),
+        accumulate: false,
+    };
+    bilinear(&mut g.b, &label, args);
+    out
+}
+
 /// The image `x` resized to `to` by `resize` (a kernel of `kernels::resize`) into a new image `label`.
 fn resized(
     g: &mut Graph,

@@ -3,10 +3,10 @@
 //! posed images → conv blocks → tokens → transformer → latent z; ray queries → input MLP → cross-attention
 //! to z → out MLP → per-ray colour (SRT) or patch features for the Ray-Patch decoder (RP-SRT).
 
-use raypatch_model::{SrtConfig, TargetGrid};
+use raypatch_model::{EncoderConfig, Octaves, SrtConfig, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{image_outputs, query_chunks, Encoded, LightField};
+use super::{image_output_set, image_outputs, query_chunks, target_queries, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
@@ -34,7 +34,8 @@ pub struct SrtEncoder {
     pub token_dim: usize,
 }
 
-/// `RayPredictor`: query encodings → input MLP → cross-attention layers.
+/// `RayPredictor`: query encodings → input MLP → cross-attention layers (the SRT decoder's `ray_predictor`,
+/// OSRT's `allocation_transformer`).
 pub struct RayPredictor {
     pub pos_enc: FourierEncoding,
     pub ray_enc: FourierEncoding,
@@ -76,10 +77,9 @@ impl SrtConvBlock {
 }
 
 impl SrtEncoder {
-    fn new(vars: &Vars, c: &SrtConfig) -> Result<Self> {
-        let e = &c.encoder;
+    pub fn new(vars: &Vars, e: &EncoderConfig) -> Result<Self> {
         let mut conv_blocks = Vec::with_capacity(e.num_conv_blocks);
-        let (mut cin, mut hidden) = (c.encoder_input_dim(), e.conv_hidden);
+        let (mut cin, mut hidden) = (e.input_dim(), e.conv_hidden);
         for i in 0..e.num_conv_blocks {
             conv_blocks.push(SrtConvBlock::new(&vars.pp("conv_blocks").pp(i), cin, hidden, 2 * hidden, e.batch_norm)?);
             // The first block widens to 2·conv_hidden; each later block doubles its input.
@@ -104,8 +104,8 @@ impl SrtEncoder {
         })
     }
 
-    /// The latent tokens z `[n·h'·w', token_dim]` of `size` posed input views, into a plan output.
-    fn forward(&self, g: &mut Graph, size: ImageSize) -> Tensor {
+    /// The latent tokens z `[n·h'·w', token_dim]` of `size` posed input views, into the plan output `name`.
+    pub fn forward(&self, g: &mut Graph, size: ImageSize, name: &str) -> Tensor {
         let (pos, ray) = (self.pos_enc.width(), self.ray_enc.width());
         // [rgb, posenc(camera position), posenc(ray)] per pixel: RGB written by the host, encodings by the
         // GPU; the position is broadcast over its view's pixels.
@@ -117,25 +117,63 @@ impl SrtEncoder {
         let x = self.conv_blocks.iter().fold(x, |x, block| block.forward(g, x));
         // per_patch_linear over NHWC rows gives the tokens in the official order: row-major per image,
         // images concatenated.
-        let z = g.output("latent", x.rows(), self.token_dim);
+        let z = g.output(name, x.rows(), self.token_dim);
         self.per_patch_linear.forward_into(g, x, z, Activation::None, false);
         self.transformer.forward(g, z);
         z
     }
 }
 
+/// The widths of a [`RayPredictor`].
+pub struct RayPredictorDims<'o> {
+    pub pos_octaves: &'o Octaves,
+    pub ray_octaves: &'o Octaves,
+    pub input_mlp_hidden: usize,
+    pub transformer: TransformerDims,
+}
+
+impl RayPredictor {
+    /// The ray predictor at `vars`; its query encodings are labelled under `encodings`.
+    pub fn new(vars: &Vars, encodings: &Vars, d: RayPredictorDims) -> Result<Self> {
+        let q = d.transformer.dim;
+        Ok(RayPredictor {
+            pos_enc: FourierEncoding::new(encodings.pp("pos_enc").path(), d.pos_octaves),
+            ray_enc: FourierEncoding::new(encodings.pp("ray_enc").path(), d.ray_octaves),
+            input_mlp_0: Linear::new(&vars.pp("input_mlp.0"), q, d.input_mlp_hidden)?,
+            input_mlp_2: Linear::new(&vars.pp("input_mlp.2"), d.input_mlp_hidden, q)?,
+            transformer: Transformer::new(&vars.pp("transformer"), d.transformer)?,
+        })
+    }
+
+    /// The queries of rows `start..start + rays.rows()` (of `per_view` per target view) after the input MLP:
+    /// input_mlp(cat(posenc(camera position), posenc(ray))).
+    pub fn queries(&self, g: &mut Graph, camera_pos: Tensor, per_view: usize, start: usize, rays: Tensor) -> Tensor {
+        let pos = self.pos_enc.width();
+        let query = g.transient("decoder_att.query", rays.rows(), pos + self.ray_enc.width());
+        self.pos_enc.forward_into(g, camera_pos, per_view, start, query, 0);
+        self.ray_enc.forward_into(g, rays, 1, 0, query, pos);
+        let hidden = self.input_mlp_0.forward(g, query, Activation::Relu);
+        self.input_mlp_2.forward(g, hidden, Activation::None)
+    }
+}
+
 impl SrtDecoder {
     fn new(vars: &Vars, c: &SrtConfig) -> Result<Self> {
         let d = &c.decoder;
-        let rp = vars.pp("ray_predictor");
         let q = c.query_dim();
-        let dims = TransformerDims {
+        let transformer = TransformerDims {
             dim: q,
             depth: d.num_att_blocks,
             heads: d.heads,
             dim_head: d.dim_head,
             mlp_dim: d.ff_hidden,
             kv_dim: Some(d.kv_dim),
+        };
+        let dims = RayPredictorDims {
+            pos_octaves: &d.pos_octaves,
+            ray_octaves: &d.ray_octaves,
+            input_mlp_hidden: d.input_mlp_hidden,
+            transformer,
         };
         let h = d.out_mlp_hidden;
         let out_mlp = [(0, q, h), (2, h, h), (4, h, h), (6, h, h), (8, h, d.out_dims)]
@@ -144,20 +182,14 @@ impl SrtDecoder {
             .collect::<Result<Vec<_>>>()?;
         let widest = [d.out_mlp_hidden, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, q].into_iter().max();
         Ok(SrtDecoder {
-            ray_predictor: RayPredictor {
-                pos_enc: FourierEncoding::new(vars.pp("pos_enc").path(), &d.pos_octaves),
-                ray_enc: FourierEncoding::new(vars.pp("ray_enc").path(), &d.ray_octaves),
-                input_mlp_0: Linear::new(&rp.pp("input_mlp.0"), q, d.input_mlp_hidden)?,
-                input_mlp_2: Linear::new(&rp.pp("input_mlp.2"), d.input_mlp_hidden, q)?,
-                transformer: Transformer::new(&rp.pp("transformer"), dims)?,
-            },
+            ray_predictor: RayPredictor::new(&vars.pp("ray_predictor"), vars, dims)?,
             out_mlp,
             widest: widest.unwrap_or(1),
         })
     }
 
     /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view) into `out`:
-    /// q = cat(posenc(camera position), posenc(ray)), input MLP, cross-attention, out MLP.
+    /// the ray predictor's queries, cross-attention, out MLP.
     #[allow(clippy::too_many_arguments)]
     fn forward(
         &self,
@@ -170,12 +202,7 @@ impl SrtDecoder {
         out: Tensor,
     ) {
         let rp = &self.ray_predictor;
-        let pos = rp.pos_enc.width();
-        let query = g.transient("decoder_att.query", rays.rows(), pos + rp.ray_enc.width());
-        rp.pos_enc.forward_into(g, camera_pos, per_view, start, query, 0);
-        rp.ray_enc.forward_into(g, rays, 1, 0, query, pos);
-        let hidden = rp.input_mlp_0.forward(g, query, Activation::Relu);
-        let x = rp.input_mlp_2.forward(g, hidden, Activation::None);
+        let x = rp.queries(g, camera_pos, per_view, start, rays);
         rp.transformer.forward_cross(g, x, kv);
         let (last, hidden_layers) = self.out_mlp.split_last().expect("out_mlp has five layers");
         let h = hidden_layers.iter().fold(x, |h, lin| lin.forward(g, h, Activation::LeakyRelu(OUT_MLP_SLOPE)));
@@ -187,7 +214,7 @@ impl Srt {
     /// The module tree of `config` at `vars` (the model's root).
     pub fn new(vars: &Vars, config: &SrtConfig) -> Result<Srt> {
         Ok(Srt {
-            encoder: SrtEncoder::new(&vars.pp("encoder"), config)?,
+            encoder: SrtEncoder::new(&vars.pp("encoder"), &config.encoder)?,
             decoder: SrtDecoder::new(&vars.pp("decoder_att"), config)?,
             ray_patch: match &config.ray_patch {
                 Some(rp) => Some(RayPatchDecoder::new(&vars.pp("decoder_rp.conv_decoder"), rp)?),
@@ -200,11 +227,7 @@ impl Srt {
 
 impl LightField for Srt {
     fn outputs(&self) -> Outputs {
-        if self.config.image_channels() == 4 {
-            Outputs::of(&[Output::Rgb, Output::LogDepth])
-        } else {
-            Outputs::of(&[Output::Rgb])
-        }
+        image_output_set(self.config.image_channels())
     }
 
     fn patch_size(&self) -> usize {
@@ -219,7 +242,7 @@ impl LightField for Srt {
     }
 
     fn encode(&self, g: &mut Graph, size: ImageSize) -> Encoded {
-        let latent = self.encoder.forward(g, size);
+        let latent = self.encoder.forward(g, size, "latent");
         // The decoder's keys and values depend only on z: project them once per scene.
         let transformer = &self.decoder.ray_predictor.transformer;
         let keys_values: Vec<Tensor> = (0..transformer.layers.len())
@@ -237,17 +260,7 @@ impl LightField for Srt {
         grid: TargetGrid,
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
-        let k = self.patch_size();
-        let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
-        let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);
-        let rays = match &self.ray_patch {
-            Some(rp) if !grid.rays_are_patches => {
-                let full = ImageSize { n: views, h: grid.height, w: grid.width };
-                let rays = g.input("target_rays", full.pixels(), 3, HostInput::TargetRays, Some(full));
-                rp.patch_rays(g, rays, patches)
-            }
-            _ => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
-        };
+        let (camera_pos, rays, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let kv: Vec<Tensor> =
             scene.iter().enumerate().map(|(l, t)| g.external(&format!("decoder.layers.{l}.kv"), t)).collect();
         let features = g.image("decoder_features", patches, self.config.decoder.out_dims);

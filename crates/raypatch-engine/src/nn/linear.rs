@@ -58,3 +58,14 @@ impl Linear {
         linear(&mut g.b, &label, LinearArgs { x: x.view, weight, bias, out: out.view, act, accumulate });
     }
 }
+
+/// `x · yᵀ` of two tensors of the graph (`y` whole, as a linear layer's weight `[N, K]`) into a new
+/// `[rows(x), N]` tensor named `path`: attention logits between computed queries and keys.
+pub fn product_t(g: &mut Graph, path: &str, x: Tensor, y: Tensor) -> Tensor {
+    let out = g.transient(path, x.rows(), y.rows());
+    let label = g.label(path);
+    let args =
+        LinearArgs { x: x.view, weight: y.id(), bias: None, out: out.view, act: Activation::None, accumulate: false };
+    linear(&mut g.b, &label, args);
+    out
+}

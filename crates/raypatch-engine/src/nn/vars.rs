@@ -40,6 +40,8 @@ pub enum Layout {
     Matrix { rows: usize, cols: usize },
     /// A `[1, len]` row: biases, norm scales.
     Row,
+    /// A `[rows, cols]` tensor read as data, not as a linear weight (learned initial slots): always f32.
+    Dense { rows: usize, cols: usize },
     /// A 3×3 conv weight `[cout, cin, 3, 3]`, packed for `conv.wgsl` at upload (`pack_conv3x3`).
     Conv3x3 { cout: usize, cin: usize },
 }
@@ -154,6 +156,12 @@ impl Vars<'_, '_> {
         Ok(self.prepared(name, Layout::Matrix { rows, cols }, Data::F32(t.data)))
     }
 
+    /// A `[rows, cols]` tensor `name` read as data (kept f32 whatever the weight storage).
+    pub fn dense(&self, name: &str, rows: usize, cols: usize) -> Result<Param> {
+        let t = self.tensor(name, &[rows, cols])?;
+        Ok(self.prepared(name, Layout::Dense { rows, cols }, Data::F32(t.data)))
+    }
+
     /// A vector `name` of `len` values, kept as a `[1, len]` row.
     pub fn row(&self, name: &str, len: usize) -> Result<Param> {
         let t = self.tensor(name, &[len])?;
@@ -210,6 +218,7 @@ impl WeightSet {
             let data = p.data.to_f32();
             let tensor = match p.layout {
                 Layout::Row => gpu.upload(&p.name, 1, data.len(), &data)?,
+                Layout::Dense { rows, cols } => gpu.upload(&p.name, rows, cols, &data)?,
                 Layout::Conv3x3 { cout, cin } => {
                     let packed = pack_conv3x3(&data, cout, cin);
                     gpu.upload(&p.name, cout, packed.len() / cout, &packed)?

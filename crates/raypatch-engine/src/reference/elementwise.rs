@@ -10,6 +10,7 @@ pub fn map_columns(x: &[f64], cols_x: usize, col: usize, cols_out: usize, f: Map
         .map(|&v| match f {
             Map::Identity => v,
             Map::Sigmoid => 1.0 / (1.0 + (-v).exp()),
+            Map::Exp => v.exp(),
         })
         .collect()
 }

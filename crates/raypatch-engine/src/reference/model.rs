@@ -145,7 +145,9 @@ impl ReferenceModel {
     /// fold, in float64), into the reference's own float64 layers.
     pub fn new(model: &LoadedModel, argument: Argument) -> Result<ReferenceModel, EngineError> {
         let config = model.config.clone();
-        let Family::Srt(srt_config) = &config.family;
+        let Family::Srt(srt_config) = &config.family else {
+            return Err(EngineError::Request(format!("the float64 reference has no {} models", config.base())));
+        };
         let (srt, weights) = nn::build(Source::File(model), |vars| Srt::new(vars, srt_config))?;
         let get = |p: Param| weights.get(p).data.to_f64();
         let dense = |l: &nn::Linear| Dense { w: get(l.weight), b: l.bias.map(get), n: l.out_dim, k: l.in_dim };

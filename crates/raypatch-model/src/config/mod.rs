@@ -1,14 +1,16 @@
 //! The model config: the official `config.yaml` model section (stored as JSON in the safetensors metadata),
 //! resolved into every dimension the engine needs. The official `base` key names the family; each family's
-//! config is one type in its own file ([`srt`]), behind the [`Family`] enum. Absent keys take the official
+//! config is one type in its own file ([`srt`], [`osrt`]), behind the [`Family`] enum. Absent keys take the official
 //! constructors' defaults; the raypatch extension keys (docs/FORMATS.md) default to the widths the official
 //! code hard-codes.
 
+pub mod osrt;
 pub mod srt;
 
 use serde_json::Value;
 
 use crate::error::ModelError;
+pub use osrt::{OsrtConfig, SlotAttentionConfig, SlotMixerConfig};
 pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, SrtConfig};
 
 /// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
@@ -65,10 +67,12 @@ pub struct ModelConfig {
 pub enum Family {
     /// `base: srt`: SRT (`decoder: lightfield`) and RP-SRT (`decoder: featurefield`).
     Srt(SrtConfig),
+    /// `base: osrt`: OSRT (`decoder: lightfield`) and RP-OSRT (`decoder: featurefield`).
+    Osrt(OsrtConfig),
 }
 
 /// The `base` values raypatch runs, for messages.
-const BASES: &str = "\"srt\"";
+const BASES: &str = "\"srt\" or \"osrt\"";
 
 impl ModelConfig {
     /// Resolves the model section of a run config. `path` names the file in errors.
@@ -76,16 +80,18 @@ impl ModelConfig {
         if !raw.is_object() {
             return Err(config_err(path, format!("the model config must be a mapping, found {raw}")));
         }
-        let family = match raw.get("base").and_then(Value::as_str) {
-            Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
-            Some(other) => {
-                return Err(config_err(
+        let family =
+            match raw.get("base").and_then(Value::as_str) {
+                Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
+                Some("osrt") => Family::Osrt(OsrtConfig::from_value(path, &raw)?),
+                Some(other) => return Err(config_err(
                     path,
-                    format!("model base `{other}` is not supported (raypatch runs {BASES}: SRT and RP-SRT)"),
-                ))
-            }
-            None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
-        };
+                    format!(
+                        "model base `{other}` is not supported (raypatch runs {BASES}: SRT, RP-SRT, OSRT and RP-OSRT)"
+                    ),
+                )),
+                None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
+            };
         Ok(ModelConfig { family, raw })
     }
 
@@ -93,6 +99,7 @@ impl ModelConfig {
     pub fn base(&self) -> &'static str {
         match self.family {
             Family::Srt(_) => "srt",
+            Family::Osrt(_) => "osrt",
         }
     }
 
@@ -100,6 +107,7 @@ impl ModelConfig {
     pub fn srt(&self) -> Option<&SrtConfig> {
         match &self.family {
             Family::Srt(c) => Some(c),
+            Family::Osrt(_) => None,
         }
     }
 
@@ -107,20 +115,28 @@ impl ModelConfig {
     pub fn patch_size(&self) -> usize {
         match &self.family {
             Family::Srt(c) => c.patch_size(),
+            Family::Osrt(c) => c.patch_size(),
+        }
+    }
+
+    /// The Ray-Patch decoder's config, for Ray-Patch models.
+    pub fn ray_patch(&self) -> Option<&RayPatchConfig> {
+        match &self.family {
+            Family::Srt(c) => c.ray_patch.as_ref(),
+            Family::Osrt(c) => c.ray_patch.as_ref(),
         }
     }
 
     /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
     pub fn resizes_output(&self) -> bool {
-        match &self.family {
-            Family::Srt(c) => c.ray_patch.as_ref().is_some_and(|rp| rp.resize_out.is_some()),
-        }
+        self.ray_patch().is_some_and(|rp| rp.resize_out.is_some())
     }
 
     /// Whether the model predicts a log-depth channel beside rgb.
     pub fn has_depth(&self) -> bool {
         match &self.family {
             Family::Srt(c) => c.image_channels() == 4,
+            Family::Osrt(c) => c.image_channels() == 4,
         }
     }
 
@@ -128,6 +144,7 @@ impl ModelConfig {
     pub fn position_octaves(&self) -> (&Octaves, &Octaves) {
         match &self.family {
             Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
+            Family::Osrt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
         }
     }
 
@@ -136,6 +153,7 @@ impl ModelConfig {
     pub fn check_counts(&self, path: &str, tensors: usize) -> Result<(), ModelError> {
         let counts = match &self.family {
             Family::Srt(c) => c.layer_counts(),
+            Family::Osrt(c) => c.layer_counts(),
         };
         for (key, count) in counts {
             if count > tensors {

@@ -63,6 +63,132 @@ pub struct SrtConfig {
     pub ray_patch: Option<RayPatchConfig>,
 }
 
+impl EncoderConfig {
+    /// The `encoder_kwargs` of an `SRTEncoder` (the SRT encoder, or the one inside `OSRTEncoder`), with the
+    /// owning constructor's default `(num_conv_blocks, num_att_blocks)`.
+    pub(crate) fn from_section(path: &str, raw: &Value, default_blocks: (usize, usize)) -> Result<Self, ModelError> {
+        let enc = Section::new(path, raw, "encoder_kwargs")?;
+        if enc.bool("max_pooling", false)? {
+            return Err(config_err(path, "`encoder_kwargs.max_pooling: true` is not supported".into()));
+        }
+        let num_octaves = enc.usize("num_octaves", 15)?;
+        let latent_dim = enc.usize("latent_dim", 768)?;
+        let encoder = EncoderConfig {
+            num_conv_blocks: enc.usize("num_conv_blocks", default_blocks.0)?,
+            num_att_blocks: enc.usize("num_att_blocks", default_blocks.1)?,
+            pos_octaves: Octaves { count: num_octaves, start: enc.f64("pos_start_octave", 0.0)?, end: None },
+            ray_octaves: Octaves { count: num_octaves, start: 0.0, end: None },
+            batch_norm: enc.batch_norm()?,
+            conv_hidden: enc.usize("conv_hidden", 96)?,
+            token_dim: enc.usize("token_dim", 768)?,
+            heads: enc.usize("heads", 12)?,
+            dim_head: enc.usize("dim_head", 64)?,
+            ff_hidden: 2 * latent_dim,
+        };
+        encoder.validate(path)?;
+        Ok(encoder)
+    }
+
+    fn validate(&self, path: &str) -> Result<(), ModelError> {
+        let e = self;
+        check_positive(
+            path,
+            &[
+                ("encoder_kwargs.num_conv_blocks", e.num_conv_blocks),
+                ("encoder_kwargs.num_octaves", e.pos_octaves.count),
+                ("encoder_kwargs.conv_hidden", e.conv_hidden),
+                ("encoder_kwargs.token_dim", e.token_dim),
+                ("encoder_kwargs.heads", e.heads),
+                ("encoder_kwargs.dim_head", e.dim_head),
+                ("encoder_kwargs.latent_dim", e.ff_hidden),
+            ],
+        )?;
+        // Counts and widths beyond these cannot be real models (no weight or image could be stored), and
+        // bounding them keeps every size computed from them far from integer overflow.
+        if e.num_conv_blocks > MAX_CONV_BLOCKS {
+            return Err(config_err(
+                path,
+                format!("`encoder_kwargs.num_conv_blocks` is {}; at most {MAX_CONV_BLOCKS}", e.num_conv_blocks),
+            ));
+        }
+        check_widths(
+            path,
+            &[
+                (
+                    "encoder_kwargs.conv_hidden (doubled per conv block)",
+                    e.conv_hidden.saturating_mul(1 << e.num_conv_blocks),
+                ),
+                ("encoder_kwargs.token_dim", e.token_dim),
+                ("encoder_kwargs.heads x dim_head", e.heads.saturating_mul(e.dim_head)),
+                ("encoder_kwargs.latent_dim", e.ff_hidden),
+            ],
+        )?;
+        if e.pos_octaves.count > 32 {
+            return Err(config_err(
+                path,
+                format!("`encoder_kwargs.num_octaves` is {}; at most 32 are supported", e.pos_octaves.count),
+            ));
+        }
+        check_octaves(path, &[("encoder_kwargs.pos_start_octave", &e.pos_octaves)])?;
+        if e.dim_head > 128 {
+            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
+        }
+        Ok(())
+    }
+
+    /// Channels of the encoder's input: RGB, then the position and ray encodings.
+    pub fn input_dim(&self) -> usize {
+        3 + 6 * (self.pos_octaves.count + self.ray_octaves.count)
+    }
+}
+
+impl RayPatchConfig {
+    /// The `rp_kwargs` of a `featurefield` model (the official `RayPatchDecoder` kwargs).
+    pub(crate) fn from_section(path: &str, raw: &Value) -> Result<Self, ModelError> {
+        let rp = Section::new(path, raw, "rp_kwargs")?;
+        let resize_out = match (rp.get("h_out"), rp.get("w_out")) {
+            (Some(_), Some(_)) => Some((rp.usize("h_out", 0)?, rp.usize("w_out", 0)?)),
+            _ => None,
+        };
+        let config = RayPatchConfig {
+            upsample: rp.usize("upsample", 3)?,
+            conv_features: rp.usize("conv_features", 128)?,
+            batch_norm: rp.batch_norm()?,
+            out_dims: rp.usize("out_dims", 3)?,
+            resize_out,
+            grid_in: (rp.usize("h_in", 16)?, rp.usize("w_in", 16)?),
+        };
+        check_widths(path, &[("rp_kwargs.conv_features", config.conv_features)])?;
+        if config.upsample == 0 || config.upsample > 6 {
+            return Err(config_err(path, format!("`rp_kwargs.upsample` must be 1..6, found {}", config.upsample)));
+        }
+        if config.conv_features >> config.upsample < 2 {
+            return Err(config_err(
+                path,
+                format!(
+                    "`rp_kwargs.conv_features` {} must stay above 1 after {} halvings",
+                    config.conv_features, config.upsample
+                ),
+            ));
+        }
+        check_image_channels(path, "rp_kwargs.out_dims", config.out_dims)?;
+        Ok(config)
+    }
+
+    /// Pixels per patch side: 2^upsample.
+    pub fn patch_size(&self) -> usize {
+        1 << self.upsample
+    }
+}
+
+/// Checks the channels of a model's final image: 3 (rgb) or 4 (rgb + log-depth).
+pub(crate) fn check_image_channels(path: &str, key: &str, channels: usize) -> Result<(), ModelError> {
+    if channels != 3 && channels != 4 {
+        return Err(config_err(path, format!("`{key}` must be 3 or 4, found {channels}")));
+    }
+    Ok(())
+}
+
 impl SrtConfig {
     /// Resolves the model section of an SRT run config. `path` names the file in errors.
     pub fn from_value(path: &str, raw: &Value) -> Result<SrtConfig, ModelError> {
@@ -77,42 +203,8 @@ impl SrtConfig {
             }
         };
 
-        let enc = Section::new(path, raw, "encoder_kwargs")?;
-        if enc.bool("max_pooling", false)? {
-            return Err(config_err(path, "`encoder_kwargs.max_pooling: true` is not supported".into()));
-        }
-        let num_octaves = enc.usize("num_octaves", 15)?;
-        let latent_dim = enc.usize("latent_dim", 768)?;
-        let encoder = EncoderConfig {
-            num_conv_blocks: enc.usize("num_conv_blocks", 4)?,
-            num_att_blocks: enc.usize("num_att_blocks", 10)?,
-            pos_octaves: Octaves { count: num_octaves, start: enc.f64("pos_start_octave", 0.0)?, end: None },
-            ray_octaves: Octaves { count: num_octaves, start: 0.0, end: None },
-            batch_norm: enc.batch_norm()?,
-            conv_hidden: enc.usize("conv_hidden", 96)?,
-            token_dim: enc.usize("token_dim", 768)?,
-            heads: enc.usize("heads", 12)?,
-            dim_head: enc.usize("dim_head", 64)?,
-            ff_hidden: 2 * latent_dim,
-        };
-
-        let rp = Section::new(path, raw, "rp_kwargs")?;
-        let ray_patch = if ray_patch_decoder {
-            let resize_out = match (rp.get("h_out"), rp.get("w_out")) {
-                (Some(_), Some(_)) => Some((rp.usize("h_out", 0)?, rp.usize("w_out", 0)?)),
-                _ => None,
-            };
-            Some(RayPatchConfig {
-                upsample: rp.usize("upsample", 3)?,
-                conv_features: rp.usize("conv_features", 128)?,
-                batch_norm: rp.batch_norm()?,
-                out_dims: rp.usize("out_dims", 3)?,
-                resize_out,
-                grid_in: (rp.usize("h_in", 16)?, rp.usize("w_in", 16)?),
-            })
-        } else {
-            None
-        };
+        let encoder = EncoderConfig::from_section(path, raw, (4, 10))?;
+        let ray_patch = if ray_patch_decoder { Some(RayPatchConfig::from_section(path, raw)?) } else { None };
 
         let dec = Section::new(path, raw, "decoder_kwargs")?;
         let kv_dim = dec.usize("latent_dim", 768)?;
@@ -141,18 +233,10 @@ impl SrtConfig {
     }
 
     fn validate(&self, path: &str) -> Result<(), ModelError> {
-        let e = &self.encoder;
         let d = &self.decoder;
         check_positive(
             path,
             &[
-                ("encoder_kwargs.num_conv_blocks", e.num_conv_blocks),
-                ("encoder_kwargs.num_octaves", e.pos_octaves.count),
-                ("encoder_kwargs.conv_hidden", e.conv_hidden),
-                ("encoder_kwargs.token_dim", e.token_dim),
-                ("encoder_kwargs.heads", e.heads),
-                ("encoder_kwargs.dim_head", e.dim_head),
-                ("encoder_kwargs.latent_dim", e.ff_hidden),
                 ("decoder_kwargs.latent_dim", d.kv_dim),
                 ("decoder_kwargs.heads", d.heads),
                 ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
@@ -160,76 +244,32 @@ impl SrtConfig {
                 ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count.saturating_add(d.ray_octaves.count)),
             ],
         )?;
-        // Counts and widths beyond these cannot be real models (no weight or image could be stored), and
-        // bounding them keeps every size computed from them far from integer overflow.
-        if e.num_conv_blocks > MAX_CONV_BLOCKS {
-            return Err(config_err(
-                path,
-                format!("`encoder_kwargs.num_conv_blocks` is {}; at most {MAX_CONV_BLOCKS}", e.num_conv_blocks),
-            ));
-        }
         check_widths(
             path,
             &[
-                (
-                    "encoder_kwargs.conv_hidden (doubled per conv block)",
-                    e.conv_hidden.saturating_mul(1 << e.num_conv_blocks),
-                ),
-                ("encoder_kwargs.token_dim", e.token_dim),
-                ("encoder_kwargs.heads x dim_head", e.heads.saturating_mul(e.dim_head)),
-                ("encoder_kwargs.latent_dim", e.ff_hidden),
                 ("decoder_kwargs.latent_dim", d.kv_dim),
                 ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
                 ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
-                ("rp_kwargs.conv_features", self.ray_patch.as_ref().map_or(0, |rp| rp.conv_features)),
             ],
         )?;
-        if e.pos_octaves.count > 32 {
-            return Err(config_err(
-                path,
-                format!("`encoder_kwargs.num_octaves` is {}; at most 32 are supported", e.pos_octaves.count),
-            ));
-        }
         check_octaves(
             path,
-            &[
-                ("encoder_kwargs.pos_start_octave", &e.pos_octaves),
-                ("decoder_kwargs.pos_octaves", &d.pos_octaves),
-                ("decoder_kwargs.ray_octaves", &d.ray_octaves),
-            ],
+            &[("decoder_kwargs.pos_octaves", &d.pos_octaves), ("decoder_kwargs.ray_octaves", &d.ray_octaves)],
         )?;
-        if d.dim_head > 128 || e.dim_head > 128 {
+        if d.dim_head > 128 {
             return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
         }
-        if d.kv_dim != e.token_dim {
+        if d.kv_dim != self.encoder.token_dim {
             return Err(config_err(
                 path,
                 format!(
                     "`decoder_kwargs.latent_dim` ({}) must equal the encoder token width ({})",
-                    d.kv_dim, e.token_dim
+                    d.kv_dim, self.encoder.token_dim
                 ),
             ));
         }
-        let out_dims = match &self.ray_patch {
-            Some(rp) => {
-                if rp.upsample == 0 || rp.upsample > 6 {
-                    return Err(config_err(path, format!("`rp_kwargs.upsample` must be 1..6, found {}", rp.upsample)));
-                }
-                if rp.conv_features >> rp.upsample < 2 {
-                    return Err(config_err(
-                        path,
-                        format!(
-                            "`rp_kwargs.conv_features` {} must stay above 1 after {} halvings",
-                            rp.conv_features, rp.upsample
-                        ),
-                    ));
-                }
-                ("rp_kwargs.out_dims", rp.out_dims)
-            }
-            None => ("decoder_kwargs.out_dims", d.out_dims),
-        };
-        if out_dims.1 != 3 && out_dims.1 != 4 {
-            return Err(config_err(path, format!("`{}` must be 3 or 4, found {}", out_dims.0, out_dims.1)));
+        if self.ray_patch.is_none() {
+            check_image_channels(path, "decoder_kwargs.out_dims", d.out_dims)?;
         }
         Ok(())
     }
@@ -246,7 +286,7 @@ impl SrtConfig {
 
     /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.
     pub fn patch_size(&self) -> usize {
-        self.ray_patch.as_ref().map_or(1, |rp| 1 << rp.upsample)
+        self.ray_patch.as_ref().map_or(1, RayPatchConfig::patch_size)
     }
 
     /// Channels of the final image before the sigmoid: 3, or 4 with log-depth.
@@ -257,10 +297,5 @@ impl SrtConfig {
     /// Width of a decoder query: position and ray encodings.
     pub fn query_dim(&self) -> usize {
         6 * (self.decoder.pos_octaves.count + self.decoder.ray_octaves.count)
-    }
-
-    /// Channels of the encoder's input: RGB, then the position and ray encodings.
-    pub fn encoder_input_dim(&self) -> usize {
-        3 + 6 * (self.encoder.pos_octaves.count + self.encoder.ray_octaves.count)
     }
 }

@@ -1,0 +1,172 @@
+//! `base: osrt`: the config of OSRT (`decoder: lightfield`) and RP-OSRT (`decoder: featurefield`), as the
+//! official `OSRT` model class reads it (tberriel/RayPatchQuerying `src/model.py`; `OSRTEncoder` in
+//! `src/encoder.py`, `SlotAttention` in `src/layers.py`, `SlotMixerDecoder` in `src/decoder.py`).
+//!
+//! The official modules hard-code most OSRT widths (slot attention hidden 3072; the slot mixer's 1536-wide
+//! allocation transformer, mixing block and render MLP); raypatch extension keys name them so that small
+//! models can be built, defaulting to the official values (docs/FORMATS.md).
+
+use serde_json::Value;
+
+use super::srt::check_image_channels;
+use super::{check_octaves, check_positive, check_widths, config_err, Octaves, Section};
+use super::{EncoderConfig, RayPatchConfig};
+use crate::error::ModelError;
+
+/// `SlotAttention` inside `OSRTEncoder`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlotAttentionConfig {
+    pub num_slots: usize,
+    pub slot_dim: usize,
+    /// Width of the residual MLP (official: 3072, never passed by `OSRTEncoder`).
+    pub hidden: usize,
+    pub iters: usize,
+}
+
+/// `SlotMixerDecoder`: allocation transformer (a `RayPredictor` with input MLP, no output MLP), mixing block,
+/// render MLP.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlotMixerConfig {
+    pub num_att_blocks: usize,
+    pub pos_octaves: Octaves,
+    pub ray_octaves: Octaves,
+    /// Width of the allocation transformer's keys and values (= the slot width; official 1536).
+    pub kv_dim: usize,
+    pub heads: usize,
+    pub dim_head: usize,
+    pub ff_hidden: usize,
+    pub input_mlp_hidden: usize,
+    /// Width of the mixing block's queries and keys (official 1536).
+    pub att_dim: usize,
+    /// `MixingBlock(layer_norm=...)`: LayerNorms on the queries and on the slot mix.
+    pub layer_norm: bool,
+    /// Width of the render MLP's four hidden layers (official 1536).
+    pub render_hidden: usize,
+    /// The render MLP's output: 3 (rgb) for OSRT, the Ray-Patch conv features for RP-OSRT.
+    pub out_dims: usize,
+}
+
+/// OSRT and RP-OSRT.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OsrtConfig {
+    /// The SRT encoder inside `OSRTEncoder`.
+    pub encoder: EncoderConfig,
+    pub slot_attention: SlotAttentionConfig,
+    pub decoder: SlotMixerConfig,
+    /// Present for `decoder: featurefield` (RP-OSRT), absent for `lightfield` (OSRT).
+    pub ray_patch: Option<RayPatchConfig>,
+}
+
+impl OsrtConfig {
+    /// Resolves the model section of an OSRT run config. `path` names the file in errors.
+    pub fn from_value(path: &str, raw: &Value) -> Result<OsrtConfig, ModelError> {
+        let ray_patch = match raw.get("decoder").and_then(Value::as_str) {
+            Some("lightfield") => None,
+            Some("featurefield") => Some(RayPatchConfig::from_section(path, raw)?),
+            other => {
+                return Err(config_err(
+                    path,
+                    format!("`decoder` must be \"lightfield\" (OSRT) or \"featurefield\" (RP-OSRT), found {other:?}"),
+                ))
+            }
+        };
+        // OSRTEncoder's own defaults: 3 conv blocks, 5 attention blocks.
+        let encoder = EncoderConfig::from_section(path, raw, (3, 5))?;
+        let enc = Section::new(path, raw, "encoder_kwargs")?;
+        if enc.bool("randomize_initial_slots", false)? {
+            return Err(config_err(
+                path,
+                "`encoder_kwargs.randomize_initial_slots: true` is not supported (slots are sampled at random)".into(),
+            ));
+        }
+        let slot_attention = SlotAttentionConfig {
+            num_slots: enc.usize("num_slots", 6)?,
+            slot_dim: enc.usize("slot_dim", 1536)?,
+            hidden: enc.usize("slot_hidden", 3072)?,
+            iters: enc.usize("slot_iters", 1)?,
+        };
+
+        let dec = Section::new(path, raw, "decoder_kwargs")?;
+        let kv_dim = dec.usize("latent_dim", 1536)?;
+        let heads = dec.usize("heads", 12)?;
+        let decoder = SlotMixerConfig {
+            num_att_blocks: dec.usize("num_att_blocks", 2)?,
+            // SlotMixerDecoder passes only pos_start_octave to its RayPredictor: 15 + 15 octaves.
+            pos_octaves: Octaves { count: 15, start: dec.f64("pos_start_octave", 0.0)?, end: None },
+            ray_octaves: Octaves { count: 15, start: 0.0, end: None },
+            kv_dim,
+            heads,
+            // int(latent_dim / 12) as in the official RayPredictor.
+            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
+            ff_hidden: 2 * kv_dim,
+            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+            att_dim: dec.usize("att_dim", 1536)?,
+            layer_norm: dec.bool("layer_norm", false)?,
+            render_hidden: dec.usize("render_mlp_hidden", 1536)?,
+            // The official OSRT overrides the decoder's out_dims: 3, or the conv features for Ray-Patch.
+            out_dims: ray_patch.as_ref().map_or(3, |rp| rp.conv_features),
+        };
+        let config = OsrtConfig { encoder, slot_attention, decoder, ray_patch };
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    fn validate(&self, path: &str) -> Result<(), ModelError> {
+        let (s, d) = (&self.slot_attention, &self.decoder);
+        let widths = [
+            ("encoder_kwargs.slot_dim", s.slot_dim),
+            ("encoder_kwargs.slot_hidden", s.hidden),
+            ("decoder_kwargs.latent_dim", d.kv_dim),
+            ("decoder_kwargs.heads", d.heads),
+            ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
+            ("decoder_kwargs.att_dim", d.att_dim),
+            ("decoder_kwargs.render_mlp_hidden", d.render_hidden),
+        ];
+        check_positive(path, &widths)?;
+        check_positive(path, &[("encoder_kwargs.num_slots", s.num_slots), ("encoder_kwargs.slot_iters", s.iters)])?;
+        check_widths(path, &widths)?;
+        check_widths(path, &[("encoder_kwargs.num_slots", s.num_slots)])?;
+        check_octaves(path, &[("decoder_kwargs.pos_start_octave", &d.pos_octaves)])?;
+        if d.dim_head > 128 {
+            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
+        }
+        if d.kv_dim != s.slot_dim {
+            return Err(config_err(
+                path,
+                format!(
+                    "`decoder_kwargs.latent_dim` ({}) must equal the slot width `encoder_kwargs.slot_dim` ({})",
+                    d.kv_dim, s.slot_dim
+                ),
+            ));
+        }
+        if self.ray_patch.is_none() {
+            check_image_channels(path, "decoder_kwargs.out_dims", d.out_dims)?;
+        }
+        Ok(())
+    }
+
+    /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
+    pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
+        vec![
+            ("encoder_kwargs.num_conv_blocks", self.encoder.num_conv_blocks),
+            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
+            ("decoder_kwargs.num_att_blocks", self.decoder.num_att_blocks),
+            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
+        ]
+    }
+
+    /// Pixels per patch side: 1 for OSRT, 2^upsample for RP-OSRT.
+    pub fn patch_size(&self) -> usize {
+        self.ray_patch.as_ref().map_or(1, RayPatchConfig::patch_size)
+    }
+
+    /// Channels of the final image before the sigmoid: 3, or 4 with log-depth (RP-OSRT `rp_kwargs.out_dims`).
+    pub fn image_channels(&self) -> usize {
+        self.ray_patch.as_ref().map_or(self.decoder.out_dims, |rp| rp.out_dims)
+    }
+
+    /// Width of a decoder query: position and ray encodings.
+    pub fn query_dim(&self) -> usize {
+        6 * (self.decoder.pos_octaves.count + self.decoder.ray_octaves.count)
+    }
+}

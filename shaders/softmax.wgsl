@@ -1,0 +1,91 @@
+// Softmax and normalisation along one axis of x [rows, cols] (row stride ld floats), into out of the same shape:
+// - softmax_rows:    out[r, :] = softmax(scale · x[r, :]) + eps, one invocation per row;
+// - softmax_columns: out[:, c] = softmax(scale · x[:, c]) + eps, one invocation per column of ld (columns past
+//   cols write the zero padding);
+// - normalize_rows:  out[r, :] = x[r, :] / Σ x[r, :], one invocation per row.
+// Softmax subtracts the maximum before exp, as PyTorch does: the scaled logits are rounded to f32 first
+// ((q·k)·scale is how the official modules write it), then exp(v - max) / Σ exp(v - max), then + eps.
+// These axes are short (slots: 4-32; inputs of slot attention: a few hundred), so each invocation walks its own.
+
+struct Params {
+    rows: u32,
+    cols: u32,
+    // floats per row of x and out.
+    ld: u32,
+    scale: f32,
+    eps: f32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+
+fn flat_index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
+    return (wid.x + wid.y * nwg.x) * 64u + lid;
+}
+
+// Softmax of the `len` elements first, first + stride, ... into out.
+fn softmax(first: u32, stride: u32, len: u32) {
+    var m = x[first] * p.scale;
+    for (var i = 1u; i < len; i++) {
+        m = max(m, x[first + i * stride] * p.scale);
+    }
+    var sum = 0.0;
+    for (var i = 0u; i < len; i++) {
+        sum += exp(x[first + i * stride] * p.scale - m);
+    }
+    for (var i = 0u; i < len; i++) {
+        let at = first + i * stride;
+        out[at] = exp(x[at] * p.scale - m) / sum + p.eps;
+    }
+}
+
+fn zero_row_padding(r: u32) {
+    for (var j = p.cols; j < p.ld; j++) {
+        out[r * p.ld + j] = 0.0;
+    }
+}
+
+@compute @workgroup_size(64)
+fn softmax_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                @builtin(local_invocation_index) lid: u32) {
+    let r = flat_index(wid, nwg, lid);
+    if (r >= p.rows) {
+        return;
+    }
+    softmax(r * p.ld, 1u, p.cols);
+    zero_row_padding(r);
+}
+
+@compute @workgroup_size(64)
+fn softmax_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                   @builtin(local_invocation_index) lid: u32) {
+    let c = flat_index(wid, nwg, lid);
+    if (c >= p.ld) {
+        return;
+    }
+    if (c >= p.cols) {
+        for (var r = 0u; r < p.rows; r++) {
+            out[r * p.ld + c] = 0.0;
+        }
+        return;
+    }
+    softmax(c, p.ld, p.rows);
+}
+
+@compute @workgroup_size(64)
+fn normalize_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                  @builtin(local_invocation_index) lid: u32) {
+    let r = flat_index(wid, nwg, lid);
+    if (r >= p.rows) {
+        return;
+    }
+    var sum = 0.0;
+    for (var j = 0u; j < p.cols; j++) {
+        sum += x[r * p.ld + j];
+    }
+    for (var j = 0u; j < p.cols; j++) {
+        out[r * p.ld + j] = x[r * p.ld + j] / sum;
+    }
+    zero_row_padding(r);
+}
