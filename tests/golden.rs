@@ -1,6 +1,7 @@
 //! Parity with the official PyTorch model: every case in assets/golden (written by tools/make_golden.py)
 //! is encoded and rendered on the GPU and compared with the latent and rgb PyTorch computed.
-//! Tolerances (issue #2): max |rgb - rgb_torch| <= 1e-4; max |z - z_torch| / max |z_torch| <= 1e-4.
+//! Tolerances (issues #2, #11): max |rgb - rgb_torch| <= 1e-4 and the same for the segmentation (slot weights);
+//! max |z - z_torch| / max |z_torch| <= 1e-4 for the latent (OSRT: the slots) and the log-depth.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -9,7 +10,7 @@ use std::time::Instant;
 use raypatch_engine::{Gpu, GpuOptions, Model, Output, Outputs};
 use raypatch_model::TensorFile;
 
-const RGB_MAX_ABS: f64 = 1e-4;
+const OUTPUT_MAX_ABS: f64 = 1e-4;
 const LATENT_MAX_REL: f64 = 1e-4;
 
 fn golden_dir() -> PathBuf {
@@ -37,45 +38,61 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     let scale = want_latent.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
     let latent_err = max_abs(&latent, &want_latent.data) / scale;
 
-    // Render twice: the second render reuses the plan and must give the same bytes.
-    let outputs =
-        if expected.contains("logdepth") { Outputs::of(&[Output::Rgb, Output::LogDepth]) } else { Outputs::default() };
+    // Every output the case holds; render twice: the second render reuses the plan and must give the same bytes.
+    let outputs = Outputs::of(
+        &[Output::Rgb, Output::LogDepth, Output::Segmentation]
+            .into_iter()
+            .filter(|o| expected.contains(o.name()))
+            .collect::<Vec<_>>(),
+    );
     let start = Instant::now();
     let frame = encoded.render(&scene.targets, outputs).unwrap_or_else(|e| panic!("{name}: {e}"));
     let first_render = start.elapsed();
     let start = Instant::now();
     let again = encoded.render(&scene.targets, outputs).unwrap();
     let warm_render = start.elapsed();
-    assert_eq!(frame.get(Output::Rgb), again.get(Output::Rgb), "{name}: a second render differs");
+    for output in outputs.iter() {
+        assert_eq!(frame.get(output), again.get(output), "{name}: a second {} render differs", output.title());
+    }
     assert_eq!(encoded.cached_render_plans(), 1, "{name}: the second render built a new plan");
 
-    let want_rgb = expected.f32("rgb").unwrap();
-    assert_eq!(want_rgb.shape, vec![frame.views, frame.height, frame.width, 3], "{name}: rgb shape");
-    let rgb_err = max_abs(frame.get(Output::Rgb).expect("rgb requested"), &want_rgb.data);
-    // Log-depth is the raw pre-sigmoid channel: compare it relative to its magnitude like the latent.
-    let depth_err = outputs.contains(Output::LogDepth).then(|| {
-        let want = expected.f32("logdepth").unwrap();
-        let got = frame.get(Output::LogDepth).expect("log-depth requested");
-        let scale = want.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
-        max_abs(got, &want.data) / scale
-    });
+    // rgb and segmentation are in [0, 1]: absolute error. Log-depth is the raw pre-sigmoid channel: relative to
+    // its magnitude like the latent.
+    let mut errors = Vec::new();
+    for output in outputs.iter() {
+        let want = expected.f32(output.name()).unwrap();
+        let got = frame.get(output).expect("requested");
+        let channels = got.len() / (frame.views * frame.height * frame.width);
+        let mut shape = vec![frame.views, frame.height, frame.width];
+        if output != Output::LogDepth {
+            shape.push(channels);
+        }
+        assert_eq!(want.shape, shape, "{name}: {} shape", output.title());
+        let (err, tol, kind) = match output {
+            Output::LogDepth => {
+                let scale = want.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+                (max_abs(got, &want.data) / scale, LATENT_MAX_REL, "relative")
+            }
+            _ => (max_abs(got, &want.data), OUTPUT_MAX_ABS, "max abs"),
+        };
+        errors.push((output, err, tol, kind));
+    }
     eprintln!(
-        "{name}: latent rel err {latent_err:.2e}, rgb max abs err {rgb_err:.2e}{}; encode {:.1} ms, render {:.1} ms (first {:.1} ms), planned peak {:.2} MiB",
-        depth_err.map_or(String::new(), |e| format!(", log-depth rel err {e:.2e}")),
+        "{name}: latent rel err {latent_err:.2e}, {}; encode {:.1} ms, render {:.1} ms (first {:.1} ms), planned peak {:.2} MiB",
+        errors.iter().map(|(o, e, _, kind)| format!("{} {kind} err {e:.2e}", o.title())).collect::<Vec<_>>().join(", "),
         encode_time.as_secs_f64() * 1e3,
         warm_render.as_secs_f64() * 1e3,
         first_render.as_secs_f64() * 1e3,
         encoded.render_stats(&scene.targets, outputs).unwrap().peak_bytes as f64 / (1 << 20) as f64
     );
     let mut failures = Vec::new();
-    if let Some(err) = depth_err.filter(|&e| e > LATENT_MAX_REL) {
-        failures.push(format!("{name}: log-depth relative error {err:e} > {LATENT_MAX_REL:e}"));
-    }
     if latent_err > LATENT_MAX_REL {
         failures.push(format!("{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"));
     }
-    if rgb_err > RGB_MAX_ABS {
-        failures.push(format!("{name}: rgb max abs error {rgb_err:e} > {RGB_MAX_ABS:e}"));
+    for (output, err, tol, kind) in errors {
+        if err > tol {
+            failures.push(format!("{name}: {} {kind} error {err:e} > {tol:e}", output.title()));
+        }
     }
     failures
 }
@@ -95,7 +112,17 @@ fn golden_cases_match_pytorch() {
     cases.sort();
     let names: Vec<String> = cases.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     // The issue asks for SRT, every k, and a two-view case; make sure the assets still have them.
-    for required in ["srt_k1", "rpsrt_k2", "rpsrt_k4", "rpsrt_k8", "rpsrt_k8_resize", "rpsrt_k16"] {
+    for required in [
+        "srt_k1",
+        "rpsrt_k2",
+        "rpsrt_k4",
+        "rpsrt_k8",
+        "rpsrt_k8_resize",
+        "rpsrt_k16",
+        "osrt",
+        "osrt_iters3_ln",
+        "rposrt_k8",
+    ] {
         assert!(names.iter().any(|n| n == required), "golden case {required} is missing from assets/golden");
     }
     let failures: Vec<String> = cases.iter().flat_map(|dir| check_case(&gpu, dir)).collect();
