@@ -1,4 +1,5 @@
-"""Converts an official RayPatchQuerying Lightning checkpoint into a raypatch model file (docs/FORMATS.md).
+"""Converts an official RayPatchQuerying Lightning checkpoint (SRT / RP-SRT, or OSRT / RP-OSRT: config base srt or
+osrt) into a raypatch model file (docs/FORMATS.md).
 
     python tools/convert_checkpoint.py IN.ckpt OUT.safetensors
 
@@ -16,7 +17,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from raypatch_reference import SRT  # noqa: E402
+from raypatch_reference import build_model  # noqa: E402
 from safetensors_io import save_safetensors  # noqa: E402
 
 MODEL_FORMAT = "raypatch-model/1"
@@ -57,7 +58,7 @@ def inference_tensors(state_dict):
 def expected_shapes(model_cfg):
     """Name -> shape of every tensor the reference model built from model_cfg holds (num_batches_tracked aside)."""
     with torch.device("meta"):  # shapes only, no memory or init cost
-        model = SRT.from_config(model_cfg)
+        model = build_model(model_cfg)
     return {name: list(tensor.shape) for name, tensor in model.state_dict().items()
             if not name.endswith("num_batches_tracked")}
 

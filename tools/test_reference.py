@@ -4,19 +4,23 @@
 
 Exits with status 1 if any check fails. With RAYPATCH_OFFICIAL_REPO set to a checkout of
 tberriel/RayPatchQuerying, it also runs the official modules (with einops, transformers and torchvision stubbed)
-and compares them with the reference; without it that check is reported as skipped.
+and compares them with the reference, SRT and OSRT (`python3 tools/test_reference.py -v` prints the measured
+differences); without it those checks are reported as skipped.
 """
 
 import ast
 import contextlib
 import copy
 import importlib
+import inspect
 import io
 import json
+import math
 import os
 import subprocess
 import sys
 import tempfile
+import textwrap
 import types
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -31,11 +35,24 @@ sys.path.insert(0, str(TOOLS))
 import convert_checkpoint  # noqa: E402
 import make_golden  # noqa: E402
 from cameras import get_camera_rays, look_at_positions  # noqa: E402
-from official_configs import RPSRT_MDBN_4_32, SRT_MDBN_32  # noqa: E402
-from raypatch_reference import SRT, Attention  # noqa: E402
+from official_configs import OSRT_MDBN_64, RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32  # noqa: E402
+from raypatch_reference import (OSRT, SRT, Attention, MixingBlock, OSRTEncoder, SlotAttention,  # noqa: E402
+                                SlotMixerDecoder, adjusted_rand_index, build_model, foreground_ari)
+from safetensors.torch import load_file  # noqa: E402
+from torch import nn  # noqa: E402
 
 OFFICIAL_KEYS = TOOLS / "testdata" / "official_srt_keys.txt"
+OFFICIAL_OSRT_KEYS = TOOLS / "testdata" / "official_osrt_keys.txt"
+GOLDEN = TOOLS.parent / "assets" / "golden"
+OSRT_CASES = ("osrt", "osrt_iters3_ln", "rposrt_k8", "rposrt_k4_patchrays")
 CHECKS = []
+VERBOSE = False
+
+
+def report(line):
+    """Measured figures, printed with -v."""
+    if VERBOSE:
+        print(f"     {line}")
 
 
 class Skip(Exception):
@@ -67,10 +84,10 @@ def scene_tensors(case_name="rpsrt_k4"):
 # --- reference model ----------------------------------------------------------------------------------------
 
 
-def read_official_keys():
-    """{section title: [(name, shape)]} and {section title: parameter total} from the testdata copy."""
+def read_official_keys(path=OFFICIAL_KEYS):
+    """{section title: [(name, shape)]} and {section title: parameter total} from a testdata copy."""
     sections, totals, current = {}, {}, None
-    for line in OFFICIAL_KEYS.read_text().splitlines():
+    for line in path.read_text().splitlines():
         if line.startswith("### "):
             current = sections.setdefault(line[4:], [])
         elif line.startswith("## "):
@@ -82,14 +99,11 @@ def read_official_keys():
     return sections, totals
 
 
-@check
-def official_state_dict_keys():
-    """Official-size srt_MDBN_32 and rpsrt_MDBN_4_32: the same names, order and shapes as the official model."""
-    sections, totals = read_official_keys()
-    for title, model_cfg in (("srt (lightfield, srt_MDBN_32)", SRT_MDBN_32),
-                             ("rp-srt k=4 (rpsrt_MDBN_4_32)", RPSRT_MDBN_4_32)):
+def compare_with_official_keys(path, configs):
+    sections, totals = read_official_keys(path)
+    for title, model_cfg in configs:
         with torch.device("meta"):
-            model = SRT.from_config(model_cfg)
+            model = build_model(model_cfg)
         ours = [(name, list(tensor.shape)) for name, tensor in model.state_dict().items()]
         official = sections[title]
         missing = sorted({n for n, _ in official} - {n for n, _ in ours})
@@ -100,6 +114,21 @@ def official_state_dict_keys():
                 f"{title}: {name} {shape} where the official model has {official_name} {official_shape}"
         parameters = sum(p.numel() for p in model.parameters())
         assert parameters == totals[title], f"{title}: {parameters} parameters, official {totals[title]}"
+
+
+@check
+def official_state_dict_keys():
+    """Official-size srt_MDBN_32 and rpsrt_MDBN_4_32: the same names, order and shapes as the official model."""
+    compare_with_official_keys(OFFICIAL_KEYS, (("srt (lightfield, srt_MDBN_32)", SRT_MDBN_32),
+                                               ("rp-srt k=4 (rpsrt_MDBN_4_32)", RPSRT_MDBN_4_32)))
+
+
+@check
+def official_osrt_state_dict_keys():
+    """Official-size osrt_MDBN_64 and rposrt_MDBN_8_64: the same names, order, shapes and parameter totals as the
+    official key lists (num_batches_tracked included, as the lists have them)."""
+    compare_with_official_keys(OFFICIAL_OSRT_KEYS, (("osrt (osrt_MDBN_64)", OSRT_MDBN_64),
+                                                    ("rp-osrt k=8 (rposrt_MDBN_8_64)", RPOSRT_MDBN_8_64)))
 
 
 @check
@@ -206,6 +235,203 @@ def depth_channel():
     case, scene = scene_tensors("srt_k1_depth")
     out = make_golden.run_model(random_model(case.model_cfg), scene, case.target_size, torch.float32)
     assert out["rgb"].shape == (1, 16, 24, 3) and out["logdepth"].shape == (1, 16, 24)
+
+
+# --- OSRT ---------------------------------------------------------------------------------------------------
+
+
+def random_osrt(model_cfg, seed=0):
+    torch.manual_seed(seed)
+    model = build_model(model_cfg).eval()
+    make_golden.randomize_osrt_weights(model)
+    return model
+
+
+@check
+def osrt_config_errors_are_clear():
+    small = make_golden.small_osrt_config()
+
+    def edited(section, **changes):
+        cfg = copy.deepcopy(small)
+        cfg[section].update(changes)
+        return cfg
+
+    for cfg, message in ((edited("encoder_kwargs", slot_heads=2), "unknown key encoder_kwargs.slot_heads"),
+                         (edited("decoder_kwargs", pos_octaves=15), "unknown key decoder_kwargs.pos_octaves"),
+                         (edited("encoder_kwargs", randomize_initial_slots=True), "randomize_initial_slots"),
+                         (edited("decoder_kwargs", latent_dim=64), "must equal encoder_kwargs.slot_dim 32"),
+                         (edited("decoder_kwargs", heads=5), "not a multiple of heads 5"),
+                         ({**small, "decoder": "featurefield"}, "needs section rp_kwargs"),
+                         ({**small, "decoder": "nerf"}, "decoder must be"),
+                         ({**small, "base": "define"}, "base must be one of")):
+        try:
+            with torch.device("meta"):
+                build_model(cfg)
+        except ValueError as error:
+            assert message in str(error), str(error)
+        else:
+            raise AssertionError(f"no error for {message}")
+    # The official OSRT overwrites decoder_kwargs.out_dims: 3 for a light field, conv_features for Ray-Patch.
+    with torch.device("meta"):
+        lightfield = build_model(edited("decoder_kwargs", out_dims=128))
+        rp = build_model(make_golden.small_osrt_config("featurefield", out_dims=False, rp_kwargs=dict(
+            upsample=2, conv_features=16)))
+    assert lightfield.decoder_att.render_mlp.net[8].out_features == 3
+    assert isinstance(lightfield.decoder_att.render_mlp.net[9], nn.Identity)
+    assert rp.decoder_att.render_mlp.net[8].out_features == 16 and rp.patch_size == 4
+    assert isinstance(rp.decoder_att.render_mlp.net[9], nn.LeakyReLU)
+    with torch.device("meta"):
+        assert isinstance(build_model(small), OSRT) and isinstance(build_model(SRT_MDBN_32), SRT)
+
+
+@check
+def slot_attention_maths():
+    """SlotAttention against its definition written out in float64: softmax over the slots + 1e-8, weighted mean
+    over the inputs, PyTorch GRUCell equations (gates r, z, n stacked in that order), residual MLP."""
+    torch.manual_seed(1)
+    module = SlotAttention(num_slots=3, input_dim=6, slot_dim=8, hidden_dim=10, iters=2).double()
+    with torch.no_grad():
+        for parameter in module.parameters():
+            parameter.copy_(torch.randn(parameter.shape, dtype=torch.float64) * 0.5)
+    inputs = torch.randn(2, 7, 6, dtype=torch.float64)
+
+    def layer_norm(x, norm):
+        return (x - x.mean(-1, keepdim=True)) / torch.sqrt(x.var(-1, unbiased=False, keepdim=True) + 1e-5) \
+            * norm.weight + norm.bias
+
+    x = layer_norm(inputs, module.norm_input)
+    k, v = x @ module.to_k.weight.T, x @ module.to_v.weight.T
+    slots = module.initial_slots.expand(2, -1, -1)
+    gru = module.gru
+    for _ in range(2):
+        q = layer_norm(slots, module.norm_slots) @ module.to_q.weight.T
+        attn = torch.softmax(q @ k.transpose(1, 2) / math.sqrt(8), dim=1) + 1e-8
+        updates = (attn / attn.sum(-1, keepdim=True)) @ v
+        gi = updates @ gru.weight_ih.T + gru.bias_ih
+        gh = slots @ gru.weight_hh.T + gru.bias_hh
+        r = torch.sigmoid(gi[..., :8] + gh[..., :8])
+        z = torch.sigmoid(gi[..., 8:16] + gh[..., 8:16])
+        n = torch.tanh(gi[..., 16:] + r * gh[..., 16:])
+        slots = (1 - z) * n + z * slots
+        hidden = torch.relu(layer_norm(slots, module.norm_pre_mlp) @ module.mlp[0].weight.T + module.mlp[0].bias)
+        slots = slots + hidden @ module.mlp[2].weight.T + module.mlp[2].bias
+    with torch.no_grad():
+        assert torch.allclose(module(inputs), slots, atol=1e-12)
+
+
+@check
+def mixing_block_maths():
+    torch.manual_seed(2)
+    block = MixingBlock(input_dim=5, slot_dim=4, att_dim=6, layer_norm=False).double()
+    x, slots = torch.randn(2, 9, 5, dtype=torch.float64), torch.randn(2, 3, 4, dtype=torch.float64)
+    weights = torch.softmax((x @ block.to_q.weight.T) @ (slots @ block.to_k.weight.T).transpose(1, 2) / math.sqrt(6),
+                            -1)
+    with torch.no_grad():
+        mix, w = block(x, slots)
+    assert torch.allclose(w, weights, atol=1e-12) and torch.allclose(mix, weights @ slots, atol=1e-12)
+
+
+def osrt_case(name):
+    case = next(case for case in make_golden.golden_cases() if case.name == name)
+    return case, make_golden.make_scene(case, np.random.default_rng(case.seed))
+
+
+@check
+def osrt_render_paths():
+    """Full-resolution and patch rays render the same rgb and segmentation; light-field slot weights sum to 1 and
+    render_views is decode on the flattened rays; the Ray-Patch segmentation is the bilinear resize of the
+    patch rays' slot weights; float32 and float64 agree."""
+    case, scene = osrt_case("rposrt_k4_patchrays")
+    model = random_osrt(case.model_cfg)
+    full = make_golden.run_model(model, scene, case.target_size, torch.float32)
+    patches = make_golden.run_model(model, make_golden.patch_rays_of(model, scene), case.target_size, torch.float32)
+    assert torch.equal(full["rgb"], patches["rgb"]) and torch.equal(full["segmentation"], patches["segmentation"])
+    assert full["segmentation"].shape == (2, 32, 48, 6) and full["latent"].shape == (6, 32)
+    assert full["set_latent"].shape == (2 * 3 * 4, 16)
+    double = make_golden.run_model(copy.deepcopy(model).double(), scene, case.target_size, torch.float64)
+    assert (full["rgb"].double() - double["rgb"]).abs().max() < 5e-3
+    assert (full["segmentation"].double() - double["segmentation"]).abs().max() < 5e-3
+
+    with torch.no_grad():
+        slots = full["latent"][None]
+        rays = make_golden.patch_rays_of(model, scene)["target_rays"]
+        positions = scene["target_camera_pos"][:, None].expand(2, 8 * 12, 3).reshape(1, -1, 3)
+        _, weights = model.decoder_att(slots, positions, rays.reshape(1, -1, 3))
+        resized = F.interpolate(weights.reshape(2, 8, 12, 6).permute(0, 3, 1, 2), size=(32, 48), mode="bilinear",
+                                align_corners=False).permute(0, 2, 3, 1)
+    assert torch.allclose(resized, full["segmentation"], atol=1e-6)
+
+    case, scene = osrt_case("osrt")
+    model = random_osrt(case.model_cfg)
+    out = make_golden.run_model(model, scene, case.target_size, torch.float32)
+    assert torch.allclose(out["segmentation"].sum(-1), torch.ones(2, 16, 24), atol=1e-5)
+    with torch.no_grad():
+        positions = scene["target_camera_pos"][:, None].expand(2, 16 * 24, 3).reshape(1, -1, 3)
+        rgb, logdepth, segmentation = model.decode(out["latent"][None], positions,
+                                                   scene["target_rays"].reshape(1, -1, 3))
+    assert logdepth is None and torch.equal(rgb.reshape(out["rgb"].shape), out["rgb"])
+    assert torch.equal(segmentation.reshape(out["segmentation"].shape), out["segmentation"])
+
+
+def pair_counting_ari(true_ids, pred_ids):
+    """Adjusted Rand index by counting point pairs (Hubert and Arabie), float64."""
+    n = len(true_ids)
+    pairs = n * (n - 1) / 2
+    same_true = sum(math.comb(int(c), 2) for c in np.bincount(true_ids))
+    same_pred = sum(math.comb(int(c), 2) for c in np.bincount(pred_ids))
+    same_both = sum(math.comb(int(c), 2) for c in np.unique(np.stack([true_ids, pred_ids]), axis=1,
+                                                            return_counts=True)[1])
+    expected = same_true * same_pred / pairs
+    return (same_both - expected) / ((same_true + same_pred) / 2 - expected)
+
+
+@check
+def fg_ari_definition():
+    """FG-ARI: pair-counting ARI over the foreground points, labels and slots permutation-invariant, background
+    ignored, 1 for a single group on both sides, all views pooled."""
+    rng = np.random.default_rng(3)
+    masks = torch.from_numpy(rng.integers(0, 4, (1, 2, 6, 7)).astype(np.uint8))
+    segmentation = torch.from_numpy(rng.random((1, 2, 6, 7, 5))).float()
+    ari = foreground_ari(segmentation, masks)
+    fg = masks.flatten() > 0
+    expected = pair_counting_ari(masks.flatten()[fg].numpy(), segmentation.argmax(-1).flatten()[fg].numpy())
+    assert ari.dtype == torch.float64 and abs(ari.item() - expected) < 1e-12, (ari, expected)
+    assert torch.equal(foreground_ari(segmentation[..., [3, 0, 4, 1, 2]], masks), ari)
+    relabelled = torch.tensor([0, 3, 1, 2], dtype=torch.uint8)[masks.long()]
+    assert torch.equal(foreground_ari(segmentation, relabelled), ari)
+    perfect = F.one_hot(masks.long(), 5).float() + 0.01 * segmentation
+    background_noise = torch.where((masks == 0)[..., None], segmentation, perfect)
+    assert foreground_ari(perfect, masks).item() == 1.0 and foreground_ari(background_noise, masks).item() == 1.0
+    single = torch.ones_like(masks)
+    assert foreground_ari(segmentation, single).item() != 1.0
+    assert foreground_ari(torch.ones(1, 2, 6, 7, 5), single).item() == 1.0
+    # [B, G, N] form with two scenes at once.
+    true = F.one_hot(masks.long().flatten(1), 4).transpose(1, 2)[:, 1:].expand(2, -1, -1)
+    assert torch.equal(adjusted_rand_index(true, segmentation.flatten(1, 3).transpose(1, 2).expand(2, -1, -1)),
+                       ari.expand(2))
+
+
+@check
+def osrt_golden_files():
+    """The committed OSRT golden cases are what the reference computes from their model and scene files (to
+    float32 rounding across PyTorch builds), and their fg_ari that of their segmentation."""
+    for name in OSRT_CASES:
+        folder = GOLDEN / name
+        with safe_open(str(folder / "model.safetensors"), "pt") as file:
+            model_cfg = json.loads(file.metadata()["config"])
+        with safe_open(str(folder / "scene.safetensors"), "pt") as file:
+            target_size = file.metadata().get("target_size")
+        model = build_model(model_cfg).eval()
+        missing, unexpected = model.load_state_dict(load_file(str(folder / "model.safetensors")), strict=False)
+        assert not unexpected and all(key.endswith("num_batches_tracked") for key in missing), (missing, unexpected)
+        scene, expected = load_file(str(folder / "scene.safetensors")), load_file(str(folder / "expected.safetensors"))
+        size = tuple(map(int, target_size.split("x"))) if target_size else tuple(scene["target_masks"].shape[1:])
+        out = make_golden.run_model(model, scene, size, torch.float32)
+        for key, value in out.items():
+            difference = (value - expected[key]).abs().max().item()
+            assert difference < 1e-4, (name, key, difference)
+        assert torch.equal(make_golden.fg_ari(expected["segmentation"], scene["target_masks"]), expected["fg_ari"])
+        assert expected["fg_ari"].dtype == torch.float64 and expected["fg_ari"].shape == (1,)
 
 
 # --- cameras ------------------------------------------------------------------------------------------------
@@ -330,6 +556,37 @@ def converter_rejects_bad_tensors():
 
 
 @check
+def osrt_converter_roundtrip():
+    """Official-size RP-OSRT (rposrt_MDBN_8_64, 95 M parameters) and a small OSRT: Lightning checkpoint with the
+    official stored out_dims -> model file with the same names, shapes and values, num_batches_tracked dropped."""
+    official_cfg = copy.deepcopy(RPOSRT_MDBN_8_64)
+    official_cfg["decoder_kwargs"]["out_dims"] = 128  # what the official OSRT.__init__ stores
+    small_cfg = make_golden.small_osrt_config()
+    with tempfile.TemporaryDirectory() as directory:
+        for model_cfg in (official_cfg, small_cfg):
+            torch.manual_seed(0)
+            model = build_model(model_cfg)
+            expected = {name: tensor for name, tensor in model.state_dict().items()
+                        if not name.endswith("num_batches_tracked")}
+            assert any(name.endswith("num_batches_tracked") for name in model.state_dict())
+            code, stderr, out_path = run_converter(fake_checkpoint(model, model_cfg, ConfigNode), directory)
+            assert code == 0, stderr
+            with safe_open(str(out_path), "pt") as converted:
+                assert sorted(converted.keys()) == sorted(expected)
+                for name, tensor in expected.items():
+                    assert torch.equal(converted.get_tensor(name), tensor), name
+                assert json.loads(converted.metadata()["config"]) == model_cfg
+            out_path.unlink()
+        # A checkpoint whose tensors do not fit its config is refused.
+        checkpoint = fake_checkpoint(model, small_cfg)
+        checkpoint["state_dict"]["encoder.slot_attention.initial_slots"] = torch.zeros(6, 32)
+        del checkpoint["state_dict"]["decoder_att.mixing_block.to_k.weight"]
+        code, stderr, out_path = run_converter(checkpoint, directory, "bad.ckpt")
+        assert code == 2 and not out_path.exists() and len(stderr.splitlines()) == 2, stderr
+        assert "initial_slots" in stderr and "[6, 32]" in stderr and "[5, 32]" in stderr and "to_k" in stderr
+
+
+@check
 def converter_command_line():
     model_cfg = make_golden.small_config("lightfield", width=16)
     with tempfile.TemporaryDirectory() as directory:
@@ -446,7 +703,194 @@ def matches_official_code():
             (rgb.reshape(1, -1, 3) - rgb_official).abs().max()
 
 
+def defaults_of(module_cls, kwargs):
+    """kwargs completed with the constructor defaults of module_cls."""
+    parameters = inspect.signature(module_cls.__init__).parameters
+    return {**{name: p.default for name, p in parameters.items() if p.default is not inspect.Parameter.empty},
+            **kwargs}
+
+
+def bare(module_cls):
+    """An official module object without its __init__ (submodules are assigned by the caller)."""
+    module = module_cls.__new__(module_cls)
+    nn.Module.__init__(module)
+    return module
+
+
+def official_osrt_modules(official_encoder, official_decoder, layers, model_cfg, targets):
+    """The official OSRT modules for model_cfg, loaded later with the reference's weights.
+
+    Official-width configs use the official constructors as they are. Small configs keep the official classes
+    and forward code and build the modules whose widths the official code hard-codes (SRTEncoder: conv hidden 96,
+    768-wide tokens, 12 heads; RayPredictor: 12 heads, input MLP 360; OSRTEncoder: SlotAttention input 768, hidden
+    3072) from the official Transformer, SRTConvBlock, RayEncoder, SlotAttention and SRTLinear at the config's
+    widths. The official RayPatchDecoder gets the targets' patch grid as h_in/w_in and their size as h_out/w_out.
+    """
+    enc = defaults_of(OSRTEncoder, model_cfg["encoder_kwargs"])
+    dec = defaults_of(SlotMixerDecoder, model_cfg["decoder_kwargs"])
+    featurefield = model_cfg["decoder"] == "featurefield"
+    dec["out_dims"] = model_cfg["rp_kwargs"].get("conv_features", 128) if featurefield else 3
+    official_widths = all(enc[key] == value for key, value in
+                          dict(conv_hidden=96, token_dim=768, heads=12, dim_head=64, slot_hidden=3072).items()) \
+        and all(dec[key] == value for key, value in dict(latent_dim=1536, heads=12, input_mlp_hidden=360,
+                                                         att_dim=1536, render_mlp_hidden=1536).items())
+    if official_widths:
+        encoder = official_encoder.OSRTEncoder(**model_cfg["encoder_kwargs"])
+        decoder_att = official_decoder.SlotMixerDecoder(**{**model_cfg["decoder_kwargs"], "out_dims": dec["out_dims"]})
+    else:
+        srt = bare(official_encoder.SRTEncoder)
+        srt.ray_encoder = layers.RayEncoder(pos_octaves=enc["num_octaves"], pos_start_octave=enc["pos_start_octave"],
+                                            ray_octaves=enc["num_octaves"])
+        blocks, channels = [official_encoder.SRTConvBlock(idim=12 * enc["num_octaves"] + 3, hdim=enc["conv_hidden"],
+                                                          norm=enc["norm"])], 2 * enc["conv_hidden"]
+        for _ in range(1, enc["num_conv_blocks"]):
+            blocks.append(official_encoder.SRTConvBlock(idim=channels, odim=None, norm=enc["norm"]))
+            channels *= 2
+        srt.conv_blocks = nn.Sequential(*blocks)
+        srt.pooling = nn.MaxPool2d(2) if enc["max_pooling"] else nn.Identity()
+        srt.per_patch_linear = nn.Conv2d(channels, enc["token_dim"], kernel_size=1)
+        srt.transformer = layers.Transformer(enc["token_dim"], depth=enc["num_att_blocks"], heads=enc["heads"],
+                                             dim_head=enc["dim_head"], latent_dim=enc["latent_dim"],
+                                             mlp_dim=int(enc["latent_dim"] * 2), selfatt=True)
+        encoder = bare(official_encoder.OSRTEncoder)
+        encoder.srt_encoder = srt
+        encoder.slot_attention = layers.SlotAttention(enc["num_slots"], input_dim=enc["token_dim"],
+                                                      slot_dim=enc["slot_dim"], hidden_dim=enc["slot_hidden"],
+                                                      iters=enc["slot_iters"])
+        allocation = official_decoder.RayPredictor(num_att_blocks=dec["num_att_blocks"],
+                                                   pos_start_octave=dec["pos_start_octave"], input_mlp=True,
+                                                   latent_dim=dec["latent_dim"], mode=dec["mode"], output_mlp=False,
+                                                   return_queries=True)
+        allocation.transformer = layers.Transformer(180, depth=dec["num_att_blocks"], heads=dec["heads"],
+                                                    dim_head=dec["latent_dim"] // dec["heads"],
+                                                    latent_dim=dec["latent_dim"], mlp_dim=int(dec["latent_dim"] * 2),
+                                                    selfatt=False, mode=dec["mode"])
+        allocation.input_mlp = nn.Sequential(layers.SRTLinear(180, dec["input_mlp_hidden"]), nn.ReLU(),
+                                             layers.SRTLinear(dec["input_mlp_hidden"], 180))
+        decoder_att = bare(official_decoder.SlotMixerDecoder)
+        decoder_att.allocation_transformer = allocation
+        decoder_att.mixing_block = official_decoder.MixingBlock(180, dec["latent_dim"], dec["att_dim"],
+                                                                dec["layer_norm"])
+        decoder_att.render_mlp = official_decoder.RenderMLP(dec["latent_dim"] + 180, dec["render_mlp_hidden"],
+                                                            dec["out_dims"])
+    decoder_rp = nn.Identity()
+    if featurefield:
+        k = 2 ** model_cfg["rp_kwargs"]["upsample"]
+        (_, height, width) = targets
+        decoder_rp = official_decoder.RayPatchDecoder(**{**model_cfg["rp_kwargs"], "h_in": height // k,
+                                                         "w_in": width // k, "h_out": height, "w_out": width})
+    return encoder, decoder_att, decoder_rp
+
+
+def official_function(path, name, class_name=None, replacements=(), namespace=None):
+    """A function (or a method of class_name) taken out of an official source file and compiled on its own."""
+    source = Path(path).read_text()
+    nodes = ast.parse(source).body
+    if class_name is not None:
+        nodes = next(node for node in nodes if isinstance(node, ast.ClassDef) and node.name == class_name).body
+    node = next(node for node in nodes if isinstance(node, ast.FunctionDef) and node.name == name)
+    text = textwrap.dedent(ast.get_source_segment(source, node, padded=True))
+    for old, new in replacements:
+        assert text.count(old) == 1, (name, old)
+        text = text.replace(old, new)
+    namespace = dict(namespace or {})
+    exec(compile(text, str(path), "exec"), namespace)
+    return namespace[name], namespace
+
+
+@check
+def matches_official_osrt():
+    """Reference OSRT / RP-OSRT against the official modules and the official OSRT.decoder and
+    compute_adjusted_rand_index: set latent, slots, rgb, segmentation and FG-ARI of the four golden OSRT configs
+    (on their scenes) and of the official osrt_MDBN_64 and rposrt_MDBN_8_64 configs (random weights)."""
+    repo = os.environ.get("RAYPATCH_OFFICIAL_REPO")
+    if not repo:
+        raise Skip("set RAYPATCH_OFFICIAL_REPO to a checkout of tberriel/RayPatchQuerying")
+    official_encoder, official_decoder = import_official(repo)
+    # The src.layers classes, as the official encoder.py and decoder.py import them.
+    layers = types.SimpleNamespace(RayEncoder=official_encoder.RayEncoder, Transformer=official_encoder.Transformer,
+                                   SlotAttention=official_encoder.SlotAttention, SRTLinear=official_decoder.SRTLinear)
+    # OSRT.decoder hard-codes 5 slots and 2 target views in its Ray-Patch segmentation reshape; they become
+    # parameters here (the text is otherwise the official one).
+    decoder_function, decoder_namespace = official_function(
+        Path(repo) / "src" / "model.py", "decoder", "OSRT",
+        replacements=(("w_in,5]", "w_in,NUM_SLOTS]"), ("[-1,2,", "[-1,NUM_TARGETS,"), ("w_out,5]", "w_out,NUM_SLOTS]")),
+        namespace={"torch": torch, "RayPatchDecoder": official_decoder.RayPatchDecoder})
+    official_ari, _ = official_function(Path(repo) / "src" / "utils" / "common.py", "compute_adjusted_rand_index",
+                                        namespace={"torch": torch})
+
+    runs = [(name, osrt_case(name)) for name in OSRT_CASES]
+    runs.append(("osrt_MDBN_64", (copy.deepcopy(OSRT_MDBN_64), osrt_case("osrt")[1])))
+    runs.append(("rposrt_MDBN_8_64", (copy.deepcopy(RPOSRT_MDBN_8_64), osrt_case("rposrt_k8")[1])))
+    for name, (case_or_cfg, scene) in runs:
+        golden = not isinstance(case_or_cfg, dict)
+        model_cfg = case_or_cfg.model_cfg if golden else case_or_cfg
+        if golden:
+            torch.manual_seed(case_or_cfg.seed)
+            model = make_golden.build_model(model_cfg).eval()
+            make_golden.randomize_osrt_weights(model)
+            make_golden.calibrate_mixing(model, scene, case_or_cfg.target_size)
+            make_golden.calibrate_output(model, scene, case_or_cfg.target_size)
+        else:
+            model = random_osrt(model_cfg)
+        targets = tuple(scene["target_masks"].shape)
+        encoder, decoder_att, decoder_rp = official_osrt_modules(official_encoder, official_decoder, layers,
+                                                                 model_cfg, targets)
+        state = model.state_dict()
+        for prefix, module in (("encoder.", encoder), ("decoder_att.", decoder_att), ("decoder_rp.", decoder_rp)):
+            module.load_state_dict({n[len(prefix):]: t for n, t in state.items() if n.startswith(prefix)})
+            module.eval()
+        # Same names and shapes (the official FeatureDecoder registers conv_blocks before conv_0, so the order
+        # within decoder_rp differs; names are what checkpoints and model files go by).
+        official_shapes = {f"{prefix}{n}": list(t.shape) for prefix, module in
+                           (("encoder.", encoder), ("decoder_att.", decoder_att), ("decoder_rp.", decoder_rp))
+                           for n, t in module.state_dict().items()}
+        assert official_shapes == {n: list(t.shape) for n, t in state.items()}, name
+
+        images = scene["input_images"].permute(0, 3, 1, 2)[None]
+        inputs = (images, scene["input_camera_pos"][None], scene["input_rays"][None])
+        num_targets, height, width = targets
+        with torch.no_grad():
+            slots, set_latent = model.encode(*inputs, return_set_latent=True)
+            rgb, _, segmentation = model.render_views(slots, scene["target_camera_pos"][None],
+                                                      scene["target_rays"][None], (height, width))
+            set_latent_official = encoder.srt_encoder(*inputs)
+            slots_official = encoder(*inputs)
+            rays = scene["target_rays"]
+            if model.patch_size > 1 and rays.shape[1] == height:
+                rays = make_golden.patch_rays_of(model, scene)["target_rays"]
+            positions = scene["target_camera_pos"][:, None].expand(-1, rays.shape[1] * rays.shape[2], 3)
+            decoder_namespace.update(NUM_SLOTS=slots.shape[1], NUM_TARGETS=num_targets)
+            official_self = types.SimpleNamespace(decoder_att=decoder_att, decoder_rp=decoder_rp, training=False)
+            rgb_official, extras = decoder_function(official_self, slots_official, positions.reshape(1, -1, 3),
+                                                    rays.reshape(1, -1, 3))
+        segmentation_official = extras["segmentation"].reshape(1, -1, slots.shape[1])
+        masks = F.one_hot(scene["target_masks"].long(), int(scene["target_masks"].max()) + 1)[None].float()
+        true_seg = masks.flatten(1, 3)
+        fg_ari_official = official_ari(true_seg.transpose(1, 2)[:, 1:], segmentation_official.transpose(1, 2))
+        ours_on_official = foreground_ari(segmentation_official.reshape(segmentation.shape),
+                                          scene["target_masks"][None])
+        fg_ari = foreground_ari(segmentation, scene["target_masks"][None])
+        differences = {"set_latent": (set_latent - set_latent_official).abs().max().item(),
+                       "slots": (slots - slots_official).abs().max().item(),
+                       "rgb": (rgb.reshape(1, -1, 3) - rgb_official).abs().max().item(),
+                       "segmentation": (segmentation.reshape(1, -1, slots.shape[1])
+                                        - segmentation_official).abs().max().item(),
+                       "fg_ari": abs(fg_ari.item() - fg_ari_official.item())}
+        report(f"{name}: max |reference - official| " + ", ".join(f"{key} {value:.2e}"
+                                                                   for key, value in differences.items())
+               + f" (slots up to {slots.abs().max():.1f}, fg_ari {fg_ari.item():.6f})")
+        assert torch.equal(ours_on_official, fg_ari_official), (name, ours_on_official, fg_ari_official)
+        scale = max(1.0, slots.abs().max().item())
+        assert differences["set_latent"] < 1e-5 * max(1.0, set_latent.abs().max().item()), (name, differences)
+        assert differences["slots"] < 1e-5 * scale, (name, differences)
+        assert differences["rgb"] < 1e-5 and differences["segmentation"] < 1e-5, (name, differences)
+        assert differences["fg_ari"] < 1e-3, (name, differences)
+
+
 def main():
+    global VERBOSE
+    VERBOSE = "-v" in sys.argv[1:]
     failures = 0
     for function in CHECKS:
         try:
