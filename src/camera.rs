@@ -145,6 +145,7 @@ impl Camera {
             rays_width: rays.width,
             declared_size: Some((self.height(), self.width())),
             images: None,
+            masks: None,
         }
     }
 

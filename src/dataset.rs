@@ -27,6 +27,9 @@ pub struct TargetView {
     pub camera: Camera,
     /// The ground truth, when the scene has it (`target_images`, or the frame's PNG).
     pub image: Option<Image>,
+    /// Ground-truth object ids `[height, width]` row-major (0 = background), when the scene has
+    /// `target_masks`: what `--metrics` scores the segmentation against (FG-ARI).
+    pub masks: Option<Vec<u32>>,
 }
 
 /// Posed views read from disk.
@@ -119,7 +122,8 @@ impl SceneData {
                     .images
                     .as_ref()
                     .map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
-                Ok(TargetView { camera, image: image.transpose()? })
+                let masks = t.masks.as_ref().map(|all| all[i * th * tw..(i + 1) * th * tw].to_vec());
+                Ok(TargetView { camera, image: image.transpose()?, masks })
             })
             .collect::<Result<Vec<_>>>()?;
         let source = SceneSource::File(PathBuf::from(&file.path));
@@ -177,8 +181,10 @@ impl SceneData {
                 .map_err(|reason| err(format!("frame {i} ({name}): {reason}")))?;
             inputs.push(InputView { image, camera });
         }
-        let targets =
-            inputs.iter().map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()) }).collect();
+        let targets = inputs
+            .iter()
+            .map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()), masks: None })
+            .collect();
         Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets, files })
     }
 }

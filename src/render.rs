@@ -339,6 +339,13 @@ impl Rendered {
     pub fn logdepth(&self) -> Option<&[f32]> {
         self.get(Output::LogDepth)
     }
+
+    /// The slot weights of an OSRT model, `[height, width, slots]` row-major, with the slot count, when
+    /// requested.
+    pub fn segmentation(&self) -> Option<(&[f32], usize)> {
+        let r = self.outputs.iter().find(|r| r.output == Output::Segmentation)?;
+        Some((r.values.as_slice(), r.channels))
+    }
 }
 
 impl Scene<'_> {

@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use raypatch_engine::{Gpu, GpuOptions, Model, Output, Outputs};
+use raypatch::metrics::fg_ari;
+use raypatch_engine::{Frame, Gpu, GpuOptions, Model, Output, Outputs};
 use raypatch_model::TensorFile;
 
 const OUTPUT_MAX_ABS: f64 = 1e-4;
@@ -86,6 +87,9 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
         encoded.render_stats(&scene.targets, outputs).unwrap().peak_bytes as f64 / (1 << 20) as f64
     );
     let mut failures = Vec::new();
+    if expected.contains("fg_ari") {
+        failures.extend(check_fg_ari(&name, &expected, &scene, &frame));
+    }
     if latent_err > LATENT_MAX_REL {
         failures.push(format!("{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"));
     }
@@ -93,6 +97,29 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
         if err > tol {
             failures.push(format!("{name}: {} {kind} error {err:e} > {tol:e}", output.title()));
         }
+    }
+    failures
+}
+
+/// FG-ARI as the official code computes it: `raypatch::metrics::fg_ari` of PyTorch's own segmentation must give
+/// its figure (to f64 rounding: the same contingency table), and of the engine's within 0.02 (a pixel whose two
+/// largest slot weights differ by less than the float32 error may take the other slot).
+fn check_fg_ari(name: &str, expected: &TensorFile, scene: &raypatch_model::SceneFile, frame: &Frame) -> Vec<String> {
+    let want = expected.f64_values("fg_ari").unwrap()[0];
+    let masks = scene.targets.masks.as_ref().expect("OSRT golden scenes hold target_masks");
+    let torch = expected.f32("segmentation").unwrap();
+    let slots = *torch.shape.last().unwrap();
+    let of_torch = fg_ari(masks, &torch.data, slots).unwrap();
+    let of_engine = fg_ari(masks, frame.get(Output::Segmentation).unwrap(), slots).unwrap();
+    eprintln!(
+        "{name}: FG-ARI {want:.6} (PyTorch), {of_torch:.6} (ours of PyTorch's segmentation), {of_engine:.6} (engine)"
+    );
+    let mut failures = Vec::new();
+    if (of_torch - want).abs() > 1e-9 {
+        failures.push(format!("{name}: FG-ARI of the PyTorch segmentation {of_torch} != official {want}"));
+    }
+    if (of_engine - want).abs() > 0.02 {
+        failures.push(format!("{name}: FG-ARI of the engine's segmentation {of_engine} vs official {want}"));
     }
     failures
 }

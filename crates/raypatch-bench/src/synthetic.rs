@@ -265,6 +265,7 @@ pub fn synthetic_scene(
         rays_width: tw,
         declared_size: Some(target_size),
         images: None,
+        masks: None,
     };
     Ok((input, target))
 }

@@ -30,6 +30,8 @@ pub struct TargetViews {
     pub declared_size: Option<(usize, usize)>,
     /// Ground truth `[T,Ht,Wt,3]`, when the file has it.
     pub images: Option<Vec<f32>>,
+    /// Ground-truth object ids `[T,Ht,Wt]` (0 = background), when the file has `target_masks`.
+    pub masks: Option<Vec<u32>>,
 }
 
 /// How a target ray grid maps onto the image to render, for a given patch size.
@@ -128,6 +130,17 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
         (None, None) => None,
     };
 
+    let masks = if file.contains("target_masks") {
+        let size = declared_size.ok_or_else(|| ModelError::Value {
+            path: path.into(),
+            key: "target_masks".into(),
+            reason: "needs the target size: `target_images` or the `target_size` metadata".into(),
+        })?;
+        Some(read_masks(file, t, size)?)
+    } else {
+        None
+    };
+
     Ok(SceneFile {
         path: path.to_string(),
         inputs: InputViews {
@@ -146,8 +159,51 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
             rays: target_rays.data,
             declared_size,
             images: target_images.map(|t| t.data),
+            masks,
         },
     })
+}
+
+/// Most object ids a mask may hold (a bound on the contingency tables of FG-ARI).
+pub const MAX_OBJECT_ID: i64 = 65535;
+
+/// `target_masks`: object ids `[T,Ht,Wt]` of an integer dtype (0 = background; the MSN-Easy mask PNGs,
+/// `tools/make_scenes.py`), or one-hot `[T,Ht,Wt,G]` (F32 or integer) with channel 0 the background, as the
+/// official loader builds them (the id is the channel holding the largest value; all zeros is background).
+fn read_masks(file: &TensorFile, t: usize, (h, w): (usize, usize)) -> Result<Vec<u32>, ModelError> {
+    let key = "target_masks";
+    let expected = format!("[{t},{h},{w}] object ids (0 = background) or [{t},{h},{w},G] one-hot");
+    let shape = file.shape(key).unwrap_or_default().to_vec();
+    let err = |reason: String| ModelError::Value { path: file.path.clone(), key: key.into(), reason };
+    if shape.len() < 3 || shape[..3] != [t, h, w] || shape.len() > 4 || shape.get(3) == Some(&0) {
+        return Err(shape_err(&file.path, key, expected, &shape));
+    }
+    let values: Vec<f64> = match file.integers(key) {
+        Ok((_, v)) => v.into_iter().map(|x| x as f64).collect(),
+        Err(_) => file.f32(key)?.data.into_iter().map(f64::from).collect(),
+    };
+    if shape.len() == 3 {
+        return values
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| match v {
+                v if v.fract() == 0.0 && (0.0..=MAX_OBJECT_ID as f64).contains(&v) => Ok(v as u32),
+                v => Err(err(format!("element {i} is {v}, expected an object id from 0 to {MAX_OBJECT_ID}"))),
+            })
+            .collect();
+    }
+    let groups = shape[3];
+    Ok(values
+        .chunks_exact(groups)
+        .map(|one_hot| {
+            let (best, max) = one_hot.iter().enumerate().fold((0, 0.0), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+            if max > 0.0 {
+                best as u32
+            } else {
+                0
+            }
+        })
+        .collect())
 }
 
 /// Images are RGB in [0, 1] (a 0-255 image would give meaningless renders and metrics).

@@ -30,12 +30,31 @@ pub struct HostTensor {
     pub data: Vec<f32>,
 }
 
-/// One tensor as found in the file; `data` is decoded only for F32.
+/// One tensor as found in the file; `data` is decoded only for F32, `integers` only for integer dtypes.
 #[derive(Clone, Debug)]
 struct FileTensor {
     shape: Vec<usize>,
     dtype: Dtype,
     data: Option<Vec<f32>>,
+    integers: Option<Vec<i64>>,
+    wide: Option<Vec<f64>>,
+}
+
+/// The values of an integer tensor, widened to i64 (None for other dtypes).
+fn integers(dtype: Dtype, bytes: &[u8]) -> Option<Vec<i64>> {
+    fn le<const N: usize>(bytes: &[u8], f: impl Fn([u8; N]) -> i64) -> Vec<i64> {
+        bytes.chunks_exact(N).map(|b| f(b.try_into().expect("chunk of N bytes"))).collect()
+    }
+    Some(match dtype {
+        Dtype::U8 => bytes.iter().map(|&b| i64::from(b)).collect(),
+        Dtype::I8 => bytes.iter().map(|&b| i64::from(b as i8)).collect(),
+        Dtype::U16 => le(bytes, |b| i64::from(u16::from_le_bytes(b))),
+        Dtype::I16 => le(bytes, |b| i64::from(i16::from_le_bytes(b))),
+        Dtype::U32 => le(bytes, |b| i64::from(u32::from_le_bytes(b))),
+        Dtype::I32 => le(bytes, |b| i64::from(i32::from_le_bytes(b))),
+        Dtype::I64 => le(bytes, i64::from_le_bytes),
+        _ => return None,
+    })
 }
 
 /// A parsed safetensors file.
@@ -84,7 +103,12 @@ impl TensorFile {
         for (name, view) in st.tensors() {
             let data = (view.dtype() == Dtype::F32)
                 .then(|| view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect());
-            tensors.insert(name, FileTensor { shape: view.shape().to_vec(), dtype: view.dtype(), data });
+            let integers = integers(view.dtype(), view.data());
+            let wide = (view.dtype() == Dtype::F64).then(|| {
+                view.data().chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))).collect()
+            });
+            let shape = view.shape().to_vec();
+            tensors.insert(name, FileTensor { shape, dtype: view.dtype(), data, integers, wide });
         }
         Ok(TensorFile { path: path.to_string(), metadata, tensors })
     }
@@ -121,6 +145,35 @@ impl TensorFile {
             });
         }
         Ok(HostTensor { shape: t.shape.clone(), data: data.clone() })
+    }
+
+    /// The integer tensor `key` (any integer dtype) with its shape: an error if it is absent or not integer.
+    pub fn integers(&self, key: &str) -> Result<(Vec<usize>, Vec<i64>), ModelError> {
+        let t = self.tensors.get(key).ok_or_else(|| ModelError::Missing {
+            path: self.path.clone(),
+            key: key.to_string(),
+            expected: Vec::new(),
+        })?;
+        let values = t.integers.as_ref().ok_or_else(|| ModelError::Dtype {
+            path: self.path.clone(),
+            key: key.to_string(),
+            found: format!("{:?} (expected an integer dtype)", t.dtype),
+        })?;
+        Ok((t.shape.clone(), values.clone()))
+    }
+
+    /// The values of the F64 tensor `key` (reference outputs of the golden files).
+    pub fn f64_values(&self, key: &str) -> Result<Vec<f64>, ModelError> {
+        let t = self.tensors.get(key).ok_or_else(|| ModelError::Missing {
+            path: self.path.clone(),
+            key: key.to_string(),
+            expected: Vec::new(),
+        })?;
+        t.wide.clone().ok_or_else(|| ModelError::Dtype {
+            path: self.path.clone(),
+            key: key.to_string(),
+            found: format!("{:?} (expected F64)", t.dtype),
+        })
     }
 
     /// Like [`f32`](Self::f32), also checking the shape.

@@ -80,18 +80,19 @@ impl ModelConfig {
         if !raw.is_object() {
             return Err(config_err(path, format!("the model config must be a mapping, found {raw}")));
         }
-        let family =
-            match raw.get("base").and_then(Value::as_str) {
-                Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
-                Some("osrt") => Family::Osrt(OsrtConfig::from_value(path, &raw)?),
-                Some(other) => return Err(config_err(
+        let family = match raw.get("base").and_then(Value::as_str) {
+            Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
+            Some("osrt") => Family::Osrt(OsrtConfig::from_value(path, &raw)?),
+            Some(other) => {
+                return Err(config_err(
                     path,
                     format!(
                         "model base `{other}` is not supported (raypatch runs {BASES}: SRT, RP-SRT, OSRT and RP-OSRT)"
                     ),
-                )),
-                None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
-            };
+                ))
+            }
+            None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
+        };
         Ok(ModelConfig { family, raw })
     }
 
