@@ -112,6 +112,35 @@ impl Image {
     }
 
     /// Width in pixels.
+    /// A segmentation as colours: each pixel takes the colour of its most-weighted slot from a fixed palette
+    /// of 12 distinct colours (slot 12 repeats slot 0's). `weights`: `[height, width, slots]` row-major.
+    pub fn from_segmentation(width: usize, height: usize, weights: &[f32], slots: usize) -> Result<Image> {
+        const PALETTE: [[u8; 3]; 12] = [
+            [230, 25, 75],
+            [60, 180, 75],
+            [255, 225, 25],
+            [0, 130, 200],
+            [245, 130, 48],
+            [145, 30, 180],
+            [70, 240, 240],
+            [240, 50, 230],
+            [210, 245, 60],
+            [250, 190, 212],
+            [0, 128, 128],
+            [170, 110, 40],
+        ];
+        if slots == 0 || weights.len() != width * height * slots {
+            return Err(Error::Image {
+                path: "segmentation".into(),
+                reason: format!("{} slot weights for a {width}x{height} image of {slots} slots", weights.len()),
+            });
+        }
+        let data = crate::metrics::slot_ids(weights, slots)
+            .flat_map(|slot| PALETTE[slot % PALETTE.len()].map(|c| f32::from(c) / 255.0))
+            .collect();
+        Image::new(width, height, data)
+    }
+
     pub fn width(&self) -> usize {
         self.width
     }

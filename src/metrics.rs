@@ -129,6 +129,13 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
     Ok(total / (3 * width * height) as f64)
 }
 
+/// Each pixel's most-weighted slot, from slot weights `[pixels, slots]` (the first one on ties, as `argmax`).
+pub fn slot_ids(weights: &[f32], slots: usize) -> impl Iterator<Item = usize> + '_ {
+    weights.chunks_exact(slots).map(|w| {
+        w.iter().enumerate().fold((0, f32::NEG_INFINITY), |best, (i, &v)| if v > best.1 { (i, v) } else { best }).0
+    })
+}
+
 /// Foreground adjusted Rand index of a predicted segmentation against ground-truth object ids, as the
 /// official OSRT code computes it (`compute_adjusted_rand_index` of tberriel/RayPatchQuerying, after
 /// DeepMind's multi_object_datasets): pixels whose true id is 0 (background) are left out; each pixel's
@@ -155,9 +162,7 @@ pub fn fg_ari(true_ids: &[u32], weights: &[f32], slots: usize) -> Result<f64> {
             true_ids.len()
         )));
     }
-    let predicted = weights.chunks_exact(slots).map(|w| {
-        w.iter().enumerate().fold((0, f32::NEG_INFINITY), |best, (i, &v)| if v > best.1 { (i, v) } else { best }).0
-    });
+    let predicted = slot_ids(weights, slots);
     // Contingency counts over foreground pixels: (true id, predicted slot) -> n.
     let mut table: std::collections::HashMap<(u32, usize), f64> = std::collections::HashMap::new();
     for (&truth, pred) in true_ids.iter().zip(predicted) {

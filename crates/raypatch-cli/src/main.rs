@@ -1,6 +1,9 @@
-//! render-frame: render novel views of a scene with an SRT or RP-SRT model, from the shell.
+//! render-frame: render novel views, depth and object masks of a scene with an SRT, RP-SRT, OSRT or RP-OSRT
+//! model, from the shell.
 
-use std::collections::HashMap;
+mod files;
+mod report;
+
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -9,11 +12,11 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    metrics, AdapterChoice, Camera, Engine, EngineOptions, Image, OpTimes, Output, Outputs, Region, Request, SceneData,
-    SceneSource,
+    AdapterChoice, Camera, Engine, EngineOptions, Image, Output, Outputs, Region, Request, SceneData, SceneSource,
 };
-use safetensors::tensor::TensorView;
-use safetensors::Dtype;
+
+use files::{is_folder, png_paths, raw_bytes, OutputFiles};
+use report::{ms, print_profile, summary, Truth};
 
 /// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
 /// that it renders them wherever it is installed.
@@ -31,7 +34,7 @@ const MAX_RENDERS: usize = 100_000;
 #[command(
     name = "render-frame",
     version,
-    about = "Render novel views of a scene with an SRT / RP-SRT model on the GPU",
+    about = "Render novel views, depth and object masks of a scene with an SRT / RP-SRT / OSRT / RP-OSRT model on the GPU",
     after_help = "With no arguments, renders target view 0 of the bundled scene with the bundled model into render.png."
 )]
 struct Args {
@@ -67,17 +70,23 @@ struct Args {
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
     /// `.safetensors` file to write the raw outputs into, each as a tensor of its name: `rgb` [T,H,W,3] f32
-    /// after the sigmoid, `logdepth` [T,H,W].
+    /// after the sigmoid, `logdepth` and `depth` [T,H,W], `segmentation` [T,H,W,slots].
     #[arg(long, value_name = "FILE")]
     out_raw: Option<PathBuf>,
-    /// The outputs to compute, comma-separated: `rgb` (always, for the PNGs), `logdepth` (models with 4
-    /// output channels; written into --out-raw).
+    /// The outputs to compute, comma-separated: `rgb` (PNGs to --out), `segmentation` (OSRT models: the
+    /// slot weights, to --segmentation or --out-raw), `logdepth` and `depth` = exp(logdepth) (models with a
+    /// depth channel, to --out-raw). Only these are computed: without rgb no colour is decoded.
     #[arg(long, value_name = "LIST", default_value = "rgb", value_parser = parse_outputs)]
     outputs: Outputs,
-    /// Short for `--outputs rgb,logdepth`.
+    /// Short for adding `logdepth` to --outputs.
     #[arg(long, requires = "out_raw")]
     logdepth: bool,
-    /// Print PSNR and SSIM of each target view against the scene's target images, and their means.
+    /// Write object masks (OSRT models): per view, each pixel coloured by its most-weighted slot, into a `.png`
+    /// file or a folder as --out does. Adds `segmentation` to --outputs.
+    #[arg(long, value_name = "DIR|FILE.png")]
+    segmentation: Option<PathBuf>,
+    /// Print each target view's PSNR and SSIM against the scene's target images, and for OSRT models the
+    /// FG-ARI of the segmentation against the scene's `target_masks` (computed then), with their means.
     #[arg(long)]
     metrics: bool,
     /// Render only this region (pixels; X,Y = top-left corner): only the patches it needs are computed.
@@ -189,13 +198,15 @@ fn pick(flag: &str, list: &str, count: usize, what: &str) -> Result<Vec<usize>> 
     Ok(picked)
 }
 
-/// One image to render and where its PNG goes.
+/// One image to render, and its name in an output folder.
 struct Shot {
     camera: Camera,
     /// The target view's ground truth, for --metrics.
     truth: Option<Image>,
+    /// The target view's object ids, for --metrics (FG-ARI).
+    masks: Option<Vec<u32>>,
     label: String,
-    png: PathBuf,
+    name: String,
 }
 
 fn run(args: &Args) -> Result<()> {
@@ -239,7 +250,8 @@ fn run(args: &Args) -> Result<()> {
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
     let shots = shots(args, &data, &views)?;
-    let output_files = check_outputs(args, &shots, &data)?;
+    let outputs = requested_outputs(args, &shots, model.outputs())?;
+    let output_files = output_files(args, &shots, &data, outputs)?;
     let mut warnings = model.check_inputs(&inputs)?;
     for shot in &shots {
         warnings.extend(model.check_camera(&shot.camera).with_context(|| shot.label.clone())?);
@@ -247,21 +259,6 @@ fn run(args: &Args) -> Result<()> {
     warnings.dedup();
     for warning in &warnings {
         eprintln!("render-frame: warning: {warning}");
-    }
-    if args.metrics && shots.iter().any(|s| s.truth.is_none()) {
-        bail!(
-            "--metrics: needs target views with ground-truth images (scene `target_images`, or frames), \
-             not --orbit, --orbit-frames or --pose"
-        );
-    }
-    let mut outputs = args.outputs.with(Output::Rgb);
-    if args.logdepth {
-        outputs = outputs.with(Output::LogDepth);
-    }
-    if args.out_raw.is_none() {
-        if let Some(extra) = outputs.without(Output::Rgb).iter().next() {
-            bail!("--outputs {}: only --out-raw FILE writes it", extra.name());
-        }
     }
     let request = Request { outputs, region: args.region };
 
@@ -300,27 +297,46 @@ fn run(args: &Args) -> Result<()> {
         repeats.push(start.elapsed());
     }
 
-    let images: Vec<Image> = rendered.iter().map(|r| r.rgb().expect("rgb is always requested")).collect();
-    let metric_lines = if args.metrics { metrics_report(&shots, &images, request.region)? } else { Vec::new() };
+    let metric_lines = if args.metrics {
+        let truths: Vec<Truth> = shots
+            .iter()
+            .map(|s| Truth { label: &s.label, image: s.truth.as_ref(), masks: s.masks.as_deref() })
+            .collect();
+        report::metrics(&truths, &rendered, shots[0].camera.width())?
+    } else {
+        Vec::new()
+    };
+    let images: Vec<Image> = rendered.iter().filter_map(raypatch::Rendered::rgb).collect();
     let mut contents = images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?;
+    if args.segmentation.is_some() {
+        for r in &rendered {
+            let (weights, slots) = r.segmentation().expect("segmentation was requested");
+            contents.push(Image::from_segmentation(r.region.width, r.region.height, weights, slots)?.encode_png()?);
+        }
+    }
     if args.out_raw.is_some() {
         contents.push(raw_bytes(&rendered)?);
     }
     output_files.write(&contents)?;
-    let written = &output_files.files;
 
     let k = model.patch_size();
-    let first = &images[0];
-    let region =
-        request.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
+    let region = rendered[0].region;
+    let region_text =
+        args.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
+    let family = match (model.config().base(), k) {
+        ("osrt", 1) => "OSRT",
+        ("osrt", _) => "RP-OSRT",
+        (_, 1) => "SRT",
+        _ => "RP-SRT",
+    };
     println!(
-        "rendered {} view(s) of {}x{}{region} from {} input view(s) with {} ({}, k={k}, {:.2}M parameters) on {}",
-        images.len(),
+        "rendered {} view(s) of {}x{}{region_text} ({}) from {} input view(s) with {} ({family}, k={k}, {:.2}M parameters) on {}",
+        rendered.len(),
         shots[0].camera.width(),
         shots[0].camera.height(),
+        outputs.iter().map(Output::name).collect::<Vec<_>>().join(", "),
         inputs.len(),
         model.path(),
-        if k == 1 { "SRT" } else { "RP-SRT" },
         model.parameter_count() as f64 / 1e6,
         engine.adapter()
     );
@@ -329,10 +345,10 @@ fn run(args: &Args) -> Result<()> {
         "encode {:.1} ms, render {:.1} ms ({} image(s) of {}x{}); wrote {}",
         ms(encode_time),
         ms(total),
-        images.len(),
-        first.width(),
-        first.height(),
-        written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        rendered.len(),
+        region.width,
+        region.height,
+        output_files.paths().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
     );
     for line in &metric_lines {
         println!("{line}");
@@ -380,209 +396,130 @@ fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
-}
-
-/// "median M ms, min A ms, max B ms over N runs".
-fn summary(times: &[Duration]) -> String {
-    let mut sorted = times.to_vec();
-    sorted.sort();
-    format!(
-        "median {:.1} ms, min {:.1} ms, max {:.1} ms over {} runs",
-        ms(sorted[sorted.len() / 2]),
-        ms(sorted[0]),
-        ms(sorted[sorted.len() - 1]),
-        sorted.len()
-    )
-}
-
 /// The images to render: the chosen target views, or novel cameras made from the first of them.
 fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
-    let folder = match args.out.extension() {
-        Some(e) if e.eq_ignore_ascii_case("png") => false,
-        Some(_) if !args.out.is_dir() => bail!(
-            "--out {}: expected a .png file, or a folder (a name without extension, or an existing folder)",
-            args.out.display()
-        ),
-        _ => true,
-    };
     let reference = &data.targets[views[0]].camera;
     if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
         bail!("--orbit {degrees}: expected a finite angle in degrees");
     }
-    let novel = |camera: Camera, label: String| Shot { camera, truth: None, label, png: PathBuf::new() };
-    let (mut shots, folder_names): (Vec<Shot>, Vec<String>) = if let Some(path) = &args.pose {
-        (
-            vec![novel(raypatch::load_pose(path, reference)?, format!("--pose {}", path.display()))],
-            vec!["render".into()],
-        )
+    let novel = |camera: Camera, label: String, name: String| Shot { camera, truth: None, masks: None, label, name };
+    if let Some(path) = &args.pose {
+        let camera = raypatch::load_pose(path, reference)?;
+        Ok(vec![novel(camera, format!("--pose {}", path.display()), "render".into())])
     } else if let Some(n) = args.orbit_frames {
         if n == 0 {
             bail!("--orbit-frames 0: expected at least one frame");
         }
         let start = args.orbit.unwrap_or(0.0);
         let turn = |i: usize| start + 360.0 * i as f64 / n as f64;
-        let shots = (0..n).map(|i| novel(reference.orbited(turn(i)), format!("turntable frame {i} ({:.1}°)", turn(i))));
-        (shots.collect(), (0..n).map(|i| format!("frame_{i:03}")).collect())
+        Ok((0..n)
+            .map(|i| {
+                let label = format!("turntable frame {i} ({:.1}°)", turn(i));
+                novel(reference.orbited(turn(i)), label, format!("frame_{i:03}"))
+            })
+            .collect())
     } else if let Some(degrees) = args.orbit {
-        (vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"))], vec!["render".into()])
+        Ok(vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"), "render".into())])
     } else {
-        let shots = views.iter().map(|&v| Shot {
-            camera: data.targets[v].camera.clone(),
-            truth: data.targets[v].image.clone(),
-            label: format!("target view {v}"),
-            png: PathBuf::new(),
-        });
-        (shots.collect(), views.iter().map(|v| format!("view_{v:03}")).collect())
+        Ok(views
+            .iter()
+            .map(|&v| Shot {
+                camera: data.targets[v].camera.clone(),
+                truth: data.targets[v].image.clone(),
+                masks: data.targets[v].masks.clone(),
+                label: format!("target view {v}"),
+                name: format!("view_{v:03}"),
+            })
+            .collect())
+    }
+}
+
+/// The outputs to compute: --outputs, with what --logdepth, --segmentation and --metrics imply; each must be
+/// one the model renders and have somewhere to go.
+fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Result<Outputs> {
+    let mut outputs = args.outputs;
+    if args.logdepth {
+        outputs = outputs.with(Output::LogDepth);
+    }
+    if args.segmentation.is_some() {
+        outputs = outputs.with(Output::Segmentation);
+    }
+    let flag = |o: Output| match o {
+        Output::Segmentation if args.segmentation.is_some() => "--segmentation".to_string(),
+        Output::LogDepth if args.logdepth => "--logdepth".to_string(),
+        o => format!("--outputs {}", o.name()),
     };
-    let single = shots.len() == 1;
-    for (i, (shot, name)) in shots.iter_mut().zip(folder_names).enumerate() {
-        shot.png = if folder {
-            args.out.join(format!("{name}.png"))
-        } else if single {
-            args.out.clone()
-        } else {
-            let stem = args.out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-            args.out.with_file_name(format!("{stem}_{i:03}.png"))
+    if let Some(missing) = outputs.missing_from(model_outputs).next() {
+        let names: Vec<&str> = model_outputs.iter().map(Output::name).collect();
+        bail!(
+            "{}: {} was requested but this model has {} (it renders {})",
+            flag(missing),
+            missing.title(),
+            missing.lacked(),
+            names.join(", ")
+        );
+    }
+    if args.metrics {
+        let masks = shots.iter().all(|s| s.masks.is_some());
+        if masks && model_outputs.contains(Output::Segmentation) {
+            outputs = outputs.with(Output::Segmentation);
+        }
+        let images = outputs.contains(Output::Rgb) && shots.iter().all(|s| s.truth.is_some());
+        if !images && !(masks && outputs.contains(Output::Segmentation)) {
+            bail!(
+                "--metrics: needs target views with ground truth: ground-truth images (scene `target_images`, or \
+                 frames) for rgb, or `target_masks` for an OSRT model's segmentation; not --orbit, --orbit-frames \
+                 or --pose"
+            );
+        }
+    }
+    for output in outputs.iter() {
+        let (written, writers) = match output {
+            Output::Rgb => (true, ""),
+            Output::Segmentation => (
+                args.segmentation.is_some() || args.out_raw.is_some() || args.metrics,
+                "--segmentation DIR|FILE.png or --out-raw FILE",
+            ),
+            Output::LogDepth | Output::Depth => (args.out_raw.is_some(), "--out-raw FILE"),
         };
-    }
-    Ok(shots)
-}
-
-/// The files a run writes (PNGs, then the raw outputs), checked before any GPU work, written all or none.
-struct OutputFiles {
-    files: Vec<PathBuf>,
-    /// An --out folder to create when writing, and to remove again if the writes fail.
-    new_folder: Option<PathBuf>,
-}
-
-impl OutputFiles {
-    fn write(&self, contents: &[Vec<u8>]) -> Result<()> {
-        if let Some(folder) = &self.new_folder {
-            std::fs::create_dir(folder)
-                .with_context(|| format!("--out {}: cannot create the folder", folder.display()))?;
+        if !written {
+            bail!("{}: nothing would write it (add {writers})", flag(output));
         }
-        let files: Vec<(&Path, &[u8])> =
-            self.files.iter().map(PathBuf::as_path).zip(contents.iter().map(Vec::as_slice)).collect();
-        let written = raypatch::write_all_atomic(&files);
-        if let (Err(_), Some(folder)) = (&written, &self.new_folder) {
-            let _ = std::fs::remove_dir(folder);
-        }
-        Ok(written?)
     }
+    if outputs.is_empty() {
+        bail!("--outputs: nothing to compute");
+    }
+    Ok(outputs)
 }
 
-/// Where a path points, for comparing outputs with each other and with the inputs: the canonical folder
-/// joined with the file name (the file itself may not exist yet).
-fn identity(path: &Path) -> PathBuf {
-    let folder = raypatch::folder_of(path);
-    let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());
-    folder.join(path.file_name().unwrap_or_default())
-}
-
-/// Fails before any GPU work when an output cannot be written: its folder must exist (or be creatable, for
-/// an --out folder), anything already at its path must be a regular file, and no output may be another
-/// output or one of the inputs.
-fn check_outputs(args: &Args, shots: &[Shot], data: &SceneData) -> Result<OutputFiles> {
-    let mut named: Vec<(&str, PathBuf)> = shots.iter().map(|s| ("--out", s.png.clone())).collect();
+/// The files the run writes (rgb PNGs, segmentation PNGs, the raw outputs), checked before any GPU work.
+fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs) -> Result<OutputFiles> {
+    let names: Vec<String> = shots.iter().map(|s| s.name.clone()).collect();
+    let mut files: Vec<(&'static str, PathBuf)> = Vec::new();
+    let mut folders: Vec<(&'static str, &Path)> = Vec::new();
+    let pngs = [
+        (outputs.contains(Output::Rgb), "--out", Some(&args.out)),
+        (true, "--segmentation", args.segmentation.as_ref()),
+    ];
+    for (wanted, flag, dest) in pngs {
+        if let Some(dest) = dest.filter(|_| wanted) {
+            files.extend(png_paths(flag, dest, &names)?.into_iter().map(|p| (flag, p)));
+            if is_folder(flag, dest)? {
+                folders.push((flag, dest));
+            }
+        }
+    }
     if let Some(path) = &args.out_raw {
         if path.extension().is_none_or(|e| !e.eq_ignore_ascii_case("safetensors")) {
             bail!("--out-raw {}: expected a file name ending in .safetensors", path.display());
         }
-        named.push(("--out-raw", path.clone()));
+        files.push(("--out-raw", path.clone()));
     }
-    let out_is_folder = shots.iter().any(|s| s.png.parent() == Some(args.out.as_path()));
-    let new_folder = (out_is_folder && !args.out.exists()).then(|| args.out.clone());
-    if let Some(folder) = &new_folder {
-        let parent = raypatch::folder_of(folder);
-        if !parent.is_dir() {
-            bail!("--out {}: cannot create the folder: {} is not a folder", folder.display(), parent.display());
-        }
-    }
-    let mut inputs: Vec<(String, PathBuf)> = data.files.iter().map(|f| ("--scene".to_string(), identity(f))).collect();
+    let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
     for (flag, path) in [("--model", &args.model), ("--pose", &args.pose)] {
         if let Some(path) = path {
-            inputs.push((flag.to_string(), identity(path)));
+            inputs.push((flag, path.clone()));
         }
     }
-    let mut seen: Vec<(&str, PathBuf)> = Vec::new();
-    for (flag, path) in &named {
-        let id = identity(path);
-        if let Some((other, _)) = seen.iter().find(|(_, p)| *p == id) {
-            bail!("{flag} {}: the same file as an output of {other}", path.display());
-        }
-        if let Some((input, _)) = inputs.iter().find(|(_, p)| *p == id) {
-            bail!("{flag} {}: would overwrite the input given by {input}", path.display());
-        }
-        if new_folder.as_deref() != path.parent() {
-            raypatch::check_output_path(path).with_context(|| flag.to_string())?;
-        } else if std::fs::symlink_metadata(path).is_ok() {
-            bail!("{flag} {}: exists", path.display());
-        }
-        seen.push((flag, id));
-    }
-    Ok(OutputFiles { files: named.into_iter().map(|(_, p)| p).collect(), new_folder })
-}
-
-/// PSNR and SSIM of each rendered view against its ground truth (cropped to the region), and their means.
-fn metrics_report(shots: &[Shot], images: &[Image], region: Option<Region>) -> Result<Vec<String>> {
-    let mut lines = Vec::new();
-    let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
-    for (shot, image) in shots.iter().zip(images) {
-        let truth = shot.truth.as_ref().expect("checked before rendering");
-        let truth = match region {
-            Some(r) => truth.crop(r)?,
-            None => truth.clone(),
-        };
-        let (p, s) = (
-            metrics::psnr(image, &truth)?,
-            metrics::ssim(image, &truth).with_context(|| format!("--metrics: {}", shot.label))?,
-        );
-        lines.push(format!("{}: PSNR {p:.3} dB, SSIM {s:.4}", shot.label));
-        psnr_sum += p;
-        ssim_sum += s;
-    }
-    let n = shots.len() as f64;
-    lines.push(format!("mean over {} view(s): PSNR {:.3} dB, SSIM {:.4}", shots.len(), psnr_sum / n, ssim_sum / n));
-    Ok(lines)
-}
-
-/// The slowest ops of a plan, with their share of the plan's total.
-fn print_profile(what: &str, ops: &OpTimes) {
-    let total: f64 = ops.iter().map(|(_, t)| t.as_secs_f64()).sum();
-    println!("{what}: {} ops, {:.1} ms run one by one; slowest:", ops.len(), total * 1e3);
-    let mut sorted: Vec<_> = ops.iter().collect();
-    sorted.sort_by_key(|(_, t)| std::cmp::Reverse(*t));
-    for (label, t) in sorted.iter().take(12) {
-        println!("  {:8.2} ms {:5.1}%  {label}", ms(*t), 100.0 * t.as_secs_f64() / total);
-    }
-}
-
-/// A safetensors file with one tensor per output, named by the output: `[T,H,W,channels]`, or `[T,H,W]` for
-/// one channel.
-fn raw_bytes(rendered: &[raypatch::Rendered]) -> Result<Vec<u8>> {
-    let region = rendered[0].region;
-    let tensors: Vec<(String, Vec<u8>, Vec<usize>)> = rendered[0]
-        .outputs
-        .iter()
-        .map(|first| {
-            let values = rendered.iter().flat_map(|r| r.get(first.output).unwrap_or_default().iter().copied());
-            let mut shape = vec![rendered.len(), region.height, region.width, first.channels];
-            if first.channels == 1 {
-                shape.pop();
-            }
-            (first.output.name().to_string(), f32_bytes(values), shape)
-        })
-        .collect();
-    let views = tensors
-        .iter()
-        .map(|(name, bytes, shape)| Ok((name.clone(), TensorView::new(Dtype::F32, shape.clone(), bytes)?)))
-        .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
-    let metadata = HashMap::from([("format".to_string(), "raypatch-frame/1".to_string())]);
-    Ok(safetensors::serialize(views, Some(metadata))?)
-}
-
-fn f32_bytes(values: impl Iterator<Item = f32>) -> Vec<u8> {
-    values.flat_map(|v| v.to_le_bytes()).collect()
+    OutputFiles::check(files, &folders, &inputs)
 }

@@ -76,6 +76,54 @@ fn target_views_match_pytorch_with_metrics_and_raw_output() {
 }
 
 #[test]
+fn osrt_segmentation_masks_depth_and_fg_ari() {
+    let dir = TempDir::new().unwrap();
+    let (model, scene) = (golden("rposrt_k8", "model.safetensors"), golden("rposrt_k8", "scene.safetensors"));
+    let expected = TensorFile::open(Path::new(&golden("rposrt_k8", "expected.safetensors"))).unwrap();
+    let args = ["--model", &model, "--scene", &scene, "--view", "all", "--segmentation", "masks", "--metrics"];
+    let r = run(dir.path(), &[&args[..], &["--out", "rgb", "--out-raw", "raw.safetensors"]].concat());
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stdout.contains("RP-OSRT, k=8") && r.stdout.contains("(rgb, segmentation)"), "{}", r.stdout);
+    for view in ["view_000.png", "view_001.png"] {
+        assert_eq!(png_size(&dir.path().join("masks").join(view)), (48, 32));
+        assert_eq!(png_size(&dir.path().join("rgb").join(view)), (48, 32));
+    }
+    // The raw segmentation is the model's (PyTorch's within the golden tolerance); the pooled FG-ARI is the
+    // official figure.
+    let raw = TensorFile::open(&dir.path().join("raw.safetensors")).unwrap().f32("segmentation").unwrap();
+    let want = expected.f32("segmentation").unwrap();
+    assert_eq!(raw.shape, want.shape);
+    let err = raw.data.iter().zip(&want.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(err <= 1e-4, "CLI segmentation differs from PyTorch by {err}");
+    let official = expected.f64_values("fg_ari").unwrap()[0];
+    let line = r.stdout.lines().find(|l| l.starts_with("mean over 2 view(s)")).expect("a mean line");
+    assert!(line.contains(&format!("as the official test: {official:.4}")), "{line} (official {official})");
+    assert!(r.stdout.contains("target view 1: PSNR") && r.stdout.contains("FG-ARI"), "{}", r.stdout);
+
+    // Segmentation alone: no rgb PNG is written.
+    let r = run(
+        dir.path(),
+        &["--model", &model, "--scene", &scene, "--outputs", "segmentation", "--segmentation", "m.png"],
+    );
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(dir.path().join("m.png").exists() && !dir.path().join("render.png").exists());
+
+    // depth = exp(logdepth) of a depth model.
+    let (model, scene) = (golden("srt_k1_depth", "model.safetensors"), golden("srt_k1_depth", "scene.safetensors"));
+    let r = run(
+        dir.path(),
+        &["--model", &model, "--scene", &scene, "--outputs", "rgb,logdepth,depth", "--out-raw", "d.safetensors"],
+    );
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let raw = TensorFile::open(&dir.path().join("d.safetensors")).unwrap();
+    let (log, depth) = (raw.f32("logdepth").unwrap(), raw.f32("depth").unwrap());
+    assert_eq!(depth.shape, vec![1, 16, 24]);
+    for (l, d) in log.data.iter().zip(&depth.data) {
+        assert!((l.exp() - d).abs() <= 1e-6 * d.abs().max(1.0), "exp({l}) = {} != {d}", l.exp());
+    }
+}
+
+#[test]
 fn novel_views_turntables_poses_and_depth() {
     let dir = TempDir::new().unwrap();
     let r = run(dir.path(), &["--orbit", "-30", "--out", "orbit.png"]);
@@ -148,6 +196,17 @@ fn bad_flags_and_paths() {
     fails(d, &["--orbit-frames", "0"], &["--orbit-frames 0"]);
     fails(d, &["--orbit-frames", "2", "--orbit", "NaN"], &["--orbit NaN", "finite angle"]);
     fails(d, &["--logdepth", "--out-raw", "x.safetensors"], &["log-depth", "no depth channel"]);
+    fails(d, &["--segmentation", "m.png"], &["--segmentation", "no object slots"]);
+    fails(d, &["--outputs", "rgb,shape"], &["--outputs", "unknown output \"shape\"", "segmentation"]);
+    let (osrt_model, osrt_scene) = (golden("osrt", "model.safetensors"), golden("osrt", "scene.safetensors"));
+    let osrt = ["--model", osrt_model.as_str(), "--scene", osrt_scene.as_str()];
+    fails(d, &[&osrt[..], &["--outputs", "segmentation"]].concat(), &["--outputs segmentation", "--segmentation"]);
+    fails(
+        d,
+        &[&osrt[..], &["--outputs", "depth", "--out-raw", "x.safetensors"]].concat(),
+        &["depth", "no depth channel"],
+    );
+    fails(d, &[&osrt[..], &["--segmentation", "m.txt"]].concat(), &["--segmentation", "m.txt", ".png"]);
     std::fs::write(d.join("plain-file"), b"").unwrap();
     fails(d, &["--out", "plain-file/render.png"], &["--out", "plain-file", "does not exist"]);
     fails(d, &["--out-raw", "no/such/dir/raw.safetensors"], &["--out-raw", "no/such/dir", "does not exist"]);

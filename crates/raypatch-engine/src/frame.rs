@@ -40,6 +40,15 @@ impl Output {
         }
     }
 
+    /// What a model that cannot render this output lacks, for messages.
+    pub fn lacked(self) -> &'static str {
+        match self {
+            Output::Rgb => "no rgb output",
+            Output::LogDepth | Output::Depth => "no depth channel",
+            Output::Segmentation => "no object slots (segmentation is an OSRT output)",
+        }
+    }
+
     /// The output named `name`, if any.
     pub fn from_name(name: &str) -> Option<Output> {
         Output::ALL.into_iter().find(|o| o.name() == name)

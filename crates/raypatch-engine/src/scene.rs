@@ -336,11 +336,7 @@ impl EncodedScene<'_> {
             return Err(EngineError::Request(format!("nothing to render: ask for one of {}", names.join(", "))));
         }
         if let Some(missing) = outputs.missing_from(family.outputs()).next() {
-            let lacks = match missing {
-                Output::Rgb => "no rgb output",
-                Output::LogDepth | Output::Depth => "no depth channel",
-                Output::Segmentation => "no object slots (segmentation is an OSRT output)",
-            };
+            let lacks = missing.lacked();
             return Err(EngineError::Request(format!("{} was requested but this model has {lacks}", missing.title())));
         }
         let full = Region { x: 0, y: 0, width: image.width, height: image.height };
