@@ -43,7 +43,7 @@ const SIGMOID_TOL: f64 = 3e-7;
 fn map_columns_random_shapes_and_views() {
     let mut rng = Rng::new(31);
     for case in 0..16 {
-        let f = if case % 2 == 0 { Map::Identity } else { Map::Sigmoid };
+        let f = [Map::Identity, Map::Sigmoid, Map::Exp][case % 3];
         let cols_x = rng.range(1, 70);
         let cols = rng.range(1, cols_x);
         let col = rng.range(0, cols_x - cols);
@@ -63,8 +63,52 @@ fn map_columns_random_shapes_and_views() {
         let want =
             reference::map_columns(&to_f64(&x[x_start * cols_x..(x_start + rows) * cols_x]), cols_x, col, cols, f);
         let what = format!("{f:?} of columns {col}..{} of {rows}x{cols_x} from rows {x_start}/{out_start}", col + cols);
-        // Identity is a copy: bit exact.
-        assert_close(&what, &got, &want, if f == Map::Identity { 0.0 } else { SIGMOID_TOL }, 0.0);
+        match f {
+            // Identity is a copy: bit exact.
+            Map::Identity => assert_close(&what, &got, &want, 0.0, 0.0),
+            Map::Sigmoid => assert_close(&what, &got, &want, SIGMOID_TOL, 0.0),
+            Map::Exp => {
+                let xs = x.chunks(cols_x).skip(x_start).take(rows).flat_map(|row| &row[col..col + cols]);
+                assert_exp_close(&what, xs.copied(), &got, &want);
+            }
+        }
+    }
+}
+
+/// f32 unit roundoff.
+const U: f64 = 1.0 / (1u64 << 24) as f64;
+
+/// exp's relative error allowed at x, WGSL's 3 + 2|x| ulp in the form GPUs reach it: exp(x) = 2^(x·log2 e),
+/// where the rounding of x·log2 e gives up to u·|x| relative and that of log2 e itself ~0.25u·|x| more (2u·|x|
+/// allowed), then exp2 within a few ulp (8u). Returns the largest error as a fraction of what is allowed.
+fn assert_exp_close(what: &str, x: impl Iterator<Item = f32>, got: &[f32], want: &[f64]) -> f64 {
+    let mut worst = 0.0f64;
+    for ((x, &g), &w) in x.zip(got).zip(want) {
+        let tol = U * (2.0 * x.abs() as f64 + 8.0) * w;
+        let err = if g.is_finite() { (g as f64 - w).abs() } else { f64::INFINITY };
+        assert!(err <= tol, "{what}: exp({x:e}) = {g:e}, want {w:e} (relative error {:e})", err / w);
+        worst = worst.max(err / tol);
+    }
+    worst
+}
+
+/// exp over the whole range where its f32 result is normal, by relative error; beyond it exp overflows to
+/// +inf and underflows to 0 (or a denormal), never NaN; and exp(±inf) = inf, 0.
+#[test]
+fn exp_accuracy() {
+    // A dense sweep of [-87, 88] (ln of f32's smallest normal is -87.3, of its largest 88.7).
+    let x: Vec<f32> = (0..=35000).map(|i| -87.0 + i as f32 * 0.005).collect();
+    let got = run_map(&x, 1, 0..x.len(), 0..1, x.len(), 0, Map::Exp);
+    let want = reference::map_columns(&to_f64(&x), 1, 0, 1, Map::Exp);
+    let worst = assert_exp_close("exp over [-87, 88]", x.iter().copied(), &got, &want);
+    let max_rel = got.iter().zip(&want).map(|(&g, &w)| (g as f64 - w).abs() / w).fold(0.0, f64::max);
+    eprintln!("exp over [-87, 88]: max relative error {max_rel:e} ({worst:.3} of the tolerance)");
+
+    let x = [89.0f32, 100.0, 1e30, f32::MAX, f32::INFINITY, -104.0, -1e30, -f32::MAX, f32::NEG_INFINITY];
+    let got = run_map(&x, 1, 0..x.len(), 0..1, x.len(), 0, Map::Exp);
+    for (&x, &g) in x.iter().zip(&got) {
+        let ok = if x > 0.0 { g == f32::INFINITY } else { (0.0..1.2e-38).contains(&g) };
+        assert!(ok, "exp({x:e}) = {g:e}");
     }
 }
 

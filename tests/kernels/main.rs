@@ -5,11 +5,15 @@
 mod common;
 
 mod attention;
+mod concat;
 mod conv;
 mod elementwise;
+mod gru;
 mod matmul;
+mod mix;
 mod multiply_adds;
 mod norm;
 mod posenc;
 mod resize;
 mod shaders;
+mod softmax;

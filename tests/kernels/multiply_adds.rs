@@ -1,10 +1,15 @@
 //! Each op records its multiply-adds: `m·n·k` for a linear layer, `n·ho·wo·cout·9·cin` for a convolution,
-//! `2·nq·nkv·dim_head·heads` for attention, none for the elementwise kernels; plans sum them.
+//! `2·nq·nkv·dim_head·heads` for attention, `rows·n·cols` for a row mix, none for the elementwise kernels
+//! (maps, softmax, normalisation, concatenation, GRU gates); plans sum them.
 
 use raypatch_engine::kernels::attention::{attention, AttentionArgs};
+use raypatch_engine::kernels::concat::concat_columns;
 use raypatch_engine::kernels::conv::{conv3x3, Conv3x3Args};
 use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use raypatch_engine::kernels::gru::{gru_cell, GruArgs};
 use raypatch_engine::kernels::matmul::{linear, LinearArgs};
+use raypatch_engine::kernels::mix::{mix_rows, MixArgs};
+use raypatch_engine::kernels::softmax::{normalize_rows, softmax, Axis, SoftmaxArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::padded_cols;
@@ -46,6 +51,13 @@ fn multiply_adds_are_counted() {
     attention(&mut plan, "attention", args);
     assert_eq!(plan.multiply_adds(), 105 + 1620 + 400);
 
+    // Row mix: w [4, 5] · y [5, 7] → [4, 7]: 4·5·7 = 140.
+    let mix_w = plan.input("mix.w", 4, 5);
+    let mixed = plan.transient("mixed", 4, 7);
+    let (w, out) = (plan.all(mix_w), plan.all(mixed));
+    mix_rows(&mut plan, "mix", MixArgs { w, x: y, out });
+    assert_eq!(plan.multiply_adds(), 105 + 1620 + 400 + 140);
+
     // Elementwise ops count nothing.
     let copied = plan.output("copied", 5, 8);
     let (x, out) = (plan.all(heads_out), plan.all(copied));
@@ -56,7 +68,17 @@ fn multiply_adds_are_counted() {
     let y_copy = plan.output("y_copy", 5, 7);
     let (x, out) = (plan.all(y), plan.all(y_copy));
     map_columns(&mut plan, "y_copy", MapColumnsArgs { x, col: 0, out, map: Map::Sigmoid });
-    assert_eq!(plan.multiply_adds(), 2125);
+    let (attn, weights) = (plan.transient("attn", 4, 7), plan.output("weights", 4, 7));
+    let (x, a, out) = (plan.all(mixed), plan.all(attn), plan.all(weights));
+    softmax(&mut plan, "softmax", SoftmaxArgs { x, out: a, axis: Axis::Columns, scale: 0.5, eps: 1e-8 });
+    normalize_rows(&mut plan, "normalize", a, out);
+    let joined = plan.output("joined", 5, 15);
+    let (a, b, out) = (plan.all(y), plan.all(heads_out), plan.all(joined));
+    concat_columns(&mut plan, "concat", a, b, out);
+    let (gates, state, next) = (plan.input("gates", 5, 15), plan.input("state", 5, 5), plan.output("next", 5, 5));
+    let (gates, h, out) = (plan.all(gates), plan.all(state), plan.all(next));
+    gru_cell(&mut plan, "gru", GruArgs { gi: gates, gh: gates, h, out });
+    assert_eq!(plan.multiply_adds(), 2265);
 
-    assert_eq!(run(plan).multiply_adds(), 2125, "the built plan keeps the count");
+    assert_eq!(run(plan).multiply_adds(), 2265, "the built plan keeps the count");
 }

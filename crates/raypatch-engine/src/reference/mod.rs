@@ -2,13 +2,17 @@
 //! Tests compare the GPU kernels against these; the benchmark harness uses them to measure error.
 
 pub mod attention;
+pub mod concat;
 pub mod conv;
 pub mod elementwise;
+pub mod gru;
 pub mod matmul;
+pub mod mix;
 pub mod model;
 pub mod norm;
 pub mod posenc;
 pub mod resize;
+pub mod softmax;
 
 use crate::kernels::Activation;
 
