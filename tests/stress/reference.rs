@@ -1,9 +1,10 @@
 //! The float64 reference of the whole model (`reference::model`), which the rest of this suite and the
-//! benchmark harness measure the engine against, checked on every golden case:
+//! benchmark harness measure the engine against, checked on every golden case (SRT, RP-SRT, OSRT, RP-OSRT):
 //! - with float64 encoding arguments it is the float64 PyTorch run of the official model (`latent_f64`,
-//!   `rgb_f64`, `logdepth_f64`): the same maths in the same precision, so only f64 rounding differs;
+//!   `set_latent_f64`, `rgb_f64`, `logdepth_f64`, `segmentation_f64`): the same maths in the same precision,
+//!   so only f64 rounding differs;
 //! - with the arguments rounded to f32 (as torch float32 and the engine form them) it is within float32
-//!   arithmetic error of the float32 PyTorch run and of the engine.
+//!   arithmetic error of the float32 PyTorch run and of the engine (latent, rgb, and OSRT's segmentation).
 
 use std::path::{Path, PathBuf};
 
@@ -19,8 +20,12 @@ use crate::{engine_model, golden_case};
 /// (~1e-14 is seen).
 const F64_TOL: f64 = 1e-9;
 /// The engine (and torch float32) against the reference with f32-rounded arguments: the golden tests'
-/// tolerance (f32 arithmetic through ~10 layers; ~5e-6 is seen).
+/// tolerance (f32 arithmetic through ~10 layers; ~5e-6 is seen), for rgb and OSRT's segmentation (both in
+/// [0, 1]).
 const F32_TOL: f64 = 1e-4;
+/// The same for the latent (SRT's tokens, OSRT's slots), relative to its largest magnitude, as the golden tests
+/// measure it.
+const F32_LATENT_REL_TOL: f64 = 1e-4;
 
 fn f64_tensor(path: &Path, key: &str) -> Vec<f64> {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -59,6 +64,17 @@ fn golden_cases() -> Vec<PathBuf> {
     cases
 }
 
+/// The relative error `max |got - want| / max |want|` (latents, log-depth: unbounded values).
+fn relative(got: &[f64], want: &[f64]) -> f64 {
+    max_diff(got, want) / max_abs(want)
+}
+
+/// The segmentation a case holds, `[views, height, width, slots]`: its slot count.
+fn expected_slots(expected: &Path) -> Option<usize> {
+    let file = raypatch_model::TensorFile::open(expected).unwrap();
+    file.contains("segmentation").then(|| *file.f32("segmentation").unwrap().shape.last().unwrap())
+}
+
 #[test]
 fn reference_model_matches_float64_pytorch() {
     let _memory = crate::sharing_memory();
@@ -71,16 +87,24 @@ fn reference_model_matches_float64_pytorch() {
         let encoded = reference.encode(&scene.inputs).unwrap();
         let frame = reference.render(&encoded, &scene.targets).unwrap();
 
-        let latent = f64_tensor(&expected, "latent_f64");
-        let latent_err = max_diff(&encoded.latent, &latent) / max_abs(&latent);
-        let rgb_err = max_diff(&frame.rgb, &f64_tensor(&expected, "rgb_f64"));
-        eprintln!("{name}: float64 reference vs float64 PyTorch: latent rel {latent_err:.1e}, rgb {rgb_err:.1e}");
-        assert!(latent_err <= F64_TOL, "{name}: latent relative error {latent_err:e} > {F64_TOL:e}");
-        assert!(rgb_err <= F64_TOL, "{name}: rgb error {rgb_err:e} > {F64_TOL:e}");
+        // The latent is OSRT's slots; the SRT encoder's tokens beneath them are the set latent.
+        let mut errors = vec![("latent rel", relative(&encoded.latent, &f64_tensor(&expected, "latent_f64")))];
+        assert_eq!(encoded.set_latent.is_some(), model.config.base() == "osrt", "{name}: set latent");
+        if let Some(set_latent) = &encoded.set_latent {
+            errors.push(("set latent rel", relative(set_latent, &f64_tensor(&expected, "set_latent_f64"))));
+        }
+        errors.push(("rgb", max_diff(&frame.rgb, &f64_tensor(&expected, "rgb_f64"))));
         if let Some(depth) = &frame.logdepth {
-            let want = f64_tensor(&expected, "logdepth_f64");
-            let err = max_diff(depth, &want) / max_abs(&want);
-            assert!(err <= F64_TOL, "{name}: log-depth relative error {err:e} > {F64_TOL:e}");
+            errors.push(("log-depth rel", relative(depth, &f64_tensor(&expected, "logdepth_f64"))));
+        }
+        assert_eq!(frame.segmentation.is_some().then_some(frame.slots), expected_slots(&expected), "{name}: slots");
+        if let Some(segmentation) = &frame.segmentation {
+            errors.push(("segmentation", max_diff(segmentation, &f64_tensor(&expected, "segmentation_f64"))));
+        }
+        let summary: Vec<String> = errors.iter().map(|(what, err)| format!("{what} {err:.1e}")).collect();
+        eprintln!("{name}: float64 reference vs float64 PyTorch: {}", summary.join(", "));
+        for (what, err) in errors {
+            assert!(err <= F64_TOL, "{name}: {what} error {err:e} > {F64_TOL:e}");
         }
     }
 }
@@ -90,21 +114,56 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
     let _memory = crate::sharing_memory();
     for dir in golden_cases() {
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let expected = dir.join("expected.safetensors");
         let loaded = raypatch_model::load_model(dir.join("model.safetensors")).unwrap();
         let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap();
         let reference = ReferenceModel::new(&loaded, Argument::RoundedToF32).unwrap();
-        let want = reference.render(&reference.encode(&scene.inputs).unwrap(), &scene.targets).unwrap();
+        let want_scene = reference.encode(&scene.inputs).unwrap();
+        let want = reference.render(&want_scene, &scene.targets).unwrap();
 
         let model = engine_model(&loaded);
-        let frame = model.encode(&scene.inputs).unwrap().render(&scene.targets, Outputs::default()).unwrap();
-        let engine_err = max_abs_diff(frame.get(Output::Rgb).expect("rgb"), &want.rgb);
-        let torch_err = max_abs_diff(&f32_tensor(&dir.join("expected.safetensors"), "rgb"), &want.rgb);
-        let f32_vs_f64 = max_diff(&want.rgb, &f64_tensor(&dir.join("expected.safetensors"), "rgb_f64"));
+        let encoded = model.encode(&scene.inputs).unwrap();
+        let outputs = match want.segmentation {
+            Some(_) => Outputs::of(&[Output::Rgb, Output::Segmentation]),
+            None => Outputs::default(),
+        };
+        let frame = encoded.render(&scene.targets, outputs).unwrap();
+        // (what, engine error, torch float32 error, tolerance): the latent relative, rgb and segmentation
+        // (in [0, 1]) absolute.
+        let latent_scale = max_abs(&want_scene.latent);
+        let engine_latent = crate::gpu().read(&encoded.latent).unwrap();
+        let mut errors = vec![(
+            "latent rel",
+            max_abs_diff(&engine_latent, &want_scene.latent) / latent_scale,
+            max_abs_diff(&f32_tensor(&expected, "latent"), &want_scene.latent) / latent_scale,
+            F32_LATENT_REL_TOL,
+        )];
+        errors.push((
+            "rgb",
+            max_abs_diff(frame.get(Output::Rgb).expect("rgb"), &want.rgb),
+            max_abs_diff(&f32_tensor(&expected, "rgb"), &want.rgb),
+            F32_TOL,
+        ));
+        if let Some(segmentation) = &want.segmentation {
+            errors.push((
+                "segmentation",
+                max_abs_diff(frame.get(Output::Segmentation).expect("segmentation"), segmentation),
+                max_abs_diff(&f32_tensor(&expected, "segmentation"), segmentation),
+                F32_TOL,
+            ));
+        }
+        let f32_vs_f64 = max_diff(&want.rgb, &f64_tensor(&expected, "rgb_f64"));
+        let summary: Vec<String> = errors
+            .iter()
+            .map(|(what, engine, torch, _)| format!("{what} engine {engine:.1e}, torch f32 {torch:.1e}"))
+            .collect();
         eprintln!(
-            "{name}: rgb vs the reference with f32 arguments: engine {engine_err:.1e}, torch f32 {torch_err:.1e}; \
-             f32 arguments vs f64 arguments {f32_vs_f64:.1e}"
+            "{name}: vs the reference with f32 arguments: {}; rgb with f32 arguments vs f64 arguments {f32_vs_f64:.1e}",
+            summary.join("; ")
         );
-        assert!(engine_err <= F32_TOL, "{name}: engine rgb error {engine_err:e} > {F32_TOL:e}");
-        assert!(torch_err <= F32_TOL, "{name}: torch float32 rgb error {torch_err:e} > {F32_TOL:e}");
+        for (what, engine, torch, tol) in errors {
+            assert!(engine <= tol, "{name}: engine {what} error {engine:e} > {tol:e}");
+            assert!(torch <= tol, "{name}: torch float32 {what} error {torch:e} > {tol:e}");
+        }
     }
 }

@@ -1,0 +1,451 @@
+//! Float64 CPU reference of the whole model, SRT / RP-SRT and OSRT / RP-OSRT, composed from the kernel
+//! references of this module and computing what `models/` records, op for op (the official `SRTEncoder`,
+//! `SRTDecoder`, `OSRTEncoder`, `SlotMixerDecoder` and `RayPatchDecoder`). The benchmark harness measures the
+//! engine's error against it, and the numerical stress suite renders extreme scenes with both. It matches a
+//! float64 PyTorch run of the official model (`*_f64` in the golden files) to ~1e-12 with
+//! [`Argument::Float64`].
+//!
+//! Laid out like the engine's `models/`: this file holds the float64 layers every family shares, the model
+//! (read through the engine's module tree) and the render pipeline; `srt.rs` the SRT encoder, the ray
+//! predictor (the SRT decoder's and OSRT's allocation transformer) and the SRT decoder; `osrt.rs` slot
+//! attention and the slot mixer decoder; `ray_patch.rs` the patch rays and the Ray-Patch conv decoder.
+//!
+//! The positional-encoding arguments are the one place where the float32 model differs from the float64 one
+//! by more than rounding (up to ~1e-3 in rgb): choose [`Argument::RoundedToF32`] to measure the arithmetic
+//! error of a float32 engine (its arguments are rounded as torch rounds them), [`Argument::Float64`] to
+//! measure its distance from the float64 model.
+
+mod osrt;
+mod ray_patch;
+mod srt;
+
+use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
+
+use crate::error::EngineError;
+use crate::kernels::elementwise::Map;
+use crate::kernels::Activation;
+use crate::nn::{self, transformer::Projections as EngineProjections, Param, Source, WeightSet};
+
+use super::attention::attention;
+use super::conv::conv3x3;
+use super::elementwise::map_columns;
+use super::matmul::linear;
+use super::norm::layernorm;
+use super::posenc::fourier_encode_with;
+pub use super::posenc::Argument;
+use super::resize::{bilinear, nearest};
+
+/// LayerNorm eps of the official modules (PyTorch's default), as `nn::norm` uses it.
+const LAYER_NORM_EPS: f64 = 1e-5;
+/// The LeakyReLU slope of the SRT out MLP and the OSRT render MLP (`nn.LeakyReLU()`) as float64 torch has
+/// it: the kernels' `Activation` holds an f32 slope, 2e-8 away from 0.01 relatively, so the reference applies
+/// its slopes itself.
+const OUT_MLP_SLOPE: f64 = 0.01;
+/// Decoder queries per chunk: bounds the reference's memory at any resolution.
+const QUERY_CHUNK: usize = 4096;
+
+/// nn.Linear in float64: weight `[n, k]`, optional bias `[n]`.
+struct Dense {
+    w: Vec<f64>,
+    b: Option<Vec<f64>>,
+    n: usize,
+    k: usize,
+}
+
+impl Dense {
+    /// `act(x · wᵀ + b) (+ residual)` for `m` rows of x, the rows split over the CPU's threads.
+    fn apply(&self, x: &[f64], act: Activation, residual: Option<&[f64]>) -> Vec<f64> {
+        let m = x.len() / self.k;
+        parallel_rows(m, self.n, |rows| {
+            let residual = residual.map(|r| &r[rows.start * self.n..rows.end * self.n]);
+            let x = &x[rows.start * self.k..rows.end * self.k];
+            linear(x, rows.len(), self.k, &self.w, self.n, self.b.as_deref(), act, residual)
+        })
+    }
+
+    /// `x · wᵀ + b`.
+    fn forward(&self, x: &[f64]) -> Vec<f64> {
+        self.apply(x, Activation::None, None)
+    }
+}
+
+/// nn.LayerNorm in float64.
+struct Norm {
+    gamma: Vec<f64>,
+    beta: Vec<f64>,
+}
+
+impl Norm {
+    fn apply(&self, x: &[f64]) -> Vec<f64> {
+        layernorm(x, self.gamma.len(), &self.gamma, &self.beta, LAYER_NORM_EPS)
+    }
+}
+
+/// A 3×3 convolution (PyTorch layout `[cout, cin, 3, 3]`) with its eval-mode BatchNorm folded in (by
+/// `nn::Conv3x3`, in float64).
+struct Conv {
+    w: Vec<f64>,
+    b: Option<Vec<f64>>,
+    cin: usize,
+    cout: usize,
+}
+
+impl Conv {
+    #[allow(clippy::too_many_arguments)]
+    fn apply(
+        &self,
+        x: &[f64],
+        (n, h, w): (usize, usize, usize),
+        stride: usize,
+        upsample_input: bool,
+        act: Activation,
+        residual: Option<&[f64]>,
+    ) -> Vec<f64> {
+        conv3x3(x, n, h, w, self.cin, &self.w, self.b.as_deref(), self.cout, stride, upsample_input, act, residual)
+    }
+}
+
+/// The attention projections of a transformer layer.
+enum Projections {
+    SelfAttention { to_qkv: Dense },
+    Cross { to_q: Dense, to_kv: Dense },
+}
+
+/// One pre-norm transformer layer (the official `Transformer`): `x + to_out(attention(LN(x)))`, then
+/// `x + FF(LN(x))`.
+struct Layer {
+    attn_norm: Norm,
+    projections: Projections,
+    to_out: Dense,
+    ff_norm: Norm,
+    ff_in: Dense,
+    ff_out: Dense,
+    heads: usize,
+    dim_head: usize,
+}
+
+impl Layer {
+    fn inner(&self) -> usize {
+        self.heads * self.dim_head
+    }
+
+    fn scale(&self) -> f64 {
+        (self.dim_head as f64).powf(-0.5)
+    }
+
+    /// A self-attention layer on `[tokens, dim]`.
+    fn self_attend(&self, z: &[f64]) -> Vec<f64> {
+        let Projections::SelfAttention { to_qkv } = &self.projections else {
+            panic!("self_attend on a cross-attention layer")
+        };
+        let (inner, ld) = (self.inner(), 3 * self.inner());
+        let qkv = to_qkv.forward(&self.attn_norm.apply(z));
+        let tokens = qkv.len() / ld;
+        let heads = parallel_rows(tokens, inner, |rows| {
+            let q = &qkv[rows.start * ld..rows.end * ld];
+            let (h, dh) = (self.heads, self.dim_head);
+            attention(q, ld, 0, &qkv, ld, inner, &qkv, ld, 2 * inner, rows.len(), tokens, h, dh, self.scale())
+        });
+        self.feed_forward(self.to_out.apply(&heads, Activation::None, Some(z)))
+    }
+
+    /// `to_kv(latent)` `[tokens, 2·inner]`: what a cross-attention layer reads of the latent.
+    fn keys_values(&self, latent: &[f64]) -> Vec<f64> {
+        let Projections::Cross { to_kv, .. } = &self.projections else {
+            panic!("keys_values of a self-attention layer")
+        };
+        to_kv.forward(latent)
+    }
+
+    /// A cross-attention layer on queries `[rows, dim]`, reading `kv` from [`keys_values`](Self::keys_values).
+    fn cross_attend(&self, x: &[f64], kv: &[f64]) -> Vec<f64> {
+        let Projections::Cross { to_q, .. } = &self.projections else {
+            panic!("cross_attend on a self-attention layer")
+        };
+        let (inner, ld) = (self.inner(), 2 * self.inner());
+        let q = to_q.forward(&self.attn_norm.apply(x));
+        let (rows, tokens) = (q.len() / inner, kv.len() / ld);
+        let heads = parallel_rows(rows, inner, |r| {
+            let q = &q[r.start * inner..r.end * inner];
+            let (h, dh) = (self.heads, self.dim_head);
+            attention(q, inner, 0, kv, ld, 0, kv, ld, inner, r.len(), tokens, h, dh, self.scale())
+        });
+        self.feed_forward(self.to_out.apply(&heads, Activation::None, Some(x)))
+    }
+
+    /// x + FF(LN(x)), FF = Linear → GELU → Linear.
+    fn feed_forward(&self, x: Vec<f64>) -> Vec<f64> {
+        let hidden = self.ff_in.apply(&self.ff_norm.apply(&x), Activation::Gelu, None);
+        self.ff_out.apply(&hidden, Activation::None, Some(&x))
+    }
+}
+
+/// The official `PositionalEncoding` with its f32 multipliers, the arguments formed as `argument` says.
+struct Fourier {
+    multipliers: Vec<f32>,
+    argument: Argument,
+}
+
+impl Fourier {
+    /// `rows` rows of the encoding, row r of coordinate row `(first_row + r) / repeat` of `coords` `[R, 3]`.
+    fn encode(&self, coords: &[f64], repeat: usize, first_row: usize, rows: usize) -> Vec<f64> {
+        fourier_encode_with(coords, repeat, first_row, rows, &self.multipliers, self.argument)
+    }
+
+    fn width(&self) -> usize {
+        6 * self.multipliers.len()
+    }
+}
+
+/// Reads the engine's modules into the reference's float64 layers.
+struct Reader<'w> {
+    weights: &'w WeightSet,
+    argument: Argument,
+}
+
+impl Reader<'_> {
+    fn get(&self, p: Param) -> Vec<f64> {
+        self.weights.get(p).data.to_f64()
+    }
+
+    fn dense(&self, l: &nn::Linear) -> Dense {
+        Dense { w: self.get(l.weight), b: l.bias.map(|b| self.get(b)), n: l.out_dim, k: l.in_dim }
+    }
+
+    fn norm(&self, n: &nn::LayerNorm) -> Norm {
+        Norm { gamma: self.get(n.gamma), beta: self.get(n.beta) }
+    }
+
+    fn conv(&self, c: &nn::Conv3x3) -> Conv {
+        Conv { w: self.get(c.weight), b: c.bias.map(|b| self.get(b)), cin: c.cin, cout: c.cout }
+    }
+
+    fn fourier(&self, f: &nn::FourierEncoding) -> Fourier {
+        Fourier { multipliers: f.multipliers.clone(), argument: self.argument }
+    }
+
+    fn layers(&self, t: &nn::Transformer) -> Vec<Layer> {
+        t.layers
+            .iter()
+            .map(|l| Layer {
+                attn_norm: self.norm(&l.attn_norm),
+                projections: match &l.attn.projections {
+                    EngineProjections::SelfAttention { to_qkv } => {
+                        Projections::SelfAttention { to_qkv: self.dense(to_qkv) }
+                    }
+                    EngineProjections::Cross { to_q, to_kv } => {
+                        Projections::Cross { to_q: self.dense(to_q), to_kv: self.dense(to_kv) }
+                    }
+                },
+                to_out: self.dense(&l.attn.to_out),
+                ff_norm: self.norm(&l.ff_norm),
+                ff_in: self.dense(&l.ff.net_0),
+                ff_out: self.dense(&l.ff.net_3),
+                heads: l.attn.heads,
+                dim_head: l.attn.dim_head,
+            })
+            .collect()
+    }
+}
+
+/// The decoder of a model family, with what the family adds to the SRT encoder (one per model: the variants'
+/// sizes do not matter).
+#[allow(clippy::large_enum_variant)]
+enum Decoder {
+    Srt(srt::SrtDecoder),
+    Osrt(osrt::Osrt),
+}
+
+/// The whole model in float64, read from a [`LoadedModel`].
+pub struct ReferenceModel {
+    config: ModelConfig,
+    argument: Argument,
+    /// Channels of the image before the sigmoid: 3, or 4 with log-depth.
+    channels: usize,
+    encoder: srt::SrtEncoder,
+    decoder: Decoder,
+    ray_patch: Option<ray_patch::ConvDecoder>,
+}
+
+/// A scene encoded by the reference.
+pub struct ReferenceScene {
+    /// The latent the decoder attends to: SRT's tokens `[tokens, token_dim]`, OSRT's slots
+    /// `[slots, slot_dim]` (the engine's `latent` output).
+    pub latent: Vec<f64>,
+    /// Rows of `latent` (tokens, or slots).
+    pub tokens: usize,
+    /// OSRT: the SRT encoder's tokens `[tokens, token_dim]` that slot attention reads (`set_latent`).
+    pub set_latent: Option<Vec<f64>>,
+    /// Per decoder cross-attention layer, `[tokens, 2·inner]`: keys, then values.
+    pub keys_values: Vec<Vec<f64>>,
+    /// OSRT: the mixing block's keys `to_k(slots)` `[slots, att_dim]`.
+    mixing_keys: Option<Vec<f64>>,
+}
+
+/// Rendered target views in float64.
+#[derive(Clone, Debug)]
+pub struct ReferenceFrame {
+    pub views: usize,
+    pub height: usize,
+    pub width: usize,
+    /// `[views, height, width, 3]`, after the sigmoid.
+    pub rgb: Vec<f64>,
+    /// `[views, height, width]`, for models with a log-depth channel.
+    pub logdepth: Option<Vec<f64>>,
+    /// OSRT: the slot weights `[views, height, width, slots]` (for Ray-Patch, the patch rays' weights
+    /// bilinearly resized to the image, not renormalised, as the official `OSRT.decoder` has them).
+    pub segmentation: Option<Vec<f64>>,
+    /// Slots per pixel of `segmentation` (0 without one).
+    pub slots: usize,
+}
+
+/// Query rows `start..start + rays.len() / 3` of the target views (`per_view` a view): their rays, and the
+/// camera positions `[views, 3]` they read.
+struct QueryRows<'a> {
+    positions: &'a [f64],
+    per_view: usize,
+    start: usize,
+    rays: &'a [f64],
+}
+
+impl QueryRows<'_> {
+    fn rows(&self) -> usize {
+        self.rays.len() / 3
+    }
+}
+
+fn f64s(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+impl ReferenceModel {
+    /// Reads the model's weights through the engine's module tree (the same names, shapes and BatchNorm
+    /// fold, in float64), into the reference's own float64 layers.
+    pub fn new(model: &LoadedModel, argument: Argument) -> Result<ReferenceModel, EngineError> {
+        let config = model.config.clone();
+        let source = Source::File(model);
+        let (channels, encoder, decoder, ray_patch) = match &config.family {
+            Family::Srt(c) => {
+                let (m, weights) = nn::build(source, |vars| crate::models::srt::Srt::new(vars, c))?;
+                let r = Reader { weights: &weights, argument };
+                let decoder = Decoder::Srt(srt::SrtDecoder::read(&r, &m.decoder));
+                (c.image_channels(), srt::SrtEncoder::read(&r, &m.encoder), decoder, r.ray_patch(&m.ray_patch))
+            }
+            Family::Osrt(c) => {
+                let (m, weights) = nn::build(source, |vars| crate::models::osrt::Osrt::new(vars, c))?;
+                let r = Reader { weights: &weights, argument };
+                let decoder = Decoder::Osrt(osrt::Osrt::read(&r, &m));
+                let encoder = srt::SrtEncoder::read(&r, &m.encoder.srt_encoder);
+                (c.image_channels(), encoder, decoder, r.ray_patch(&m.ray_patch))
+            }
+        };
+        Ok(ReferenceModel { config, argument, channels, encoder, decoder, ray_patch })
+    }
+
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Encodes posed input views: the SRT encoder's tokens, OSRT's slots from them, and what the decoder
+    /// reads of the latent (keys and values, and OSRT's mixing keys).
+    pub fn encode(&self, inputs: &InputViews) -> Result<ReferenceScene, ModelError> {
+        inputs.check("input views")?;
+        let z = self.encoder.forward(inputs);
+        let tokens = z.len() / self.encoder.token_dim();
+        Ok(match &self.decoder {
+            Decoder::Srt(d) => d.scene(z, tokens),
+            Decoder::Osrt(o) => o.scene(z),
+        })
+    }
+
+    /// Renders target views of an encoded scene: the decoder on every query (pixel, or patch for Ray-Patch),
+    /// then the Ray-Patch decoder, then the sigmoid; OSRT's segmentation beside. Patch rays are made from
+    /// full-resolution rays as the official loader makes them (bilinear), in f32 with
+    /// [`Argument::RoundedToF32`] (PyTorch's float32 operation order, which the engine reproduces bit for bit)
+    /// and in f64 otherwise.
+    pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
+        let k = self.config.patch_size();
+        let grid = targets.grid_for(&self.config, "target views")?;
+        let (views, ph, pw) = (targets.count, grid.height / k, grid.width / k);
+        let rays = if k > 1 && !grid.rays_are_patches {
+            ray_patch::patch_rays(targets, ph, pw, self.argument)
+        } else {
+            f64s(&targets.rays)
+        };
+        let queries = views * ph * pw;
+        let positions = f64s(&targets.camera_pos);
+        let (mut features, mut weights) = (Vec::new(), Vec::new());
+        for start in (0..queries).step_by(QUERY_CHUNK) {
+            let rows = QUERY_CHUNK.min(queries - start);
+            let q = QueryRows {
+                positions: &positions,
+                per_view: ph * pw,
+                start,
+                rays: &rays[3 * start..3 * (start + rows)],
+            };
+            match &self.decoder {
+                Decoder::Srt(d) => features.extend(d.decode(scene, &q)),
+                Decoder::Osrt(o) => {
+                    let (f, w) = o.decoder.decode(scene, &q);
+                    features.extend(f);
+                    weights.extend(w);
+                }
+            }
+        }
+
+        let channels = self.channels;
+        let image = match &self.ray_patch {
+            None => features,
+            Some(rp) => rp.forward(features, views, ph, pw, channels),
+        };
+        // The official output resize (rp_kwargs h_out/w_out) when k does not divide the target size.
+        let (height, width) = (grid.height, grid.width);
+        let image = if (ph * k, pw * k) == (height, width) {
+            image
+        } else {
+            nearest(&image, views, ph * k, pw * k, channels, height, width)
+        };
+        let (segmentation, slots) = match &self.decoder {
+            Decoder::Srt(_) => (None, 0),
+            Decoder::Osrt(_) => {
+                let slots = scene.tokens;
+                // Ray-Patch: the patch weights bilinearly resized to the image (the official OSRT.decoder).
+                let resized = if k > 1 { bilinear(&weights, views, ph, pw, slots, height, width) } else { weights };
+                (Some(resized), slots)
+            }
+        };
+        Ok(ReferenceFrame {
+            views,
+            height,
+            width,
+            rgb: map_columns(&image, channels, 0, 3, Map::Sigmoid),
+            logdepth: (channels == 4).then(|| map_columns(&image, channels, 3, 1, Map::Identity)),
+            segmentation,
+            slots,
+        })
+    }
+}
+
+fn leaky_relu(mut x: Vec<f64>, slope: f64) -> Vec<f64> {
+    x.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v *= slope);
+    x
+}
+
+/// Computes `rows` rows of `cols` values, split into contiguous row ranges over the CPU's threads.
+fn parallel_rows(rows: usize, cols: usize, f: impl Fn(std::ops::Range<usize>) -> Vec<f64> + Sync) -> Vec<f64> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(rows.div_ceil(16)).max(1);
+    let per = rows.div_ceil(threads);
+    let parts: Vec<Vec<f64>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                let range = (t * per).min(rows)..((t + 1) * per).min(rows);
+                let f = &f;
+                s.spawn(move || f(range))
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().expect("reference thread panicked")).collect()
+    });
+    let mut out = Vec::with_capacity(rows * cols);
+    parts.into_iter().for_each(|p| out.extend(p));
+    out
+}
