@@ -1,6 +1,7 @@
 //! The embedded API on the golden cases: cameras agree with each other and with the official ray code; a
-//! region renders exactly the full render's pixels while decoding only the patches it needs; only the
-//! requested outputs are computed; rendering never re-encodes and reuses its plan; bad input is an error.
+//! region renders exactly the full render's pixels (rgb, log-depth, OSRT segmentation) while decoding only the
+//! patches it needs, and so do row bands; only the requested outputs are computed; outputs a model lacks are an
+//! error; rendering never re-encodes and reuses its plan; bad input is an error.
 
 use std::path::{Path, PathBuf};
 
@@ -8,7 +9,7 @@ use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch::metrics::{psnr, ssim};
 use raypatch::{
     Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Output, Outputs, RayGrid, Region,
-    Request, SceneData,
+    Rendered, Request, SceneData,
 };
 
 /// Largest difference allowed between two ray directions that describe the same camera: both are rounded
@@ -148,6 +149,21 @@ fn crop_map(map: &[f32], width: usize, region: Region) -> Vec<f32> {
     (region.y..region.y + region.height)
         .flat_map(|y| map[y * width + region.x..y * width + region.x + region.width].iter().copied())
         .collect()
+}
+
+/// The `region` of a row-major `[height, width, channels]` map `width` columns wide.
+fn crop_channels(values: &[f32], width: usize, channels: usize, region: Region) -> Vec<f32> {
+    (region.y..region.y + region.height)
+        .flat_map(|y| {
+            let start = (y * width + region.x) * channels;
+            values[start..start + region.width * channels].iter().copied()
+        })
+        .collect()
+}
+
+/// Channels of `output` in a render (one per slot for the segmentation).
+fn channels(rendered: &Rendered, output: Output) -> usize {
+    rendered.outputs.iter().find(|r| r.output == output).map(|r| r.channels).expect("output rendered")
 }
 
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
@@ -464,4 +480,285 @@ fn a_buffer_limit_nothing_fits_under_is_an_error_naming_the_buffer() {
         }
     };
     assert!(message.contains("bytes in one buffer, more than the 2048 bytes one buffer may have"), "{message}");
+}
+
+/// The OSRT golden cases: OSRT light fields, and RP-OSRT at k=8 and k=4 (the latter with patch rays).
+const OSRT_CASES: [&str; 4] = ["osrt", "osrt_iters3_ln", "rposrt_k8", "rposrt_k4_patchrays"];
+
+/// Requests of rgb and segmentation, of segmentation alone and of rgb alone.
+fn osrt_output_sets() -> [Outputs; 3] {
+    [Outputs::of(&[Output::Rgb, Output::Segmentation]), Outputs::of(&[Output::Segmentation]), Outputs::default()]
+}
+
+/// Checks that `part` holds exactly `outputs`, each equal to the same pixels of `full` (a render of the whole
+/// `width`-wide image with every output `part` has) within one f32 rounding.
+fn check_same_pixels(what: &str, part: &Rendered, full: &Rendered, width: usize, outputs: Outputs) {
+    let region = part.region;
+    for output in [Output::Rgb, Output::Segmentation] {
+        let (got, want) = (part.get(output), full.get(output));
+        if !outputs.contains(output) {
+            assert!(got.is_none(), "{what}: {} rendered but not asked for", output.title());
+            continue;
+        }
+        let c = channels(full, output);
+        assert_eq!(channels(part, output), c, "{what}: {} channels", output.title());
+        let want = crop_channels(want.expect("the full render has every output"), width, c, region);
+        let err = max_diff(got.expect("asked for"), &want);
+        assert!(err <= 1e-6, "{what}: {} differs from the full render's by {err:e}", output.title());
+    }
+}
+
+#[test]
+fn osrt_regions_render_the_full_renders_rgb_and_segmentation() {
+    let engine = engine();
+    for case in OSRT_CASES {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        let (width, height, k) = (camera.width(), camera.height(), model.patch_size());
+        assert!(model.outputs().contains(Output::Segmentation) && !model.has_depth(), "{case}");
+        let both = Outputs::of(&[Output::Rgb, Output::Segmentation]);
+        let full = scene.render(camera, &Request { outputs: both, region: None }).unwrap();
+        let full_stats = scene.render_stats(camera, &Request { outputs: both, region: None }).unwrap();
+        assert_eq!(full_stats.queries, width * height / (k * k), "{case}: one query per patch");
+
+        for region in regions(width, height) {
+            for outputs in osrt_output_sets() {
+                let request = Request { outputs, region: Some(region) };
+                let part = scene.render(camera, &request).unwrap();
+                assert_eq!(part.region, region);
+                check_same_pixels(&format!("{case} {region:?} {outputs:?}"), &part, &full, width, outputs);
+
+                // Decoded: the region's pixels for OSRT; for RP-OSRT the covering patches plus at most HALO
+                // patches each side (the conv decoder's receptive field; the segmentation's bilinear resize
+                // reads one patch further at most), clipped to the image.
+                let stats = scene.render_stats(camera, &request).unwrap();
+                let span = |start: usize, len: usize, size: usize| {
+                    let (first, last) = (start / k, (start + len - 1) / k);
+                    let (lo, hi) = if k == 1 {
+                        (first, last)
+                    } else {
+                        (first.saturating_sub(HALO), (last + HALO).min(size / k - 1))
+                    };
+                    hi + 1 - lo
+                };
+                let most = span(region.x, region.width, width) * span(region.y, region.height, height);
+                let what = format!("{case} {region:?} {outputs:?}: {} queries", stats.queries);
+                assert!(stats.queries <= most, "{what}, at most {most} needed");
+                assert!(stats.queries >= region.width.div_ceil(k) * region.height.div_ceil(k), "{what}");
+                assert!(stats.pixels == stats.queries * k * k && stats.queries <= full_stats.queries, "{what}");
+                if k == 1 {
+                    assert_eq!(stats.queries, region.width * region.height, "{what}");
+                }
+            }
+        }
+        if (width / k).max(height / k) > HALO + 1 {
+            for outputs in osrt_output_sets() {
+                let corner = Request { outputs, region: Some(Region { x: 0, y: 0, width: 1, height: 1 }) };
+                assert!(scene.render_stats(camera, &corner).unwrap().queries < full_stats.queries, "{case}");
+            }
+        }
+    }
+}
+
+#[test]
+fn osrt_renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
+    let unlimited = engine();
+    for case in ["osrt", "rposrt_k8", "rposrt_k4_patchrays"] {
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let model = unlimited.load(golden(case).join("model.safetensors")).unwrap();
+        let k = model.patch_size();
+        let (width, height) = if k == 1 { (192, 128) } else { (512, 384) };
+        let position = data.targets[0].camera.position();
+        // rposrt_k4_patchrays: a camera given by its patch rays, as the case's scene gives them.
+        let camera = &if data.targets[0].camera.pixels_per_ray() == k && k > 1 {
+            Camera::from_patch_rays(position, Camera::msn(position, width / k, height / k).unwrap().rays(), k).unwrap()
+        } else {
+            Camera::msn(position, width, height).unwrap()
+        };
+        let all = Request { outputs: Outputs::of(&[Output::Rgb, Output::Segmentation]), region: None };
+        let scene = model.encode(&data.inputs).unwrap();
+        let full = scene.render(camera, &all).unwrap();
+        assert_eq!(scene.render_stats(camera, &all).unwrap().bands, 1, "{case}");
+
+        // RP-OSRT: buffers that may hold one view's rgb, unpadded: less than the rgb output (rows padded to 4
+        // floats), the segmentation (5 or 6 slots, padded to 8) and the full-resolution conv features. OSRT: 24
+        // bytes a pixel, less than the segmentation (32), more than the rgb (16) and the encoder's input.
+        let limit = (width * height * if k == 1 { 24 } else { 12 }) as u64;
+        let limited = Engine::new(EngineOptions { max_buffer_bytes: Some(limit), ..Default::default() }).unwrap();
+        let model = limited.load(golden(case).join("model.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let inner = Region { x: 1, y: 5, width: width - 2, height: height - 10 };
+        // The whole image with both outputs; an inner region with the segmentation alone (RP-OSRT: a
+        // different halo, that of the weights' bilinear resize only).
+        let [both, segmentation, _] = osrt_output_sets();
+        for (outputs, region) in [(both, None), (segmentation, Some(inner))] {
+            let request = Request { outputs, region };
+            let banded = scene.render(camera, &request).unwrap();
+            let stats = scene.render_stats(camera, &request).unwrap();
+            let what = format!("{case} {region:?} {outputs:?}");
+            assert!(stats.largest_buffer_bytes <= limit, "{what}: {stats:?}");
+            assert!(stats.bands > 1, "{what}: {stats:?}");
+            assert_eq!(banded.region, region.unwrap_or(full.region), "{what}");
+            check_same_pixels(&format!("{what} banded"), &banded, &full, width, outputs);
+        }
+    }
+}
+
+#[test]
+fn osrt_renders_compute_only_the_requested_outputs() {
+    let engine = engine();
+    for case in OSRT_CASES {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        let ray_patch = model.patch_size() > 1;
+        let request = |outputs: &[Output]| Request { outputs: Outputs::of(outputs), region: None };
+        // Op labels without the query-chunk suffix ("[0..384]").
+        let labels = |r: &Request| -> Vec<String> {
+            let labels = scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
+            labels.iter().map(|l| l.split('[').next().unwrap().to_string()).collect()
+        };
+        let dispatches = |r: &Request| {
+            scene.render(camera, r).unwrap(); // build and warm the plan
+            let before = engine.counters().dispatches;
+            let out = scene.render(camera, r).unwrap();
+            let n = engine.counters().dispatches - before;
+            assert_eq!(scene.render_stats(camera, r).unwrap().dispatches as u64, n, "{case} {r:?}");
+            (n, out)
+        };
+        let (rgb_r, seg_r, both_r) =
+            (request(&[Output::Rgb]), request(&[Output::Segmentation]), request(&[Output::Rgb, Output::Segmentation]));
+        let (rgb_only, rgb_out) = dispatches(&rgb_r);
+        let (seg_only, seg_out) = dispatches(&seg_r);
+        let (both, both_out) = dispatches(&both_r);
+
+        // rgb alone: no segmentation read back, and (RP-OSRT) no bilinear resize of the slot weights.
+        let rgb_labels = labels(&rgb_r);
+        assert!(rgb_labels.iter().any(|l| l == "sigmoid"), "{case}: {rgb_labels:?}");
+        assert!(!rgb_labels.iter().any(|l| l.contains("segmentation")), "{case}: {rgb_labels:?}");
+        assert_eq!(rgb_out.outputs.len(), 1, "{case}: rgb alone rendered {:?}", rgb_out.outputs);
+        assert!(rgb_out.get(Output::Segmentation).is_none());
+        // Segmentation alone stops at the mixing weights: no slot mix, render MLP, conv decoder or sigmoid.
+        let seg_labels = labels(&seg_r);
+        let image_work = |l: &String| {
+            l.starts_with("decoder_att.render_mlp")
+                || l.starts_with("decoder_rp.")
+                || l.contains("slot_mix")
+                || l == "sigmoid"
+        };
+        assert!(!seg_labels.iter().any(image_work), "{case}: a segmentation render records {seg_labels:?}");
+        assert!(seg_labels.iter().any(|l| l == "decoder_att.mixing_block.weights"), "{case}: {seg_labels:?}");
+        assert_eq!(seg_labels.iter().any(|l| l == "segmentation"), ray_patch, "{case}: {seg_labels:?}");
+        assert!(seg_only < rgb_only, "{case}: segmentation alone {seg_only} dispatches, rgb alone {rgb_only}");
+        assert!(seg_out.rgb().is_none() && seg_out.outputs.len() == 1, "{case}");
+        // Both: OSRT's mixing weights are the segmentation itself; RP-OSRT adds their bilinear resize.
+        assert_eq!(both, rgb_only + u64::from(ray_patch), "{case}: rgb + segmentation dispatches");
+        assert_eq!(rgb_out.get(Output::Rgb), both_out.get(Output::Rgb), "{case}: rgb");
+        assert_eq!(seg_out.get(Output::Segmentation), both_out.get(Output::Segmentation), "{case}: segmentation");
+    }
+}
+
+#[test]
+fn outputs_a_model_lacks_are_an_error() {
+    let engine = engine();
+    for (case, lacking, why) in [
+        ("srt_k1", Output::Segmentation, "no object slots"),
+        ("rpsrt_k4", Output::Segmentation, "no object slots"),
+        ("srt_k1", Output::LogDepth, "no depth channel"),
+        ("osrt", Output::LogDepth, "no depth channel"),
+        ("osrt", Output::Depth, "no depth channel"),
+        ("rposrt_k8", Output::LogDepth, "no depth channel"),
+        ("rposrt_k4_patchrays", Output::Depth, "no depth channel"),
+    ] {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        assert!(!model.outputs().contains(lacking), "{case}");
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        for outputs in [Outputs::of(&[lacking]), Outputs::default().with(lacking)] {
+            let request = Request { outputs, region: None };
+            let err = scene.render(camera, &request).unwrap_err().to_string();
+            assert!(err.contains(lacking.title()) && err.contains(why), "{case} {outputs:?}: {err}");
+            assert!(scene.render_stats(camera, &request).is_err(), "{case} {outputs:?}");
+            assert!(scene.engine_scene().render_op_labels(&camera.target_views(), request).is_err());
+        }
+        // The scene still renders what the model has.
+        let fine = scene.render(camera, &Request { outputs: model.outputs(), region: None }).unwrap();
+        assert_eq!(fine.outputs.len(), model.outputs().iter().count(), "{case}");
+    }
+}
+
+#[test]
+fn depth_is_exp_of_logdepth() {
+    let engine = engine();
+    let model = engine.load(golden("srt_k1_depth").join("model.safetensors")).unwrap();
+    assert!(model.outputs().contains(Output::Depth) && model.outputs().contains(Output::LogDepth));
+    let data = SceneData::load(golden("srt_k1_depth").join("scene.safetensors")).unwrap();
+    let scene = model.encode(&data.inputs).unwrap();
+    let camera = &data.targets[0].camera;
+    let both =
+        scene.render(camera, &Request { outputs: Outputs::of(&[Output::LogDepth, Output::Depth]), region: None });
+    let both = both.unwrap();
+    let (logdepth, depth) = (both.logdepth().unwrap(), both.get(Output::Depth).unwrap());
+    assert_eq!(depth.len(), camera.width() * camera.height());
+    // The GPU's exp against f64's: a few f32 roundings apart.
+    let err = logdepth
+        .iter()
+        .zip(depth)
+        .map(|(l, d)| ((*d as f64 - (*l as f64).exp()) / (*l as f64).exp()).abs())
+        .fold(0.0, f64::max);
+    assert!(err <= 2e-6, "depth differs from exp(log-depth) by a relative {err:e}");
+    assert!(logdepth.iter().any(|l| l.abs() > 0.5), "log-depth too close to 0 for the check to mean anything");
+
+    // Depth alone: no log-depth copied out, no sigmoid, the same depth.
+    let alone = Request { outputs: Outputs::of(&[Output::Depth]), region: None };
+    let depth_only = scene.render(camera, &alone).unwrap();
+    assert!(depth_only.logdepth().is_none() && depth_only.rgb().is_none());
+    assert_eq!(depth_only.get(Output::Depth), Some(depth));
+    let labels = scene.engine_scene().render_op_labels(&camera.target_views(), alone).unwrap();
+    assert!(labels.iter().any(|l| l == "depth"), "{labels:?}");
+    assert!(!labels.iter().any(|l| l == "logdepth" || l == "sigmoid"), "{labels:?}");
+    // And in a region.
+    let region = Region { x: 3, y: 5, width: 7, height: 4 };
+    let part = scene.render(camera, &Request { region: Some(region), ..alone }).unwrap();
+    assert_eq!(part.get(Output::Depth).unwrap(), crop_map(depth, camera.width(), region).as_slice());
+}
+
+#[test]
+fn segmentation_is_slot_weights_summing_to_one() {
+    let engine = engine();
+    for case in OSRT_CASES {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let slots = match &model.config().family {
+            raypatch::raypatch_model::Family::Osrt(c) => c.slot_attention.num_slots,
+            _ => panic!("{case}: not an OSRT model"),
+        };
+        let request = Request { outputs: Outputs::of(&[Output::Segmentation]), region: None };
+        // The scene's target cameras, and one orbited to a view no target has.
+        let mut cameras: Vec<Camera> = data.targets.iter().map(|t| t.camera.clone()).collect();
+        cameras.push(cameras[0].orbited(75.0));
+        let mut winners = vec![false; slots];
+        for (i, camera) in cameras.iter().enumerate() {
+            let out = scene.render(camera, &request).unwrap();
+            assert_eq!(channels(&out, Output::Segmentation), slots, "{case}: one channel per slot");
+            let seg = out.get(Output::Segmentation).unwrap();
+            assert_eq!(seg.len(), camera.width() * camera.height() * slots);
+            // OSRT: a softmax over the slots; RP-OSRT: bilinear mixes (weights summing to 1) of such rows.
+            let mut worst = 0.0f32;
+            for row in seg.chunks_exact(slots) {
+                assert!(row.iter().all(|w| (0.0..=1.0).contains(w)), "{case} camera {i}: weights {row:?}");
+                worst = worst.max((row.iter().sum::<f32>() - 1.0).abs());
+                let best = (0..slots).max_by(|a, b| row[*a].total_cmp(&row[*b])).unwrap();
+                winners[best] = true;
+            }
+            assert!(worst <= 1e-5, "{case} camera {i}: a pixel's slot weights sum to 1 ± {worst:e}");
+        }
+        let won = winners.iter().filter(|w| **w).count();
+        assert!(won > 1, "{case}: one slot wins every pixel, the check says little");
+    }
 }

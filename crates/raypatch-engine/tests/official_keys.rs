@@ -1,8 +1,9 @@
-//! The SRT module tree built from the official run configs fetches exactly the official state_dict names
-//! and shapes (`models::expected_tensors`, no file, no GPU).
+//! The module trees built from the official run configs (SRT, RP-SRT, OSRT, RP-OSRT) fetch exactly the
+//! official state_dict names and shapes, and hold the official parameter counts (`models::expected_tensors`,
+//! no file, no GPU).
 
 use raypatch_engine::models::expected_tensors;
-use raypatch_model::ModelConfig;
+use raypatch_model::{Family, ModelConfig};
 use serde_json::json;
 
 /// The model sections of RayPatchQuerying's runs/msn_easy/{srt_MDBN_32,rpsrt_MDBN_4_32}/config.yaml.
@@ -22,6 +23,25 @@ fn official(decoder: &str) -> serde_json::Value {
     cfg
 }
 
+/// The model sections of RayPatchQuerying's runs/msn_easy/{osrt_MDBN_64,rposrt_MDBN_8_64}/config.yaml. They
+/// set no decoder_kwargs.out_dims: the official OSRT class overrides it (3 for lightfield, the Ray-Patch
+/// conv_features, by default 128, for featurefield).
+fn official_osrt(decoder: &str) -> serde_json::Value {
+    let mut cfg = json!({
+        "base": "osrt",
+        "encoder_kwargs": {"max_pooling": false, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
+                           "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
+        "decoder": decoder,
+        "decoder_kwargs": {"pos_start_octave": -5},
+        "lr_config": "linear", "lr": 0.0001, "decay_it": 4000000, "lr_warmup": 2500, "gamma": 0.16
+    });
+    if decoder == "featurefield" {
+        cfg["rp_kwargs"] = json!({"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20,
+                                  "h_out": 120, "w_out": 160});
+    }
+    cfg
+}
+
 /// Reads a key list from official-state-dict-keys.txt: `name [d0, d1, ...]` per line.
 fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
     let text = std::fs::read_to_string(format!("{}/tests/data/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap();
@@ -37,26 +57,49 @@ fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
         .collect()
 }
 
-fn check(decoder: &str, file: &str) {
-    let config = ModelConfig::from_value("official", official(decoder)).unwrap();
+/// Checks the module tree of `config` against the official key list `file`: the same names and shapes, and
+/// `params` parameters (the header of shared/reference/official-state-dict-keys.txt: `model.parameters()`,
+/// BatchNorm running statistics not counted).
+fn check(config: serde_json::Value, file: &str, params: usize) {
+    let config = ModelConfig::from_value("official", config).unwrap();
     let mut ours = expected_tensors(&config).unwrap();
     let mut theirs = official_keys(file);
+    let count = |keys: &[(String, Vec<usize>)]| {
+        let trained = keys.iter().filter(|(name, _)| !name.ends_with("running_mean") && !name.ends_with("running_var"));
+        trained.map(|(_, shape)| shape.iter().product::<usize>()).sum::<usize>()
+    };
+    assert_eq!(count(&theirs), params, "{file}: the key list does not hold the header's parameter count");
     ours.sort();
     theirs.sort();
-    assert_eq!(ours.len(), theirs.len(), "tensor count for {file}");
+    let names = |keys: &[(String, Vec<usize>)]| keys.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    let (our_names, their_names) = (names(&ours), names(&theirs));
+    let missing: Vec<_> = their_names.iter().filter(|n| !our_names.contains(n)).collect();
+    let extra: Vec<_> = our_names.iter().filter(|n| !their_names.contains(n)).collect();
+    assert!(missing.is_empty() && extra.is_empty(), "{file}: not declared {missing:?}; not official {extra:?}");
     for (a, b) in ours.iter().zip(&theirs) {
         assert_eq!(a, b, "{file}");
     }
+    assert_eq!(count(&ours), params, "{file}: parameters");
 }
 
 #[test]
 fn srt_keys_match_official() {
-    check("lightfield", "official-keys-srt_MDBN_32.txt");
+    check(official("lightfield"), "official-keys-srt_MDBN_32.txt", 41_037_615);
 }
 
 #[test]
 fn rpsrt_k4_keys_match_official() {
-    check("featurefield", "official-keys-rpsrt_MDBN_4_32.txt");
+    check(official("featurefield"), "official-keys-rpsrt_MDBN_4_32.txt", 41_328_245);
+}
+
+#[test]
+fn osrt_keys_match_official() {
+    check(official_osrt("lightfield"), "official-keys-osrt_MDBN_64.txt", 94_917_423);
+}
+
+#[test]
+fn rposrt_k8_keys_match_official() {
+    check(official_osrt("featurefield"), "official-keys-rposrt_MDBN_8_64.txt", 95_213_144);
 }
 
 #[test]
@@ -72,11 +115,49 @@ fn official_dimensions() {
 }
 
 #[test]
+fn official_osrt_dimensions() {
+    for (decoder, k, out_dims) in [("lightfield", 1, 3), ("featurefield", 8, 128)] {
+        let config = ModelConfig::from_value("official", official_osrt(decoder)).unwrap();
+        assert_eq!((config.base(), config.patch_size()), ("osrt", k), "{decoder}");
+        let Family::Osrt(c) = &config.family else { panic!("{decoder}: not an OSRT config") };
+        assert_eq!(c.query_dim(), 180);
+        assert_eq!(c.encoder.input_dim(), 183);
+        let s = &c.slot_attention;
+        assert_eq!((s.num_slots, s.slot_dim, s.hidden, s.iters), (5, 1536, 3072, 1), "{decoder}");
+        let d = &c.decoder;
+        assert_eq!((d.heads, d.dim_head, d.ff_hidden, d.kv_dim), (12, 128, 3072, 1536), "{decoder}");
+        assert_eq!((d.num_att_blocks, d.input_mlp_hidden, d.att_dim, d.render_hidden), (2, 360, 1536, 1536));
+        assert!(!d.layer_norm);
+        assert_eq!(d.out_dims, out_dims, "{decoder}: the official OSRT class overrides decoder_kwargs.out_dims");
+        assert_eq!(c.image_channels(), 3, "{decoder}");
+        if let Some(rp) = &c.ray_patch {
+            assert_eq!((rp.upsample, rp.conv_features, rp.out_dims, rp.batch_norm), (3, 128, 3, true));
+        }
+    }
+}
+
+#[test]
 fn bad_configs_say_what_is_wrong() {
+    let mut cfg = official("featurefield");
+    cfg["base"] = json!("nerf");
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
+    assert!(err.contains("m.safetensors") && err.contains("nerf") && err.contains("not supported"), "{err}");
+
+    // An SRT config read as OSRT: the SRT decoder's 768-wide latent is not the 1536-wide slots.
     let mut cfg = official("featurefield");
     cfg["base"] = json!("osrt");
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
-    assert!(err.contains("m.safetensors") && err.contains("osrt"), "{err}");
+    assert!(err.contains("m.safetensors") && err.contains("latent_dim") && err.contains("slot_dim"), "{err}");
+
+    let mut cfg = official_osrt("lightfield");
+    cfg["decoder"] = json!("slotmixer");
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
+    assert!(err.contains("`decoder`") && err.contains("slotmixer"), "{err}");
+
+    let mut cfg = official_osrt("lightfield");
+    cfg["encoder_kwargs"]["num_slots"] = json!(0);
+    let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
+    assert!(err.contains("num_slots"), "{err}");
 
     let mut cfg = official("featurefield");
     cfg["rp_kwargs"]["upsample"] = json!("two");
