@@ -465,7 +465,8 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
             outputs = outputs.with(Output::Segmentation);
         }
         let images = outputs.contains(Output::Rgb) && shots.iter().all(|s| s.truth.is_some());
-        if !images && !(masks && outputs.contains(Output::Segmentation)) {
+        let objects = masks && outputs.contains(Output::Segmentation);
+        if !images && !objects {
             bail!(
                 "--metrics: needs target views with ground truth: ground-truth images (scene `target_images`, or \
                  frames) for rgb, or `target_masks` for an OSRT model's segmentation; not --orbit, --orbit-frames \
