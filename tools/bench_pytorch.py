@@ -6,7 +6,9 @@ raypatch-bench, which runs it on the same weights and inputs as the engine in th
 
 Prints one JSON object: the torch version, its thread count, and the wall times in ms (median, min, max over the
 runs after one warm-up) of encoding the input views and of rendering the target views, as the official model
-computes them in float32 on the CPU. With --out-rgb it also writes the rendered `rgb` [T, Ht, Wt, 3]. Exit code 3
+computes them in float32 on the CPU. The model is SRT / RP-SRT or OSRT / RP-OSRT, by the config's `base`
+(raypatch_reference.build_model); OSRT's render_views computes its segmentation beside rgb, as the official
+OSRT.decoder does, and it is timed with it. With --out-rgb it also writes the rendered `rgb` [T, Ht, Wt, 3]. Exit code 3
 when PyTorch cannot be imported, 2 on a bad input.
 """
 
@@ -25,7 +27,7 @@ except ImportError as error:
     sys.exit(3)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from raypatch_reference import SRT  # noqa: E402
+from raypatch_reference import build_model  # noqa: E402
 from safetensors_io import save_safetensors  # noqa: E402
 
 
@@ -38,7 +40,7 @@ def load_model(path):
     tensors, metadata = read(path)
     if "config" not in metadata:
         raise ValueError(f"{path}: no `config` entry in the safetensors metadata")
-    model = SRT.from_config(json.loads(metadata["config"])).eval()
+    model = build_model(json.loads(metadata["config"])).eval()
     result = model.load_state_dict(tensors, strict=False)
     missing = [key for key in result.missing_keys if not key.endswith("num_batches_tracked")]
     if missing or result.unexpected_keys:
@@ -94,8 +96,10 @@ def main(argv=None):
     with torch.no_grad():
         z, encode_times = timed(lambda: model.encode(batch("input_images").permute(0, 1, 4, 2, 3),
                                                      batch("input_camera_pos"), batch("input_rays")), args.repeats)
-        (rgb, _), render_times = timed(lambda: model.render_views(z, batch("target_camera_pos"), batch("target_rays"),
-                                                                  size), args.repeats)
+        # SRT returns (rgb, logdepth), OSRT (rgb, logdepth, segmentation).
+        views, render_times = timed(lambda: model.render_views(z, batch("target_camera_pos"), batch("target_rays"),
+                                                               size), args.repeats)
+        rgb = views[0]
     if args.out_rgb is not None:
         save_safetensors(args.out_rgb, {"rgb": rgb[0]}, {"format": "raypatch-bench-pytorch/1"})
     print(json.dumps({"torch_version": torch.__version__, "threads": torch.get_num_threads(),

@@ -16,7 +16,7 @@ use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene
 use raypatch_engine::{
     AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, Model, Output, Outputs, Request, WeightStorage,
 };
-use raypatch_model::{InputViews, LoadedModel, TargetViews};
+use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, TargetViews};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
@@ -147,6 +147,9 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
 /// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
 type References = (ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene);
 
+/// A model's float64 references, or why there are none (e.g. `too slow at this size`), for the records' notes.
+type MaybeReferences = std::result::Result<References, String>;
+
 /// One model under test with its encoded scene (engine and references).
 struct Subject<'a> {
     name: String,
@@ -159,7 +162,7 @@ struct Subject<'a> {
     inputs: &'a InputViews,
     encode: (Stats, Option<Stats>),
     encoded: EncodedScene<'a>,
-    references: Option<&'a References>,
+    references: std::result::Result<&'a References, String>,
 }
 
 pub fn run(options: &Options) -> Result<()> {
@@ -262,8 +265,17 @@ fn precision_name(storage: WeightStorage) -> &'static str {
     }
 }
 
-fn decoder_name(k: usize) -> String {
-    if k == 1 { "SRT" } else { "RP-SRT" }.to_string()
+/// `SRT`, `RP-SRT`, `OSRT` or `RP-OSRT`.
+fn decoder_name(config: &ModelConfig) -> String {
+    let family = match config.family {
+        Family::Srt(_) => "SRT",
+        Family::Osrt(_) => "OSRT",
+    };
+    if config.patch_size() == 1 {
+        family.to_string()
+    } else {
+        format!("RP-{family}")
+    }
 }
 
 impl Bench {
@@ -290,15 +302,20 @@ impl Bench {
     }
 
     /// Both float64 references of a model and their encodings, when affordable: the encode's multiply-adds,
-    /// counted from the ops `model`'s encode records (nothing is built), at most the limit.
-    fn references(&self, loaded: &LoadedModel, model: &Model, inputs: &InputViews) -> Result<Option<References>> {
+    /// counted from the ops `model`'s encode records (nothing is built), at most the limit. Else why not: too
+    /// slow, or (for a family other than SRT, whose reference is required) the reference's own refusal.
+    fn references(&self, loaded: &LoadedModel, model: &Model, inputs: &InputViews) -> Result<MaybeReferences> {
         if model.encode_multiply_adds(inputs.count, inputs.height, inputs.width) > self.reference_macs {
-            return Ok(None);
+            return Ok(Err("too slow at this size".into()));
         }
-        let f32_args = ReferenceModel::new(loaded, Argument::RoundedToF32)?;
+        let f32_args = match ReferenceModel::new(loaded, Argument::RoundedToF32) {
+            Ok(reference) => reference,
+            Err(e) if loaded.config.srt().is_none() => return Ok(Err(e.to_string())),
+            Err(e) => return Err(e.into()),
+        };
         let f64_args = ReferenceModel::new(loaded, Argument::Float64)?;
         let (a, b) = (f32_args.encode(inputs)?, f64_args.encode(inputs)?);
-        Ok(Some((f32_args, a, f64_args, b)))
+        Ok(Ok((f32_args, a, f64_args, b)))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -311,7 +328,7 @@ impl Bench {
         model: &'a Model,
         storage: WeightStorage,
         inputs: &'a InputViews,
-        references: Option<&'a References>,
+        references: std::result::Result<&'a References, String>,
     ) -> Result<Subject<'a>> {
         let (encode, encoded) = self.encode(model, inputs)?;
         Ok(Subject { name, group, loaded, file, model, storage, inputs, encode, encoded, references })
@@ -322,13 +339,22 @@ impl Bench {
     fn record(&self, s: &Subject, views: usize, size: (usize, usize), variant: &str) -> Record {
         let cfg = &s.loaded.config;
         let k = cfg.patch_size();
+        // The latent's rows: SRT's tokens, OSRT's slots.
         let tokens = s.encoded.latent.rows;
         let queries = views * (size.0 / k) * (size.1 / k);
-        let heads = cfg.srt().map_or(0, |c| c.decoder.heads);
+        let attention_scores_bytes = match &cfg.family {
+            Family::Srt(c) => flops::attention_score_bytes(queries, tokens, c.decoder.heads),
+            // The allocation transformer's cross-attention (heads x queries x slots), and the mixing block's
+            // single-head softmax over the slots (queries x slots).
+            Family::Osrt(c) => {
+                flops::attention_score_bytes(queries, tokens, c.decoder.heads)
+                    + flops::attention_score_bytes(queries, tokens, 1)
+            }
+        };
         Record {
             group: s.group.to_string(),
             model: s.name.clone(),
-            decoder: decoder_name(k),
+            decoder: decoder_name(cfg),
             k,
             precision: precision_name(s.storage).into(),
             variant: variant.to_string(),
@@ -345,7 +371,7 @@ impl Bench {
             encode_ms: s.encode.1.or(Some(s.encode.0)),
             encode_wall_ms: Some(s.encode.0),
             encode_peak_bytes: Some(s.encoded.encode_peak_bytes),
-            attention_scores_bytes: flops::attention_score_bytes(queries, tokens, heads),
+            attention_scores_bytes,
             encode_gflop: flops::gflop(s.encoded.encode_multiply_adds),
             env: Some(self.env.clone()),
             ..Default::default()
@@ -382,18 +408,20 @@ impl Bench {
         let mut frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
         let rgb = frame.take(Output::Rgb).context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
-        match s.references {
-            Some((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
+        let no_reference = match &s.references {
+            Ok((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
                 let want = f32_args.render(f32_scene, targets)?;
                 record.max_err_f64_reference = Some(measure::max_abs_error(&rgb, &want.rgb));
                 record.rms_err_f64_reference = Some(measure::rms_error(&rgb, &want.rgb));
                 let exact = f64_args.render(f64_scene, targets)?;
                 record.max_err_f64_model = Some(measure::max_abs_error(&rgb, &exact.rgb));
+                None
             }
-            _ => {
-                record.note =
-                    format!("{}; no f64 reference (too slow at this size)", record.note).trim_start_matches("; ").into()
-            }
+            Ok(_) => Some("too slow at this size"),
+            Err(why) => Some(why.as_str()),
+        };
+        if let Some(why) = no_reference {
+            record.note = format!("{}; no f64 reference ({why})", record.note).trim_start_matches("; ").into();
         }
         if let Some(truth) = truth {
             record.max_err_pytorch = Some(max_abs_f32(&rgb, truth));
@@ -459,7 +487,7 @@ impl Bench {
                 &model,
                 WeightStorage::F32,
                 &scene.inputs,
-                references.as_ref(),
+                references.as_ref().map_err(Clone::clone),
             )?;
             records.push(self.measure(&subject, &scene.targets, Some(&truth), false)?);
             if loaded.config.has_depth() {
@@ -492,7 +520,7 @@ impl Bench {
                 &model,
                 WeightStorage::F32,
                 &inputs,
-                references.as_ref(),
+                references.as_ref().map_err(Clone::clone),
             )?;
             records.push(self.measure(&subject, &targets, None, true)?);
         }

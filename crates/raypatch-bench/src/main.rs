@@ -33,8 +33,9 @@ struct Args {
     /// The scene for --model files (default: a synthetic 120x160 scene).
     #[arg(long)]
     scene: Option<PathBuf>,
-    /// Measure only the sweep's random-weight model GROUP (small or official) with patch size K (1 = SRT),
-    /// at every size; repeatable. Skips the golden cases. Merge into a full run with --replot.
+    /// Measure only the sweep's random-weight model GROUP with patch size K, at every size; repeatable.
+    /// GROUP small or official (SRT, K = 1, or RP-SRT, K = 2, 4, 8, 16), or official-osrt (the official
+    /// OSRT, K = 1, or RP-OSRT, K = 8, at 120x160). Skips the golden cases. Merge into a full run with --replot.
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
@@ -80,13 +81,33 @@ fn main() -> ExitCode {
 }
 
 fn parse_only(text: &str) -> Result<(String, usize), String> {
-    let (group, k) = text.split_once(':').ok_or("expected GROUP:K, e.g. small:2")?;
-    if group != "small" && group != "official" {
-        return Err(format!("group {group:?}: expected small or official"));
-    }
-    let k: usize = k.parse().map_err(|_| format!("k {k:?}: expected 1, 2, 4, 8 or 16"))?;
-    if ![1, 2, 4, 8, 16].contains(&k) {
-        return Err(format!("k {k}: expected 1, 2, 4, 8 or 16"));
+    let (group, k) = text.split_once(':').ok_or("expected GROUP:K, e.g. small:2 or official-osrt:8")?;
+    let ks: &[usize] = match group {
+        "small" | "official" => &[1, 2, 4, 8, 16],
+        // The official OSRT runs: osrt_MDBN_64 and rposrt_MDBN_8_64.
+        "official-osrt" => &[1, 8],
+        _ => return Err(format!("group {group:?}: expected small, official or official-osrt")),
+    };
+    let expected = ks.iter().map(usize::to_string).collect::<Vec<_>>().join(", ");
+    let k: usize = k.parse().map_err(|_| format!("k {k:?}: expected one of {expected} for {group}"))?;
+    if !ks.contains(&k) {
+        return Err(format!("k {k}: expected one of {expected} for {group}"));
     }
     Ok((group.to_string(), k))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_only;
+
+    #[test]
+    fn only_selectors() {
+        assert_eq!(parse_only("official:8"), Ok(("official".into(), 8)));
+        assert_eq!(parse_only("official-osrt:1"), Ok(("official-osrt".into(), 1)));
+        assert_eq!(parse_only("official-osrt:8"), Ok(("official-osrt".into(), 8)));
+        assert!(parse_only("official-osrt:4").is_err());
+        assert!(parse_only("osrt:8").is_err());
+        assert!(parse_only("small:3").is_err());
+        assert!(parse_only("small").is_err());
+    }
 }

@@ -1,5 +1,6 @@
-//! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, measured on an NVIDIA V100, and the
-//! attention-memory example of Section 5) beside ours where they apply, and their section of `tables.md`.
+//! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, SRT and OSRT rows, measured on an NVIDIA
+//! V100, and the attention-memory example of Section 5) beside ours where they apply, and their section of
+//! `tables.md`.
 //! Reads the records of [`crate::report`] (which does not depend on this module).
 
 use serde::{Deserialize, Serialize};
@@ -14,21 +15,38 @@ pub struct Comparison {
     pub ours: String,
 }
 
-/// Table 1, MSN-Easy: (target size, k, rendering speed in fps on a V100, "Giga FLOPs").
-const TABLE_1: [((usize, usize), usize, f64, f64); 6] = [
-    ((60, 80), 1, 117.0, 48.2),
-    ((60, 80), 2, 288.0, 15.8),
-    ((60, 80), 4, 341.0, 7.3),
-    ((120, 160), 1, 30.0, 192.1),
-    ((120, 160), 4, 275.0, 28.5),
-    ((120, 160), 8, 305.0, 19.7),
+/// Which official model a row of the paper's Table 1 is: SRT / RP-SRT (the sweep's `official` records) or
+/// OSRT / RP-OSRT (`official-osrt`).
+#[derive(Clone, Copy, PartialEq)]
+enum Family {
+    Srt,
+    Osrt,
+}
+
+/// A row of Table 1: the model, target size, k, rendering speed in fps on a V100, "Giga FLOPs".
+struct PaperRow(Family, (usize, usize), usize, f64, f64);
+
+/// Table 1, MSN-Easy.
+const TABLE_1: [PaperRow; 8] = [
+    PaperRow(Family::Srt, (60, 80), 1, 117.0, 48.2),
+    PaperRow(Family::Srt, (60, 80), 2, 288.0, 15.8),
+    PaperRow(Family::Srt, (60, 80), 4, 341.0, 7.3),
+    PaperRow(Family::Srt, (120, 160), 1, 30.0, 192.1),
+    PaperRow(Family::Srt, (120, 160), 4, 275.0, 28.5),
+    PaperRow(Family::Srt, (120, 160), 8, 305.0, 19.7),
+    PaperRow(Family::Osrt, (120, 160), 1, 21.0, 278.6),
+    PaperRow(Family::Osrt, (120, 160), 8, 278.0, 24.7),
 ];
 
-fn official(records: &[Record], size: (usize, usize), k: usize) -> Option<&Record> {
+fn official(records: &[Record], family: Family, size: (usize, usize), k: usize) -> Option<&Record> {
     let size = format!("{}x{}", size.0, size.1);
+    let model = match family {
+        Family::Srt => "official",
+        Family::Osrt => "official-osrt",
+    };
     records.iter().find(|r| {
         r.group == "sweep"
-            && r.model == "official"
+            && r.model == model
             && r.k == k
             && r.target_size == size
             && r.precision == "f32"
@@ -36,23 +54,39 @@ fn official(records: &[Record], size: (usize, usize), k: usize) -> Option<&Recor
     })
 }
 
-fn name(k: usize) -> String {
+fn name(family: Family, k: usize) -> String {
+    let base = match family {
+        Family::Srt => "SRT",
+        Family::Osrt => "OSRT",
+    };
     if k == 1 {
-        "SRT".into()
+        base.into()
     } else {
-        format!("RP-SRT k={k}")
+        format!("RP-{base} k={k}")
+    }
+}
+
+/// Two decimals, three below 0.1 fps (OSRT's full-size renders take over a minute on a CPU).
+fn fps_text(fps: f64) -> String {
+    if fps < 0.1 {
+        format!("{fps:.3}")
+    } else {
+        format!("{fps:.2}")
     }
 }
 
 pub fn compare(records: &[Record]) -> Vec<Comparison> {
     let mut rows = Vec::new();
     let adapter = records.iter().find_map(|r| r.env.as_ref()).map_or(String::new(), |e| e.adapter.clone());
-    for &(size, k, fps, gflops) in &TABLE_1 {
-        let ours = official(records, size, k);
+    for &PaperRow(family, size, k, fps, gflops) in &TABLE_1 {
+        let ours = official(records, family, size, k);
+        let name = |k| name(family, k);
         rows.push(Comparison {
             what: format!("{} {}x{}: rendering speed", name(k), size.0, size.1),
             paper: format!("{fps:.0} fps (V100)"),
-            ours: ours.and_then(|r| r.fps).map_or("not measured".into(), |f| format!("{f:.2} fps ({adapter})")),
+            ours: ours
+                .and_then(|r| r.fps)
+                .map_or("not measured".into(), |f| format!("{} fps ({adapter})", fps_text(f))),
         });
         rows.push(Comparison {
             what: format!("{} {}x{}: work per frame", name(k), size.0, size.1),
@@ -64,13 +98,15 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             }),
         });
         if k > 1 {
-            let srt = TABLE_1.iter().find(|row| row.0 == size && row.1 == 1).map_or(1.0, |row| row.2);
-            let ours = match (official(records, size, 1).and_then(|r| r.fps), ours.and_then(|r| r.fps)) {
+            let per_pixel = TABLE_1.iter().find(|row| row.0 == family && row.1 == size && row.2 == 1);
+            let srt = per_pixel.map_or(1.0, |row| row.3);
+            let base = official(records, family, size, 1).and_then(|r| r.fps);
+            let ours = match (base, ours.and_then(|r| r.fps)) {
                 (Some(s), Some(r)) => format!("{:.1}x", r / s),
                 _ => "not measured".into(),
             };
             rows.push(Comparison {
-                what: format!("{} {}x{}: speed-up over SRT", name(k), size.0, size.1),
+                what: format!("{} {}x{}: speed-up over {}", name(k), size.0, size.1, name(1)),
                 paper: format!("{:.1}x", fps / srt),
                 ours,
             });
@@ -94,7 +130,10 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             records.iter().find(|r| r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep")
         {
             rows.push(Comparison {
-                what: format!("official {} 960x1280: materialised scores vs the engine's planned peak", name(k)),
+                what: format!(
+                    "official {} 960x1280: materialised scores vs the engine's planned peak",
+                    name(Family::Srt, k)
+                ),
                 paper: "-".into(),
                 ours: format!(
                     "{} vs {}",

@@ -193,7 +193,7 @@ fn save(path: &Path, pixels: Vec<u8>) -> Result<()> {
 }
 
 fn config_label(r: &Record) -> String {
-    let decoder = if r.k == 1 { "SRT".to_string() } else { format!("RP k={}", r.k) };
+    let decoder = if r.k == 1 { r.decoder.clone() } else { format!("RP k={}", r.k) };
     format!("{} {decoder} {}", r.model, r.precision)
 }
 
@@ -234,7 +234,7 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     for r in records.iter().filter(|r| r.group == "sweep" && r.target_size == size) {
         if let (Some(t), Some(e)) = (r.render_ms, r.max_err_f64_reference) {
             let label = format!("{} {}", r.model, r.precision);
-            let tag = if r.k == 1 { " SRT".to_string() } else { format!(" k={}", r.k) };
+            let tag = if r.k == 1 { format!(" {}", r.decoder) } else { format!(" k={}", r.k) };
             let p = (t.median_ms, e.max(1e-9));
             let next = COLORS[pareto.len() % COLORS.len()];
             let s = match pareto.iter_mut().position(|s| s.label == label) {

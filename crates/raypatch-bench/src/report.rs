@@ -25,9 +25,10 @@ pub struct Record {
     /// `golden` (assets/golden), `sweep` (random-weight models), `skips`, `model` (a file given with --model).
     pub group: String,
     /// `small` (random, the golden cases' structure at width 32), `official` (random, official MSN-Easy
-    /// size), a golden case's name, or a model file.
+    /// SRT / RP-SRT size), `official-osrt` (random, the official MSN-Easy OSRT / RP-OSRT k=8 runs), a golden
+    /// case's name, or a model file.
     pub model: String,
-    /// `SRT` or `RP-SRT`.
+    /// `SRT`, `RP-SRT`, `OSRT` or `RP-OSRT`.
     pub decoder: String,
     pub k: usize,
     /// Weight storage: `f32`, or `f16` (f32 arithmetic).
@@ -41,11 +42,11 @@ pub struct Record {
     pub target_views: usize,
     pub target_size: String,
     pub pixels: usize,
-    /// Decoder queries per render (one per pixel for SRT, per k×k patch for RP-SRT).
+    /// Decoder queries per render (one per pixel for SRT and OSRT, per k×k patch for Ray-Patch).
     pub queries: usize,
     /// Kernel dispatches per render.
     pub dispatches: Option<usize>,
-    /// Latent tokens (rows of the encoded latent).
+    /// Latent tokens (rows of the encoded latent: SRT's set-latent tokens, OSRT's slots).
     pub tokens: usize,
     /// `gpu timestamps` (GPU time of the plan's pass) or `wall clock`.
     pub timing: String,
@@ -62,7 +63,9 @@ pub struct Record {
     /// Planned peak bytes of the render plan (intermediates, inputs, outputs, params; weights and the
     /// scene's keys/values are counted in `weight_bytes` and not here).
     pub render_peak_bytes: Option<u64>,
-    /// What a decoder that materialised its softmax would hold (the paper's Figure 2a quantity).
+    /// What a decoder that materialised its softmax would hold (the paper's Figure 2a quantity): queries x
+    /// tokens x heads; for OSRT the allocation transformer's heads x queries x slots plus the mixing block's
+    /// queries x slots.
     pub attention_scores_bytes: u64,
     /// FLOPs of the encode: two per multiply-add the engine counts from the encode plan's ops.
     pub encode_gflop: f64,
@@ -250,7 +253,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
             .collect(),
     );
 
-    out += "### RP-SRT speed-up over SRT (fps ratio, same model and target size)\n\n";
+    out += "### Ray-Patch speed-up over the per-pixel decoder (SRT or OSRT; fps ratio, same model and target size)\n\n";
     let mut rows = Vec::new();
     let mut keys: Vec<(String, String, String)> = Vec::new();
     for r in &sweep {
@@ -271,7 +274,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
         row.extend([2, 4, 8, 16].iter().map(|&k| fps(k).map_or("-".into(), |f| format!("{:.1}x", f / srt))));
         rows.push(row);
     }
-    table(&mut out, &["model", "precision", "target", "SRT fps", "k=2", "k=4", "k=8", "k=16"], rows);
+    table(&mut out, &["model", "precision", "target", "k=1 fps", "k=2", "k=4", "k=8", "k=16"], rows);
 
     out += "### Golden cases (errors against PyTorch float32, the float64 reference and the float64 model)\n\n";
     table(
@@ -352,7 +355,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
     out += "### Skips on and off (render time)\n\n";
     table(
         &mut out,
-        &["model", "decoder", "k", "target", "variant", "queries", "dispatches", "timing", "render ms"],
+        &["model", "decoder", "k", "target", "variant", "queries", "dispatches", "timing", "render ms", "render peak"],
         records
             .iter()
             .filter(|r| r.group == "skips")
@@ -367,6 +370,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
                     r.dispatches.map_or("-".into(), |d| d.to_string()),
                     r.timing.clone(),
                     stats_text(r.render_ms),
+                    r.render_peak_bytes.map_or("-".into(), bytes),
                 ]
             })
             .collect(),

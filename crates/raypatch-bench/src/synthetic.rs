@@ -33,6 +33,29 @@ pub fn official_rpsrt_config(k: usize) -> Value {
     cfg
 }
 
+/// The model section of the official MSN-Easy OSRT run `osrt_MDBN_64` (tberriel/RayPatchQuerying
+/// `runs/msn_easy/osrt_MDBN_64/config.yaml`; `tools/official_configs.py` `OSRT_MDBN_64`): 5 slots 1536 wide,
+/// the slot mixer's 1536-wide widths, a per-pixel light field (95 M parameters).
+pub fn official_osrt_config() -> Value {
+    json!({
+        "base": "osrt",
+        "encoder_kwargs": {"max_pooling": false, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
+                           "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
+        "decoder": "lightfield",
+        "decoder_kwargs": {"pos_start_octave": -5},
+    })
+}
+
+/// The official MSN-Easy RP-OSRT run `rposrt_MDBN_8_64` (`tools/official_configs.py` `RPOSRT_MDBN_8_64`): the
+/// OSRT model with the Ray-Patch decoder, k = 8 (15x20 patch rays for 120x160 targets).
+pub fn official_rposrt_config() -> Value {
+    let mut cfg = official_osrt_config();
+    cfg["decoder"] = json!("featurefield");
+    cfg["rp_kwargs"] = json!({"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20,
+                              "h_out": 120, "w_out": 160});
+    cfg
+}
+
 /// The official structure at small widths, as `tools/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2
 /// attention layers, 15 + 15 octaves, 4 heads, tokens `width` wide; Ray-Patch with patch size `k` when
 /// `k > 1` (conv_features `2·width`, at least 2·k).
@@ -83,6 +106,8 @@ pub fn random_tensors(config: &Value, seed: u64, name: &str) -> Result<Vec<Tenso
                 (0..count).map(|_| (0.1 * rng.normal()) as f32).collect()
             } else if shape.len() == 1 {
                 rng.vec_f32(count, 0.5, 1.5)
+            } else if key.ends_with("initial_slots") {
+                (0..count).map(|_| rng.normal() as f32).collect()
             } else {
                 let fan_in: usize = shape[1..].iter().product();
                 let gain = if unit_gain(&key) { 1.0 } else { std::f64::consts::SQRT_2 };
@@ -114,14 +139,17 @@ pub fn model_from_tensors(
 /// A named f32 tensor: (name, shape, row-major data).
 pub type Tensor = (String, Vec<usize>, Vec<f32>);
 
-/// Attention projections keep the logits O(1); output layers (no calibration here, unlike make_golden.py)
-/// keep the pre-sigmoid outputs O(1), so that few pixels saturate. Everything else feeds a (Leaky)ReLU.
+/// Attention projections keep the logits O(1) (for OSRT also slot attention's and the mixing block's keys and
+/// values, and the GRU cell, as make_golden.py's `randomize_osrt_weights`); output layers (no calibration
+/// here, unlike make_golden.py) keep the pre-sigmoid outputs O(1), so that few pixels saturate. Everything
+/// else feeds a (Leaky)ReLU. OSRT's initial slots are N(0, 1), as make_golden.py draws them.
 fn unit_gain(key: &str) -> bool {
     let rgb_conv = key
         .strip_prefix("decoder_rp.conv_decoder.conv_blocks.")
         .is_some_and(|rest| rest.split('.').count() == 3 && rest.ends_with(".1.weight"));
-    ["to_q.", "to_kv.", "to_qkv.", "to_out."].iter().any(|p| key.contains(p))
+    ["to_q.", "to_k.", "to_v.", "to_kv.", "to_qkv.", "to_out.", "gru.weight_"].iter().any(|p| key.contains(p))
         || key == "decoder_att.out_mlp.8.weight"
+        || key == "decoder_att.render_mlp.net.8.weight"
         || key == "decoder_rp.conv_decoder.conv_0.weight"
         || rgb_conv
 }
@@ -314,5 +342,18 @@ mod tests {
         assert_eq!((srt.encoder.token_dim, srt.decoder.out_mlp_hidden), (768, 1536));
         let rp = ModelConfig::from_value("rpsrt", official_rpsrt_config(8)).unwrap();
         assert_eq!((rp.patch_size(), rp.srt().unwrap().decoder.out_dims), (8, 128));
+    }
+
+    /// The official OSRT configs resolve to the official run's widths (the tensors' names and shapes are
+    /// checked against the official state_dict by the engine's tests/official_keys.rs).
+    #[test]
+    fn official_osrt_configs() {
+        for (config, k, out_dims) in [(official_osrt_config(), 1, 3), (official_rposrt_config(), 8, 128)] {
+            let resolved = ModelConfig::from_value("osrt", config).unwrap();
+            let raypatch_model::Family::Osrt(c) = &resolved.family else { panic!("not an OSRT config") };
+            assert_eq!(resolved.patch_size(), k);
+            assert_eq!((c.slot_attention.num_slots, c.slot_attention.slot_dim, c.decoder.heads), (5, 1536, 12));
+            assert_eq!((c.decoder.render_hidden, c.decoder.out_dims), (1536, out_dims));
+        }
     }
 }

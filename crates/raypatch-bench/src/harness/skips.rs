@@ -1,4 +1,4 @@
-//! The measurements of what the API skips, on and off: outputs not asked for (log-depth), the plan cache,
+//! The measurements of what the API skips, on and off: outputs not asked for (log-depth, segmentation), the plan cache,
 //! the per-scene encoding and a region of interest; and the per-op, per-kernel breakdown of a render's GPU
 //! time (timestamps between the ops).
 
@@ -17,15 +17,27 @@ use crate::report::{KernelTime, Record};
 impl Bench {
     /// Outputs not asked for are not computed: rgb only, rgb and log-depth, log-depth only.
     pub(super) fn logdepth_skip(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
+        self.outputs_skip(s, targets, Output::LogDepth)
+    }
+
+    /// What OSRT's segmentation (the mixing weights, per pixel) costs: rgb only, rgb and segmentation,
+    /// segmentation only (no slot mix, render MLP or Ray-Patch convolutions).
+    pub(super) fn segmentation_skip(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<Record>> {
+        self.outputs_skip(s, targets, Output::Segmentation)
+    }
+
+    /// Renders of rgb, rgb and `other`, `other` alone (render time, planned memory and work of each).
+    fn outputs_skip(&self, s: &Subject, targets: &TargetViews, other: Output) -> Result<Vec<Record>> {
         let grid = targets.grid_for(&s.loaded.config, "target views")?;
         let mut rows = Vec::new();
+        let name = other.title();
         let variants = [
-            ("outputs: rgb", Outputs::of(&[Output::Rgb])),
-            ("outputs: rgb + log-depth", Outputs::of(&[Output::Rgb, Output::LogDepth])),
-            ("outputs: log-depth", Outputs::of(&[Output::LogDepth])),
+            ("outputs: rgb".to_string(), Outputs::of(&[Output::Rgb])),
+            (format!("outputs: rgb + {name}"), Outputs::of(&[Output::Rgb, other])),
+            (format!("outputs: {name}"), Outputs::of(&[other])),
         ];
         for (variant, outputs) in variants {
-            let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
+            let mut record = self.record(s, targets.count, (grid.height, grid.width), &variant);
             record.group = "skips".into();
             self.time_render(s, targets, outputs.into(), &mut record)?;
             print_row(&record);
@@ -109,7 +121,7 @@ impl Bench {
         let config = format!(
             "{} {} k={k} {}x{} {}",
             s.name,
-            decoder_name(k),
+            decoder_name(&s.loaded.config),
             grid.height,
             grid.width,
             precision_name(s.storage)

@@ -1,6 +1,7 @@
 //! The sweep of random-weight models (small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, f32 and f16
-//! weights) over target sizes, with the skip of sizes predicted too slow: a size's render is predicted from
-//! the multiply-adds its plan would record (recorded, not built) and the rate measured at the previous size.
+//! weights; the official OSRT and RP-OSRT k=8 at their 120x160, f32) over target sizes, with the skip of sizes
+//! predicted too slow: a size's render is predicted from the multiply-adds its plan would record (recorded,
+//! not built) and the rate measured at the previous size.
 
 use anyhow::Result;
 use raypatch_engine::{EngineError, LoadOptions, Model, Outputs, WeightStorage};
@@ -14,8 +15,13 @@ use crate::flops;
 use crate::report::{KernelTime, Record};
 use crate::synthetic;
 
+/// The group of the official OSRT runs: `osrt_MDBN_64` (k = 1) and `rposrt_MDBN_8_64` (k = 8).
+pub(crate) const OSRT: &str = "official-osrt";
+
 impl Bench {
-    /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes.
+    /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes; the
+    /// official OSRT (`osrt_MDBN_64`) and RP-OSRT k=8 (`rposrt_MDBN_8_64`) at the official 120x160 (not in the
+    /// quick run unless asked for with `--only official-osrt:K`: an OSRT render is minutes on lavapipe).
     pub(super) fn sweep(&self, records: &mut Vec<Record>, kernels: &mut Vec<KernelTime>) -> Result<()> {
         let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
             (&QUICK_SIZES, vec![(8, &[(120, 160)])])
@@ -27,6 +33,10 @@ impl Bench {
         for (k, sizes) in official {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
             specs.push(("official", k, config, sizes));
+        }
+        if !self.quick || !self.only.is_empty() {
+            specs.push((OSRT, 1, synthetic::official_osrt_config(), &[(120, 160)]));
+            specs.push((OSRT, 8, synthetic::official_rposrt_config(), &[(120, 160)]));
         }
         println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
         let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
@@ -40,7 +50,8 @@ impl Bench {
             // weight storage does not change the work), and they serve both storages.
             let mut references = None;
             let mut storages = vec![WeightStorage::F32];
-            if f16 && (name == "small" || !self.quick) {
+            // OSRT in f32 only (the paper's comparison; f16 weights scale as they do for SRT).
+            if f16 && (name == "small" || !self.quick) && name != OSRT {
                 storages.push(WeightStorage::F16);
             }
             let mut sizes: Vec<(usize, usize)> =
@@ -59,7 +70,7 @@ impl Bench {
                     &model,
                     storage,
                     &inputs,
-                    references.as_ref().and_then(Option::as_ref),
+                    references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
                 let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
                 // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
@@ -91,7 +102,7 @@ impl Bench {
                 if predicted > self.max_render.as_secs_f64() {
                     println!(
                         "  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render",
-                        decoder_name(k),
+                        decoder_name(&s.loaded.config),
                         size_text(size)
                     );
                     records.push(self.skipped(s, &targets, predicted, macs)?);
@@ -103,7 +114,8 @@ impl Bench {
                 Ok(record) => record,
                 // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
                 Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
-                    println!("  {name:<12} {:<7} k={k:<2} {:>9} does not fit: {e}", decoder_name(k), size_text(size));
+                    let decoder = decoder_name(&s.loaded.config);
+                    println!("  {name:<12} {decoder:<7} k={k:<2} {:>9} does not fit: {e}", size_text(size));
                     let mut record = self.record(s, targets.count, size, "");
                     record.render_gflop = flops::gflop(macs);
                     record.note = format!("does not fit: {e}");
@@ -128,6 +140,10 @@ impl Bench {
             if f32_weights && skips && size == (120, 160) {
                 records.extend(self.plan_and_encode_skips(s, &targets)?);
             }
+            // What the segmentation costs beside rgb (RP-OSRT; OSRT's rgb render alone is minutes here).
+            if f32_weights && name == OSRT && k == 8 && size == (120, 160) {
+                records.extend(self.segmentation_skip(s, &targets)?);
+            }
             // Free this size's plan (its buffers) before the next, larger one.
             s.encoded.clear_render_plans();
         }
@@ -138,12 +154,13 @@ impl Bench {
         match (self.quick, name) {
             (true, _) => k == 4 && size == (60, 80) && name == "small",
             (false, "small") => size == (120, 160) && (k == 1 || k == 4),
+            (false, OSRT) => size == (120, 160),
             (false, _) => (size == (60, 80) && k <= 4) || (size == (120, 160) && k >= 4),
         }
     }
 
     fn breakdown_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
-        size == (120, 160) && (name == "official" && (k == 1 || k == 8) || name == "small" && k == 4)
+        size == (120, 160) && ((name == "official" || name == OSRT) && (k == 1 || k == 8) || name == "small" && k == 4)
     }
 
     /// A size not rendered: its FLOPs (`multiply_adds`, as predicted; the built plan's count when it fits)
