@@ -307,6 +307,39 @@ def _build(module_cls, section, kwargs):
     return module_cls(**kwargs)
 
 
+def _model_sections(model_cfg, base):
+    """A copy of a run's model section checked for `base`, and its Ray-Patch decoder: the RayPatchDecoder of
+    rp_kwargs for `decoder: featurefield`, None for `lightfield`."""
+    cfg = copy.deepcopy(model_cfg)
+    if cfg.get("base") != base:
+        raise ValueError(f"model config: base must be {base!r}, got {cfg.get('base')!r}")
+    for section in ("encoder_kwargs", "decoder_kwargs"):
+        if not isinstance(cfg.get(section), dict):
+            raise ValueError(f"model config: missing section {section}")
+    if cfg.get("decoder") == "featurefield":
+        if not isinstance(cfg.get("rp_kwargs"), dict):
+            raise ValueError("model config: decoder featurefield needs section rp_kwargs")
+        return cfg, _build(RayPatchDecoder, "rp_kwargs", cfg["rp_kwargs"])
+    if cfg.get("decoder") == "lightfield":
+        return cfg, None
+    raise ValueError(f"model config: decoder must be 'lightfield' or 'featurefield', got {cfg.get('decoder')!r}")
+
+
+class _LightFieldModel(nn.Module):
+    """encoder + decoder_att + decoder_rp (a RayPatchDecoder, or the identity for a light field)."""
+
+    def __init__(self, encoder, decoder_att, decoder_rp):
+        super().__init__()
+        self.encoder = encoder
+        self.decoder_att = decoder_att
+        self.decoder_rp = decoder_rp
+
+    @property
+    def patch_size(self):
+        """k: pixels per patch-ray side (1 for a light field)."""
+        return 2**self.decoder_rp.upsample if isinstance(self.decoder_rp, RayPatchDecoder) else 1
+
+
 def _query_rays(k, decoder_rp, target_camera_pos, target_rays, target_size):
     """The decoder queries of whole target views (SRT and OSRT render_views).
 
@@ -336,48 +369,26 @@ def _query_rays(k, decoder_rp, target_camera_pos, target_rays, target_size):
     return camera_pos, rays.reshape(b, -1, 3), (grid_h, grid_w), out_size, (ht, wt)
 
 
-class SRT(nn.Module):
+class SRT(_LightFieldModel):
     """encoder + decoder_att + decoder_rp, output sigmoid(decoder_rp(decoder_att(z, pos, rays)))."""
-
-    def __init__(self, encoder, decoder_att, decoder_rp):
-        super().__init__()
-        self.encoder = encoder
-        self.decoder_att = decoder_att
-        self.decoder_rp = decoder_rp
 
     @classmethod
     def from_config(cls, model_cfg):
         """Builds the model from a run's config.yaml model section (a plain dict)."""
-        cfg = copy.deepcopy(model_cfg)
-        if cfg.get("base") != "srt":
-            raise ValueError(f"model config: base must be 'srt', got {cfg.get('base')!r}")
-        for section in ("encoder_kwargs", "decoder_kwargs"):
-            if not isinstance(cfg.get(section), dict):
-                raise ValueError(f"model config: missing section {section}")
+        cfg, decoder_rp = _model_sections(model_cfg, "srt")
         encoder = _build(SRTEncoder, "encoder_kwargs", cfg["encoder_kwargs"])
         decoder_kwargs = cfg["decoder_kwargs"]
-        if cfg.get("decoder") == "featurefield":
-            if not isinstance(cfg.get("rp_kwargs"), dict):
-                raise ValueError("model config: decoder featurefield needs section rp_kwargs")
-            decoder_rp = _build(RayPatchDecoder, "rp_kwargs", cfg["rp_kwargs"])
+        if decoder_rp is not None:
             # Official SRT.__init__ overwrites decoder_kwargs.out_dims with the patch feature width.
             decoder_kwargs["out_dims"] = cfg["rp_kwargs"].get("conv_features", 128)
             out_dims = cfg["rp_kwargs"].get("out_dims", 3)
-        elif cfg.get("decoder") == "lightfield":
+        else:
             decoder_rp = nn.Identity()
             out_dims = decoder_kwargs.get("out_dims", 3)
-        else:
-            raise ValueError(f"model config: decoder must be 'lightfield' or 'featurefield', "
-                             f"got {cfg.get('decoder')!r}")
         if out_dims not in (3, 4):
             raise ValueError(f"model config: out_dims must be 3 (rgb) or 4 (rgb + log-depth), got {out_dims}")
         decoder_att = _build(SRTDecoder, "decoder_kwargs", decoder_kwargs)
         return cls(encoder, decoder_att, decoder_rp)
-
-    @property
-    def patch_size(self):
-        """k: pixels per patch-ray side (1 for a light field)."""
-        return 2**self.decoder_rp.upsample if isinstance(self.decoder_rp, RayPatchDecoder) else 1
 
     def encode(self, images, camera_pos, rays):
         """images [B, N, 3, H, W], camera_pos [B, N, 3], rays [B, N, H, W, 3] -> z [B, tokens, token_dim]."""
@@ -567,45 +578,28 @@ class SlotMixerDecoder(nn.Module):
         return self.render_mlp(torch.cat((mix, queries), -1)), weights
 
 
-class OSRT(nn.Module):
+class OSRT(_LightFieldModel):
     """encoder (SRT encoder + slot attention) + decoder_att (Slot Mixer) + decoder_rp (Ray-Patch or identity).
 
     Same API as SRT; decode and render_views also return the segmentation (slot weights per pixel).
     """
 
-    def __init__(self, encoder, decoder_att, decoder_rp):
-        super().__init__()
-        self.encoder = encoder
-        self.decoder_att = decoder_att
-        self.decoder_rp = decoder_rp
-
     @classmethod
     def from_config(cls, model_cfg):
         """Builds the model from a run's config.yaml model section (a plain dict) with base osrt."""
-        cfg = copy.deepcopy(model_cfg)
-        if cfg.get("base") != "osrt":
-            raise ValueError(f"model config: base must be 'osrt', got {cfg.get('base')!r}")
-        for section in ("encoder_kwargs", "decoder_kwargs"):
-            if not isinstance(cfg.get(section), dict):
-                raise ValueError(f"model config: missing section {section}")
+        cfg, decoder_rp = _model_sections(model_cfg, "osrt")
         encoder = _build(OSRTEncoder, "encoder_kwargs", cfg["encoder_kwargs"])
         decoder_kwargs = cfg["decoder_kwargs"]
-        if cfg.get("decoder") == "featurefield":
-            if not isinstance(cfg.get("rp_kwargs"), dict):
-                raise ValueError("model config: decoder featurefield needs section rp_kwargs")
-            decoder_rp = _build(RayPatchDecoder, "rp_kwargs", cfg["rp_kwargs"])
+        if decoder_rp is not None:
             out_dims = cfg["rp_kwargs"].get("out_dims", 3)
             if out_dims not in (3, 4):
                 raise ValueError(f"model config: rp_kwargs.out_dims must be 3 (rgb) or 4 (rgb + log-depth), "
                                  f"got {out_dims}")
             # Official OSRT.__init__ overwrites decoder_kwargs.out_dims with the patch feature width ...
             decoder_kwargs["out_dims"] = cfg["rp_kwargs"].get("conv_features", 128)
-        elif cfg.get("decoder") == "lightfield":
+        else:
             decoder_rp = nn.Identity()
             decoder_kwargs["out_dims"] = 3  # ... and with 3 for a light field, whatever the config says.
-        else:
-            raise ValueError(f"model config: decoder must be 'lightfield' or 'featurefield', "
-                             f"got {cfg.get('decoder')!r}")
         decoder_att = _build(SlotMixerDecoder, "decoder_kwargs", decoder_kwargs)
         slot_dim = encoder.slot_attention.slot_dim
         latent_dim = decoder_att.mixing_block.to_k.in_features
@@ -613,11 +607,6 @@ class OSRT(nn.Module):
             raise ValueError(f"model config: decoder_kwargs.latent_dim {latent_dim} must equal "
                              f"encoder_kwargs.slot_dim {slot_dim}")
         return cls(encoder, decoder_att, decoder_rp)
-
-    @property
-    def patch_size(self):
-        """k: pixels per patch-ray side (1 for a light field)."""
-        return 2**self.decoder_rp.upsample if isinstance(self.decoder_rp, RayPatchDecoder) else 1
 
     def encode(self, images, camera_pos, rays, return_set_latent=False):
         """images [B, N, 3, H, W], camera_pos [B, N, 3], rays [B, N, H, W, 3] -> slots [B, num_slots, slot_dim]

@@ -343,11 +343,11 @@ impl Bench {
         let tokens = s.encoded.latent.rows;
         let queries = views * (size.0 / k) * (size.1 / k);
         let attention_scores_bytes = match &cfg.family {
-            Family::Srt(c) => flops::attention_score_bytes(queries, tokens, c.decoder.heads),
+            Family::Srt(c) => flops::attention_score_bytes(queries, tokens, c.decoder.ray_predictor.heads),
             // The allocation transformer's cross-attention (heads x queries x slots), and the mixing block's
             // single-head softmax over the slots (queries x slots).
             Family::Osrt(c) => {
-                flops::attention_score_bytes(queries, tokens, c.decoder.heads)
+                flops::attention_score_bytes(queries, tokens, c.decoder.allocation.heads)
                     + flops::attention_score_bytes(queries, tokens, 1)
             }
         };

@@ -352,7 +352,10 @@ mod tests {
             let resolved = ModelConfig::from_value("osrt", config).unwrap();
             let raypatch_model::Family::Osrt(c) = &resolved.family else { panic!("not an OSRT config") };
             assert_eq!(resolved.patch_size(), k);
-            assert_eq!((c.slot_attention.num_slots, c.slot_attention.slot_dim, c.decoder.heads), (5, 1536, 12));
+            assert_eq!(
+                (c.slot_attention.num_slots, c.slot_attention.slot_dim, c.decoder.allocation.heads),
+                (5, 1536, 12)
+            );
             assert_eq!((c.decoder.render_hidden, c.decoder.out_dims), (1536, out_dims));
         }
     }

@@ -109,7 +109,10 @@ fn official_dimensions() {
     let c = config.srt().unwrap();
     assert_eq!(c.query_dim(), 180);
     assert_eq!(c.encoder.input_dim(), 183);
-    assert_eq!((c.decoder.heads, c.decoder.dim_head, c.decoder.ff_hidden), (12, 64, 1536));
+    assert_eq!(
+        (c.decoder.ray_predictor.heads, c.decoder.ray_predictor.dim_head, c.decoder.ray_predictor.ff_hidden),
+        (12, 64, 1536)
+    );
     assert_eq!((c.encoder.heads, c.encoder.dim_head, c.encoder.ff_hidden), (12, 64, 1536));
     assert_eq!(c.decoder.out_dims, 128);
 }
@@ -124,9 +127,9 @@ fn official_osrt_dimensions() {
         assert_eq!(c.encoder.input_dim(), 183);
         let s = &c.slot_attention;
         assert_eq!((s.num_slots, s.slot_dim, s.hidden, s.iters), (5, 1536, 3072, 1), "{decoder}");
-        let d = &c.decoder;
-        assert_eq!((d.heads, d.dim_head, d.ff_hidden, d.kv_dim), (12, 128, 3072, 1536), "{decoder}");
-        assert_eq!((d.num_att_blocks, d.input_mlp_hidden, d.att_dim, d.render_hidden), (2, 360, 1536, 1536));
+        let (d, a) = (&c.decoder, &c.decoder.allocation);
+        assert_eq!((a.heads, a.dim_head, a.ff_hidden, a.kv_dim), (12, 128, 3072, 1536), "{decoder}");
+        assert_eq!((a.num_att_blocks, a.input_mlp_hidden, d.att_dim, d.render_hidden), (2, 360, 1536, 1536));
         assert!(!d.layer_norm);
         assert_eq!(d.out_dims, out_dims, "{decoder}: the official OSRT class overrides decoder_kwargs.out_dims");
         assert_eq!(c.image_channels(), 3, "{decoder}");

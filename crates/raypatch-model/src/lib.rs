@@ -10,8 +10,8 @@ pub mod tensor_file;
 pub mod weights;
 
 pub use config::{
-    DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, OsrtConfig, RayPatchConfig, SlotAttentionConfig,
-    SlotMixerConfig, SrtConfig,
+    DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, OsrtConfig, RayPatchConfig, RayPredictorConfig,
+    SlotAttentionConfig, SlotMixerConfig, SrtConfig,
 };
 pub use error::ModelError;
 pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};

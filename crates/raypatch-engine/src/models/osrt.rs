@@ -8,7 +8,7 @@
 use raypatch_model::{OsrtConfig, TargetGrid};
 
 use super::ray_patch::{bilinear_output, bilinear_patch_span, RayPatchDecoder};
-use super::srt::{RayPredictor, RayPredictorDims, SrtEncoder, OUT_MLP_SLOPE};
+use super::srt::{RayPredictor, SrtEncoder, OUT_MLP_SLOPE};
 use super::{image_output_set, image_outputs, query_chunks, target_queries, wants_image, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
@@ -18,7 +18,7 @@ use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use crate::kernels::mix::{mix_rows, MixArgs};
 use crate::kernels::softmax::{softmax, Axis, SoftmaxArgs};
 use crate::kernels::Activation;
-use crate::nn::{product_t, LayerNorm, Linear, SlotAttention, TransformerDims, Vars};
+use crate::nn::{product_t, LayerNorm, Linear, SlotAttention, Vars};
 use crate::tensor::GpuTensor;
 
 /// `OSRTEncoder`: the SRT encoder, then slot attention over its tokens.
@@ -146,26 +146,11 @@ impl RenderMlp {
 impl SlotMixerDecoder {
     fn new(vars: &Vars, c: &OsrtConfig) -> Result<Self> {
         let d = &c.decoder;
-        let q = c.query_dim();
-        let transformer = TransformerDims {
-            dim: q,
-            depth: d.num_att_blocks,
-            heads: d.heads,
-            dim_head: d.dim_head,
-            mlp_dim: d.ff_hidden,
-            kv_dim: Some(d.kv_dim),
-        };
-        let dims = RayPredictorDims {
-            pos_octaves: &d.pos_octaves,
-            ray_octaves: &d.ray_octaves,
-            input_mlp_hidden: d.input_mlp_hidden,
-            transformer,
-        };
         let allocation = vars.pp("allocation_transformer");
-        let slot_dim = c.slot_attention.slot_dim;
-        let widest = [d.render_hidden, slot_dim + q, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, d.att_dim];
+        let (q, slot_dim) = (c.query_dim(), c.slot_attention.slot_dim);
+        let widest = [RayPredictor::widest(&d.allocation), d.render_hidden, slot_dim + q, d.att_dim];
         Ok(SlotMixerDecoder {
-            allocation_transformer: RayPredictor::new(&allocation, &allocation, dims)?,
+            allocation_transformer: RayPredictor::new(&allocation, &allocation, &d.allocation)?,
             mixing_block: MixingBlock::new(&vars.pp("mixing_block"), c)?,
             render_mlp: RenderMlp::new(&vars.pp("render_mlp"), slot_dim + q, d.render_hidden, d.out_dims)?,
             num_slots: c.slot_attention.num_slots,

@@ -3,7 +3,7 @@
 //! posed images → conv blocks → tokens → transformer → latent z; ray queries → input MLP → cross-attention
 //! to z → out MLP → per-ray colour (SRT) or patch features for the Ray-Patch decoder (RP-SRT).
 
-use raypatch_model::{EncoderConfig, Octaves, SrtConfig, TargetGrid};
+use raypatch_model::{EncoderConfig, RayPredictorConfig, SrtConfig, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
 use super::{image_output_set, image_outputs, query_chunks, target_queries, Encoded, LightField};
@@ -124,25 +124,30 @@ impl SrtEncoder {
     }
 }
 
-/// The widths of a [`RayPredictor`].
-pub struct RayPredictorDims<'o> {
-    pub pos_octaves: &'o Octaves,
-    pub ray_octaves: &'o Octaves,
-    pub input_mlp_hidden: usize,
-    pub transformer: TransformerDims,
-}
-
 impl RayPredictor {
     /// The ray predictor at `vars`; its query encodings are labelled under `encodings`.
-    pub fn new(vars: &Vars, encodings: &Vars, d: RayPredictorDims) -> Result<Self> {
-        let q = d.transformer.dim;
+    pub fn new(vars: &Vars, encodings: &Vars, c: &RayPredictorConfig) -> Result<Self> {
+        let q = c.query_dim();
+        let transformer = TransformerDims {
+            dim: q,
+            depth: c.num_att_blocks,
+            heads: c.heads,
+            dim_head: c.dim_head,
+            mlp_dim: c.ff_hidden,
+            kv_dim: Some(c.kv_dim),
+        };
         Ok(RayPredictor {
-            pos_enc: FourierEncoding::new(encodings.pp("pos_enc").path(), d.pos_octaves),
-            ray_enc: FourierEncoding::new(encodings.pp("ray_enc").path(), d.ray_octaves),
-            input_mlp_0: Linear::new(&vars.pp("input_mlp.0"), q, d.input_mlp_hidden)?,
-            input_mlp_2: Linear::new(&vars.pp("input_mlp.2"), d.input_mlp_hidden, q)?,
-            transformer: Transformer::new(&vars.pp("transformer"), d.transformer)?,
+            pos_enc: FourierEncoding::new(encodings.pp("pos_enc").path(), &c.pos_octaves),
+            ray_enc: FourierEncoding::new(encodings.pp("ray_enc").path(), &c.ray_octaves),
+            input_mlp_0: Linear::new(&vars.pp("input_mlp.0"), q, c.input_mlp_hidden)?,
+            input_mlp_2: Linear::new(&vars.pp("input_mlp.2"), c.input_mlp_hidden, q)?,
+            transformer: Transformer::new(&vars.pp("transformer"), transformer)?,
         })
+    }
+
+    /// The widest intermediate row of a query inside the ray predictor (sizes the query chunks).
+    pub fn widest(c: &RayPredictorConfig) -> usize {
+        [c.ff_hidden, c.input_mlp_hidden, c.heads * c.dim_head, c.query_dim()].into_iter().max().unwrap_or(1)
     }
 
     /// The queries of rows `start..start + rays.rows()` (of `per_view` per target view) after the input MLP:
@@ -161,30 +166,15 @@ impl SrtDecoder {
     fn new(vars: &Vars, c: &SrtConfig) -> Result<Self> {
         let d = &c.decoder;
         let q = c.query_dim();
-        let transformer = TransformerDims {
-            dim: q,
-            depth: d.num_att_blocks,
-            heads: d.heads,
-            dim_head: d.dim_head,
-            mlp_dim: d.ff_hidden,
-            kv_dim: Some(d.kv_dim),
-        };
-        let dims = RayPredictorDims {
-            pos_octaves: &d.pos_octaves,
-            ray_octaves: &d.ray_octaves,
-            input_mlp_hidden: d.input_mlp_hidden,
-            transformer,
-        };
         let h = d.out_mlp_hidden;
         let out_mlp = [(0, q, h), (2, h, h), (4, h, h), (6, h, h), (8, h, d.out_dims)]
             .into_iter()
             .map(|(i, inp, out)| Linear::new(&vars.pp("out_mlp").pp(i), inp, out))
             .collect::<Result<Vec<_>>>()?;
-        let widest = [d.out_mlp_hidden, d.ff_hidden, d.input_mlp_hidden, d.heads * d.dim_head, q].into_iter().max();
         Ok(SrtDecoder {
-            ray_predictor: RayPredictor::new(&vars.pp("ray_predictor"), vars, dims)?,
+            ray_predictor: RayPredictor::new(&vars.pp("ray_predictor"), vars, &d.ray_predictor)?,
             out_mlp,
-            widest: widest.unwrap_or(1),
+            widest: RayPredictor::widest(&d.ray_predictor).max(h),
         })
     }
 

@@ -11,7 +11,7 @@ use serde_json::Value;
 
 use crate::error::ModelError;
 pub use osrt::{OsrtConfig, SlotAttentionConfig, SlotMixerConfig};
-pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, SrtConfig};
+pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, RayPredictorConfig, SrtConfig};
 
 /// One Fourier encoding: `octaves` multipliers starting at `start` (powers of two), or a linspace
 /// from `start` to `end` when `end` is set (the DeFiNe form).
@@ -144,8 +144,8 @@ impl ModelConfig {
     /// The Fourier encodings of camera positions: of input views (encoder), of target views (decoder).
     pub fn position_octaves(&self) -> (&Octaves, &Octaves) {
         match &self.family {
-            Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
-            Family::Osrt(c) => (&c.encoder.pos_octaves, &c.decoder.pos_octaves),
+            Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.ray_predictor.pos_octaves),
+            Family::Osrt(c) => (&c.encoder.pos_octaves, &c.decoder.allocation.pos_octaves),
         }
     }
 

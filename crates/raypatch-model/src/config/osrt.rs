@@ -8,9 +8,9 @@
 
 use serde_json::Value;
 
-use super::srt::check_image_channels;
-use super::{check_octaves, check_positive, check_widths, config_err, Octaves, Section};
-use super::{EncoderConfig, RayPatchConfig};
+use super::srt::{check_image_channels, layer_counts};
+use super::{check_positive, check_widths, config_err, Octaves, Section};
+use super::{EncoderConfig, RayPatchConfig, RayPredictorConfig};
 use crate::error::ModelError;
 
 /// `SlotAttention` inside `OSRTEncoder`.
@@ -27,15 +27,8 @@ pub struct SlotAttentionConfig {
 /// render MLP.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SlotMixerConfig {
-    pub num_att_blocks: usize,
-    pub pos_octaves: Octaves,
-    pub ray_octaves: Octaves,
-    /// Width of the allocation transformer's keys and values (= the slot width; official 1536).
-    pub kv_dim: usize,
-    pub heads: usize,
-    pub dim_head: usize,
-    pub ff_hidden: usize,
-    pub input_mlp_hidden: usize,
+    /// The allocation transformer; its keys and values are the slot width (official 1536).
+    pub allocation: RayPredictorConfig,
     /// Width of the mixing block's queries and keys (official 1536).
     pub att_dim: usize,
     /// `MixingBlock(layer_norm=...)`: LayerNorms on the queries and on the slot mix.
@@ -87,19 +80,11 @@ impl OsrtConfig {
         };
 
         let dec = Section::new(path, raw, "decoder_kwargs")?;
-        let kv_dim = dec.usize("latent_dim", 1536)?;
-        let heads = dec.usize("heads", 12)?;
+        // SlotMixerDecoder passes only pos_start_octave to its RayPredictor: 15 + 15 octaves.
+        let pos_octaves = Octaves { count: 15, start: dec.f64("pos_start_octave", 0.0)?, end: None };
+        let ray_octaves = Octaves { count: 15, start: 0.0, end: None };
         let decoder = SlotMixerConfig {
-            num_att_blocks: dec.usize("num_att_blocks", 2)?,
-            // SlotMixerDecoder passes only pos_start_octave to its RayPredictor: 15 + 15 octaves.
-            pos_octaves: Octaves { count: 15, start: dec.f64("pos_start_octave", 0.0)?, end: None },
-            ray_octaves: Octaves { count: 15, start: 0.0, end: None },
-            kv_dim,
-            heads,
-            // int(latent_dim / 12) as in the official RayPredictor.
-            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
-            ff_hidden: 2 * kv_dim,
-            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+            allocation: RayPredictorConfig::from_section(&dec, 1536, pos_octaves, ray_octaves)?,
             att_dim: dec.usize("att_dim", 1536)?,
             layer_norm: dec.bool("layer_norm", false)?,
             render_hidden: dec.usize("render_mlp_hidden", 1536)?,
@@ -113,12 +98,10 @@ impl OsrtConfig {
 
     fn validate(&self, path: &str) -> Result<(), ModelError> {
         let (s, d) = (&self.slot_attention, &self.decoder);
+        d.allocation.validate(path, "decoder_kwargs.pos_start_octave")?;
         let widths = [
             ("encoder_kwargs.slot_dim", s.slot_dim),
             ("encoder_kwargs.slot_hidden", s.hidden),
-            ("decoder_kwargs.latent_dim", d.kv_dim),
-            ("decoder_kwargs.heads", d.heads),
-            ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
             ("decoder_kwargs.att_dim", d.att_dim),
             ("decoder_kwargs.render_mlp_hidden", d.render_hidden),
         ];
@@ -126,16 +109,12 @@ impl OsrtConfig {
         check_positive(path, &[("encoder_kwargs.num_slots", s.num_slots), ("encoder_kwargs.slot_iters", s.iters)])?;
         check_widths(path, &widths)?;
         check_widths(path, &[("encoder_kwargs.num_slots", s.num_slots)])?;
-        check_octaves(path, &[("decoder_kwargs.pos_start_octave", &d.pos_octaves)])?;
-        if d.dim_head > 128 {
-            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
-        }
-        if d.kv_dim != s.slot_dim {
+        if d.allocation.kv_dim != s.slot_dim {
             return Err(config_err(
                 path,
                 format!(
                     "`decoder_kwargs.latent_dim` ({}) must equal the slot width `encoder_kwargs.slot_dim` ({})",
-                    d.kv_dim, s.slot_dim
+                    d.allocation.kv_dim, s.slot_dim
                 ),
             ));
         }
@@ -147,12 +126,7 @@ impl OsrtConfig {
 
     /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
     pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
-        vec![
-            ("encoder_kwargs.num_conv_blocks", self.encoder.num_conv_blocks),
-            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
-            ("decoder_kwargs.num_att_blocks", self.decoder.num_att_blocks),
-            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
-        ]
+        layer_counts(&self.encoder, &self.decoder.allocation, self.ray_patch.as_ref())
     }
 
     /// Pixels per patch side: 1 for OSRT, 2^upsample for RP-OSRT.
@@ -167,6 +141,6 @@ impl OsrtConfig {
 
     /// Width of a decoder query: position and ray encodings.
     pub fn query_dim(&self) -> usize {
-        6 * (self.decoder.pos_octaves.count + self.decoder.ray_octaves.count)
+        self.decoder.allocation.query_dim()
     }
 }

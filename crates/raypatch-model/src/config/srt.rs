@@ -22,17 +22,24 @@ pub struct EncoderConfig {
     pub ff_hidden: usize,
 }
 
+/// The official `RayPredictor`: query encodings, input MLP and cross-attention layers to the latent. SRT's
+/// decoder and OSRT's allocation transformer are one each.
 #[derive(Clone, Debug, PartialEq)]
-pub struct DecoderConfig {
+pub struct RayPredictorConfig {
     pub num_att_blocks: usize,
     pub pos_octaves: Octaves,
     pub ray_octaves: Octaves,
-    /// Width of the keys and values (= the latent token width).
+    /// Width of the keys and values (= the latent width: SRT's tokens, OSRT's slots).
     pub kv_dim: usize,
     pub heads: usize,
     pub dim_head: usize,
     pub ff_hidden: usize,
     pub input_mlp_hidden: usize,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecoderConfig {
+    pub ray_predictor: RayPredictorConfig,
     pub out_mlp_hidden: usize,
     /// Width of the attention decoder's output: 3 or 4 (lightfield) or the Ray-Patch conv features.
     pub out_dims: usize,
@@ -181,6 +188,75 @@ impl RayPatchConfig {
     }
 }
 
+impl RayPredictorConfig {
+    /// The ray predictor of a `decoder_kwargs` section: `latent_dim` (default `kv_default`) wide keys and
+    /// values, `heads` heads of `int(latent_dim / heads)` as in the official RayPredictor, FF `2·latent_dim`.
+    pub(crate) fn from_section(
+        dec: &Section,
+        kv_default: usize,
+        pos_octaves: Octaves,
+        ray_octaves: Octaves,
+    ) -> Result<Self, ModelError> {
+        let kv_dim = dec.usize("latent_dim", kv_default)?;
+        let heads = dec.usize("heads", 12)?;
+        Ok(RayPredictorConfig {
+            num_att_blocks: dec.usize("num_att_blocks", 2)?,
+            pos_octaves,
+            ray_octaves,
+            kv_dim,
+            heads,
+            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
+            ff_hidden: 2 * kv_dim,
+            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+        })
+    }
+
+    /// `pos_key` names the position encoding in errors.
+    pub(crate) fn validate(&self, path: &str, pos_key: &str) -> Result<(), ModelError> {
+        check_positive(
+            path,
+            &[
+                ("decoder_kwargs.latent_dim", self.kv_dim),
+                ("decoder_kwargs.heads", self.heads),
+                ("decoder_kwargs.input_mlp_hidden", self.input_mlp_hidden),
+                (
+                    "decoder_kwargs.pos_octaves + ray_octaves",
+                    self.pos_octaves.count.saturating_add(self.ray_octaves.count),
+                ),
+            ],
+        )?;
+        check_widths(
+            path,
+            &[("decoder_kwargs.latent_dim", self.kv_dim), ("decoder_kwargs.input_mlp_hidden", self.input_mlp_hidden)],
+        )?;
+        check_octaves(path, &[(pos_key, &self.pos_octaves), ("decoder_kwargs.ray_octaves", &self.ray_octaves)])?;
+        if self.dim_head > 128 {
+            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
+        }
+        Ok(())
+    }
+
+    /// Width of a query: position and ray encodings.
+    pub fn query_dim(&self) -> usize {
+        6 * (self.pos_octaves.count + self.ray_octaves.count)
+    }
+}
+
+/// The layer counts of an SRT encoder, a ray predictor and a Ray-Patch decoder, by config key (for
+/// [`ModelConfig::check_counts`](super::ModelConfig::check_counts)).
+pub(crate) fn layer_counts(
+    encoder: &EncoderConfig,
+    ray_predictor: &RayPredictorConfig,
+    ray_patch: Option<&RayPatchConfig>,
+) -> Vec<(&'static str, usize)> {
+    vec![
+        ("encoder_kwargs.num_conv_blocks", encoder.num_conv_blocks),
+        ("encoder_kwargs.num_att_blocks", encoder.num_att_blocks),
+        ("decoder_kwargs.num_att_blocks", ray_predictor.num_att_blocks),
+        ("rp_kwargs.upsample", ray_patch.map_or(0, |rp| rp.upsample)),
+    ]
+}
+
 /// Checks the channels of a model's final image: 3 (rgb) or 4 (rgb + log-depth).
 pub(crate) fn check_image_channels(path: &str, key: &str, channels: usize) -> Result<(), ModelError> {
     if channels != 3 && channels != 4 {
@@ -207,18 +283,10 @@ impl SrtConfig {
         let ray_patch = if ray_patch_decoder { Some(RayPatchConfig::from_section(path, raw)?) } else { None };
 
         let dec = Section::new(path, raw, "decoder_kwargs")?;
-        let kv_dim = dec.usize("latent_dim", 768)?;
-        let heads = dec.usize("heads", 12)?;
+        let pos_octaves = dec.octaves("pos_octaves", "pos_start_octave", "pos_end_octave", 15, 0.0)?;
+        let ray_octaves = dec.octaves("ray_octaves", "ray_start_octave", "ray_end_octave", 15, 0.0)?;
         let decoder = DecoderConfig {
-            num_att_blocks: dec.usize("num_att_blocks", 2)?,
-            pos_octaves: dec.octaves("pos_octaves", "pos_start_octave", "pos_end_octave", 15, 0.0)?,
-            ray_octaves: dec.octaves("ray_octaves", "ray_start_octave", "ray_end_octave", 15, 0.0)?,
-            kv_dim,
-            heads,
-            // int(latent_dim / heads) as in the official RayPredictor.
-            dim_head: kv_dim.checked_div(heads).unwrap_or(0),
-            ff_hidden: 2 * kv_dim,
-            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+            ray_predictor: RayPredictorConfig::from_section(&dec, 768, pos_octaves, ray_octaves)?,
             out_mlp_hidden: dec.usize("out_mlp_hidden", 1536)?,
             // The official SRT model overrides the decoder's out_dims with the conv features for Ray-Patch.
             out_dims: match &ray_patch {
@@ -234,37 +302,15 @@ impl SrtConfig {
 
     fn validate(&self, path: &str) -> Result<(), ModelError> {
         let d = &self.decoder;
-        check_positive(
-            path,
-            &[
-                ("decoder_kwargs.latent_dim", d.kv_dim),
-                ("decoder_kwargs.heads", d.heads),
-                ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
-                ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
-                ("decoder_kwargs.pos_octaves + ray_octaves", d.pos_octaves.count.saturating_add(d.ray_octaves.count)),
-            ],
-        )?;
-        check_widths(
-            path,
-            &[
-                ("decoder_kwargs.latent_dim", d.kv_dim),
-                ("decoder_kwargs.input_mlp_hidden", d.input_mlp_hidden),
-                ("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden),
-            ],
-        )?;
-        check_octaves(
-            path,
-            &[("decoder_kwargs.pos_octaves", &d.pos_octaves), ("decoder_kwargs.ray_octaves", &d.ray_octaves)],
-        )?;
-        if d.dim_head > 128 {
-            return Err(config_err(path, "attention heads wider than 128 are not supported".into()));
-        }
-        if d.kv_dim != self.encoder.token_dim {
+        d.ray_predictor.validate(path, "decoder_kwargs.pos_octaves")?;
+        check_positive(path, &[("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden)])?;
+        check_widths(path, &[("decoder_kwargs.out_mlp_hidden", d.out_mlp_hidden)])?;
+        if d.ray_predictor.kv_dim != self.encoder.token_dim {
             return Err(config_err(
                 path,
                 format!(
                     "`decoder_kwargs.latent_dim` ({}) must equal the encoder token width ({})",
-                    d.kv_dim, self.encoder.token_dim
+                    d.ray_predictor.kv_dim, self.encoder.token_dim
                 ),
             ));
         }
@@ -276,12 +322,7 @@ impl SrtConfig {
 
     /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
     pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
-        vec![
-            ("encoder_kwargs.num_conv_blocks", self.encoder.num_conv_blocks),
-            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
-            ("decoder_kwargs.num_att_blocks", self.decoder.num_att_blocks),
-            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
-        ]
+        layer_counts(&self.encoder, &self.decoder.ray_predictor, self.ray_patch.as_ref())
     }
 
     /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.
@@ -296,6 +337,6 @@ impl SrtConfig {
 
     /// Width of a decoder query: position and ray encodings.
     pub fn query_dim(&self) -> usize {
-        6 * (self.decoder.pos_octaves.count + self.decoder.ray_octaves.count)
+        self.decoder.ray_predictor.query_dim()
     }
 }
