@@ -1,11 +1,12 @@
-"""Converts an official RayPatchQuerying Lightning checkpoint (SRT / RP-SRT, or OSRT / RP-OSRT: config base srt or
-osrt) into a raypatch model file (docs/FORMATS.md).
+"""Converts an official RayPatchQuerying Lightning checkpoint (SRT / RP-SRT, OSRT / RP-OSRT or DeFiNe / RP-DeFiNe:
+config base srt, osrt or define) into a raypatch model file (docs/FORMATS.md).
 
     python tools/convert_checkpoint.py IN.ckpt OUT.safetensors
 
-Keeps the `encoder.`, `decoder_att.` and `decoder_rp.` tensors as float32, drops `num_batches_tracked`, checks
-every name and shape against the reference model built from the checkpoint's config, and stores the config's
-model section as metadata. Exit code 2 and no output file on any error.
+Keeps the `encoder.`, `decoder_att.` and `decoder_rp.` tensors (DeFiNe: `decoder_att_rgb.`, `decoder_att_d.`,
+`decoder_rp_rgb.`, `decoder_rp_d.`) as float32, drops `num_batches_tracked` and everything else (`val_metrics.…`,
+`loss_colour.…`), checks every name and shape against the reference model built from the checkpoint's config, and
+stores the config's model section as metadata. Exit code 2 and no output file on any error.
 """
 
 import argparse
@@ -21,7 +22,8 @@ from raypatch_reference import build_model  # noqa: E402
 from safetensors_io import save_safetensors  # noqa: E402
 
 MODEL_FORMAT = "raypatch-model/1"
-KEPT_PREFIXES = ("encoder.", "decoder_att.", "decoder_rp.")
+KEPT_PREFIXES = ("encoder.", "decoder_att.", "decoder_rp.",
+                 "decoder_att_rgb.", "decoder_att_d.", "decoder_rp_rgb.", "decoder_rp_d.")
 MAX_PROBLEM_LINES = 20
 
 
@@ -39,12 +41,16 @@ def to_plain(value):
 
 
 def model_config_from_checkpoint(checkpoint):
-    """The run's config.yaml model section, stored by Lightning as hyper_parameters["cfg"]["model"]."""
+    """The run's config.yaml model section. The official train.py builds the model as Model(cfg["model"]) and
+    GenericModel.save_hyperparameters() stores that argument, so Lightning holds the model section itself as
+    hyper_parameters["cfg"]; a whole run config there (hyper_parameters["cfg"]["model"]) is taken too."""
     try:
         cfg = checkpoint["hyper_parameters"]["cfg"]
-        model_cfg = cfg["model"]
+        model_cfg = cfg if "base" in cfg else cfg["model"]
+        if not isinstance(model_cfg, Mapping):
+            raise TypeError
     except (KeyError, TypeError):
-        raise ConversionError('no hyper_parameters["cfg"]["model"] section (not a RayPatchQuerying checkpoint?)')
+        raise ConversionError('no model section in hyper_parameters["cfg"] (not a RayPatchQuerying checkpoint?)')
     return to_plain(model_cfg)
 
 

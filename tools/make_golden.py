@@ -14,7 +14,8 @@ Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors an
 (docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
 computes them, and `patch_rays` the patch rays made from full-resolution target rays; `latent_f64`, `rgb_f64`
 (`logdepth_f64`) are float64 tensors from a float64 copy of the same model on the same float32 inputs, for error
-analysis. OSRT cases (base osrt) add `set_latent`, `segmentation` (with their `_f64`) and `fg_ari`.
+analysis. OSRT cases (base osrt) add `set_latent`, `segmentation` (with their `_f64`) and `fg_ari`. DeFiNe cases
+(base define) have ScanNet-like scenes (make_define_scene) and always `logdepth`.
 """
 
 import argparse
@@ -34,6 +35,7 @@ from cameras import get_camera_rays, look_at_positions  # noqa: E402
 from convert_checkpoint import write_model  # noqa: E402
 from official_configs import RPSRT_MDBN_4_32  # noqa: E402
 from raypatch_reference import OSRT, build_model, foreground_ari  # noqa: E402
+from reference_define import DeFiNe  # noqa: E402
 from safetensors_io import save_safetensors  # noqa: E402
 
 SCENE_FORMAT = "raypatch-scene/1"
@@ -91,6 +93,34 @@ def small_osrt_config(decoder="lightfield", encoder_norm="Batch", num_slots=5, s
         cfg["rp_kwargs"] = rp_kwargs
     if out_dims:
         cfg["decoder_kwargs"]["out_dims"] = rp_kwargs["conv_features"] if rp_kwargs is not None else 3
+    return cfg
+
+
+def small_define_config(decoder="lightfield", rp_kwargs=None, explicit=False):
+    """The official DeFiNe structure (ResNet-18, Perceiver with 1 cross-attention and num_att_blocks
+    self-attention layers, official octaves: pos 20 and ray 10 linspace(1, 30), token width 306, query width 186)
+    at small widths: ResNet width 8 (8, 16, 32, 64 channels), 64 latents 32 wide, 4 self-attention heads, 2
+    self-attention layers. explicit: also write the keys that have official defaults (a config.yaml leaves them
+    out). The model section of an official checkpoint also holds training keys and `wandb` (train.py adds it);
+    the engine must ignore them."""
+    cfg = {
+        "base": "define",
+        "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 2, "num_latents": 64, "resnet_width": 8,
+                           "latent_dim": 32, "heads": 4},
+        "decoder": decoder,
+        "decoder_kwargs": {"pos_start_octave": 1, "latent_dim": 32},
+        "lr_config": "step",
+        "lr": 0.0002,
+        "lr_warmup": 2500,
+        "wandb": False,
+    }
+    if explicit:
+        octaves = {"pos_octaves": 20, "pos_end_octave": 30, "ray_octaves": 10, "ray_start_octave": 1,
+                   "ray_end_octave": 30}
+        cfg["encoder_kwargs"].update(octaves)
+        cfg["decoder_kwargs"].update(octaves)
+    if rp_kwargs is not None:
+        cfg["rp_kwargs"] = rp_kwargs
     return cfg
 
 
@@ -153,6 +183,20 @@ def golden_cases():
                          "metadata, rp h_in/w_in 30x40 differ from the 8x12 grid; config leaves out keys with "
                          "official defaults (6 slots, no decoder_kwargs.out_dims)"),
     ]
+    # DeFiNe: 2 input views (the ScanNet stereo setting), k = 16 with 32 conv features.
+    define_cases = [
+        Case("define", 21, small_define_config("lightfield"), (64, 96), (16, 24), num_inputs=2,
+             description="DeFiNe light field (rgb and log-depth heads), 2 input views, config.yaml keys only"),
+        Case("rpdefine_k16", 22, small_define_config("featurefield", explicit=True, rp_kwargs=dict(
+            upsample=4, h_in=2, w_in=3, conv_features=32, norm="Batch")), (64, 96), (32, 48), num_inputs=2,
+            description="RP-DeFiNe k=16, conv_features 32, full-resolution target rays (patch rays by bilinear "
+                        "resize), official octave keys written out"),
+        Case("rpdefine_k16_patchrays_in60x88", 23, small_define_config("featurefield", rp_kwargs=dict(
+            upsample=4, h_in=30, w_in=40, conv_features=32, norm="Batch")), (60, 88), (32, 48), num_inputs=2,
+            patch_rays=True,
+            description="RP-DeFiNe k=16, 2 input views of 60x88 (not multiples of 32: ResNet 15x22, 8x11, 4x6, "
+                        "2x3), target rays given at patch resolution, rp h_in/w_in 30x40 differ from the 2x3 grid"),
+    ]
     return [
         Case("srt_k1", 1, small_config("lightfield"), (32, 32), (16, 24),
              description="light field, 1 input view"),
@@ -184,7 +228,7 @@ def golden_cases():
              description="Ray-Patch k=2, 2 input views of 60x80: 2·8x10 = 160 tokens"),
         Case("rpsrt_k4_in40x60_2views", 12, copy.deepcopy(k4), (40, 60), (32, 48), num_inputs=2,
              description="Ray-Patch k=4, 2 input views of 40x60: 2·5x8 = 80 tokens"),
-    ] + osrt_cases
+    ] + osrt_cases + define_cases
 
 
 def full_size_case():
@@ -287,6 +331,65 @@ def calibrate_output(model, scene, target_size, logit_std=1.5):
         convs[-1].bias.sub_(scale * mean)
 
 
+def randomize_define_weights(model):
+    """randomize_weights, then unit gain for the Perceiver attention projections (query, key, value, the output
+    dense) and the final layers, and N(0, 1) latents."""
+    randomize_weights(model)
+    unit_gain = ("attention.self.query", "attention.self.key", "attention.self.value", "attention.output.dense",
+                 "final_layer")
+    with torch.no_grad():
+        for name, module in model.named_modules():
+            if isinstance(module, nn.Linear) and name.endswith(unit_gain):
+                module.weight.copy_(torch.randn(module.weight.shape) / math.sqrt(module.in_features))
+        latents = model.encoder.transformer.embeddings.latents
+        latents.copy_(torch.randn(latents.shape))
+
+
+def calibrate_batchnorm(model, scene, target_size):
+    """Random BatchNorm statistics near the ones of this scene: each BatchNorm2d, as the model runs, gets running_mean
+    = the batch mean of its input + 0.2 batch std · N(0, 1) and running_var = the batch variance · U(0.5, 2) per
+    channel. Stored statistics drawn independently of the activations would let the ResNet's residual sums grow
+    block by block until its features swamp the ray features in the tokens."""
+    def set_statistics(module, inputs):
+        x = inputs[0].detach().transpose(0, 1).flatten(1)
+        mean, var = x.mean(1), x.var(1, unbiased=False)
+        module.running_mean.copy_(mean + 0.2 * var.sqrt() * torch.randn(mean.shape))
+        module.running_var.copy_(var * (0.5 + 1.5 * torch.rand(var.shape)))
+
+    hooks = [module.register_forward_pre_hook(set_statistics) for module in model.modules()
+             if isinstance(module, nn.BatchNorm2d)]
+    run_model(model, scene, target_size, torch.float32)
+    for hook in hooks:
+        hook.remove()
+
+
+def calibrate_define_output(model, scene, target_size, logit_std=1.5):
+    """calibrate_output for both DeFiNe heads: the rgb and the depth pre-sigmoid outputs get per-channel mean 0
+    and standard deviation logit_std on this scene (log-depth then spreads over the 0.1..10 range)."""
+    ray_patch = model.patch_size > 1
+    heads = []
+    for att, rp in ((model.decoder_att_rgb, model.decoder_rp_rgb), (model.decoder_att_d, model.decoder_rp_d)):
+        if ray_patch:
+            convs = [rp.conv_decoder.conv_0] + [out for _, out in rp.conv_decoder.conv_blocks]
+        else:
+            convs = [att.transformer.final_layer]
+        heads.append((rp if ray_patch else att, convs))
+    captured = {}
+    hooks = [module.register_forward_hook(lambda module, inputs, output, i=i: captured.update({i: output}))
+             for i, (module, _) in enumerate(heads)]
+    run_model(model, scene, target_size, torch.float32)
+    for hook in hooks:
+        hook.remove()
+    with torch.no_grad():
+        for i, (_, convs) in enumerate(heads):
+            logits = captured[i].flatten(0, -2)
+            mean, scale = logits.mean(0), logit_std / logits.std(0)
+            for conv in convs:
+                conv.weight.mul_(scale.view(-1, *[1] * (conv.weight.dim() - 1)))
+                conv.bias.mul_(scale)
+            convs[-1].bias.sub_(scale * mean)
+
+
 def structured_image(height, width, rng):
     """A smooth colour gradient with a few flat discs and rectangles, values in [0, 1], [H, W, 3] float32."""
     y, x = np.meshgrid(np.linspace(0, 1, height), np.linspace(0, 1, width), indexing="ij")
@@ -341,6 +444,57 @@ def make_scene(case, rng):
     return {name: torch.from_numpy(array) for name, array in scene.items()}
 
 
+# Depth intrinsics of the kind ScanNet's intrinsic_depth.txt holds (640x480, fx ~ fy ~ 578); the official loader
+# scales them to h_rgb_un x w_rgb_un = 480x640, i.e. leaves them as they are.
+SCANNET_K = np.array([[577.590698, 0.0, 318.905426], [0.0, 578.729797, 242.683609], [0.0, 0.0, 1.0]])
+SCANNET_SIZE = (480, 640)
+
+
+def rotation(yaw, pitch, roll):
+    """Rotation matrix (camera to world) from angles in degrees about the camera's y (down), x (right), z (forward)
+    axes (OpenCV camera: x right, y down, z forward)."""
+    a, b, c = np.radians([yaw, pitch, roll])
+    ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    return ry @ rx @ rz
+
+
+def scannet_rays(rotation_matrix, position, height, width):
+    """The official ScanNet loader's "rays": world points at unit depth, R·K⁻¹[u + 0.5, v + 0.5, 1] + t on the
+    480x640 grid, bilinearly resized (align_corners=False, no antialiasing) to height x width; [H, W, 3] float32.
+    Computed in float64 (the loader: float32)."""
+    rows, cols = SCANNET_SIZE
+    u, v = np.meshgrid(np.linspace(0.5, cols - 0.5, cols), np.linspace(0.5, rows - 0.5, rows), indexing="xy")
+    pixels = np.stack((u, v, np.ones_like(u)), -1)
+    points = pixels @ np.linalg.inv(SCANNET_K).T @ rotation_matrix.T + position
+    points = torch.from_numpy(points).permute(2, 0, 1)[None]
+    resized = torch.nn.functional.interpolate(points, size=(height, width), mode="bilinear", align_corners=False,
+                                              antialias=False)
+    return resized[0].permute(1, 2, 0).numpy().astype(np.float32)
+
+
+def make_define_scene(case, rng):
+    """A ScanNet-like scene in the canonical frame of input camera 0 (at the origin, identity rotation; the
+    official loader picks the canonical camera at random): the other input cameras and the targets turned by up
+    to 20 degrees and moved by up to about half a metre. Target 0 is input camera 1 (the stereo setting renders
+    the input views), the others are new views. Camera positions are the translations t."""
+    def random_pose():
+        return rotation(*rng.uniform(-20, 20, 2), rng.uniform(-5, 5)), rng.uniform(-0.5, 0.5, 3)
+
+    input_poses = [(np.eye(3), np.zeros(3))] + [random_pose() for _ in range(case.num_inputs - 1)]
+    target_poses = input_poses[1:2] + [random_pose() for _ in range(case.num_targets - 1)]
+    (h, w), (ht, wt) = case.input_size, case.target_size
+    scene = {
+        "input_images": np.stack([structured_image(h, w, rng) for _ in range(case.num_inputs)]),
+        "input_camera_pos": np.stack([t for _, t in input_poses]).astype(np.float32),
+        "input_rays": np.stack([scannet_rays(r, t, h, w) for r, t in input_poses]),
+        "target_camera_pos": np.stack([t for _, t in target_poses]).astype(np.float32),
+        "target_rays": np.stack([scannet_rays(r, t, ht, wt) for r, t in target_poses]),
+    }
+    return {name: torch.from_numpy(array) for name, array in scene.items()}
+
+
 def run_model(model, scene, target_size, dtype):
     """Encodes the input views and renders the target views; batch dimension dropped from the results."""
     def batch(name):
@@ -382,14 +536,23 @@ def write_case(case, out_dir, generator_command):
     torch.manual_seed(seed)
     model = build_model(case.model_cfg).eval()
     osrt = isinstance(model, OSRT)
+    define = isinstance(model, DeFiNe)
     if osrt:
         randomize_osrt_weights(model)
+    elif define:
+        randomize_define_weights(model)
     else:
         randomize_weights(model)
-    scene = make_scene(case, np.random.default_rng(seed))
+    if define:
+        scene = make_define_scene(case, np.random.default_rng(seed))
+        calibrate_batchnorm(model, scene, case.target_size)
+        calibrate_define_output(model, scene, case.target_size)
+    else:
+        scene = make_scene(case, np.random.default_rng(seed))
     if osrt:
         calibrate_mixing(model, scene, case.target_size)
-    calibrate_output(model, scene, case.target_size)
+    if not define:
+        calibrate_output(model, scene, case.target_size)
     scene_metadata = {"format": SCENE_FORMAT}
     if case.patch_rays:
         from_full_rays = run_model(model, scene, case.target_size, torch.float32)
@@ -405,6 +568,8 @@ def write_case(case, out_dir, generator_command):
     if case.patch_rays:
         # Patch rays given as such must render exactly what the model makes of the full-resolution rays.
         assert torch.equal(expected["rgb"], from_full_rays["rgb"])
+        if "logdepth" in expected:
+            assert torch.equal(expected["logdepth"], from_full_rays["logdepth"])
         if osrt:
             assert torch.equal(expected["segmentation"], from_full_rays["segmentation"])
     if osrt and case.target_masks:
@@ -464,6 +629,23 @@ align_corners=False, to Ht x Wt, not renormalised), their `_f64` versions, and `
 compute_adjusted_rand_index of the float32 segmentation against the one-hot target_masks without channel 0, all
 target views of the scene pooled into one set of points, as the official OSRT test_step does.
 
+DeFiNe cases (`define`, `rpdefine_k16`, `rpdefine_k16_patchrays_in60x88`; base define) are small DeFiNe / RP-DeFiNe
+configs (tools/make_golden.py `small_define_config`): a ResNet-18 of width 8 (raypatch `resnet_width`: 8, 16, 32, 64
+channels), a Perceiver with 64 latents 32 wide (`num_latents`, `latent_dim`), 2 self-attention layers of 4 heads
+(`heads`), and the official octaves (position 20 and ray 10, linspace(1, 30)), so tokens are 15·8 + 186 = 306 wide
+and decoder queries 186; Ray-Patch k=16 with 32 conv features. Their scenes are ScanNet-like (make_define_scene):
+2 input views in the frame of input camera 0 (at the origin, identity rotation); `input_rays` and `target_rays`
+are world points at unit depth, R·K⁻¹[u + 0.5, v + 0.5, 1] + t computed on the 480x640 grid (ScanNet-like depth
+intrinsics) and bilinearly resized (align_corners=False, no antialiasing) to the stored size, as the official
+ScanNet loader makes them; camera positions are t; target 0 is input camera 1. `input_images` are in [0, 1]: the
+model ImageNet-normalises them itself, (x - mean) / std with mean (0.485, 0.456, 0.406) and std (0.229, 0.224,
+0.225) in float32, where the official loader does it before the model. Input sides must be multiples of 4 (the
+official code fails otherwise); 60x88 views give ResNet features of 15x22, 8x11, 4x6 and 2x3, bilinearly resized
+(align_corners=False) to 15x22 = 330 tokens a view. Random weights have unit-gain Perceiver attention projections,
+BatchNorm statistics drawn near those of the case's scene, and both heads' output layers rescaled as above, so
+`logdepth` = log(sigmoid(x)·(10 - 0.1) + 0.1) spans most of 0.1..10 (every DeFiNe expected file holds it).
+`latent` is the Perceiver's last_hidden_state [num_latents, latent_dim] = [64, 32].
+
 | case | decoder | input views (n x HxW) | targets (n x HxW) | scene target_rays | what it covers |
 |---|---|---|---|---|---|
 """
@@ -484,6 +666,8 @@ def readme_row(case):
     decoder = "lightfield" if k == 1 else f"Ray-Patch k={k}"
     if case.model_cfg["base"] == "osrt":
         decoder = "OSRT lightfield" if k == 1 else f"RP-OSRT k={k}"
+    if case.model_cfg["base"] == "define":
+        decoder = "DeFiNe lightfield" if k == 1 else f"RP-DeFiNe k={k}"
     inputs = "{} x {}x{}".format(case.num_inputs, *case.input_size)
     targets = "{} x {}x{}".format(case.num_targets, *case.target_size)
     return f"| `{case.name}` | {decoder} | {inputs} | {targets} | {target_rays_shape(case)} | {case.description} |"

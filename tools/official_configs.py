@@ -1,6 +1,8 @@
-"""Model sections of the official MSN-Easy run configs of tberriel/RayPatchQuerying (297afbc), transcribed from
-runs/msn_easy/srt_MDBN_32/config.yaml, runs/msn_easy/rpsrt_MDBN_4_32/config.yaml, runs/msn_easy/osrt_MDBN_64/config.yaml
-and runs/msn_easy/rposrt_MDBN_8_64/config.yaml (YAML Null -> None).
+"""Model sections of the official MSN-Easy and ScanNet run configs of tberriel/RayPatchQuerying (297afbc), transcribed
+from runs/msn_easy/srt_MDBN_32/config.yaml, runs/msn_easy/rpsrt_MDBN_4_32/config.yaml,
+runs/msn_easy/osrt_MDBN_64/config.yaml, runs/msn_easy/rposrt_MDBN_8_64/config.yaml,
+runs/scannet/define_32_stereo_acc/config.yaml and runs/scannet/rpdefine_16_32_stereo_acc/config.yaml
+(YAML Null -> None).
 
 A checkpoint stores these with one change: the official SRT.__init__ / OSRT.__init__ writes the attention decoder
 width into decoder_kwargs.out_dims (128 for the Ray-Patch runs) before Lightning saves the hyper-parameters.
@@ -62,4 +64,28 @@ RPOSRT_MDBN_8_64 = {
     "decay_it": 4000000,
     "lr_warmup": 2500,
     "gamma": 0.16,
+}
+
+# runs/scannet/define_32_stereo_acc/config.yaml and runs/scannet/rpdefine_16_32_stereo_acc/config.yaml. The official
+# DeFiNe class writes nothing into the config (the heads' out_dims are passed beside it); a checkpoint's model
+# section also holds `wandb` (added by train.py). rp_kwargs.conv_features is left at its default, 128.
+DEFINE_32_STEREO_ACC = {
+    "base": "define",
+    "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
+    "decoder": "lightfield",
+    "decoder_kwargs": {"pos_start_octave": 1},
+    "lr_config": "step",
+    "lr": 0.0002,
+    "lr_warmup": 2500,
+}
+
+RPDEFINE_16_32_STEREO_ACC = {
+    "base": "define",
+    "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
+    "decoder": "featurefield",
+    "decoder_kwargs": {"pos_start_octave": 1},
+    "rp_kwargs": {"h_in": 30, "w_in": 40, "upsample": 4, "norm": "Batch"},
+    "lr_config": "step",
+    "lr": 0.0002,
+    "lr_warmup": 2500,
 }

@@ -1,4 +1,5 @@
-"""PyTorch reference of the official SRT / RP-SRT model of tberriel/RayPatchQuerying (commit 297afbc).
+"""PyTorch reference of the official SRT / RP-SRT model of tberriel/RayPatchQuerying (commit 297afbc); OSRT / RP-OSRT
+below, DeFiNe / RP-DeFiNe in tools/reference_define.py (build_model builds all three by the config's `base`).
 
 The modules mirror the official src/layers.py, src/encoder.py, src/decoder.py and the SRT class of src/model.py
 module for module and attribute for attribute, so `SRT.state_dict()` carries exactly the official Lightning
@@ -654,13 +655,18 @@ class OSRT(_LightFieldModel):
 
 
 MODEL_CLASSES = {"srt": SRT, "osrt": OSRT}
+MODEL_BASES = ("define", "osrt", "srt")
 
 
 def build_model(model_cfg):
-    """SRT or OSRT from a config.yaml model section, by its `base`."""
+    """SRT, OSRT or DeFiNe (tools/reference_define.py) from a config.yaml model section, by its `base`."""
     base = model_cfg.get("base") if isinstance(model_cfg, dict) else None
-    if base not in MODEL_CLASSES:
-        raise ValueError(f"model config: base must be one of {sorted(MODEL_CLASSES)}, got {base!r}")
+    if base not in MODEL_BASES:
+        raise ValueError(f"model config: base must be one of {sorted(MODEL_BASES)}, got {base!r}")
+    if base == "define":
+        # Imported here: reference_define builds on the layers of this module.
+        from reference_define import DeFiNe
+        return DeFiNe.from_config(model_cfg)
     return MODEL_CLASSES[base].from_config(model_cfg)
 
 

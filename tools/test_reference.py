@@ -5,12 +5,16 @@
 Exits with status 1 if any check fails. With RAYPATCH_OFFICIAL_REPO set to a checkout of
 tberriel/RayPatchQuerying, it also runs the official modules (with einops, transformers and torchvision stubbed)
 and compares them with the reference, SRT and OSRT (`python3 tools/test_reference.py -v` prints the measured
-differences); without it those checks are reported as skipped.
+differences); without it those checks are reported as skipped. The DeFiNe comparison runs the official modules
+with the real transformers 4.24.0 and torchvision (installed beside the project's packages, e.g.
+`pip install --no-deps --target DIR transformers==4.24.0 torchvision tqdm huggingface-hub==0.10.1` and
+PYTHONPATH=DIR); it is skipped, saying why, where they cannot be imported.
 """
 
 import ast
 import contextlib
 import copy
+import functools
 import importlib
 import inspect
 import io
@@ -34,10 +38,14 @@ TOOLS = Path(__file__).resolve().parent
 sys.path.insert(0, str(TOOLS))
 import convert_checkpoint  # noqa: E402
 import make_golden  # noqa: E402
+import reference_define  # noqa: E402
 from cameras import get_camera_rays, look_at_positions  # noqa: E402
-from official_configs import OSRT_MDBN_64, RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32  # noqa: E402
+from official_configs import (DEFINE_32_STEREO_ACC, OSRT_MDBN_64, RPDEFINE_16_32_STEREO_ACC,  # noqa: E402
+                              RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32)
 from raypatch_reference import (OSRT, SRT, Attention, MixingBlock, OSRTEncoder, SlotAttention,  # noqa: E402
                                 SlotMixerDecoder, adjusted_rand_index, build_model, foreground_ari)
+from reference_define import (DeFiNe, PerceiverBasicDecoder, PerceiverLayer, ResNetSkip,  # noqa: E402
+                              imagenet_normalize)
 from safetensors.torch import load_file  # noqa: E402
 from torch import nn  # noqa: E402
 
@@ -45,6 +53,11 @@ OFFICIAL_KEYS = TOOLS / "testdata" / "official_srt_keys.txt"
 OFFICIAL_OSRT_KEYS = TOOLS / "testdata" / "official_osrt_keys.txt"
 GOLDEN = TOOLS.parent / "assets" / "golden"
 OSRT_CASES = ("osrt", "osrt_iters3_ln", "rposrt_k8", "rposrt_k4_patchrays")
+DEFINE_CASES = ("define", "rpdefine_k16", "rpdefine_k16_patchrays_in60x88")
+ENGINE_KEY_LISTS = TOOLS.parent / "crates" / "raypatch-engine" / "tests" / "data"
+# The official DeFiNe configs' key lists (written from the official modules) and parameter totals.
+DEFINE_KEY_LISTS = (("official-keys-define_32_stereo_acc.txt", DEFINE_32_STEREO_ACC, 30_759_058),
+                    ("official-keys-rpdefine_16_32_stereo_acc.txt", RPDEFINE_16_32_STEREO_ACC, 31_011_690))
 CHECKS = []
 VERBOSE = False
 
@@ -263,7 +276,7 @@ def osrt_config_errors_are_clear():
                          (edited("decoder_kwargs", heads=5), "not a multiple of heads 5"),
                          ({**small, "decoder": "featurefield"}, "needs section rp_kwargs"),
                          ({**small, "decoder": "nerf"}, "decoder must be"),
-                         ({**small, "base": "define"}, "base must be one of")):
+                         ({**small, "base": "nerf"}, "base must be one of")):
         try:
             with torch.device("meta"):
                 build_model(cfg)
@@ -433,6 +446,235 @@ def osrt_golden_files():
         assert torch.equal(make_golden.fg_ari(expected["segmentation"], scene["target_masks"]), expected["fg_ari"])
         assert expected["fg_ari"].dtype == torch.float64 and expected["fg_ari"].shape == (1,)
 
+# --- DeFiNe -------------------------------------------------------------------------------------------------
+
+
+def define_case(name):
+    case = next(case for case in make_golden.golden_cases() if case.name == name)
+    return case, make_golden.make_define_scene(case, np.random.default_rng(case.seed))
+
+
+def random_define(model_cfg, seed=0, scene=None, target_size=None):
+    """A DeFiNe with make_golden's random weights (and, given a scene, its BatchNorm and output calibration)."""
+    torch.manual_seed(seed)
+    model = build_model(model_cfg).eval()
+    make_golden.randomize_define_weights(model)
+    if scene is not None:
+        make_golden.calibrate_batchnorm(model, scene, target_size)
+        make_golden.calibrate_define_output(model, scene, target_size)
+    return model
+
+
+def read_key_list(path):
+    """[(name, shape)] of an engine key list: `name [d0, d1]` per line."""
+    return [(name, json.loads(shape)) for name, shape in
+            (line.split(" ", 1) for line in path.read_text().splitlines() if line)]
+
+
+@check
+def official_define_state_dict_keys():
+    """Official-size define_32_stereo_acc and rpdefine_16_32_stereo_acc: the names and shapes of the key lists
+    written from the official modules, and their parameter totals (30,759,058 and 31,011,690). The official
+    FeatureDecoder registers conv_blocks before conv_0, so the order within decoder_rp_* differs; everything else
+    is in the official order."""
+    for file, model_cfg, total in DEFINE_KEY_LISTS:
+        official = read_key_list(ENGINE_KEY_LISTS / file)
+        with torch.device("meta"):
+            model = build_model(model_cfg)
+        ours = [(name, list(tensor.shape)) for name, tensor in model.state_dict().items()]
+        assert sorted(ours) == sorted(official), (file, sorted(set(map(str, ours)) ^ set(map(str, official)))[:5])
+        assert [n for n, _ in ours if "conv_decoder" not in n] == [n for n, _ in official if "conv_decoder" not in n]
+        parameters = sum(p.numel() for p in model.parameters())
+        from_list = sum(math.prod(shape) for name, shape in official
+                        if not name.endswith(("running_mean", "running_var", "num_batches_tracked")))
+        report(f"{file}: {len(official)} tensors, {parameters:,} parameters "
+               f"(encoder {sum(p.numel() for n, p in model.named_parameters() if n.startswith('encoder.')):,})")
+        assert parameters == from_list == total, (file, parameters, from_list, total)
+
+
+@check
+def define_config_rules():
+    """Config checks of base define: unknown keys, rp_kwargs.out_dims, latent widths and heads are errors;
+    decoder_kwargs.out_dims is ignored (the heads emit 3 and 1, or conv_features with Ray-Patch)."""
+    small = make_golden.small_define_config()
+
+    def edited(section, **changes):
+        cfg = copy.deepcopy(small)
+        cfg[section].update(changes)
+        return cfg
+
+    rp = make_golden.small_define_config("featurefield", rp_kwargs=dict(upsample=4, conv_features=32))
+    for cfg, message in ((edited("encoder_kwargs", num_conv_blocks=3), "unknown key encoder_kwargs.num_conv_blocks"),
+                         (edited("decoder_kwargs", heads=2), "unknown key decoder_kwargs.heads"),
+                         (edited("decoder_kwargs", latent_dim=64), "must equal encoder_kwargs.latent_dim 32"),
+                         (edited("encoder_kwargs", heads=5), "not a multiple of heads 5"),
+                         ({**rp, "rp_kwargs": {**rp["rp_kwargs"], "out_dims": 3}}, "rp_kwargs.out_dims must be absent"),
+                         ({**small, "decoder": "featurefield"}, "needs section rp_kwargs")):
+        try:
+            with torch.device("meta"):
+                build_model(cfg)
+        except ValueError as error:
+            assert message in str(error), str(error)
+        else:
+            raise AssertionError(f"no error for {message}")
+    with torch.device("meta"):
+        lightfield = build_model(edited("decoder_kwargs", out_dims=128))
+        ray_patch = build_model(rp)
+    assert isinstance(lightfield, DeFiNe) and lightfield.patch_size == 1 and ray_patch.patch_size == 16
+    heads = [model.transformer.final_layer.out_features
+             for model in (lightfield.decoder_att_rgb, lightfield.decoder_att_d, ray_patch.decoder_att_rgb,
+                           ray_patch.decoder_att_d)]
+    assert heads == [3, 1, 32, 32], heads
+    assert ray_patch.decoder_rp_rgb.conv_decoder.conv_0.out_channels == 3
+    assert ray_patch.decoder_rp_d.conv_decoder.conv_0.out_channels == 1
+    assert lightfield.encoder.transformer.d_model == 306 and lightfield.decoder_att_rgb.transformer.final_layer \
+        .in_features == 186
+
+
+@check
+def perceiver_maths():
+    """The HF Perceiver layers against their equations written out in float64: LayerNorm eps 1e-5, scores divided
+    by sqrt(q/k head width), exact GELU, the query residual in the encoder cross-attention and the self-attention
+    layers, none in the decoder cross-attention."""
+    torch.manual_seed(3)
+
+    def randomized(module):
+        with torch.no_grad():
+            for parameter in module.parameters():
+                parameter.copy_(torch.randn(parameter.shape, dtype=torch.float64) * 0.4 + (parameter.dim() == 1) * 0.3)
+        return module
+
+    def layer_norm(x, norm):
+        return (x - x.mean(-1, keepdim=True)) / torch.sqrt(x.var(-1, unbiased=False, keepdim=True) + 1e-5) \
+            * norm.weight + norm.bias
+
+    def linear(x, module):
+        return x @ module.weight.T + module.bias
+
+    def gelu(x):
+        return 0.5 * x * (1 + torch.erf(x / math.sqrt(2)))
+
+    def expected(layer, x, inputs, heads, residual):
+        attention = layer.attention.self
+        q = linear(layer_norm(x, attention.layernorm1), attention.query)
+        source = layer_norm(x, attention.layernorm1) if inputs is None else layer_norm(inputs, attention.layernorm2)
+        k, v = linear(source, attention.key), linear(source, attention.value)
+        split = [t.unflatten(-1, (heads, -1)).transpose(1, 2) for t in (q, k, v)]
+        weights = torch.softmax(split[0] @ split[1].transpose(-1, -2) / math.sqrt(split[0].shape[-1]), -1)
+        a = linear((weights @ split[2]).transpose(1, 2).flatten(2), layer.attention.output.dense)
+        if residual:
+            a = a + x
+        mlp = layer.mlp
+        return a + linear(gelu(linear(layer_norm(a, layer.layernorm), mlp.dense1)), mlp.dense2)
+
+    latents, inputs = torch.randn(2, 6, 8, dtype=torch.float64), torch.randn(2, 11, 10, dtype=torch.float64)
+    cross = randomized(PerceiverLayer(True, 1, 8, 10).double())
+    self_attention = randomized(PerceiverLayer(False, 4, 8, 8).double())
+    decoder = randomized(PerceiverBasicDecoder(num_channels=7, d_latents=8, output_num_channels=3).double())
+    queries = torch.randn(2, 5, 7, dtype=torch.float64)
+    assert cross.attention.self.query.out_features == 10 and cross.attention.output.dense.out_features == 8
+    assert isinstance(self_attention.attention.self.layernorm2, nn.Identity)
+    with torch.no_grad():
+        assert torch.allclose(cross(latents, inputs), expected(cross, latents, inputs, 1, True), atol=1e-12)
+        assert torch.allclose(self_attention(latents), expected(self_attention, latents, None, 4, True), atol=1e-12)
+        layer = decoder.decoding_cross_attention
+        assert layer.attention.self.query.out_features == 8 and layer.attention.output.dense.out_features == 7
+        want = linear(expected(layer, queries, latents, 1, False), decoder.final_layer)
+        assert torch.allclose(decoder(queries, latents), want, atol=1e-12)
+
+
+@check
+def define_encoder_sizes():
+    """ResNet-18 feature sizes (conv1 and maxpool stride 2, then each layer ceil(s/2)), ImageNet normalisation as
+    torchvision's Normalize computes it, token counts, and input sides that 4 does not divide refused (the official
+    code fails on them)."""
+    resnet = ResNetSkip(8).eval()
+    with torch.no_grad():
+        sizes = [tuple(x.shape[1:]) for x in resnet(torch.randn(1, 3, 60, 88))]
+    assert sizes == [(8, 15, 22), (16, 8, 11), (32, 4, 6), (64, 2, 3)], sizes
+    images = torch.rand(2, 3, 4, 5)
+    mean, std = torch.tensor([0.485, 0.456, 0.406]), torch.tensor([0.229, 0.224, 0.225])
+    assert torch.equal(imagenet_normalize(images), images.sub(mean.view(-1, 1, 1)).div(std.view(-1, 1, 1)))
+
+    model = random_define(make_golden.small_define_config())
+    for height, width, error in ((64, 96, False), (60, 88, False), (4, 8, False), (60, 90, True), (62, 88, True)):
+        views = torch.rand(1, 2, 3, height, width), torch.randn(1, 2, 3), torch.randn(1, 2, height, width, 3)
+        try:
+            with torch.no_grad():
+                z = model.encode(*views)
+        except ValueError as failure:
+            assert error and "divisible by 4" in str(failure), (height, width, failure)
+        else:
+            assert not error and z.shape == (1, 64, 32), (height, width)
+            tokens = model.encoder.transformer
+            captured = []
+            hook = tokens.register_forward_pre_hook(lambda module, inputs: captured.append(inputs[0]))
+            with torch.no_grad():
+                model.encode(*views)
+            hook.remove()
+            assert captured[0].shape == (1, 2 * (height // 4) * (width // 4), 306), captured[0].shape
+
+
+@check
+def define_render_paths():
+    """Full-resolution and patch target rays give the same rgb and log-depth; render_views is decode on the
+    flattened rays; float32 and float64 agree; the scene's rays are unit-depth points of its cameras."""
+    case, scene = define_case("rpdefine_k16")
+    model = random_define(case.model_cfg, case.seed, scene, case.target_size)
+    full = make_golden.run_model(model, scene, case.target_size, torch.float32)
+    patches = make_golden.run_model(model, make_golden.patch_rays_of(model, scene), case.target_size, torch.float32)
+    assert torch.equal(full["rgb"], patches["rgb"]) and torch.equal(full["logdepth"], patches["logdepth"])
+    assert full["rgb"].shape == (2, 32, 48, 3) and full["logdepth"].shape == (2, 32, 48)
+    assert full["latent"].shape == (64, 32)
+    assert math.log(0.1) <= full["logdepth"].min() and full["logdepth"].max() <= math.log(10.0)
+    double = make_golden.run_model(copy.deepcopy(model).double(), scene, case.target_size, torch.float64)
+    for key in ("rgb", "logdepth"):
+        assert (full[key].double() - double[key]).abs().max() < 1e-4, key
+
+    case, scene = define_case("define")
+    model = random_define(case.model_cfg, case.seed, scene, case.target_size)
+    out = make_golden.run_model(model, scene, case.target_size, torch.float32)
+    with torch.no_grad():
+        positions = scene["target_camera_pos"][:, None].expand(2, 16 * 24, 3).reshape(1, -1, 3)
+        rgb, logdepth = model.decode(out["latent"][None], positions, scene["target_rays"].reshape(1, -1, 3))
+    assert torch.equal(rgb.reshape(out["rgb"].shape), out["rgb"])
+    assert torch.equal(logdepth.reshape(out["logdepth"].shape), out["logdepth"])
+
+    # Input camera 0 is the canonical frame: its points have z = 1 and its position is the origin.
+    assert torch.equal(scene["input_camera_pos"][0], torch.zeros(3))
+    assert torch.allclose(scene["input_rays"][0, ..., 2], torch.ones(64, 96), atol=1e-6)
+    assert torch.equal(scene["target_camera_pos"][0], scene["input_camera_pos"][1])
+    # The resize of an affine function of the pixel is exact: the 2x2 central points are around pixel (320, 240).
+    centre = scene["input_rays"][0, 31:33, 47:49].mean((0, 1))
+    want = torch.from_numpy(np.linalg.inv(make_golden.SCANNET_K) @ [320.0, 240.0, 1.0]).float()
+    assert torch.allclose(centre, want, atol=1e-6), (centre, want)
+
+
+@check
+def define_golden_files():
+    """The committed DeFiNe golden cases are what the reference computes from their model and scene files (to
+    float32 rounding across PyTorch builds), with the documented names and shapes."""
+    for name in DEFINE_CASES:
+        folder = GOLDEN / name
+        with safe_open(str(folder / "model.safetensors"), "pt") as file:
+            model_cfg = json.loads(file.metadata()["config"])
+        with safe_open(str(folder / "scene.safetensors"), "pt") as file:
+            target_size = file.metadata().get("target_size")
+        model = build_model(model_cfg).eval()
+        missing, unexpected = model.load_state_dict(load_file(str(folder / "model.safetensors")), strict=False)
+        assert not unexpected and all(key.endswith("num_batches_tracked") for key in missing), (missing, unexpected)
+        scene, expected = load_file(str(folder / "scene.safetensors")), load_file(str(folder / "expected.safetensors"))
+        size = tuple(map(int, target_size.split("x"))) if target_size else tuple(scene["target_rays"].shape[1:3])
+        num_targets = scene["target_rays"].shape[0]
+        assert expected["rgb"].shape == (num_targets, *size, 3) and expected["logdepth"].shape == (num_targets, *size)
+        assert expected["latent"].shape == (64, 32) and expected["logdepth_f64"].dtype == torch.float64
+        out = make_golden.run_model(model, scene, size, torch.float32)
+        for key, value in out.items():
+            difference = (value - expected[key]).abs().max().item()
+            assert difference < 1e-4, (name, key, difference)
+        report(f"{name}: max |f32 - f64| rgb {(expected['rgb'].double() - expected['rgb_f64']).abs().max():.1e}, "
+               f"logdepth {(expected['logdepth'].double() - expected['logdepth_f64']).abs().max():.1e}")
+
 
 # --- cameras ------------------------------------------------------------------------------------------------
 
@@ -491,15 +733,19 @@ class ConfigList(Sequence):
         return len(self._items)
 
 
-def fake_checkpoint(model, model_cfg, cfg_type=dict):
-    """A Lightning checkpoint as the official training writes it, with metric and loss modules in the state_dict."""
+def fake_checkpoint(model, model_cfg, cfg_type=dict, model_section_only=False):
+    """A Lightning checkpoint as the official training writes it, with metric and loss modules in the state_dict.
+
+    The official train.py builds Model(cfg["model"]), so hyper_parameters["cfg"] is the model section itself
+    (model_section_only); the default stores a whole run config there, which the converter also takes."""
     state_dict = dict(model.state_dict())
     state_dict["val_metrics.psnr.total"] = torch.tensor(3.0)
     state_dict["loss_colour.net.0.weight"] = torch.zeros(2, 2)
     cfg = {"data": {"dataset": "msn_easy", "kwargs": {"h": 120, "w": 160}}, "model": model_cfg,
            "training": {"batch_size": 32}}
     return {"epoch": 3, "global_step": 1000, "state_dict": state_dict,
-            "hyper_parameters": {"cfg": cfg_type(cfg), "lr": 1e-4, "log_id": None}}
+            "hyper_parameters": {"cfg": cfg_type(model_cfg if model_section_only else cfg), "lr": 1e-4,
+                                 "log_id": None}}
 
 
 def run_converter(checkpoint, directory, name="run.ckpt"):
@@ -584,6 +830,42 @@ def osrt_converter_roundtrip():
         code, stderr, out_path = run_converter(checkpoint, directory, "bad.ckpt")
         assert code == 2 and not out_path.exists() and len(stderr.splitlines()) == 2, stderr
         assert "initial_slots" in stderr and "[6, 32]" in stderr and "[5, 32]" in stderr and "to_k" in stderr
+
+
+@check
+def define_converter_roundtrip():
+    """DeFiNe and RP-DeFiNe Lightning checkpoints (hyper_parameters["cfg"] = the model section, as the official
+    train.py stores it, or a whole run config): the encoder., decoder_att_rgb/d. and decoder_rp_rgb/d. tensors with
+    their names, shapes and values, num_batches_tracked, val_metrics.* and loss_colour.* dropped; tensors that do
+    not fit the config are refused."""
+    rp_cfg = make_golden.small_define_config("featurefield", rp_kwargs=dict(upsample=4, h_in=30, w_in=40,
+                                                                             conv_features=32, norm="Batch"))
+    with tempfile.TemporaryDirectory() as directory:
+        for model_cfg, section_only in ((make_golden.small_define_config(), True), (rp_cfg, True), (rp_cfg, False)):
+            model = random_define(model_cfg)
+            expected = {name: tensor for name, tensor in model.state_dict().items()
+                        if not name.endswith("num_batches_tracked")}
+            prefixes = {name.split(".")[0] for name in expected}
+            assert prefixes == ({"encoder", "decoder_att_rgb", "decoder_att_d"}
+                                | ({"decoder_rp_rgb", "decoder_rp_d"} if "rp_kwargs" in model_cfg else set()))
+            checkpoint = fake_checkpoint(model, model_cfg, ConfigNode, model_section_only=section_only)
+            code, stderr, out_path = run_converter(checkpoint, directory)
+            assert code == 0, stderr
+            with safe_open(str(out_path), "pt") as converted:
+                assert sorted(converted.keys()) == sorted(expected)
+                for name, tensor in expected.items():
+                    assert torch.equal(converted.get_tensor(name), tensor), name
+                assert json.loads(converted.metadata()["config"]) == model_cfg
+            out_path.unlink()
+        checkpoint = fake_checkpoint(model, rp_cfg, model_section_only=True)
+        checkpoint["state_dict"]["decoder_rp_d.conv_decoder.conv_0.weight"] = torch.zeros(3, 32, 3, 3)
+        del checkpoint["state_dict"]["encoder.transformer.embeddings.latents"]
+        code, stderr, out_path = run_converter(checkpoint, directory, "bad.ckpt")
+        assert code == 2 and not out_path.exists() and len(stderr.splitlines()) == 2, stderr
+        assert "[3, 32, 3, 3]" in stderr and "[1, 32, 3, 3]" in stderr and "embeddings.latents" in stderr, stderr
+        checkpoint["hyper_parameters"]["cfg"] = {"data": {}}
+        code, stderr, _ = run_converter(checkpoint, directory, "nocfg.ckpt")
+        assert code == 2 and "no model section" in stderr, stderr
 
 
 @check
@@ -886,6 +1168,182 @@ def matches_official_osrt():
         assert differences["slots"] < 1e-5 * scale, (name, differences)
         assert differences["rgb"] < 1e-5 and differences["segmentation"] < 1e-5, (name, differences)
         assert differences["fg_ari"] < 1e-3, (name, differences)
+
+
+def import_official_define(repo):
+    """src.resnet, src.encoder and src.decoder of the official checkout with the real transformers (4.24.0, the
+    version the official pt2.yml pins) and torchvision, einops stubbed where it is missing (DeFiNe does not use it),
+    and src.encoder's resnet18 built with pretrained=False (the official default downloads ImageNet weights)."""
+    try:
+        import torchvision
+        import transformers
+    except ImportError as error:
+        raise Skip(f"the official DeFiNe needs transformers 4.24.0 and torchvision: {error}")
+    if transformers.__version__ != "4.24.0":
+        raise Skip(f"the official DeFiNe runs on transformers 4.24.0, found {transformers.__version__}")
+    stubs = {}
+    try:
+        import einops  # noqa: F401
+    except ImportError:
+        stubs["einops"] = types.SimpleNamespace(rearrange=_rearrange, repeat=_unused)
+    package = types.ModuleType("src")
+    package.__path__ = [str(Path(repo) / "src")]
+    names = [*stubs, "src", "src.layers", "src.resnet", "src.encoder", "src.decoder"]
+    saved = {name: sys.modules.get(name) for name in names}
+    sys.modules.update(stubs)
+    sys.modules["src"] = package
+    try:
+        resnet = importlib.import_module("src.resnet")
+        encoder = importlib.import_module("src.encoder")
+        decoder = importlib.import_module("src.decoder")
+    finally:
+        for name, module in saved.items():
+            if module is None:
+                sys.modules.pop(name, None)
+            else:
+                sys.modules[name] = module
+    encoder.resnet18 = functools.partial(resnet.resnet18, pretrained=False)
+    return types.SimpleNamespace(resnet=resnet, encoder=encoder, decoder=decoder, transformers=transformers,
+                                 normalize=torchvision.transforms.Normalize(reference_define.IMAGENET_MEAN,
+                                                                           reference_define.IMAGENET_STD))
+
+
+def narrowed(module, width):
+    """The official ResNetSkip (torchvision's ResNet, BasicBlock and forward code) with every convolution and
+    BatchNorm width scaled from 64 to `width` (torchvision hard-codes 64, 128, 256, 512)."""
+    for name, child in module.named_children():
+        if isinstance(child, nn.Conv2d):
+            in_channels = 3 if child.in_channels == 3 else child.in_channels * width // 64
+            setattr(module, name, nn.Conv2d(in_channels, child.out_channels * width // 64, child.kernel_size,
+                                            child.stride, child.padding, bias=False))
+        elif isinstance(child, nn.BatchNorm2d):
+            setattr(module, name, nn.BatchNorm2d(child.num_features * width // 64))
+        else:
+            narrowed(child, width)
+    return module
+
+
+def official_define(official, model_cfg, grid=None):
+    """The official DeFiNe modules for model_cfg, registered in DeFiNe.__init__'s order (encoder, decoder_rp_rgb,
+    decoder_rp_d, decoder_att_rgb, decoder_att_d), with d_min and d_max read from DeFiNe.__init__.
+
+    Official widths use DeFiNeEncoder as it is. Small widths keep the official DeFiNeEncoder class and forward,
+    official RayEncoder, the official ResNetSkip narrowed, and the transformers PerceiverModel of the official
+    PerceiverConfig with d_latents, d_model, num_latents, num_self_attends_per_block and num_self_attention_heads
+    of the config (the official code hard-codes 512 wide latents and 8 heads). The official RayPatchDecoders get
+    `grid` (the targets' patch grid) as h_in/w_in: they only know their configured grid.
+    """
+    enc = defaults_of(reference_define.DeFiNeEncoder, model_cfg["encoder_kwargs"])
+    extensions = ("resnet_width", "latent_dim", "heads")
+    official_kwargs = {key: value for key, value in model_cfg["encoder_kwargs"].items() if key not in extensions}
+    model = nn.Module()
+    if [enc[key] for key in extensions] == [64, 512, 8]:
+        model.encoder = official.encoder.DeFiNeEncoder(**official_kwargs)
+    else:
+        encoder = bare(official.encoder.DeFiNeEncoder)
+        encoder.ray_encoder = official.encoder.RayEncoder(
+            pos_octaves=enc["pos_octaves"], pos_start_octave=enc["pos_start_octave"],
+            pos_end_octave=enc["pos_end_octave"], ray_octaves=enc["ray_octaves"],
+            ray_start_octave=enc["ray_start_octave"], ray_end_octave=enc["ray_end_octave"])
+        encoder.conv_blocks = narrowed(official.resnet.resnet18(pretrained=False), enc["resnet_width"])
+        encoder.config = official.transformers.PerceiverConfig(
+            d_latents=enc["latent_dim"], d_model=15 * enc["resnet_width"] + 6 + 6 * (enc["pos_octaves"]
+                                                                                  + enc["ray_octaves"]),
+            num_latents=enc["num_latents"], hidden_act="gelu", hidden_dropout_prob=0.25, initializer_range=0.02,
+            layer_norm_eps=1e-12, num_blocks=1, num_cross_attention_heads=1,
+            num_self_attends_per_block=enc["num_att_blocks"], num_self_attention_heads=enc["heads"],
+            qk_channels=None, v_channels=None)
+        encoder.transformer = official.transformers.PerceiverModel(encoder.config)
+        model.encoder = encoder
+    decoder_kwargs = {key: value for key, value in model_cfg["decoder_kwargs"].items() if key != "out_dims"}
+    if model_cfg["decoder"] == "featurefield":
+        rp_kwargs = dict(model_cfg["rp_kwargs"])
+        if grid is not None:
+            rp_kwargs.update(h_in=grid[0], w_in=grid[1])
+        model.decoder_rp_rgb = official.decoder.RayPatchDecoder(out_dims=3, **rp_kwargs)
+        model.decoder_rp_d = official.decoder.RayPatchDecoder(out_dims=1, **rp_kwargs)
+        out_rgb = out_d = rp_kwargs.get("conv_features", 128)
+    else:
+        model.decoder_rp_rgb = model.decoder_rp_d = nn.Identity()
+        out_rgb, out_d = 3, 1
+    model.decoder_att_rgb = official.decoder.DeFiNeDecoder(**decoder_kwargs, out_dims=out_rgb)
+    model.decoder_att_d = official.decoder.DeFiNeDecoder(**decoder_kwargs, out_dims=out_d)
+    source = (Path(os.environ["RAYPATCH_OFFICIAL_REPO"]) / "src" / "model.py").read_text()
+    define_class = next(node for node in ast.parse(source).body
+                        if isinstance(node, ast.ClassDef) and node.name == "DeFiNe")
+    for node in ast.walk(define_class):
+        if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Attribute) \
+                and node.targets[0].attr in ("d_min", "d_max"):
+            setattr(model, node.targets[0].attr, ast.literal_eval(node.value))
+    return model
+
+
+@check
+def matches_official_define():
+    """Reference DeFiNe / RP-DeFiNe against the official modules (transformers 4.24.0 Perceiver, torchvision ResNet)
+    and the official DeFiNe.decoder: latent, rgb and log-depth of the three golden DeFiNe cases (their model and
+    scene files) and of the official rpdefine_16_32_stereo_acc config (random weights, the rpdefine_k16 scene);
+    the engine key lists are the official modules' state_dict names and shapes, in order."""
+    repo = os.environ.get("RAYPATCH_OFFICIAL_REPO")
+    if not repo:
+        raise Skip("set RAYPATCH_OFFICIAL_REPO to a checkout of tberriel/RayPatchQuerying")
+    official = import_official_define(repo)
+    decoder_function, _ = official_function(Path(repo) / "src" / "model.py", "decoder", "DeFiNe",
+                                            namespace={"torch": torch})
+    for file, model_cfg, total in DEFINE_KEY_LISTS:
+        with torch.device("meta"):
+            module = official_define(official, copy.deepcopy(model_cfg))
+        lines = [f"{name} {list(tensor.shape)}" for name, tensor in module.state_dict().items()]
+        assert lines == (ENGINE_KEY_LISTS / file).read_text().splitlines(), file
+        assert sum(p.numel() for p in module.parameters()) == total, file
+        assert (module.d_min, module.d_max) == (DeFiNe.d_min, DeFiNe.d_max) == (0.1, 10), (module.d_min, module.d_max)
+
+    runs = []
+    for name in DEFINE_CASES:
+        folder = GOLDEN / name
+        with safe_open(str(folder / "model.safetensors"), "pt") as file:
+            model_cfg = json.loads(file.metadata()["config"])
+        model = build_model(model_cfg).eval()
+        model.load_state_dict(load_file(str(folder / "model.safetensors")), strict=False)
+        case, _ = define_case(name)
+        runs.append((name, model_cfg, model, load_file(str(folder / "scene.safetensors")), case.patch_rays))
+    _, scene = define_case("rpdefine_k16")
+    runs.append(("rpdefine_16_32_stereo_acc", RPDEFINE_16_32_STEREO_ACC, random_define(RPDEFINE_16_32_STEREO_ACC),
+                 scene, False))
+    for name, model_cfg, model, scene, patch_rays_given in runs:
+        k = model.patch_size
+        rays = scene["target_rays"]
+        if k > 1 and not patch_rays_given:  # full-resolution rays: the loader's resize to patch rays
+            rays = make_golden.patch_rays_of(model, scene)["target_rays"]
+        num_targets, grid_h, grid_w = rays.shape[:3]
+        target_size = (grid_h * k, grid_w * k)
+        module = official_define(official, model_cfg, (grid_h, grid_w))
+        state = model.state_dict()
+        for prefix in ("encoder", "decoder_rp_rgb", "decoder_rp_d", "decoder_att_rgb", "decoder_att_d"):
+            part = {n[len(prefix) + 1:]: t for n, t in state.items() if n.startswith(prefix + ".")}
+            if part:
+                getattr(module, prefix).load_state_dict(part)
+        module.eval()
+
+        images = scene["input_images"].permute(0, 3, 1, 2)
+        inputs = (images[None], scene["input_camera_pos"][None], scene["input_rays"][None])
+        with torch.no_grad():
+            z = model.encode(*inputs)
+            rgb, logdepth = model.render_views(z, scene["target_camera_pos"][None], scene["target_rays"][None],
+                                               target_size)
+            # The official loader hands the model ImageNet-normalised images.
+            z_official = module.encoder(official.normalize(images)[None], *inputs[1:])
+            positions = scene["target_camera_pos"][:, None].expand(-1, grid_h * grid_w, 3).reshape(1, -1, 3)
+            rgb_official, extras = decoder_function(module, z_official, positions, rays.reshape(1, -1, 3))
+        differences = {"latent": (z - z_official).abs().max().item(),
+                       "rgb": (rgb.reshape(1, -1, 3) - rgb_official).abs().max().item(),
+                       "logdepth": (logdepth.reshape(1, -1) - extras["logdepth"]).abs().max().item()}
+        report(f"{name}: max |reference - official| " + ", ".join(f"{key} {value:.2e}"
+                                                                   for key, value in differences.items())
+               + f" (latent up to {z.abs().max():.1f}, {num_targets} x {target_size[0]}x{target_size[1]} targets)")
+        assert rgb_official.shape == (1, num_targets * target_size[0] * target_size[1], 3), rgb_official.shape
+        assert differences["latent"] < 1e-5 * max(1.0, z.abs().max().item()), (name, differences)
+        assert differences["rgb"] < 1e-5 and differences["logdepth"] < 1e-5, (name, differences)
 
 
 def main():
