@@ -1,18 +1,22 @@
-// 3×3 convolution, zero padding 1, stride 1 or 2, NHWC, with an optional 2× nearest upsampling of the input
-// fused into the reads: out = act(conv(x) + bias), or out += act(conv(x) + bias) when accumulating.
+// Square K×K convolution, any stride >= 1 and zero padding, NHWC, with an optional 2× nearest upsampling of
+// the input fused into the reads. Three ways to meet what `out` holds (`mode`): out = act(conv(x) + bias)
+// (overwrite), out += act(conv(x) + bias) (accumulate: the Ray-Patch rgb skips), or
+// out = act(out + conv(x) + bias) (residual: torchvision BasicBlock's relu(bn2(conv2(.)) + identity)).
 //
-// x: [n*h*w, cin] (padded to ld(cin) with zeros). w: [cout, 9*ld(cin)], for each output channel the 9 taps
-// (ky, kx row-major), each ld(cin) input channels (see kernels::conv::pack_conv3x3). out: [n*ho*wo, cout].
-// With upsampling the convolution sees the effective image 2h × 2w whose pixel (y, x) is x[y >> 1, x >> 1].
-// As an implicit GEMM: M = output pixels, N = cout, K = 9 taps × ld(cin).
+// x: [n*h*w, cin] (padded to ld(cin) with zeros). w: [cout, K*K*ld(cin)], for each output channel the K*K
+// taps (ky, kx row-major), each ld(cin) input channels (see kernels::conv::pack_conv). out: [n*ho*wo, cout]
+// with ho = (h_eff + 2*pad - K) / stride + 1 (PyTorch's), h_eff = h, or 2h with upsampling: the convolution
+// then sees the effective image 2h × 2w whose pixel (y, x) is x[y >> 1, x >> 1].
+// As an implicit GEMM: M = output pixels, N = cout, K = K*K taps × ld(cin).
 //
 // Register blocking: each invocation computes PX = 8 output pixels (64 apart in the flattened n*ho*wo order,
 // so neighbouring lanes read neighbouring pixels and blocks never straddle row ends) × CV = 2 vec4s of output
 // channels, as 2 × 2 mat4x4 accumulators (a column per pixel, a row per channel). Per tap and vec4 of input
 // channels it loads 8 input vec4s and 8 weight vec4s for 256 multiply-adds. Lavapipe loads storage buffers
 // lane by lane and component by component (even uniform addresses), so loads per multiply-add set the speed.
-// Measured there: 8 × 16 channels runs ~10% faster but compiles 3× slower (~6 s); 16 pixels or reusing an
-// input window across the 3 taps of a row is no faster and compiles slower still.
+// Measured there (3×3): 8 × 16 channels runs ~10% faster but compiles 3× slower (~6 s); 16 pixels or reusing
+// an input window across the taps of a row is no faster and compiles slower still. K, stride and padding
+// are uniforms: the tap loops cost nothing measurable next to the channel loop inside them.
 //
 // Grid: a workgroup is 64 invocations along the pixels sharing one tile of CV vec4s of channels (the same
 // weights for every lane: on GPUs they stay in cache); groups are numbered channel-tile-fastest, so
@@ -29,14 +33,18 @@ struct Params {
     cout4: u32,
     ho: u32,
     wo: u32,
+    // The window: K × K taps, stride, zero padding on every side of the (effective) image.
+    k: u32,
     stride: u32,
+    pad: u32,
     // 1 when the input is upsampled 2× (nearest) before the convolution, else 0: a shift of the coordinates.
     up: u32,
     // activation code and slope (shaders/activation.wgsl).
     act: u32,
     slope: f32,
     has_bias: u32,
-    accumulate: u32,
+    // 0: out = act(conv + b); 1: out += act(conv + b); 2: out = act(out + conv + b) (kernels::conv::ConvMode).
+    mode: u32,
     // n*ho*wo.
     npix: u32,
     // ceil(cout4 / CV): channel tiles, the fastest-varying part of the group index.
@@ -70,7 +78,7 @@ struct Acc {
 // results are dropped when storing).
 fn weight_rows(col0: u32, j: u32) -> vec4<u32> {
     let co = vec4<u32>(4u * (col0 + j)) + vec4<u32>(0u, 1u, 2u, 3u);
-    return min(co, vec4<u32>(p.cout - 1u)) * (9u * p.cin4);
+    return min(co, vec4<u32>(p.cout - 1u)) * (p.k * p.k * p.cin4);
 }
 
 // The weights of 4 output channels at offset k of their rows, arranged so that multiplying the matrix of
@@ -79,7 +87,7 @@ fn weights(rows: vec4<u32>, k: u32) -> mat4x4<f32> {
     return transpose(mat4x4<f32>(w[rows.x + k], w[rows.y + k], w[rows.z + k], w[rows.w + k]));
 }
 
-// Bias, activation, accumulation and the store of channel vec4 `col` of the 4 pixels pix0 + 64 i (columns of m).
+// Bias, residual, activation, accumulation and the store of channel vec4 `col` of the 4 pixels pix0 + 64 i (columns of m).
 fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
     if (col >= p.cout4) {
         return;
@@ -93,8 +101,12 @@ fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
         let pix = pix0 + i * WG;
         if (pix < p.npix) {
             let o = pix * p.cout4 + col;
-            var v = select(vec4<f32>(0.0), activate(m[i] + b, p.act, p.slope), real);
-            if (p.accumulate != 0u) {
+            var v = m[i] + b;
+            if (p.mode == 2u) {
+                v += out[o];
+            }
+            v = select(vec4<f32>(0.0), activate(v, p.act, p.slope), real);
+            if (p.mode == 1u) {
                 v += out[o];
             }
             out[o] = v;
@@ -103,7 +115,7 @@ fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
 }
 
 @compute @workgroup_size(64)
-fn conv3x3(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
     let g = wid.x + wid.y * nwg.x;
     let tile = g / p.cout_tiles;
@@ -124,39 +136,43 @@ fn conv3x3(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
         let q = min(pix0 + i * WG, p.npix - 1u);
         let r = q / p.wo;
         img[i] = (r / p.ho) * p.h;
-        iy0[i] = i32((r % p.ho) * p.stride) - 1;
-        ix0[i] = i32((q % p.wo) * p.stride) - 1;
+        iy0[i] = i32((r % p.ho) * p.stride) - i32(p.pad);
+        ix0[i] = i32((q % p.wo) * p.stride) - i32(p.pad);
     }
     let he = i32(p.h << p.up);
     let we = i32(p.w << p.up);
 
     var acc: Acc;
-    for (var tap = 0u; tap < 9u; tap++) {
-        // Each pixel's input pixel for this tap; in the zero padding read pixel 0 and select zero.
-        var src: array<u32, PX>;
-        var inside: array<bool, PX>;
-        for (var i = 0u; i < PX; i++) {
-            let iy = iy0[i] + i32(tap / 3u);
-            let ix = ix0[i] + i32(tap % 3u);
-            inside[i] = iy >= 0 && iy < he && ix >= 0 && ix < we;
-            src[i] = select(0u, ((img[i] + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4, inside[i]);
-        }
-        let k = tap * p.cin4;
-        for (var c = 0u; c < p.cin4; c++) {
-            var xv: array<vec4<f32>, PX>;
+    // The offset of the tap in each weight row.
+    var tap_start = 0u;
+    for (var ky = 0u; ky < p.k; ky++) {
+        for (var kx = 0u; kx < p.k; kx++) {
+            // Each pixel's input pixel for this tap; in the zero padding read pixel 0 and select zero.
+            var src: array<u32, PX>;
+            var inside: array<bool, PX>;
             for (var i = 0u; i < PX; i++) {
-                xv[i] = select(vec4<f32>(0.0), x[src[i] + c], inside[i]);
+                let iy = iy0[i] + i32(ky);
+                let ix = ix0[i] + i32(kx);
+                inside[i] = iy >= 0 && iy < he && ix >= 0 && ix < we;
+                src[i] = select(0u, ((img[i] + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4, inside[i]);
             }
-            let x0 = mat4x4<f32>(xv[0], xv[1], xv[2], xv[3]);
-            let x1 = mat4x4<f32>(xv[4], xv[5], xv[6], xv[7]);
-            let w0 = weights(rows0, k + c);
-            acc.m00 += w0 * x0;
-            acc.m01 += w0 * x1;
-            if (col0 + 1u < p.cout4) {
-                let w1 = weights(rows1, k + c);
-                acc.m10 += w1 * x0;
-                acc.m11 += w1 * x1;
+            for (var c = 0u; c < p.cin4; c++) {
+                var xv: array<vec4<f32>, PX>;
+                for (var i = 0u; i < PX; i++) {
+                    xv[i] = select(vec4<f32>(0.0), x[src[i] + c], inside[i]);
+                }
+                let x0 = mat4x4<f32>(xv[0], xv[1], xv[2], xv[3]);
+                let x1 = mat4x4<f32>(xv[4], xv[5], xv[6], xv[7]);
+                let w0 = weights(rows0, tap_start + c);
+                acc.m00 += w0 * x0;
+                acc.m01 += w0 * x1;
+                if (col0 + 1u < p.cout4) {
+                    let w1 = weights(rows1, tap_start + c);
+                    acc.m10 += w1 * x0;
+                    acc.m11 += w1 * x1;
+                }
             }
+            tap_start += p.cin4;
         }
     }
 

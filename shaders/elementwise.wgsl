@@ -1,5 +1,6 @@
 // Elementwise column map: out[r, j] = f(x[r, col + j]) for j < cols(out), zero in out's row padding.
-// f: 0 identity (copy a channel range), 1 sigmoid, 2 exp. One invocation per vec4 of out.
+// f: 0 identity (copy a channel range), 1 sigmoid, 2 exp, 3 sigmoid(x)·scale + offset, 4 log(sigmoid(x)·scale +
+// offset) (DeFiNe's depth and log-depth). One invocation per vec4 of out.
 // `sigmoid` comes from the activation prelude (kernels/mod.rs).
 
 struct Params {
@@ -12,6 +13,8 @@ struct Params {
     cols: u32,
     ld4: u32,
     f: u32,
+    scale: f32,
+    offset: f32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -38,6 +41,11 @@ fn map_columns(
         v = sigmoid(v);
     } else if (p.f == 2u) {
         v = exp(v);
+    } else if (p.f >= 3u) {
+        v = sigmoid(v) * p.scale + p.offset;
+        if (p.f == 4u) {
+            v = log(v);
+        }
     }
     out[idx] = select(vec4<f32>(0.0), v, valid);
 }

@@ -1,7 +1,7 @@
-//! conv3x3 against the float64 reference, and the placement helpers the resize tests share.
+//! conv2d against the float64 reference, and the placement helpers the resize and pool tests share.
 
-use raypatch_engine::kernels::conv::{conv3x3, pack_conv3x3, Conv3x3Args};
-use raypatch_engine::kernels::Activation;
+use raypatch_engine::kernels::conv::{conv2d, conv_output_size, pack_conv, Conv2dArgs, ConvMode};
+use raypatch_engine::kernels::{Activation, Window};
 use raypatch_engine::plan::{PlanBuilder, View};
 use raypatch_engine::reference::conv as reference;
 use raypatch_engine::tensor::padded_cols;
@@ -72,30 +72,31 @@ struct Case {
     w: usize,
     cin: usize,
     cout: usize,
-    stride: usize,
+    window: Window,
     upsample: bool,
     act: Activation,
     bias: bool,
-    accumulate: bool,
+    mode: ConvMode,
 }
 
 impl Case {
     /// Runs the case on the GPU and returns (gpu, reference) outputs.
     fn run(&self, rng: &mut Rng) -> (Vec<f32>, Vec<f64>) {
-        let &Case { n, h, w, cin, cout, stride, upsample, act, bias, accumulate } = self;
-        let up = usize::from(upsample);
-        let (ho, wo) = (((h << up) - 1) / stride + 1, ((w << up) - 1) / stride + 1);
+        let &Case { n, h, w, cin, cout, window, upsample, act, bias, mode } = self;
+        let k = window.kernel;
+        let (ho, wo) = conv_output_size(h, w, window, upsample).expect("the case's window fits");
         let x = rng.vec_f32(n * h * w * cin, -1.0, 1.0);
-        // Kaiming-like scale keeps outputs O(1) for every cin.
-        let scale = (3.0 / (9 * cin) as f64).sqrt();
-        let weight_data = rng.vec_f32(cout * cin * 9, -scale, scale);
+        // Kaiming-like scale keeps outputs O(1) for every cin and k.
+        let scale = (3.0 / (k * k * cin) as f64).sqrt();
+        let weight_data = rng.vec_f32(cout * cin * k * k, -scale, scale);
         let bias_data = bias.then(|| rng.vec_f32(cout, -1.0, 1.0));
         let init = rng.vec_f32(n * ho * wo * cout, -1.0, 1.0);
 
         let gpu = gpu();
         let xp = Placed::new(rng, "x", &x, cin, 0.0);
-        let op = Placed::new(rng, "out", &init, cout, if accumulate { 0.0 } else { f32::NAN });
-        let wt = gpu.upload("w", cout, 9 * padded_cols(cin), &pack_conv3x3(&weight_data, cout, cin)).expect("upload");
+        let op = Placed::new(rng, "out", &init, cout, if mode.reads_out() { 0.0 } else { f32::NAN });
+        let packed = pack_conv(&weight_data, cout, cin, k);
+        let wt = gpu.upload("w", cout, k * k * padded_cols(cin), &packed).expect("upload");
         let bt = bias_data.as_ref().map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
 
         let mut plan = PlanBuilder::new();
@@ -104,52 +105,64 @@ impl Case {
         let wid = plan.external("w", &wt);
         let bid = bt.as_ref().map(|b| plan.external("b", b));
         let (weight, bias, upsample_input) = (wid, bid, upsample);
-        let args =
-            Conv3x3Args { x: xv, n, h, w, cin, weight, bias, out: ov, cout, stride, upsample_input, act, accumulate };
-        conv3x3(&mut plan, "conv", args);
+        let args = Conv2dArgs { x: xv, n, h, w, cin, weight, bias, out: ov, cout, window, upsample_input, act, mode };
+        conv2d(&mut plan, "conv", args);
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 
-        let residual = accumulate.then(|| to_f64(&init));
-        let expected = reference::conv3x3(
+        let mut expected = to_f64(&init);
+        let (weight, bias) = (to_f64(&weight_data), bias_data.map(|b| to_f64(&b)));
+        reference::conv2d(
             &to_f64(&x),
-            n,
-            h,
-            w,
+            (n, h, w),
             cin,
-            &to_f64(&weight_data),
-            bias_data.map(|b| to_f64(&b)).as_deref(),
+            &weight,
+            bias.as_deref(),
             cout,
-            stride,
+            window,
             upsample,
             act,
-            residual.as_deref(),
+            mode,
+            &mut expected,
         );
         (got, expected)
     }
 
     fn check(&self, rng: &mut Rng) {
         let (got, expected) = self.run(rng);
-        // f32 accumulation of K = 9·cin products (|x| <= 1, weights scaled so outputs are O(1)): the error grows
-        // like sqrt(K)·2^-24; measured at most 2.2e-6 (cin = 800) on lavapipe, so 1e-5 + 1e-6·max|ref| leaves ~4x.
+        // f32 accumulation of K = k²·cin products (|x| <= 1, weights scaled so outputs are O(1)): the error
+        // grows like sqrt(K)·2^-24; measured at most 2.2e-6 (3×3, cin = 800) on lavapipe, so 1e-5 +
+        // 1e-6·max|ref| leaves ~4x.
         assert_close(&format!("{self:?}"), &got, &expected, 1e-5, 1e-6);
     }
 }
 
 impl std::fmt::Debug for Case {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let Case { n, h, w, cin, cout, stride, upsample, act, bias, accumulate } = self;
-        write!(f, "conv {n}x{h}x{w}x{cin} -> {cout} stride {stride} upsample {upsample} {act:?} bias {bias} accumulate {accumulate}")
+        let Case { n, h, w, cin, cout, window, upsample, act, bias, mode } = self;
+        let Window { kernel, stride, padding } = window;
+        write!(
+            f,
+            "conv {n}x{h}x{w}x{cin} -> {cout} k {kernel} stride {stride} padding {padding} upsample {upsample} \
+             {act:?} bias {bias} {mode:?}"
+        )
     }
 }
 
 const ACTS: [Activation; 3] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.2)];
+const MODES: [ConvMode; 3] = [ConvMode::Overwrite, ConvMode::Accumulate, ConvMode::Residual];
+
+/// A 3×3 padding-1 window of `stride` (the SRT and Ray-Patch convs).
+fn k3(stride: usize) -> Window {
+    Window { kernel: 3, stride, padding: 1 }
+}
 
 #[test]
 fn conv3x3_random_shapes_every_option() {
     let mut rng = Rng::new(1);
-    // 48 cases: each of the 2 (stride) × 2 (upsample) × 2 (bias) × 2 (accumulate) combinations with each of the
-    // 3 activations, on random small shapes (odd sizes, 1-pixel images, channels not multiples of 4).
+    // 48 cases: each of the 2 (stride) × 2 (upsample) × 2 (bias) × 3 (mode) combinations with each of the
+    // 3 activations (the activation and mode cycles are coprime with the rest), on random small shapes (odd
+    // sizes, 1-pixel images, channels not multiples of 4).
     for case in 0..48 {
         let c = Case {
             n: rng.range(1, 3),
@@ -157,13 +170,79 @@ fn conv3x3_random_shapes_every_option() {
             w: rng.range(1, 20),
             cin: rng.range(1, 40),
             cout: rng.range(1, 40),
-            stride: 1 + case % 2,
+            window: k3(1 + case % 2),
             upsample: (case / 2) % 2 == 1,
             bias: (case / 4) % 2 == 1,
-            accumulate: (case / 8) % 2 == 1,
+            mode: MODES[(case / 8) % 3],
             act: ACTS[case % 3],
         };
         c.check(&mut rng);
+    }
+}
+
+#[test]
+fn conv_any_kernel_stride_padding() {
+    let mut rng = Rng::new(5);
+    // Kernels 1, 2, 3, 5, 7 with strides 1..3 and paddings 0..3 (more than k/2 too: PyTorch allows it for a
+    // conv), every mode, upsampling, on random odd sizes at least as large as the window needs.
+    let mut case = 0;
+    for kernel in [1, 2, 3, 5, 7] {
+        for padding in 0..=3 {
+            for stride in 1..=3 {
+                let window = Window { kernel, stride, padding };
+                let upsample = case % 5 == 4;
+                let up = usize::from(upsample);
+                // Smallest input the window fits: h_eff + 2·padding >= kernel.
+                let least = kernel.saturating_sub(2 * padding).max(1).div_ceil(1 << up);
+                let c = Case {
+                    n: rng.range(1, 2),
+                    h: rng.range(least, least + 12),
+                    w: rng.range(least, least + 12),
+                    cin: rng.range(1, 19),
+                    cout: rng.range(1, 19),
+                    window,
+                    upsample,
+                    bias: case % 2 == 0,
+                    mode: MODES[case % 3],
+                    act: ACTS[(case / 3) % 3],
+                };
+                c.check(&mut rng);
+                case += 1;
+            }
+        }
+    }
+}
+
+#[test]
+fn conv_window_exactly_fits() {
+    // The padded input exactly the kernel (one output pixel), and a 1-pixel image under a 7×7 pad-3 window.
+    let mut rng = Rng::new(6);
+    for (h, w, kernel, stride, padding) in [(7, 7, 7, 2, 0), (3, 5, 7, 2, 2), (1, 1, 7, 2, 3), (2, 1, 3, 2, 1)] {
+        let window = Window { kernel, stride, padding };
+        let (act, mode) = (Activation::Relu, ConvMode::Overwrite);
+        Case { n: 2, h, w, cin: 3, cout: 5, window, upsample: false, act, bias: true, mode }.check(&mut rng);
+    }
+}
+
+#[test]
+fn conv_resnet18_layers() {
+    // torchvision ResNet-18 at a small input: the 7×7 stride-2 pad-3 stem (no bias, BN folded into a bias), a
+    // BasicBlock's 3×3 convs (the second with the residual sum and ReLU), the 1×1 stride-2 downsample, and a
+    // strided 3×3 block conv.
+    let mut rng = Rng::new(7);
+    let relu = Activation::Relu;
+    let none = Activation::None;
+    let shapes = [
+        (45, 61, 3, 64, Window { kernel: 7, stride: 2, padding: 3 }, relu, ConvMode::Overwrite),
+        (12, 16, 64, 64, k3(1), relu, ConvMode::Overwrite),
+        (12, 16, 64, 64, k3(1), relu, ConvMode::Residual),
+        (12, 16, 64, 128, Window { kernel: 1, stride: 2, padding: 0 }, none, ConvMode::Overwrite),
+        (12, 16, 64, 128, k3(2), relu, ConvMode::Overwrite),
+        (3, 4, 256, 512, Window { kernel: 1, stride: 2, padding: 0 }, none, ConvMode::Overwrite),
+        (2, 2, 512, 512, k3(1), relu, ConvMode::Residual),
+    ];
+    for (h, w, cin, cout, window, act, mode) in shapes {
+        Case { n: 2, h, w, cin, cout, window, upsample: false, act, bias: true, mode }.check(&mut rng);
     }
 }
 
@@ -182,7 +261,8 @@ fn conv3x3_model_channel_counts() {
         (5, 800, 2, true, leaky),
     ];
     for (cin, cout, stride, upsample, act) in shapes {
-        Case { n: 1, h: 7, w: 9, cin, cout, stride, upsample, act, bias: true, accumulate: false }.check(&mut rng);
+        let (window, mode) = (k3(stride), ConvMode::Overwrite);
+        Case { n: 1, h: 7, w: 9, cin, cout, window, upsample, act, bias: true, mode }.check(&mut rng);
     }
 }
 
@@ -190,10 +270,10 @@ fn conv3x3_model_channel_counts() {
 fn conv3x3_many_pixel_tiles() {
     // 9 600 output pixels over 2 images (19 tiles of 512 pixels, the last one partial), upsampled and strided.
     let mut rng = Rng::new(3);
-    for (stride, upsample) in [(1, true), (2, false)] {
+    for (stride, upsample, mode) in [(1, true, ConvMode::Accumulate), (2, false, ConvMode::Residual)] {
         let (h, w) = if upsample { (30, 40) } else { (120, 160) };
         let act = Activation::LeakyRelu(0.2);
-        Case { n: 2, h, w, cin: 6, cout: 13, stride, upsample, act, bias: true, accumulate: true }.check(&mut rng);
+        Case { n: 2, h, w, cin: 6, cout: 13, window: k3(stride), upsample, act, bias: true, mode }.check(&mut rng);
     }
 }
 
@@ -209,11 +289,11 @@ fn conv3x3_grid_spills_into_y() {
         w: 1,
         cin: 1,
         cout,
-        stride: 1,
+        window: k3(1),
         upsample: false,
         act: Activation::Relu,
         bias: true,
-        accumulate: false,
+        mode: ConvMode::Overwrite,
     }
     .check(&mut rng);
 }

@@ -42,8 +42,10 @@ const SIGMOID_TOL: f64 = 3e-7;
 #[test]
 fn map_columns_random_shapes_and_views() {
     let mut rng = Rng::new(31);
-    for case in 0..16 {
-        let f = [Map::Identity, Map::Sigmoid, Map::Exp][case % 3];
+    for case in 0..20 {
+        let affine = Map::SigmoidAffine { scale: 9.9, offset: 0.1 };
+        let log_affine = Map::LogSigmoidAffine { scale: 9.9, offset: 0.1 };
+        let f = [Map::Identity, Map::Sigmoid, Map::Exp, affine, log_affine][case % 5];
         let cols_x = rng.range(1, 70);
         let cols = rng.range(1, cols_x);
         let col = rng.range(0, cols_x - cols);
@@ -71,6 +73,11 @@ fn map_columns_random_shapes_and_views() {
                 let xs = x.chunks(cols_x).skip(x_start).take(rows).flat_map(|row| &row[col..col + cols]);
                 assert_exp_close(&what, xs.copied(), &got, &want);
             }
+            // DeFiNe's depth in [0.1, 10]: the sigmoid's error times 9.9, then one rounding of the product
+            // and the sum (a few ulp of 10).
+            Map::SigmoidAffine { scale, .. } => assert_close(&what, &got, &want, SIGMOID_TOL * scale as f64 + 4e-6, 0.0),
+            // Its log: the depth's relative error (at least 0.1, so ~4e-5 relative) plus log's own few ulp.
+            Map::LogSigmoidAffine { .. } => assert_close(&what, &got, &want, 5e-5, 0.0),
         }
     }
 }

@@ -66,6 +66,18 @@ fn bilinear_upsample_2x() {
 }
 
 #[test]
+fn bilinear_upsample_non_integer() {
+    // Up-scaling by factors that are not integers (PyTorch's `size=`, scale = in/out): 4x6 and 15x20 to
+    // 32x48 (8×, and 2.13× by 2.4×), and the other way round of the axes.
+    let mut rng = Rng::new(16);
+    for (i, (hi, wi, ho, wo)) in
+        [(4, 6, 32, 48), (15, 20, 32, 48), (6, 4, 48, 32), (20, 15, 48, 32), (7, 9, 32, 48)].into_iter().enumerate()
+    {
+        check(&mut rng, i % 2 == 1, 1 + i % 2, hi, wi, CHANNELS[i % 3], ho, wo);
+    }
+}
+
+#[test]
 fn bilinear_random_sizes() {
     // Arbitrary ratios in both directions, 1-pixel images, odd sizes.
     let mut rng = Rng::new(13);

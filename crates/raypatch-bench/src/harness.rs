@@ -265,11 +265,12 @@ fn precision_name(storage: WeightStorage) -> &'static str {
     }
 }
 
-/// `SRT`, `RP-SRT`, `OSRT` or `RP-OSRT`.
+/// `SRT`, `RP-SRT`, `OSRT`, `RP-OSRT`, `DeFiNe` or `RP-DeFiNe`.
 fn decoder_name(config: &ModelConfig) -> String {
     let family = match config.family {
         Family::Srt(_) => "SRT",
         Family::Osrt(_) => "OSRT",
+        Family::Define(_) => "DeFiNe",
     };
     if config.patch_size() == 1 {
         family.to_string()
@@ -350,6 +351,8 @@ impl Bench {
                 flops::attention_score_bytes(queries, tokens, c.decoder.allocation.heads)
                     + flops::attention_score_bytes(queries, tokens, 1)
             }
+            // Two heads (rgb, depth), each one single-head cross-attention to the latents.
+            Family::Define(_) => 2 * flops::attention_score_bytes(queries, tokens, 1),
         };
         Record {
             group: s.group.to_string(),
@@ -405,7 +408,7 @@ impl Bench {
     fn measure(&self, s: &Subject, targets: &TargetViews, truth: Option<&[f32]>, with_torch: bool) -> Result<Record> {
         let grid = targets.grid_for(&s.loaded.config, "target views")?;
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
-        let mut frame = self.time_render(s, targets, Outputs::default().into(), &mut record)?;
+        let mut frame = self.time_render(s, targets, model_outputs(&s.loaded.config).into(), &mut record)?;
         let rgb = frame.take(Output::Rgb).context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
         let no_reference = match &s.references {
@@ -506,7 +509,7 @@ impl Bench {
                     let s = raypatch_model::load_scene(scene)?;
                     (s.inputs, s.targets)
                 }
-                None => scene((120, 160))?,
+                None => scene(1, INPUT_SIZE, (120, 160))?,
             };
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
@@ -567,8 +570,17 @@ fn max_abs_f32(a: &[f32], b: &[f32]) -> f64 {
 
 /// The benchmark scene: one input view of [`INPUT_SIZE`] and one target view of `target`, the same cameras
 /// and image at every target size.
-fn scene(target: (usize, usize)) -> Result<(InputViews, TargetViews)> {
-    synthetic::synthetic_scene(SEED, 1, INPUT_SIZE, 1, target, &CameraRig::default()).map_err(anyhow::Error::msg)
+fn scene(views: usize, input: (usize, usize), target: (usize, usize)) -> Result<(InputViews, TargetViews)> {
+    synthetic::synthetic_scene(SEED, views, input, 1, target, &CameraRig::default()).map_err(anyhow::Error::msg)
+}
+
+/// What a measured render computes: what the official model's forward returns (rgb, and DeFiNe's log-depth,
+/// which needs its second head).
+fn model_outputs(config: &ModelConfig) -> Outputs {
+    match config.family {
+        Family::Define(_) => Outputs::of(&[Output::Rgb, Output::LogDepth]),
+        _ => Outputs::default(),
+    }
 }
 
 /// A scene file (docs/FORMATS.md) of these views, for PyTorch.

@@ -35,7 +35,8 @@ struct Args {
     scene: Option<PathBuf>,
     /// Measure only the sweep's random-weight model GROUP with patch size K, at every size; repeatable.
     /// GROUP small or official (SRT, K = 1, or RP-SRT, K = 2, 4, 8, 16), or official-osrt (the official
-    /// OSRT, K = 1, or RP-OSRT, K = 8, at 120x160). Skips the golden cases. Merge into a full run with --replot.
+    /// OSRT, K = 1, or RP-OSRT, K = 8, at 120x160), or official-define (the official DeFiNe, K = 1, or RP-DeFiNe,
+    /// K = 16, from two 128x192 views at 480x640 and 960x1280). Skips the golden cases. Merge into a full run with --replot.
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
@@ -86,7 +87,9 @@ fn parse_only(text: &str) -> Result<(String, usize), String> {
         "small" | "official" => &[1, 2, 4, 8, 16],
         // The official OSRT runs: osrt_MDBN_64 and rposrt_MDBN_8_64.
         "official-osrt" => &[1, 8],
-        _ => return Err(format!("group {group:?}: expected small, official or official-osrt")),
+        // The official ScanNet runs: define_32_stereo_acc and rpdefine_16_32_stereo_acc.
+        "official-define" => &[1, 16],
+        _ => return Err(format!("group {group:?}: expected small, official, official-osrt or official-define")),
     };
     let expected = ks.iter().map(usize::to_string).collect::<Vec<_>>().join(", ");
     let k: usize = k.parse().map_err(|_| format!("k {k:?}: expected one of {expected} for {group}"))?;
@@ -106,6 +109,8 @@ mod tests {
         assert_eq!(parse_only("official-osrt:1"), Ok(("official-osrt".into(), 1)));
         assert_eq!(parse_only("official-osrt:8"), Ok(("official-osrt".into(), 8)));
         assert!(parse_only("official-osrt:4").is_err());
+        assert_eq!(parse_only("official-define:16"), Ok(("official-define".into(), 16)));
+        assert!(parse_only("official-define:8").is_err());
         assert!(parse_only("osrt:8").is_err());
         assert!(parse_only("small:3").is_err());
         assert!(parse_only("small").is_err());

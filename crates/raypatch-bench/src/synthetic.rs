@@ -56,6 +56,24 @@ pub fn official_rposrt_config() -> Value {
     cfg
 }
 
+/// The model section of the official ScanNet DeFiNe runs (tberriel/RayPatchQuerying
+/// `runs/scannet/define_32_stereo_acc` for k = 1, `rpdefine_16_32_stereo_acc` for k = 16): ResNet-18 and a
+/// Perceiver IO of 2048 latents of 512 (31 M parameters), rgb and depth heads.
+pub fn official_define_config(k: usize) -> Value {
+    assert!(k == 1 || k == 16, "the official DeFiNe runs have k = 1 and 16");
+    let mut cfg = json!({
+        "base": "define",
+        "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
+        "decoder": "lightfield",
+        "decoder_kwargs": {"pos_start_octave": 1},
+    });
+    if k == 16 {
+        cfg["decoder"] = json!("featurefield");
+        cfg["rp_kwargs"] = json!({"h_in": 30, "w_in": 40, "upsample": 4, "norm": "Batch"});
+    }
+    cfg
+}
+
 /// The official structure at small widths, as `tools/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2
 /// attention layers, 15 + 15 octaves, 4 heads, tokens `width` wide; Ray-Patch with patch size `k` when
 /// `k > 1` (conv_features `2·width`, at least 2·k).

@@ -49,11 +49,19 @@ impl Tensor {
     }
 }
 
+/// A per-channel normalisation of input RGB: `(v - mean) / std`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChannelNorm {
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+}
+
 /// What the host writes into an input tensor before a plan runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum HostInput {
-    /// Input images' RGB into columns `col..col + 3` of `[pixels, cols]` (zeros elsewhere; ops fill the rest).
-    InputImages { col: usize },
+    /// Input images' RGB into columns `col..col + 3` of `[pixels, cols]` (zeros elsewhere; ops fill the rest),
+    /// per channel `(v - mean) / std` when `normalize` is set (as torchvision's `Normalize` in float32).
+    InputImages { col: usize, normalize: Option<ChannelNorm> },
     /// Input camera positions `[n, 3]`.
     InputCameraPos,
     /// Input rays `[pixels, 3]`.

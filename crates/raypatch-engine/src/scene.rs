@@ -136,6 +136,7 @@ impl Model {
 
     fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
         inputs.check("input views")?;
+        self.family.check_inputs(inputs.height, inputs.width).map_err(EngineError::Request)?;
         let gpu = &*self.gpu;
         let size = ImageSize { n: inputs.count, h: inputs.height, w: inputs.width };
         let mut g = Graph::new(gpu, &self.weights.tensors);
@@ -156,10 +157,15 @@ impl Model {
         for (id, input) in &host_inputs {
             let tensor = plan.tensor(*id);
             match input {
-                HostInput::InputImages { col } => {
+                HostInput::InputImages { col, normalize } => {
                     let mut rows = vec![0.0f32; tensor.rows * tensor.cols];
                     for (row, rgb) in rows.chunks_exact_mut(tensor.cols).zip(inputs.images.chunks_exact(3)) {
                         row[*col..col + 3].copy_from_slice(rgb);
+                        if let Some(norm) = normalize {
+                            for c in 0..3 {
+                                row[col + c] = (row[col + c] - norm.mean[c]) / norm.std[c];
+                            }
+                        }
                     }
                     gpu.write(&tensor, &rows);
                 }

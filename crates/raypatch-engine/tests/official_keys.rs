@@ -1,4 +1,4 @@
-//! The module trees built from the official run configs (SRT, RP-SRT, OSRT, RP-OSRT) fetch exactly the
+//! The module trees built from the official run configs (SRT, RP-SRT, OSRT, RP-OSRT, DeFiNe, RP-DeFiNe) fetch exactly the
 //! official state_dict names and shapes, and hold the official parameter counts (`models::expected_tensors`,
 //! no file, no GPU).
 
@@ -38,6 +38,22 @@ fn official_osrt(decoder: &str) -> serde_json::Value {
     if decoder == "featurefield" {
         cfg["rp_kwargs"] = json!({"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20,
                                   "h_out": 120, "w_out": 160});
+    }
+    cfg
+}
+
+/// The model sections of RayPatchQuerying's runs/scannet/{define_32_stereo_acc,rpdefine_16_32_stereo_acc}/
+/// config.yaml.
+fn official_define(decoder: &str) -> serde_json::Value {
+    let mut cfg = json!({
+        "base": "define",
+        "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
+        "decoder": decoder,
+        "decoder_kwargs": {"pos_start_octave": 1},
+        "lr_config": "step", "lr": 0.0002, "lr_warmup": 2500
+    });
+    if decoder == "featurefield" {
+        cfg["rp_kwargs"] = json!({"h_in": 30, "w_in": 40, "upsample": 4, "norm": "Batch"});
     }
     cfg
 }
@@ -100,6 +116,38 @@ fn osrt_keys_match_official() {
 #[test]
 fn rposrt_k8_keys_match_official() {
     check(official_osrt("featurefield"), "official-keys-rposrt_MDBN_8_64.txt", 95_213_144);
+}
+
+/// Trained parameters of the official DeFiNe runs (the key lists written by tools/make_golden.py from the
+/// official modules; official-models.md: 30.8 M and 31.0 M).
+const DEFINE_PARAMETERS: usize = 30_759_058;
+const RPDEFINE_PARAMETERS: usize = 31_011_690;
+
+#[test]
+fn define_keys_match_official() {
+    check(official_define("lightfield"), "official-keys-define_32_stereo_acc.txt", DEFINE_PARAMETERS);
+}
+
+#[test]
+fn rpdefine_k16_keys_match_official() {
+    check(official_define("featurefield"), "official-keys-rpdefine_16_32_stereo_acc.txt", RPDEFINE_PARAMETERS);
+}
+
+#[test]
+fn official_define_dimensions() {
+    for (decoder, k, heads) in [("lightfield", 1, (3, 1)), ("featurefield", 16, (128, 128))] {
+        let config = ModelConfig::from_value("official", official_define(decoder)).unwrap();
+        assert_eq!((config.base(), config.patch_size()), ("define", k), "{decoder}");
+        let Family::Define(c) = &config.family else { panic!("{decoder}: not a DeFiNe config") };
+        let e = &c.encoder;
+        assert_eq!((e.token_dim(), c.decoder.rays.width()), (1146, 186), "{decoder}");
+        assert_eq!((e.num_latents, e.latent_dim, e.heads, e.num_att_blocks), (2048, 512, 8, 8), "{decoder}");
+        assert_eq!(c.head_dims(), heads, "{decoder}");
+        assert!(config.has_depth());
+        if let Some(rp) = &c.ray_patch {
+            assert_eq!((rp.upsample, rp.conv_features, rp.batch_norm), (4, 128, true));
+        }
+    }
 }
 
 #[test]

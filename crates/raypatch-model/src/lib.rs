@@ -10,9 +10,10 @@ pub mod tensor_file;
 pub mod weights;
 
 pub use config::{
-    DecoderConfig, EncoderConfig, Family, ModelConfig, Octaves, OsrtConfig, RayPatchConfig, RayPredictorConfig,
-    SlotAttentionConfig, SlotMixerConfig, SrtConfig,
+    DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, ModelConfig, Octaves,
+    OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig, SlotMixerConfig, SrtConfig,
 };
+pub use config::RayKind;
 pub use error::ModelError;
 pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use tensor_file::{HostTensor, TensorFile};

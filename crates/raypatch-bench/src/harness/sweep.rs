@@ -1,14 +1,15 @@
 //! The sweep of random-weight models (small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, f32 and f16
-//! weights; the official OSRT and RP-OSRT k=8 at their 120x160, f32) over target sizes, with the skip of sizes
+//! weights; the official OSRT and RP-OSRT k=8 at their 120x160, and DeFiNe and RP-DeFiNe k=16 at 480x640 and
+//! 960x1280 from two 128x192 views, f32) over target sizes, with the skip of sizes
 //! predicted too slow: a size's render is predicted from the multiply-adds its plan would record (recorded,
 //! not built) and the rate measured at the previous size.
 
 use anyhow::Result;
-use raypatch_engine::{EngineError, LoadOptions, Model, Outputs, WeightStorage};
+use raypatch_engine::{EngineError, LoadOptions, Model, WeightStorage};
 use raypatch_model::TargetViews;
 
 use super::{
-    decoder_name, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
+    decoder_name, model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
     SMALL_WIDTH,
 };
 use crate::flops;
@@ -17,6 +18,13 @@ use crate::synthetic;
 
 /// The group of the official OSRT runs: `osrt_MDBN_64` (k = 1) and `rposrt_MDBN_8_64` (k = 8).
 pub(crate) const OSRT: &str = "official-osrt";
+/// The group of the official ScanNet DeFiNe runs: `define_32_stereo_acc` (k = 1) and
+/// `rpdefine_16_32_stereo_acc` (k = 16).
+pub(crate) const DEFINE: &str = "official-define";
+/// DeFiNe's official stereo setting: two input views of 128x192, targets of 480x640 (and the paper's
+/// Figure 2 up to 960x1280).
+const DEFINE_INPUTS: (usize, Size) = (2, (128, 192));
+const DEFINE_SIZES: [Size; 2] = [(480, 640), (960, 1280)];
 
 impl Bench {
     /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes; the
@@ -28,30 +36,36 @@ impl Bench {
         } else {
             (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
         };
-        let mut specs: Vec<(&str, usize, serde_json::Value, &[Size])> =
-            PATCH_SIZES.iter().map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
+        let one_view = (1, INPUT_SIZE);
+        let mut specs: Vec<(&str, usize, serde_json::Value, (usize, Size), &[Size])> = PATCH_SIZES
+            .iter()
+            .map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), one_view, small_sizes))
+            .collect();
         for (k, sizes) in official {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
-            specs.push(("official", k, config, sizes));
+            specs.push(("official", k, config, one_view, sizes));
         }
         if !self.quick || !self.only.is_empty() {
-            specs.push((OSRT, 1, synthetic::official_osrt_config(), &[(120, 160)]));
-            specs.push((OSRT, 8, synthetic::official_rposrt_config(), &[(120, 160)]));
+            specs.push((OSRT, 1, synthetic::official_osrt_config(), one_view, &[(120, 160)]));
+            specs.push((OSRT, 8, synthetic::official_rposrt_config(), one_view, &[(120, 160)]));
+            for k in [1, 16] {
+                specs.push((DEFINE, k, synthetic::official_define_config(k), DEFINE_INPUTS, &DEFINE_SIZES));
+            }
         }
         println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
         let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
         if !self.only.is_empty() {
-            specs.retain(|(name, k, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
+            specs.retain(|(name, k, _, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
         }
-        for (name, k, config, sizes) in specs {
+        for (name, k, config, (views, input_size), sizes) in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
-            let (inputs, _) = scene(INPUT_SIZE)?;
+            let (inputs, _) = scene(views, input_size, input_size)?;
             // Whether the float64 references are affordable is decided from the first model's encode (the
             // weight storage does not change the work), and they serve both storages.
             let mut references = None;
             let mut storages = vec![WeightStorage::F32];
-            // OSRT in f32 only (the paper's comparison; f16 weights scale as they do for SRT).
-            if f16 && (name == "small" || !self.quick) && name != OSRT {
+            // OSRT and DeFiNe in f32 only (the paper's comparison; f16 weights scale as they do for SRT).
+            if f16 && (name == "small" || !self.quick) && name != OSRT && name != DEFINE {
                 storages.push(WeightStorage::F16);
             }
             let mut sizes: Vec<(usize, usize)> =
@@ -72,7 +86,7 @@ impl Bench {
                     &inputs,
                     references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
-                let measured = self.sweep_sizes(&subject, &sizes, records, kernels)?;
+                let measured = self.sweep_sizes(&subject, (views, input_size), &sizes, records, kernels)?;
                 // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
                 let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
                 sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
@@ -86,6 +100,7 @@ impl Bench {
     fn sweep_sizes(
         &self,
         s: &Subject,
+        (views, input_size): (usize, Size),
         sizes: &[(usize, usize)],
         records: &mut Vec<Record>,
         kernels: &mut Vec<KernelTime>,
@@ -94,9 +109,9 @@ impl Bench {
         let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
         let mut rate: Option<f64> = None;
         for &size in sizes {
-            let (_, targets) = scene(size)?;
+            let (_, targets) = scene(views, input_size, size)?;
             // The render's multiply-adds, counted from the ops its plan would record (nothing is built).
-            let macs = s.encoded.render_multiply_adds(&targets, Outputs::default())?;
+            let macs = s.encoded.render_multiply_adds(&targets, model_outputs(&s.loaded.config))?;
             if let Some(rate) = rate {
                 let predicted = macs as f64 / rate;
                 if predicted > self.max_render.as_secs_f64() {
@@ -155,12 +170,14 @@ impl Bench {
             (true, _) => k == 4 && size == (60, 80) && name == "small",
             (false, "small") => size == (120, 160) && (k == 1 || k == 4),
             (false, OSRT) => size == (120, 160),
+            (false, DEFINE) => size == (480, 640),
             (false, _) => (size == (60, 80) && k <= 4) || (size == (120, 160) && k >= 4),
         }
     }
 
     fn breakdown_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
         size == (120, 160) && ((name == "official" || name == OSRT) && (k == 1 || k == 8) || name == "small" && k == 4)
+            || name == DEFINE && k == 16 && size == (480, 640)
     }
 
     /// A size not rendered: its FLOPs (`multiply_adds`, as predicted; the built plan's count when it fits)
@@ -170,7 +187,7 @@ impl Bench {
         let mut record = self.record(s, targets.count, (grid.height, grid.width), "");
         record.render_gflop = flops::gflop(multiply_adds);
         record.note = format!("skipped: predicted {predicted:.0} s per render on this adapter");
-        match s.encoded.render_stats(targets, Outputs::default()) {
+        match s.encoded.render_stats(targets, model_outputs(&s.loaded.config)) {
             Ok(stats) => {
                 (record.render_peak_bytes, record.dispatches) = (Some(stats.peak_bytes), Some(stats.dispatches));
                 record.render_gflop = flops::gflop(stats.multiply_adds);

@@ -1,8 +1,9 @@
-//! 3×3 convolutions on NHWC images (`shaders/conv.wgsl`): the SRT encoder's conv blocks (stride 1 and 2) and
-//! the Ray-Patch decoder's upsample-then-conv layers, with BatchNorm folded into the weight and bias by the
-//! model loader and the activation fused.
+//! Square K×K convolutions on NHWC images (`shaders/conv.wgsl`), any stride and zero padding: the SRT
+//! encoder's conv blocks (3×3, stride 1 and 2), the Ray-Patch decoder's upsample-then-conv layers, and
+//! ResNet's 7×7 stem, 3×3 blocks and 1×1 downsamples, with BatchNorm folded into the weight and bias by the
+//! model loader, the activation fused, and a residual sum fused before it.
 
-use crate::kernels::{Activation, CONV};
+use crate::kernels::{Activation, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 use crate::tensor::padded_cols;
 
@@ -11,17 +12,19 @@ const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
 
-/// Repacks a PyTorch conv weight [cout, cin, 3, 3] (row-major) into the kernel's layout, returned as a row-major
-/// [cout, 9 * padded_cols(cin)] matrix: for each output channel, the 9 taps (ky, kx row-major), each a zero-padded
-/// run of cin input channels. Upload it with Gpu::upload(label, cout, 9 * padded_cols(cin), &packed).
-pub fn pack_conv3x3(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
-    assert_eq!(weight.len(), cout * cin * 9, "pack_conv3x3: weight has {} values, not cout*cin*9", weight.len());
+/// Repacks a PyTorch conv weight [cout, cin, k, k] (row-major) into the kernel's layout, returned as a
+/// row-major [cout, k*k * padded_cols(cin)] matrix: for each output channel, the k*k taps (ky, kx row-major),
+/// each a zero-padded run of cin input channels. Upload it with
+/// `Gpu::upload(label, cout, k * k * padded_cols(cin), &packed)`.
+pub fn pack_conv(weight: &[f32], cout: usize, cin: usize, k: usize) -> Vec<f32> {
+    let taps = k * k;
+    assert_eq!(weight.len(), cout * cin * taps, "pack_conv: weight has {} values, not cout*cin*k*k", weight.len());
     let ld = padded_cols(cin);
-    let mut packed = vec![0.0; cout * 9 * ld];
+    let mut packed = vec![0.0; cout * taps * ld];
     for co in 0..cout {
         for ci in 0..cin {
-            for tap in 0..9 {
-                packed[(co * 9 + tap) * ld + ci] = weight[(co * cin + ci) * 9 + tap];
+            for tap in 0..taps {
+                packed[(co * taps + tap) * ld + ci] = weight[(co * cin + ci) * taps + tap];
             }
         }
     }
@@ -40,14 +43,18 @@ params! {
         cout4: u32,
         ho: u32,
         wo: u32,
+        /// The window: K × K taps, stride, zero padding.
+        k: u32,
         stride: u32,
+        pad: u32,
         /// 1 when the input is upsampled 2× (nearest) before the convolution, else 0.
         up: u32,
         /// Activation code and slope ([`Activation::params`]).
         act: u32,
         slope: f32,
         has_bias: u32,
-        accumulate: u32,
+        /// [`ConvMode::code`].
+        mode: u32,
         /// n*ho*wo.
         npix: u32,
         /// ceil(cout4 / CV): channel tiles, the fastest-varying part of the group index.
@@ -57,60 +64,98 @@ params! {
     }
 }
 
-/// A convolution's operands and options: see [`conv3x3`].
+/// How a convolution's result meets what `out` already holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConvMode {
+    /// `out = act(conv(x) + b)`.
+    Overwrite,
+    /// `out += act(conv(x) + b)` (the Ray-Patch decoder's rgb skips).
+    Accumulate,
+    /// `out = act(out + conv(x) + b)`: a residual block's sum before its activation (torchvision
+    /// `BasicBlock`: `relu(bn2(conv2(h)) + identity)`, with the identity in `out`: the downsample conv's
+    /// output, or the block's input itself when nothing reads it afterwards).
+    Residual,
+}
+
+impl ConvMode {
+    /// `mode` as the shader's `Params` holds it: 0 overwrite, 1 accumulate, 2 residual.
+    pub fn code(self) -> u32 {
+        match self {
+            ConvMode::Overwrite => 0,
+            ConvMode::Accumulate => 1,
+            ConvMode::Residual => 2,
+        }
+    }
+
+    /// Whether the kernel reads `out`.
+    pub fn reads_out(self) -> bool {
+        self != ConvMode::Overwrite
+    }
+}
+
+/// A convolution's operands and options: see [`conv2d`].
 #[derive(Clone, Copy, Debug)]
-pub struct Conv3x3Args {
+pub struct Conv2dArgs {
     /// `[n*h*w, cin]` NHWC view.
     pub x: View,
     pub n: usize,
     pub h: usize,
     pub w: usize,
     pub cin: usize,
-    /// [`pack_conv3x3`]'s `[cout, 9 * padded_cols(cin)]` matrix.
+    /// [`pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix.
     pub weight: TensorId,
     /// `[1, cout]` tensor.
     pub bias: Option<TensorId>,
     /// `[n*ho*wo, cout]` NHWC view.
     pub out: View,
     pub cout: usize,
-    /// 1 or 2.
-    pub stride: usize,
+    /// Kernel size, stride (>= 1) and zero padding.
+    pub window: Window,
     /// Upsample the input 2× (nearest) before the convolution.
     pub upsample_input: bool,
     pub act: Activation,
-    /// `out += ...` instead of `out = ...`.
-    pub accumulate: bool,
+    pub mode: ConvMode,
 }
 
-/// 3×3 convolution with zero padding 1 and stride 1 or 2, NHWC: x is [n*h*w, cin]. With `upsample_input` the input
-/// is first upsampled 2× nearest (the conv sees a 2h×2w image; fuse it: read x at (y/2, x/2), never materialise it).
-/// Output [n*ho*wo, cout] with ho = (h_eff - 1) / stride + 1 (h_eff = h or 2h). out = act(conv + bias), or
-/// out += act(conv + bias) when `accumulate`.
+/// The output size `(ho, wo)` of a convolution with `window` over an `h × w` image (`2h × 2w` when
+/// `upsample_input`), PyTorch's `(h_eff + 2·padding − k) / stride + 1`; `None` when the window does not fit.
+pub fn conv_output_size(h: usize, w: usize, window: Window, upsample_input: bool) -> Option<(usize, usize)> {
+    let up = usize::from(upsample_input);
+    Some((window.output(h << up)?, window.output(w << up)?))
+}
+
+/// K×K convolution with zero padding and any stride, NHWC: x is [n*h*w, cin]. With `upsample_input` the
+/// input is first upsampled 2× nearest (the conv sees a 2h×2w image; fused: x is read at (y/2, x/2), never
+/// materialised). Output [n*ho*wo, cout] with ho = (h_eff + 2·padding − k) / stride + 1 (h_eff = h or 2h),
+/// written as `mode` says: act(conv + bias), out + act(conv + bias), or act(out + conv + bias).
 ///
-/// `weight` is [`pack_conv3x3`]'s `[cout, 9 * padded_cols(cin)]` matrix, `bias` a `[1, cout]` tensor. `act` is
-/// any [`Activation`]. The padding columns of `out` are written with zeros
-/// (or stay zero when accumulating). `out` must not overlap `x`. Records `n·ho·wo·cout·9·cin` multiply-adds.
-pub fn conv3x3(plan: &mut PlanBuilder, label: &str, args: Conv3x3Args) {
-    let Conv3x3Args { x, n, h, w, cin, weight, bias, out, cout, stride, upsample_input, act, accumulate } = args;
+/// `weight` is [`pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix, `bias` a `[1, cout]` tensor. `act`
+/// is any [`Activation`]. The padding columns of `out` are written with zeros (or stay zero when reading
+/// `out`). `out` must not overlap `x`. Records `n·ho·wo·cout·k²·cin` multiply-adds.
+pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
+    let Conv2dArgs { x, n, h, w, cin, weight, bias, out, cout, window, upsample_input, act, mode } = args;
     if plan.failed() {
         return; // a tensor is too large to index: the plan will not be built
     }
+    let Window { kernel, stride, padding } = window;
     assert!(n > 0 && h > 0 && w > 0 && cin > 0 && cout > 0, "{label}: empty convolution");
-    assert!(stride == 1 || stride == 2, "{label}: stride {stride} is not 1 or 2");
+    assert!(kernel > 0 && stride > 0, "{label}: kernel {kernel} and stride {stride} must be at least 1");
     assert_eq!(x.rows, n * h * w, "{label}: x has {} rows, not n*h*w = {n}*{h}*{w}", x.rows);
     assert_eq!(plan.cols(x.id), cin, "{label}: x has {} columns, not cin = {cin}", plan.cols(x.id));
+    let taps = kernel * kernel;
     let (wrows, wcols) = (plan.rows(weight), plan.cols(weight));
     assert!(
-        wrows == cout && wcols == 9 * padded_cols(cin),
-        "{label}: weight is [{wrows}, {wcols}], not the packed [cout, 9*ld(cin)] = [{cout}, {}]",
-        9 * padded_cols(cin)
+        wrows == cout && wcols == taps * padded_cols(cin),
+        "{label}: weight is [{wrows}, {wcols}], not the packed [cout, k*k*ld(cin)] = [{cout}, {}]",
+        taps * padded_cols(cin)
     );
     if let Some(b) = bias {
         let (brows, bcols) = (plan.rows(b), plan.cols(b));
         assert!(brows == 1 && bcols == cout, "{label}: bias is [{brows}, {bcols}], not [1, {cout}]");
     }
-    let up = usize::from(upsample_input);
-    let (ho, wo) = (((h << up) - 1) / stride + 1, ((w << up) - 1) / stride + 1);
+    let Some((ho, wo)) = conv_output_size(h, w, window, upsample_input) else {
+        panic!("{label}: a {kernel}x{kernel} window with padding {padding} does not fit a {h}x{w} image (upsampled: {upsample_input})");
+    };
     let npix = n * ho * wo;
     assert_eq!(out.rows, npix, "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}", out.rows);
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
@@ -127,12 +172,14 @@ pub fn conv3x3(plan: &mut PlanBuilder, label: &str, args: Conv3x3Args) {
         cout4: cout4 as u32,
         ho: ho as u32,
         wo: wo as u32,
+        k: kernel as u32,
         stride: stride as u32,
-        up: up as u32,
+        pad: padding as u32,
+        up: u32::from(upsample_input),
         act: act_code,
         slope,
         has_bias: bias.is_some() as u32,
-        accumulate: accumulate as u32,
+        mode: mode.code(),
         npix: npix as u32,
         cout_tiles: cout_tiles as u32,
         pixel_tiles: pixel_tiles as u32,
@@ -142,15 +189,15 @@ pub fn conv3x3(plan: &mut PlanBuilder, label: &str, args: Conv3x3Args) {
     plan.push(Op {
         label: label.to_string(),
         shader: &CONV,
-        entry: "conv3x3",
+        entry: "conv2d",
         params: params.words(),
         bindings: vec![
             (x, Access::Read),
             (weight_view, Access::Read),
             (bias_view, Access::Read),
-            (out, if accumulate { Access::ReadWrite } else { Access::Write }),
+            (out, if mode.reads_out() { Access::ReadWrite } else { Access::Write }),
         ],
         workgroups: grid(pixel_tiles * cout_tiles),
-        multiply_adds: (npix as u64) * (cout as u64) * 9 * (cin as u64),
+        multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
     });
 }

@@ -1,5 +1,5 @@
 //! Elementwise column maps (`shaders/elementwise.wgsl`): the model's final sigmoid, depth = exp(log-depth),
-//! and copying a channel range out of a wider tensor.
+//! DeFiNe's depth from a sigmoid scaled to its range, and copying a channel range out of a wider tensor.
 
 use super::ELEMENTWISE;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
@@ -8,22 +8,34 @@ use crate::plan::{grid, Access, Op, PlanBuilder, View};
 const GROUP_SIZE: usize = 64;
 
 /// The function a [`map_columns`] op applies.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Map {
     Identity,
     /// `1 / (1 + exp(-x))`, evaluated without overflow for any |x| (±inf give 1 and 0).
     Sigmoid,
     /// `exp(x)`.
     Exp,
+    /// `sigmoid(x)·scale + offset` (DeFiNe's depth in its range).
+    SigmoidAffine {
+        scale: f32,
+        offset: f32,
+    },
+    /// `log(sigmoid(x)·scale + offset)` (DeFiNe's log-depth).
+    LogSigmoidAffine {
+        scale: f32,
+        offset: f32,
+    },
 }
 
 impl Map {
-    /// The code the shader reads.
-    fn code(self) -> u32 {
+    /// The code the shader reads and its two constants.
+    fn code(self) -> (u32, f32, f32) {
         match self {
-            Map::Identity => 0,
-            Map::Sigmoid => 1,
-            Map::Exp => 2,
+            Map::Identity => (0, 1.0, 0.0),
+            Map::Sigmoid => (1, 1.0, 0.0),
+            Map::Exp => (2, 1.0, 0.0),
+            Map::SigmoidAffine { scale, offset } => (3, scale, offset),
+            Map::LogSigmoidAffine { scale, offset } => (4, scale, offset),
         }
     }
 }
@@ -40,8 +52,10 @@ params! {
         cols: u32,
         /// out's row stride in vec4s.
         ld4: u32,
-        /// The [`Map`]'s code.
+        /// The [`Map`]'s code and its constants.
         f: u32,
+        scale: f32,
+        offset: f32,
     }
 }
 
@@ -56,7 +70,8 @@ pub struct MapColumnsArgs {
 }
 
 /// `out[r, j] = f(x[r, col + j])` for `j < cols(out)` and every row of the views; zero padding in `out`.
-/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute, exp to a few ulp relative. Records no multiply-adds
+/// Identity copies bit for bit; the sigmoid is accurate to ~1e-7 absolute, exp and log to a few ulp relative
+/// (the affine forms round as PyTorch's float32 `sigmoid(x) * scale + offset`). Records no multiply-adds
 /// (elementwise work is not counted).
 pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
     let MapColumnsArgs { x, col, out, map: f } = args;
@@ -71,13 +86,16 @@ pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
     assert_eq!(out.rows, x.rows, "map_columns {label}: out has {} rows, x has {}", out.rows, x.rows);
     assert!(x.id != out.id, "map_columns {label}: cannot run in place");
     let ld4 = plan.ld(out.id) / 4;
+    let (code, scale, offset) = f.code();
     let params = ElementwiseParams {
         rows: x.rows as u32,
         x_ld: plan.ld(x.id) as u32,
         col: col as u32,
         cols: cols as u32,
         ld4: ld4 as u32,
-        f: f.code(),
+        f: code,
+        scale,
+        offset,
     };
     plan.push(Op {
         label: label.to_string(),

@@ -64,11 +64,13 @@ macro_rules! params {
 pub mod attention;
 pub mod concat;
 pub mod conv;
+pub mod copy;
 pub mod elementwise;
 pub mod gru;
 pub mod matmul;
 pub mod mix;
 pub mod norm;
+pub mod pool;
 pub mod posenc;
 pub mod resize;
 pub mod softmax;
@@ -94,6 +96,34 @@ impl Activation {
             Activation::LeakyRelu(slope) => (2, slope),
             Activation::Gelu => (3, 0.0),
         }
+    }
+}
+
+/// A square sliding window over an image, as PyTorch's `kernel_size`, `stride` and `padding` of
+/// `nn.Conv2d` and `nn.MaxPool2d` (the same along both axes; no dilation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Window {
+    /// `kernel × kernel` taps.
+    pub kernel: usize,
+    /// At least 1.
+    pub stride: usize,
+    /// Added on every side: zeros for a convolution, −∞ for a max pool.
+    pub padding: usize,
+}
+
+impl Window {
+    pub fn new(kernel: usize, stride: usize, padding: usize) -> Window {
+        Window { kernel, stride, padding }
+    }
+
+    /// The output length along an axis of `len` input pixels, PyTorch's `floor((len + 2·padding − kernel) /
+    /// stride) + 1` (`ceil_mode=False`); `None` when the padded input is shorter than the kernel (PyTorch
+    /// refuses it) or the kernel or stride is 0.
+    pub fn output(&self, len: usize) -> Option<usize> {
+        if self.kernel == 0 || self.stride == 0 {
+            return None;
+        }
+        (len + 2 * self.padding).checked_sub(self.kernel).map(|r| r / self.stride + 1)
     }
 }
 
@@ -161,10 +191,12 @@ shaders! {
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
         CONV = "conv" ["activation"] => conv::ConvParams;
+        POOL = "pool" [] => pool::PoolParams;
         ELEMENTWISE = "elementwise" ["activation"] => elementwise::ElementwiseParams;
         SOFTMAX = "softmax" [] => softmax::SoftmaxParams;
         MIX = "mix" [] => mix::MixParams;
         CONCAT = "concat" [] => concat::ConcatParams;
+        COPY = "copy" [] => copy::CopyParams;
         GRU = "gru" ["activation"] => gru::GruParams;
     }
     variants {

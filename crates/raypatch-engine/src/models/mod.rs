@@ -5,6 +5,7 @@
 //! Adding a family: its config type in `raypatch-model/src/config/` (an arm of `Family`), its file here
 //! (modules + `impl LightField`), an arm in [`build`]. Outputs it adds go in [`Output`].
 
+pub mod define;
 pub mod osrt;
 pub mod ray_patch;
 pub mod srt;
@@ -31,6 +32,11 @@ pub trait LightField: Send + Sync {
 
     /// The query patches `first..=last`, along an axis of `patches`, that output pixels `lo..=hi` depend on.
     fn patch_span(&self, lo: usize, hi: usize, patches: usize) -> (usize, usize);
+
+    /// Checks that the encoder takes input views of `height`×`width` (a sentence naming what it needs).
+    fn check_inputs(&self, _height: usize, _width: usize) -> std::result::Result<(), String> {
+        Ok(())
+    }
 
     /// Records the encoder on input views of `size`: the latent, and the tensors every render reads (plan
     /// outputs, kept with the scene).
@@ -70,6 +76,7 @@ fn build_from(config: &ModelConfig, source: Source) -> Result<(Box<dyn LightFiel
         Ok(match &config.family {
             Family::Srt(c) => Box::new(srt::Srt::new(vars, c)?) as Box<dyn LightField>,
             Family::Osrt(c) => Box::new(osrt::Osrt::new(vars, c)?),
+            Family::Define(c) => Box::new(define::Define::new(vars, c)?),
         })
     })
 }

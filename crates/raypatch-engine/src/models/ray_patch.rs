@@ -7,9 +7,10 @@ use raypatch_model::RayPatchConfig;
 
 use crate::error::Result;
 use crate::graph::{Graph, ImageSize, Tensor};
+use crate::kernels::conv::ConvMode;
 use crate::kernels::resize::{bilinear, nearest, ResizeArgs};
 use crate::kernels::Activation;
-use crate::nn::{Conv3x3, Resample, Vars};
+use crate::nn::{Conv2d, ConvSpec, Vars};
 use crate::plan::PlanBuilder;
 
 /// LeakyReLU slope of the conv decoder's feature convs.
@@ -17,15 +18,15 @@ pub const CONV_DECODER_SLOPE: f32 = 0.2;
 
 /// One 2× step: the feature conv (`conv_blocks.{i}.0.1`, BN at `.0.2`) and its RGB conv (`conv_blocks.{i}.1`).
 pub struct UpBlock {
-    pub features: Conv3x3,
-    pub to_rgb: Conv3x3,
+    pub features: Conv2d,
+    pub to_rgb: Conv2d,
 }
 
 /// `RayPatchDecoder.conv_decoder`.
 pub struct RayPatchDecoder {
     pub path: String,
     /// The first RGB skip, from the patch features.
-    pub conv_0: Conv3x3,
+    pub conv_0: Conv2d,
     pub blocks: Vec<UpBlock>,
 }
 
@@ -37,14 +38,14 @@ impl RayPatchDecoder {
                 let block = vars.pp("conv_blocks").pp(i);
                 let bn = c.batch_norm.then(|| block.pp("0.2"));
                 Ok(UpBlock {
-                    features: Conv3x3::new(&block.pp("0.1"), cin, cout, true, bn)?,
-                    to_rgb: Conv3x3::new(&block.pp(1), cout, c.out_dims, true, None)?,
+                    features: Conv2d::new(&block.pp("0.1"), ConvSpec::new(cin, cout, 3, 1, 1).after_upsample(), bn)?,
+                    to_rgb: Conv2d::new(&block.pp(1), ConvSpec::new(cout, c.out_dims, 3, 1, 1), None)?,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(RayPatchDecoder {
             path: vars.path().to_string(),
-            conv_0: Conv3x3::new(&vars.pp("conv_0"), c.conv_features, c.out_dims, true, None)?,
+            conv_0: Conv2d::new(&vars.pp("conv_0"), ConvSpec::new(c.conv_features, c.out_dims, 3, 1, 1), None)?,
             blocks,
         })
     }
@@ -59,13 +60,13 @@ impl RayPatchDecoder {
     /// grid), nearest-resized to `size` (height, width) when k does not divide it (the official
     /// `F.interpolate(output, (h_out, w_out))`).
     pub fn forward(&self, g: &mut Graph, features: Tensor, size: (usize, usize)) -> Tensor {
-        let first = self.conv_0.forward(g, features, Resample::Same, Activation::None);
+        let first = self.conv_0.forward(g, features, Activation::None);
         let mut skip = self.upsample_skip(g, first, 0);
         let mut x = features;
         for (i, block) in self.blocks.iter().enumerate() {
-            x = block.features.forward(g, x, Resample::Up2, Activation::LeakyRelu(CONV_DECODER_SLOPE));
+            x = block.features.forward(g, x, Activation::LeakyRelu(CONV_DECODER_SLOPE));
             // x_out = conv_out(x) + skip, accumulated into the upsampled skip.
-            block.to_rgb.forward_into(g, x, skip, Resample::Same, Activation::None, true);
+            block.to_rgb.forward_into(g, x, skip, Activation::None, ConvMode::Accumulate);
             if i + 1 < self.blocks.len() {
                 skip = self.upsample_skip(g, skip, i + 1);
             }
@@ -80,7 +81,8 @@ impl RayPatchDecoder {
 
     /// The RGB skip bilinearly upsampled 2× (`skip.{i}`).
     fn upsample_skip(&self, g: &mut Graph, skip: Tensor, i: usize) -> Tensor {
-        let to = Resample::Up2.output(skip.size());
+        let size = skip.size();
+        let to = ImageSize { h: 2 * size.h, w: 2 * size.w, ..size };
         resized(g, &format!("{}.skip.{i}", self.path), skip, to, bilinear)
     }
 

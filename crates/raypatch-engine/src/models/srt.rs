@@ -11,7 +11,7 @@ use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::Activation;
-use crate::nn::{Conv3x3, FourierEncoding, Linear, Resample, Transformer, TransformerDims, Vars};
+use crate::nn::{Conv2d, ConvSpec, FourierEncoding, Linear, Transformer, TransformerDims, Vars};
 use crate::tensor::GpuTensor;
 
 /// LeakyReLU slope of the decoder's out_mlp (nn.LeakyReLU default).
@@ -19,8 +19,8 @@ pub const OUT_MLP_SLOPE: f32 = 0.01;
 
 /// `SRTConvBlock`: conv(stride 1) → BN → ReLU → conv(stride 2) → BN → ReLU (`layers.0..5`), BN folded.
 pub struct SrtConvBlock {
-    pub conv_0: Conv3x3,
-    pub conv_3: Conv3x3,
+    pub conv_0: Conv2d,
+    pub conv_3: Conv2d,
 }
 
 /// `SRTEncoder`.
@@ -65,14 +65,14 @@ impl SrtConvBlock {
         let layers = vars.pp("layers");
         let bn = |i: usize| batch_norm.then(|| layers.pp(i));
         Ok(SrtConvBlock {
-            conv_0: Conv3x3::new(&layers.pp(0), cin, hidden, false, bn(1))?,
-            conv_3: Conv3x3::new(&layers.pp(3), hidden, cout, false, bn(4))?,
+            conv_0: Conv2d::new(&layers.pp(0), ConvSpec::new(cin, hidden, 3, 1, 1).no_bias(), bn(1))?,
+            conv_3: Conv2d::new(&layers.pp(3), ConvSpec::new(hidden, cout, 3, 2, 1).no_bias(), bn(4))?,
         })
     }
 
     fn forward(&self, g: &mut Graph, x: Tensor) -> Tensor {
-        let hidden = self.conv_0.forward(g, x, Resample::Same, Activation::Relu);
-        self.conv_3.forward(g, hidden, Resample::Down2, Activation::Relu)
+        let hidden = self.conv_0.forward(g, x, Activation::Relu);
+        self.conv_3.forward(g, hidden, Activation::Relu)
     }
 }
 
@@ -109,7 +109,7 @@ impl SrtEncoder {
         let (pos, ray) = (self.pos_enc.width(), self.ray_enc.width());
         // [rgb, posenc(camera position), posenc(ray)] per pixel: RGB written by the host, encodings by the
         // GPU; the position is broadcast over its view's pixels.
-        let x = g.input("encoder_input", size.pixels(), 3 + pos + ray, HostInput::InputImages { col: 0 }, Some(size));
+        let x = g.input("encoder_input", size.pixels(), 3 + pos + ray, HostInput::InputImages { col: 0, normalize: None }, Some(size));
         let camera_pos = g.input("input_camera_pos", size.n, 3, HostInput::InputCameraPos, None);
         let rays = g.input("input_rays", size.pixels(), 3, HostInput::InputRays, None);
         self.pos_enc.forward_into(g, camera_pos, size.h * size.w, 0, x, 3);

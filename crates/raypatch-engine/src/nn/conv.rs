@@ -1,52 +1,62 @@
-//! `nn.Conv2d(cin, cout, 3, padding=1)` on NHWC images, with an eval-mode `nn.BatchNorm2d` that follows it
-//! folded into its weight and bias once, here, when the weights are read.
+//! `nn.Conv2d(cin, cout, k, stride, padding)` on NHWC images, optionally after a fused 2× nearest
+//! `nn.Upsample`, with an eval-mode `nn.BatchNorm2d` that follows it folded into its weight and bias once,
+//! here, when the weights are read.
 
 use super::{Data, Layout, Param, Vars};
 use crate::error::Result;
 use crate::graph::{Graph, ImageSize, Tensor};
-use crate::kernels::conv::{conv3x3, Conv3x3Args};
-use crate::kernels::Activation;
+use crate::kernels::conv::{conv2d, conv_output_size, Conv2dArgs, ConvMode};
+use crate::kernels::{Activation, Window};
 
 /// PyTorch's BatchNorm2d default.
 pub const BATCH_NORM_EPS: f64 = 1e-5;
 
-/// How a convolution changes the image size.
+/// A convolution's hyper-parameters: PyTorch's `nn.Conv2d(cin, cout, kernel, stride, padding, bias)`, and
+/// whether an `nn.Upsample(scale_factor=2)` (nearest) comes before it (fused into the conv's reads).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Resample {
-    /// Stride 1.
-    Same,
-    /// Stride 2: ceil(h/2) × ceil(w/2), as PyTorch's stride-2 3×3 conv with padding 1 at any size.
-    Down2,
-    /// The input nearest-upsampled 2× first (`nn.Upsample(scale_factor=2)` then the conv), fused.
-    Up2,
+pub struct ConvSpec {
+    pub cin: usize,
+    pub cout: usize,
+    pub window: Window,
+    pub bias: bool,
+    pub upsample_input: bool,
 }
 
-impl Resample {
-    pub fn output(self, size: ImageSize) -> ImageSize {
-        match self {
-            Resample::Same => size,
-            Resample::Down2 => ImageSize { h: size.h.div_ceil(2), w: size.w.div_ceil(2), ..size },
-            Resample::Up2 => ImageSize { h: 2 * size.h, w: 2 * size.w, ..size },
-        }
+impl ConvSpec {
+    /// `nn.Conv2d(cin, cout, kernel, stride, padding)`: with a bias (PyTorch's default), no upsampling.
+    pub fn new(cin: usize, cout: usize, kernel: usize, stride: usize, padding: usize) -> ConvSpec {
+        ConvSpec { cin, cout, window: Window { kernel, stride, padding }, bias: true, upsample_input: false }
+    }
+
+    /// `bias=False` (convs followed by a BatchNorm).
+    pub fn no_bias(self) -> ConvSpec {
+        ConvSpec { bias: false, ..self }
+    }
+
+    /// The input upsampled 2× (nearest) first: `nn.Upsample(scale_factor=2)` then the conv.
+    pub fn after_upsample(self) -> ConvSpec {
+        ConvSpec { upsample_input: true, ..self }
     }
 }
 
-pub struct Conv3x3 {
+pub struct Conv2d {
     pub path: String,
-    /// `[cout, cin, 3, 3]`, BatchNorm folded.
+    /// `[cout, cin, k, k]`, BatchNorm folded.
     pub weight: Param,
-    /// `[1, cout]`, BatchNorm folded.
+    /// `[1, cout]`, BatchNorm folded (present when the conv or the BatchNorm has one).
     pub bias: Option<Param>,
-    pub cin: usize,
-    pub cout: usize,
+    pub spec: ConvSpec,
 }
 
-impl Conv3x3 {
-    /// The conv at `vars` (with a bias when `bias`), and the BatchNorm at `batch_norm` folded in when given:
-    /// w' = w·γ/√(σ²+ε), b' = β + (b − μ)·γ/√(σ²+ε), in float64.
-    pub fn new(vars: &Vars, cin: usize, cout: usize, bias: bool, batch_norm: Option<Vars>) -> Result<Conv3x3> {
-        let weight = vars.tensor("weight", &[cout, cin, 3, 3])?.data;
-        let bias = if bias { Some(vars.tensor("bias", &[cout])?.data) } else { None };
+impl Conv2d {
+    /// The conv at `vars` (with a bias when `spec.bias`), and the BatchNorm at `batch_norm` folded in when
+    /// given: w' = w·γ/√(σ²+ε), b' = β + (b − μ)·γ/√(σ²+ε), in float64.
+    pub fn new(vars: &Vars, spec: ConvSpec, batch_norm: Option<Vars>) -> Result<Conv2d> {
+        let ConvSpec { cin, cout, window, .. } = spec;
+        let kernel = window.kernel;
+        let per_channel = cin * kernel * kernel;
+        let weight = vars.tensor("weight", &[cout, cin, kernel, kernel])?.data;
+        let bias = if spec.bias { Some(vars.tensor("bias", &[cout])?.data) } else { None };
         let (weight, bias) = match batch_norm {
             None => (Data::F32(weight), bias.map(Data::F32)),
             Some(bn) => {
@@ -57,58 +67,60 @@ impl Conv3x3 {
                 let mut folded_b = Vec::with_capacity(cout);
                 for c in 0..cout {
                     let scale = gamma[c] as f64 / (var[c] as f64 + BATCH_NORM_EPS).sqrt();
-                    folded_w[c * cin * 9..(c + 1) * cin * 9].iter_mut().for_each(|v| *v *= scale);
+                    folded_w[c * per_channel..(c + 1) * per_channel].iter_mut().for_each(|v| *v *= scale);
                     let b = bias.as_ref().map_or(0.0, |b| b[c] as f64);
                     folded_b.push(beta[c] as f64 + (b - mean[c] as f64) * scale);
                 }
                 (Data::F64(folded_w), Some(Data::F64(folded_b)))
             }
         };
-        Ok(Conv3x3 {
+        Ok(Conv2d {
             path: vars.path().to_string(),
-            weight: vars.prepared("weight", Layout::Conv3x3 { cout, cin }, weight),
+            weight: vars.prepared("weight", Layout::Conv { cout, cin, kernel }, weight),
             bias: bias.map(|b| vars.prepared("bias", Layout::Row, b)),
-            cin,
-            cout,
+            spec,
         })
     }
 
+    /// The output size for an input of `size` (PyTorch's `(h + 2·padding − k) / stride + 1`, of `2h` after
+    /// the upsampling). Panics when the window does not fit the (padded) input, as PyTorch refuses it.
+    pub fn output(&self, size: ImageSize) -> ImageSize {
+        let ConvSpec { window, upsample_input, .. } = self.spec;
+        let Some((h, w)) = conv_output_size(size.h, size.w, window, upsample_input) else {
+            panic!("{}: a {window:?} does not fit a {}x{} image", self.path, size.h, size.w);
+        };
+        ImageSize { h, w, ..size }
+    }
+
     /// `act(conv(x) + b)` into a new image.
-    pub fn forward(&self, g: &mut Graph, x: Tensor, resample: Resample, act: Activation) -> Tensor {
-        let out = g.image(&self.path, resample.output(x.size()), self.cout);
-        self.forward_into(g, x, out, resample, act, false);
+    pub fn forward(&self, g: &mut Graph, x: Tensor, act: Activation) -> Tensor {
+        let out = g.image(&self.path, self.output(x.size()), self.spec.cout);
+        self.forward_into(g, x, out, act, ConvMode::Overwrite);
         out
     }
 
-    /// `out = act(conv(x) + b)`, or `out += ...` when `accumulate`.
-    pub fn forward_into(
-        &self,
-        g: &mut Graph,
-        x: Tensor,
-        out: Tensor,
-        resample: Resample,
-        act: Activation,
-        accumulate: bool,
-    ) {
+    /// `out = act(conv(x) + b)`, `out += act(conv(x) + b)` or `out = act(out + conv(x) + b)`, as `mode` says.
+    pub fn forward_into(&self, g: &mut Graph, x: Tensor, out: Tensor, act: Activation, mode: ConvMode) {
         let ImageSize { n, h, w } = x.size();
         let label = g.label(&self.path);
         let weight = g.param(&label, self.weight);
         let bias = self.bias.map(|b| g.param(&label, b));
-        let args = Conv3x3Args {
+        let ConvSpec { cin, cout, window, upsample_input, .. } = self.spec;
+        let args = Conv2dArgs {
             x: x.view,
             n,
             h,
             w,
-            cin: self.cin,
+            cin,
             weight,
             bias,
             out: out.view,
-            cout: self.cout,
-            stride: if resample == Resample::Down2 { 2 } else { 1 },
-            upsample_input: resample == Resample::Up2,
+            cout,
+            window,
+            upsample_input,
             act,
-            accumulate,
+            mode,
         };
-        conv3x3(&mut g.b, &label, args);
+        conv2d(&mut g.b, &label, args);
     }
 }

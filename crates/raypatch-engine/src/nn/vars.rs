@@ -12,7 +12,7 @@ use raypatch_model::{HostTensor, LoadedModel};
 
 use crate::error::{EngineError, Result};
 use crate::gpu::Gpu;
-use crate::kernels::conv::pack_conv3x3;
+use crate::kernels::conv::pack_conv;
 use crate::tensor::GpuTensor;
 
 /// Where a module tree's weights come from.
@@ -42,8 +42,8 @@ pub enum Layout {
     Row,
     /// A `[rows, cols]` tensor read as data, not as a linear weight (learned initial slots): always f32.
     Dense { rows: usize, cols: usize },
-    /// A 3×3 conv weight `[cout, cin, 3, 3]`, packed for `conv.wgsl` at upload (`pack_conv3x3`).
-    Conv3x3 { cout: usize, cin: usize },
+    /// A conv weight `[cout, cin, kernel, kernel]`, packed for `conv.wgsl` at upload (`pack_conv`).
+    Conv { cout: usize, cin: usize, kernel: usize },
 }
 
 /// A weight ready for the GPU, in float64 when it was computed (BatchNorm folded) rather than read.
@@ -219,8 +219,8 @@ impl WeightSet {
             let tensor = match p.layout {
                 Layout::Row => gpu.upload(&p.name, 1, data.len(), &data)?,
                 Layout::Dense { rows, cols } => gpu.upload(&p.name, rows, cols, &data)?,
-                Layout::Conv3x3 { cout, cin } => {
-                    let packed = pack_conv3x3(&data, cout, cin);
+                Layout::Conv { cout, cin, kernel } => {
+                    let packed = pack_conv(&data, cout, cin, kernel);
                     gpu.upload(&p.name, cout, packed.len() / cout, &packed)?
                 }
                 Layout::Matrix { rows, cols } => {

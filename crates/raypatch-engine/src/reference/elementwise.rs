@@ -7,10 +7,15 @@ pub fn map_columns(x: &[f64], cols_x: usize, col: usize, cols_out: usize, f: Map
     assert!(col + cols_out <= cols_x && x.len().is_multiple_of(cols_x), "map_columns: shape mismatch");
     x.chunks(cols_x)
         .flat_map(|row| row[col..col + cols_out].iter())
-        .map(|&v| match f {
-            Map::Identity => v,
-            Map::Sigmoid => 1.0 / (1.0 + (-v).exp()),
-            Map::Exp => v.exp(),
+        .map(|&v| {
+            let sigmoid = 1.0 / (1.0 + (-v).exp());
+            match f {
+                Map::Identity => v,
+                Map::Sigmoid => sigmoid,
+                Map::Exp => v.exp(),
+                Map::SigmoidAffine { scale, offset } => sigmoid * scale as f64 + offset as f64,
+                Map::LogSigmoidAffine { scale, offset } => (sigmoid * scale as f64 + offset as f64).ln(),
+            }
         })
         .collect()
 }

@@ -4,12 +4,14 @@
 pub mod attention;
 pub mod concat;
 pub mod conv;
+pub mod copy;
 pub mod elementwise;
 pub mod gru;
 pub mod matmul;
 pub mod mix;
 pub mod model;
 pub mod norm;
+pub mod pool;
 pub mod posenc;
 pub mod resize;
 pub mod softmax;

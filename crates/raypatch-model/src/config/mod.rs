@@ -4,12 +4,14 @@
 //! constructors' defaults; the raypatch extension keys (docs/FORMATS.md) default to the widths the official
 //! code hard-codes.
 
+pub mod define;
 pub mod osrt;
 pub mod srt;
 
 use serde_json::Value;
 
 use crate::error::ModelError;
+pub use define::{DefineConfig, DefineDecoderConfig, DefineEncoderConfig, RayFeatures};
 pub use osrt::{OsrtConfig, SlotAttentionConfig, SlotMixerConfig};
 pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, RayPredictorConfig, SrtConfig};
 
@@ -69,10 +71,37 @@ pub enum Family {
     Srt(SrtConfig),
     /// `base: osrt`: OSRT (`decoder: lightfield`) and RP-OSRT (`decoder: featurefield`).
     Osrt(OsrtConfig),
+    /// `base: define`: DeFiNe (`decoder: lightfield`) and RP-DeFiNe (`decoder: featurefield`).
+    Define(DefineConfig),
+}
+
+/// What a model's rays are: the per-pixel vectors of a scene's `input_rays` and `target_rays`, and what a
+/// camera (intrinsics K, camera-to-world rotation R with OpenCV axes, centre c) is turned into for the model.
+/// Both are taken through the pixel centres p = [u + 0.5, v + 0.5, 1] (u the column, v the row from the top),
+/// in the world frame; they differ only in scale and origin.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RayKind {
+    /// A unit direction normalize(R·K⁻¹p), independent of where the camera is (SRT and OSRT: the official
+    /// MultiShapeNet loader's `get_camera_rays`).
+    UnitDirection,
+    /// The world point at unit depth along the camera's forward axis, c + R·K⁻¹p: not normalised, and not
+    /// relative to the camera (DeFiNe: the official ScanNet loader's `T_world_camera · [K⁻¹p, 1]`). Its offset
+    /// from the camera centre has length 1 only on the optical axis.
+    UnitDepthPoint,
+}
+
+impl RayKind {
+    /// The kind in messages: "unit ray directions", or "unit-depth points" with their formula.
+    pub fn describe(self) -> &'static str {
+        match self {
+            RayKind::UnitDirection => "unit ray directions",
+            RayKind::UnitDepthPoint => "unit-depth points (camera centre + R·K⁻¹[u+0.5, v+0.5, 1])",
+        }
+    }
 }
 
 /// The `base` values raypatch runs, for messages.
-const BASES: &str = "\"srt\" or \"osrt\"";
+const BASES: &str = "\"srt\", \"osrt\" or \"define\"";
 
 impl ModelConfig {
     /// Resolves the model section of a run config. `path` names the file in errors.
@@ -83,11 +112,12 @@ impl ModelConfig {
         let family = match raw.get("base").and_then(Value::as_str) {
             Some("srt") => Family::Srt(SrtConfig::from_value(path, &raw)?),
             Some("osrt") => Family::Osrt(OsrtConfig::from_value(path, &raw)?),
+            Some("define") => Family::Define(DefineConfig::from_value(path, &raw)?),
             Some(other) => {
                 return Err(config_err(
                     path,
                     format!(
-                        "model base `{other}` is not supported (raypatch runs {BASES}: SRT, RP-SRT, OSRT and RP-OSRT)"
+                        "model base `{other}` is not supported (raypatch runs {BASES}: SRT, RP-SRT, OSRT, RP-OSRT, DeFiNe and RP-DeFiNe)"
                     ),
                 ))
             }
@@ -101,6 +131,7 @@ impl ModelConfig {
         match self.family {
             Family::Srt(_) => "srt",
             Family::Osrt(_) => "osrt",
+            Family::Define(_) => "define",
         }
     }
 
@@ -108,7 +139,7 @@ impl ModelConfig {
     pub fn srt(&self) -> Option<&SrtConfig> {
         match &self.family {
             Family::Srt(c) => Some(c),
-            Family::Osrt(_) => None,
+            Family::Osrt(_) | Family::Define(_) => None,
         }
     }
 
@@ -117,6 +148,7 @@ impl ModelConfig {
         match &self.family {
             Family::Srt(c) => c.patch_size(),
             Family::Osrt(c) => c.patch_size(),
+            Family::Define(c) => c.patch_size(),
         }
     }
 
@@ -125,6 +157,7 @@ impl ModelConfig {
         match &self.family {
             Family::Srt(c) => c.ray_patch.as_ref(),
             Family::Osrt(c) => c.ray_patch.as_ref(),
+            Family::Define(c) => c.ray_patch.as_ref(),
         }
     }
 
@@ -138,6 +171,15 @@ impl ModelConfig {
         match &self.family {
             Family::Srt(c) => c.image_channels() == 4,
             Family::Osrt(c) => c.image_channels() == 4,
+            Family::Define(_) => true,
+        }
+    }
+
+    /// What this model's rays are: unit directions (SRT, OSRT) or unit-depth points (DeFiNe).
+    pub fn ray_kind(&self) -> RayKind {
+        match &self.family {
+            Family::Srt(_) | Family::Osrt(_) => RayKind::UnitDirection,
+            Family::Define(_) => RayKind::UnitDepthPoint,
         }
     }
 
@@ -146,6 +188,7 @@ impl ModelConfig {
         match &self.family {
             Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.ray_predictor.pos_octaves),
             Family::Osrt(c) => (&c.encoder.pos_octaves, &c.decoder.allocation.pos_octaves),
+            Family::Define(c) => (&c.encoder.rays.pos_octaves, &c.decoder.rays.pos_octaves),
         }
     }
 
@@ -155,6 +198,7 @@ impl ModelConfig {
         let counts = match &self.family {
             Family::Srt(c) => c.layer_counts(),
             Family::Osrt(c) => c.layer_counts(),
+            Family::Define(c) => c.layer_counts(),
         };
         for (key, count) in counts {
             if count > tensors {

@@ -22,12 +22,13 @@ mod srt;
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
 
 use crate::error::EngineError;
+use crate::kernels::conv::{conv_output_size, ConvMode};
 use crate::kernels::elementwise::Map;
 use crate::kernels::Activation;
 use crate::nn::{self, transformer::Projections as EngineProjections, Param, Source, WeightSet};
 
 use super::attention::attention;
-use super::conv::conv3x3;
+use super::conv::conv2d;
 use super::elementwise::map_columns;
 use super::matmul::linear;
 use super::norm::layernorm;
@@ -81,13 +82,12 @@ impl Norm {
     }
 }
 
-/// A 3×3 convolution (PyTorch layout `[cout, cin, 3, 3]`) with its eval-mode BatchNorm folded in (by
-/// `nn::Conv3x3`, in float64).
+/// A convolution (PyTorch layout `[cout, cin, k, k]`) with its eval-mode BatchNorm folded in (by
+/// `nn::Conv2d`, in float64).
 struct Conv {
     w: Vec<f64>,
     b: Option<Vec<f64>>,
-    cin: usize,
-    cout: usize,
+    spec: nn::ConvSpec,
 }
 
 impl Conv {
@@ -101,7 +101,16 @@ impl Conv {
         act: Activation,
         residual: Option<&[f64]>,
     ) -> Vec<f64> {
-        conv3x3(x, n, h, w, self.cin, &self.w, self.b.as_deref(), self.cout, stride, upsample_input, act, residual)
+        let nn::ConvSpec { cin, cout, window, .. } = self.spec;
+        let module = (window.stride, self.spec.upsample_input);
+        assert_eq!((stride, upsample_input), module, "conv reference: not the module's stride and upsampling");
+        let (ho, wo) = conv_output_size(h, w, window, upsample_input).expect("conv reference: the window does not fit");
+        let (mut out, mode) = match residual {
+            Some(r) => (r.to_vec(), ConvMode::Accumulate),
+            None => (vec![0.0; n * ho * wo * cout], ConvMode::Overwrite),
+        };
+        conv2d(x, (n, h, w), cin, &self.w, self.b.as_deref(), cout, window, upsample_input, act, mode, &mut out);
+        out
     }
 }
 
@@ -216,8 +225,8 @@ impl Reader<'_> {
         Norm { gamma: self.get(n.gamma), beta: self.get(n.beta) }
     }
 
-    fn conv(&self, c: &nn::Conv3x3) -> Conv {
-        Conv { w: self.get(c.weight), b: c.bias.map(|b| self.get(b)), cin: c.cin, cout: c.cout }
+    fn conv(&self, c: &nn::Conv2d) -> Conv {
+        Conv { w: self.get(c.weight), b: c.bias.map(|b| self.get(b)), spec: c.spec }
     }
 
     fn fourier(&self, f: &nn::FourierEncoding) -> Fourier {
@@ -337,6 +346,9 @@ impl ReferenceModel {
                 let decoder = Decoder::Osrt(osrt::Osrt::read(&r, &m));
                 let encoder = srt::SrtEncoder::read(&r, &m.encoder.srt_encoder);
                 (c.image_channels(), encoder, decoder, r.ray_patch(&m.ray_patch))
+            }
+            Family::Define(_) => {
+                return Err(EngineError::Request("the float64 model reference does not cover DeFiNe yet".into()))
             }
         };
         Ok(ReferenceModel { config, argument, channels, encoder, decoder, ray_patch })
