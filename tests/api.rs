@@ -762,3 +762,111 @@ fn segmentation_is_slot_weights_summing_to_one() {
         assert!(won > 1, "{case}: one slot wins every pixel, the check says little");
     }
 }
+
+const DEFINE_CASES: [&str; 3] = ["define", "rpdefine_k16", "rpdefine_k16_patchrays_in60x88"];
+
+/// Each of DeFiNe's outputs in a region equals the full render's pixels (within one f32 rounding), rendered
+/// alone or with the others.
+#[test]
+fn define_regions_render_the_full_renders_pixels() {
+    let engine = engine();
+    let all = Outputs::of(&[Output::Rgb, Output::LogDepth, Output::Depth]);
+    for case in DEFINE_CASES {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        assert_eq!(model.outputs(), all, "{case}");
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        let width = camera.width();
+        let full = scene.render(camera, &Request { outputs: all, region: None }).unwrap();
+        for region in regions(width, camera.height()) {
+            for outputs in [all, Outputs::of(&[Output::Depth]), Outputs::of(&[Output::Rgb, Output::LogDepth])] {
+                let part = scene.render(camera, &Request { outputs, region: Some(region) }).unwrap();
+                for output in Output::ALL {
+                    let what = format!("{case} {region:?} {outputs:?} {}", output.title());
+                    let got = part.get(output);
+                    if !outputs.contains(output) {
+                        assert!(got.is_none(), "{what}: rendered but not asked for");
+                        continue;
+                    }
+                    let c = channels(&full, output);
+                    let want = crop_channels(full.get(output).unwrap(), width, c, region);
+                    let err = max_diff(got.expect("asked for"), &want);
+                    assert!(err <= 1e-6, "{what}: differs from the full render's by {err:e}");
+                }
+            }
+        }
+    }
+}
+
+/// A DeFiNe render runs only the heads its outputs need: rgb alone never touches the depth decoder, depth
+/// alone never the rgb decoder, and each gives the same values as a render of both.
+#[test]
+fn define_renders_run_only_the_heads_asked_for() {
+    let engine = engine();
+    for case in DEFINE_CASES {
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let camera = &data.targets[0].camera;
+        let request = |outputs: &[Output]| Request { outputs: Outputs::of(outputs), region: None };
+        let labels = |r: &Request| scene.engine_scene().render_op_labels(&camera.target_views(), *r).unwrap();
+        let (rgb, depth, both) =
+            (request(&[Output::Rgb]), request(&[Output::LogDepth, Output::Depth]), request(&Output::ALL[..3]));
+        let reads = |labels: &[String], head: &str| labels.iter().any(|l| l.contains(head));
+        let rgb_labels = labels(&rgb);
+        assert!(
+            reads(&rgb_labels, "decoder_att_rgb") && !reads(&rgb_labels, "decoder_att_d."),
+            "{case}: {rgb_labels:?}"
+        );
+        assert!(!reads(&rgb_labels, "decoder_rp_d.") && !reads(&rgb_labels, "logdepth"), "{case}: {rgb_labels:?}");
+        let depth_labels = labels(&depth);
+        assert!(reads(&depth_labels, "decoder_att_d.") && !reads(&depth_labels, "decoder_att_rgb"), "{case}");
+        assert!(
+            !reads(&depth_labels, "decoder_rp_rgb") && !reads(&depth_labels, "sigmoid"),
+            "{case}: {depth_labels:?}"
+        );
+        // Both: the two heads, sharing only the patch rays made from full-resolution rays.
+        let shared: Vec<&String> = rgb_labels.iter().filter(|l| depth_labels.contains(l)).collect();
+        assert!(shared.iter().all(|l| l.as_str() == "patch_rays"), "{case}: {shared:?}");
+        assert_eq!(labels(&both).len(), rgb_labels.len() + depth_labels.len() - shared.len(), "{case}");
+
+        let (rgb_out, depth_out, both_out) = (
+            scene.render(camera, &rgb).unwrap(),
+            scene.render(camera, &depth).unwrap(),
+            scene.render(camera, &both).unwrap(),
+        );
+        assert_eq!(rgb_out.get(Output::Rgb), both_out.get(Output::Rgb), "{case}: rgb");
+        for output in [Output::LogDepth, Output::Depth] {
+            assert_eq!(depth_out.get(output), both_out.get(output), "{case}: {}", output.title());
+        }
+        // Depth is the official sigmoid scaled to 0.1..10, and exp(log-depth) within a few f32 roundings.
+        let (logdepth, depth) = (both_out.logdepth().unwrap(), both_out.get(Output::Depth).unwrap());
+        for (&l, &d) in logdepth.iter().zip(depth) {
+            assert!((0.1..=10.0).contains(&d), "{case}: depth {d} outside the official range");
+            let rel = (d as f64 - (l as f64).exp()).abs() / d as f64;
+            assert!(rel <= 2e-6, "{case}: depth {d} is not exp(log-depth {l}) (relative {rel:e})");
+        }
+    }
+}
+
+/// The official encoder joins the ResNet features at 1/4 size with the rays resized to H/4 x W/4: input sides
+/// not divisible by 4 are refused, naming the size and the reason.
+#[test]
+fn define_inputs_must_have_sides_divisible_by_4() {
+    let gpu = std::sync::Arc::new(raypatch_engine::Gpu::new(&Default::default()).unwrap());
+    let model = raypatch_engine::Model::load(gpu, golden("define").join("model.safetensors")).unwrap();
+    let inputs = raypatch_model::load_scene(golden("define").join("scene.safetensors")).unwrap().inputs;
+    let (h, w) = (inputs.height - 2, inputs.width);
+    let crop = |v: &[f32]| -> Vec<f32> {
+        v.chunks(inputs.height * w * 3).flat_map(|view| view[..h * w * 3].iter().copied()).collect()
+    };
+    let odd = raypatch_model::InputViews {
+        height: h,
+        images: crop(&inputs.images),
+        rays: crop(&inputs.rays),
+        ..inputs.clone()
+    };
+    let err = model.encode(&odd).err().expect("an input height not divisible by 4 is refused").to_string();
+    assert!(err.contains(&format!("{w}x{h}")) && err.contains("divisible by 4"), "{err}");
+}
