@@ -1,10 +1,12 @@
 //! Cameras: pinhole intrinsics with a camera-to-world pose, the MultiShapeNet look-at convention, and explicit
-//! ray grids. The model sees a camera as its centre and one unit ray direction (world frame) per pixel
-//! centre, row 0 at the top; cameras that describe the same view give the same rays.
+//! ray grids. The model sees a camera as its centre and one ray per pixel centre (world frame, row 0 at the
+//! top) of the model's [`RayKind`]: a unit direction (SRT, OSRT) or the point at unit depth (DeFiNe); cameras
+//! that describe the same view give the same rays.
 
 use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
 
 use crate::error::{Error, Result};
+pub use raypatch_model::RayKind;
 
 /// Largest |RᵀR − I| entry (and |det R − 1|) accepted for a rotation: poses stored as text with 6–7
 /// significant digits pass, a scaled or sheared matrix does not.
@@ -80,14 +82,15 @@ pub enum CameraAxes {
     OpenGl,
 }
 
-/// Unit ray directions in the world frame, row-major, row 0 at the top.
+/// Rays in the world frame, row-major, row 0 at the top: unit directions, or for [`RayKind::UnitDepthPoint`]
+/// the points at unit depth.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RayGrid {
     /// Rays per row.
     pub width: usize,
     /// Rows of rays.
     pub height: usize,
-    /// `width * height` directions, row-major.
+    /// `width * height` rays, row-major: unit directions, or unit-depth points (see [`RayKind`]).
     pub directions: Vec<Vec3>,
 }
 
@@ -134,9 +137,16 @@ fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
 }
 
 impl Camera {
-    /// This camera as the engine's one-view render target (its position, rays and image size).
+    /// This camera as the engine's one-view render target (its position, unit ray directions and image size);
+    /// [`target_views_of`](Self::target_views_of) for a model of another [`RayKind`].
     pub fn target_views(&self) -> raypatch_model::TargetViews {
-        let rays = self.rays();
+        self.target_views_of(RayKind::UnitDirection)
+    }
+
+    /// This camera as the engine's one-view render target, with rays of the model's kind (see
+    /// [`rays_of`](Self::rays_of)).
+    pub fn target_views_of(&self, kind: RayKind) -> raypatch_model::TargetViews {
+        let rays = self.rays_of(kind);
         raypatch_model::TargetViews {
             count: 1,
             camera_pos: self.position().as_vec3().to_array().to_vec(),
@@ -209,7 +219,8 @@ impl Camera {
     }
 
     /// A camera given by its centre and one ray per pixel (the image size is the grid's). Rays must be finite
-    /// and non-zero; they are used as given (a scene file's rays are already unit length).
+    /// and non-zero; they are used as given, whatever kind a model asks for ([`check_rays`](Self::check_rays)
+    /// checks them against a kind).
     pub fn from_rays(position: DVec3, grid: RayGrid) -> Result<Camera> {
         Camera::from_patch_rays(position, grid, 1)
     }
@@ -280,9 +291,32 @@ impl Camera {
         }
     }
 
-    /// The camera's rays: unit directions through the pixel centres (computed in f64, rounded to f32), or the
+    /// The camera's rays as unit directions ([`rays_of`](Self::rays_of) with [`RayKind::UnitDirection`]), or the
     /// grid it was given.
     pub fn rays(&self) -> RayGrid {
+        self.rays_of(RayKind::UnitDirection)
+    }
+
+    /// The camera's rays of `kind` through the pixel centres p = [u + 0.5, v + 0.5, 1] (computed in f64, rounded
+    /// to f32), or the grid it was given, as given. With R the camera-to-world rotation (OpenCV axes), K the
+    /// intrinsics and c the centre, each pixel's vector R·K⁻¹p (depth 1 along the camera's forward axis) gives
+    /// the unit direction normalize(R·K⁻¹p) or the unit-depth point c + R·K⁻¹p.
+    ///
+    /// ```
+    /// use glam::DVec3;
+    /// use raypatch::{Camera, RayKind};
+    /// let camera = Camera::msn(DVec3::new(4.0, -3.0, 2.5), 4, 2)?;
+    /// let (directions, points) = (camera.rays(), camera.rays_of(RayKind::UnitDepthPoint));
+    /// let (_, pose) = camera.as_pinhole().unwrap();
+    /// let forward = pose.z_axis.truncate();
+    /// for (d, p) in directions.directions.iter().zip(&points.directions) {
+    ///     let offset = p.as_dvec3() - camera.position();
+    ///     assert!((offset.dot(forward) - 1.0).abs() < 1e-6); // at unit depth
+    ///     assert!((offset.normalize() - d.as_dvec3()).length() < 1e-6); // along the same ray
+    /// }
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn rays_of(&self, kind: RayKind) -> RayGrid {
         match &self.projection {
             Projection::Rays { grid, .. } => grid.clone(),
             Projection::Pinhole { intrinsics: k, rotation } => {
@@ -290,7 +324,11 @@ impl Camera {
                 for i in 0..self.height {
                     for j in 0..self.width {
                         let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
-                        directions.push((*rotation * camera).normalize().as_vec3());
+                        let world = *rotation * camera;
+                        directions.push(match kind {
+                            RayKind::UnitDirection => world.normalize().as_vec3(),
+                            RayKind::UnitDepthPoint => (self.position + world).as_vec3(),
+                        });
                     }
                 }
                 RayGrid { width: self.width, height: self.height, directions }
@@ -298,8 +336,32 @@ impl Camera {
         }
     }
 
+    /// Checks the rays this camera was given against `kind` (see [`raypatch_model::scene::check_ray_kind`]):
+    /// the reason, one line, when they are not of that kind. A pinhole camera's rays are made of the kind asked
+    /// for, so they always pass.
+    ///
+    /// ```
+    /// use glam::DVec3;
+    /// use raypatch::{Camera, RayKind};
+    /// let msn = Camera::msn(DVec3::new(4.0, -3.0, 2.5), 8, 6)?;
+    /// let points = Camera::from_rays(msn.position(), msn.rays_of(RayKind::UnitDepthPoint))?;
+    /// assert!(points.check_rays(RayKind::UnitDepthPoint).is_ok());
+    /// let error = points.check_rays(RayKind::UnitDirection).unwrap_err();
+    /// assert!(error.contains("this model takes unit ray directions") && error.contains("look like unit-depth points"));
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn check_rays(&self, kind: RayKind) -> std::result::Result<(), String> {
+        let Some(grid) = self.given_rays() else {
+            return Ok(());
+        };
+        let position = self.position.as_vec3().to_array();
+        raypatch_model::scene::check_ray_kind(kind, position, grid.width, grid.height, |i| {
+            grid.directions[i].to_array()
+        })
+    }
+
     /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays));
-    /// `None` for a pinhole camera, whose rays [`rays`](Self::rays) computes as unit directions.
+    /// `None` for a pinhole camera, whose rays [`rays_of`](Self::rays_of) computes.
     pub fn given_rays(&self) -> Option<&RayGrid> {
         match &self.projection {
             Projection::Rays { grid, .. } => Some(grid),
@@ -309,7 +371,7 @@ impl Camera {
 
     /// This camera turned by `degrees` about the world z axis through the origin: a turntable step for z-up
     /// scenes centred on the origin (MultiShapeNet, NeRF's Blender scenes). Positive angles turn from +x
-    /// towards +y.
+    /// towards +y. Given rays turn with it, unit directions and unit-depth points alike (the turn is linear).
     ///
     /// ```
     /// use glam::DVec3;
@@ -335,5 +397,51 @@ impl Camera {
             }
         };
         Camera { position: turn * self.position, projection, ..*self }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A pinhole camera with an OpenGL pose and off-centre intrinsics: each kind of ray is R·K⁻¹p made a unit
+    /// direction or offset by the centre, with R in OpenCV axes.
+    #[test]
+    fn rays_of_each_kind_come_from_one_pinhole_computation() {
+        let k = Intrinsics { width: 5, height: 3, fx: 4.0, fy: 5.0, cx: 2.0, cy: 1.25 };
+        let turn = DMat3::from_rotation_z(0.4) * DMat3::from_rotation_x(1.1);
+        let centre = DVec3::new(3.0, -1.0, 2.0);
+        let gl = DMat4::from_cols(
+            turn.x_axis.extend(0.0),
+            turn.y_axis.extend(0.0),
+            turn.z_axis.extend(0.0),
+            centre.extend(1.0),
+        );
+        let camera = Camera::pinhole(k, gl, CameraAxes::OpenGl).unwrap();
+        let cv = DMat3::from_cols(turn.x_axis, -turn.y_axis, -turn.z_axis);
+        let (directions, points) = (camera.rays(), camera.rays_of(RayKind::UnitDepthPoint));
+        assert_eq!(directions, camera.rays_of(RayKind::UnitDirection));
+        for (i, (d, p)) in directions.directions.iter().zip(&points.directions).enumerate() {
+            let (u, v) = ((i % 5) as f64 + 0.5, (i / 5) as f64 + 0.5);
+            let local = cv * DVec3::new((u - 2.0) / 4.0, (v - 1.25) / 5.0, 1.0);
+            assert!((p.as_dvec3() - (centre + local)).length() < 1e-6, "point {i}");
+            assert!((d.as_dvec3() - local.normalize()).length() < 1e-6, "direction {i}");
+            // At depth 1 along the camera's forward axis (OpenGL's −z).
+            assert!(((p.as_dvec3() - centre).dot(-turn.z_axis) - 1.0).abs() < 1e-6);
+        }
+        let views = camera.target_views_of(RayKind::UnitDepthPoint);
+        assert_eq!(views.rays[..3], points.directions[0].to_array());
+        assert_eq!(camera.target_views().rays[..3], directions.directions[0].to_array());
+        // Given rays are used as given, whatever the kind, and orbit as points do.
+        let given = Camera::from_rays(centre, points.clone()).unwrap();
+        assert_eq!(given.rays_of(RayKind::UnitDirection), points);
+        assert_eq!(given.check_rays(RayKind::UnitDepthPoint), Ok(()));
+        let (a, b) = (given.orbited(35.0), camera.orbited(35.0).rays_of(RayKind::UnitDepthPoint));
+        for (x, y) in a.rays().directions.iter().zip(&b.directions) {
+            assert!((*x - *y).abs().max_element() < 1e-5);
+        }
+        assert_eq!(a.check_rays(RayKind::UnitDepthPoint), Ok(()));
+        assert!(a.check_rays(RayKind::UnitDirection).unwrap_err().contains("unit ray directions"));
+        assert_eq!(camera.check_rays(RayKind::UnitDirection), Ok(()), "a pinhole camera makes either kind");
     }
 }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{DMat4, Vec3};
 use serde_json::Value;
 
-use crate::camera::{Camera, CameraAxes, Intrinsics, RayGrid};
+use crate::camera::{Camera, CameraAxes, Intrinsics, RayGrid, RayKind};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::InputView;
@@ -30,6 +30,9 @@ pub struct TargetView {
     /// Ground-truth object ids `[height, width]` row-major (0 = background), when the scene has
     /// `target_masks`: what `--metrics` scores the segmentation against (FG-ARI).
     pub masks: Option<Vec<u32>>,
+    /// Ground-truth depth `[height, width]` row-major in metres, when the scene has it (`target_depth`, or a
+    /// frame's `depth_file_path`); 0 where there is none: what `--metrics` scores depth against.
+    pub depth: Option<Vec<f32>>,
 }
 
 /// Posed views read from disk.
@@ -123,18 +126,56 @@ impl SceneData {
                     .as_ref()
                     .map(|all| Image::new(tw, th, all[i * th * tw * 3..(i + 1) * th * tw * 3].to_vec()));
                 let masks = t.masks.as_ref().map(|all| all[i * th * tw..(i + 1) * th * tw].to_vec());
-                Ok(TargetView { camera, image: image.transpose()?, masks })
+                let depth = file.target_depth.as_ref().map(|all| all[i * th * tw..(i + 1) * th * tw].to_vec());
+                Ok(TargetView { camera, image: image.transpose()?, masks, depth })
             })
             .collect::<Result<Vec<_>>>()?;
         let source = SceneSource::File(PathBuf::from(&file.path));
         Ok(SceneData { source, inputs, targets, files: Vec::new() })
     }
 
+    /// Checks the rays of every camera given by rays (a scene file's `input_rays` and `target_rays`) against
+    /// the kind a model takes (see [`Camera::check_rays`]); an error naming the file, the tensor, the view and
+    /// the ray. Pinhole cameras (frame folders) are made of the kind a model asks for and always pass.
+    ///
+    /// ```
+    /// use raypatch::RayKind;
+    /// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k2");
+    /// let data = raypatch::SceneData::load(format!("{golden}/scene.safetensors"))?;
+    /// data.check_rays(RayKind::UnitDirection)?;
+    /// let error = data.check_rays(RayKind::UnitDepthPoint).unwrap_err().to_string();
+    /// assert!(error.contains("tensor `input_rays`: view 0") && error.contains("this model takes unit-depth points"));
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn check_rays(&self, kind: RayKind) -> Result<()> {
+        let path = match &self.source {
+            SceneSource::File(path) => path.display().to_string(),
+            SceneSource::Frames(_) => return Ok(()),
+        };
+        let inputs: Vec<&Camera> = self.inputs.iter().map(|v| &v.camera).collect();
+        let targets: Vec<&Camera> = self.targets.iter().map(|v| &v.camera).collect();
+        for (key, cameras) in [("input_rays", inputs), ("target_rays", targets)] {
+            for (i, camera) in cameras.into_iter().enumerate() {
+                camera.check_rays(kind).map_err(|reason| {
+                    Error::Model(raypatch_model::ModelError::Value {
+                        path: path.clone(),
+                        key: key.into(),
+                        reason: format!("view {i}: {reason}"),
+                    })
+                })?;
+            }
+        }
+        Ok(())
+    }
+
     /// Reads a folder with a NeRF-style `transforms.json`: intrinsics as `camera_angle_x` (and optionally
     /// `camera_angle_y`) or `fl_x`/`fl_y`/`cx`/`cy` (top level or per frame; `w`/`h` are checked against the
     /// images), and per frame a `file_path` (relative to the folder, `.png` added when missing) and a 4×4
     /// camera-to-world `transform_matrix` with OpenGL axes (x right, y up, looking along −z). All images must
-    /// have the same size. Every frame becomes both an input view and a target view (with its image).
+    /// have the same size. Every frame becomes both an input view and a target view (with its image). A frame
+    /// may name a ground-truth depth map, `depth_file_path`: a 16-bit (or 8-bit) grey PNG of the image's size
+    /// holding millimetres along the camera's forward axis, 0 where there is no depth (ScanNet's depth PNGs),
+    /// read in metres into the target view's depth.
     pub fn from_frames(dir: impl AsRef<Path>) -> Result<SceneData> {
         let dir = dir.as_ref();
         let json_path = dir.join("transforms.json");
@@ -150,6 +191,7 @@ impl SceneData {
             return Err(err(format!("{} frames; at most {MAX_FRAMES} are read", frames.len())));
         }
         let mut inputs: Vec<InputView> = Vec::with_capacity(frames.len());
+        let mut depths: Vec<Option<Vec<f32>>> = Vec::with_capacity(frames.len());
         let mut files = Vec::with_capacity(frames.len() + 1);
         files.push(json_path.clone());
         let mut pixels = 0usize;
@@ -179,15 +221,66 @@ impl SceneData {
             }
             let camera = nerf_camera(&root, frame, image.width(), image.height())
                 .map_err(|reason| err(format!("frame {i} ({name}): {reason}")))?;
+            depths.push(match frame.get("depth_file_path") {
+                None | Some(Value::Null) => None,
+                Some(value) => {
+                    let depth_name = value
+                        .as_str()
+                        .ok_or_else(|| err(format!("frame {i}: `depth_file_path` is {value}, expected a file name")))?;
+                    let depth_file = frame_image_path(dir, depth_name)
+                        .map_err(|reason| err(format!("frame {i}: `depth_file_path` {reason}")))?;
+                    let depth = load_depth_png(&depth_file, image.width(), image.height())?;
+                    files.push(depth_file);
+                    Some(depth)
+                }
+            });
             inputs.push(InputView { image, camera });
         }
         let targets = inputs
             .iter()
-            .map(|v| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()), masks: None })
+            .zip(depths)
+            .map(|(v, depth)| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()), masks: None, depth })
             .collect();
         Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets, files })
     }
 }
+
+/// Integer depth units per metre in a frame's `depth_file_path` PNG: millimetres, as ScanNet stores depth.
+const DEPTH_PNG_UNITS_PER_METRE: f32 = 1000.0;
+
+/// Reads a depth PNG (grey, 16 or 8 bits; millimetres, 0 = no depth) of a `width` × `height` frame, in metres.
+fn load_depth_png(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
+    let shown = path.display().to_string();
+    let bad = |reason: String| Error::Image { path: shown.clone(), reason };
+    let bytes = raypatch_model::files::read_regular(path, MAX_DEPTH_PNG_BYTES)
+        .map_err(|e| Error::io(path, "cannot read", e.into()))?;
+    let reader = || image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
+    let (w, h) = reader().into_dimensions().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
+    if (w as usize, h as usize) != (width, height) {
+        return Err(bad(format!(
+            "depth map is {w}x{h}, its frame's image is {width}x{height}: they must be the same size"
+        )));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(w as u64 * h as u64 * 8 + (1 << 20));
+    let mut reader = reader();
+    reader.limits(limits);
+    let decoded = reader.decode().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
+    let values: Vec<u16> = match decoded {
+        image::DynamicImage::ImageLuma16(grey) => grey.into_raw(),
+        image::DynamicImage::ImageLuma8(grey) => grey.into_raw().into_iter().map(u16::from).collect(),
+        other => {
+            return Err(bad(format!(
+                "a {:?} PNG; a depth map is a grey PNG (16-bit: millimetres, 0 = no depth)",
+                other.color()
+            )))
+        }
+    };
+    Ok(values.into_iter().map(|mm| f32::from(mm) / DEPTH_PNG_UNITS_PER_METRE).collect())
+}
+
+/// Largest depth PNG read.
+const MAX_DEPTH_PNG_BYTES: u64 = 1 << 30;
 
 /// Most frames read from a `transforms.json`.
 pub const MAX_FRAMES: usize = 10_000;

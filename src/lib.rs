@@ -33,6 +33,7 @@
 mod camera;
 mod dataset;
 mod error;
+mod font;
 #[doc(hidden)]
 pub mod fuzzing;
 mod image;
@@ -40,7 +41,9 @@ pub mod metrics;
 mod output;
 mod render;
 
-pub use camera::{Camera, CameraAxes, Intrinsics, RayGrid, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE};
+pub use camera::{
+    Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
+};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};

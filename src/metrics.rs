@@ -1,5 +1,6 @@
-//! Image quality against ground truth: PSNR and SSIM on [0, 1] images, as torchmetrics computes them
-//! (`PeakSignalNoiseRatio(data_range=1.0)`, `StructuralSimilarityIndexMeasure(data_range=1.0)`), in f64.
+//! Quality against ground truth, in f64: PSNR and SSIM on [0, 1] images, as torchmetrics computes them
+//! (`PeakSignalNoiseRatio(data_range=1.0)`, `StructuralSimilarityIndexMeasure(data_range=1.0)`); FG-ARI of a
+//! segmentation; depth errors (Abs.Rel, Sq.Rel, RMSE) as the official test step computes them.
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -187,4 +188,124 @@ pub fn fg_ari(true_ids: &[u32], weights: &[f32], slots: usize) -> Result<f64> {
     let expected = aindex * bindex / (points * (points - 1.0));
     let max = (aindex + bindex) / 2.0;
     Ok((rindex - expected) / (max - expected))
+}
+
+/// Depth errors of one view, or of several pooled ([`pool_depth_errors`]), over the pixels with ground truth.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthErrors {
+    /// Absolute relative difference: mean of |d − t| / t.
+    pub abs_rel: f64,
+    /// Square relative difference: mean of (d − t)² / t.
+    pub sq_rel: f64,
+    /// Root mean square error in metres: √(mean of (d − t)²) for one view; for pooled views, the views' RMSEs
+    /// averaged with their pixel counts as weights.
+    pub rmse: f64,
+    /// Pixels with ground truth (t > 0); the figures are NaN when there are none.
+    pub pixels: usize,
+}
+
+/// Depth errors of a predicted depth `d` against ground truth `t` (both in metres, one value per pixel), as the
+/// official DeFiNe / SRT test step computes them (`GenericModel.test_step` of tberriel/RayPatchQuerying), over
+/// the pixels with ground truth: t > 0 (and finite; the official loader's depth maps hold 0 where ScanNet has
+/// none, and its test-time visibility mask keeps every pixel). Accumulated in f64.
+///
+/// - **Abs.Rel** `absDiff_d` = `AbsoluteRelativeDifference(pred_log=True, target_log=True)(logdepth,
+///   log t)`: mean of |exp(logdepth) − t| / t. The official call takes the log of t and exponentiates it back;
+///   here t is used as given (they differ by float32 rounding).
+/// - **Sq.Rel** `squareDiff_d` = `SquareRelativeDifference(...)`: mean of (d − t)² / t (divided by t, not t²).
+/// - **RMSE** `rmse_d`: not on log depths: the test step computes √(Σ (exp(logdepth) − t)² / n) per image
+///   over its valid pixels, in metres (the validation step feeds `MeanSquaredError(squared=False)` the
+///   same depths, `log_depth.exp()` and t, but pools all pixels of the batch).
+///
+/// `predicted` is `exp(logdepth)` ([`crate::Output::Depth`]); a non-finite prediction at a valid pixel makes
+/// the figures NaN, as it would the official ones.
+///
+/// ```
+/// use raypatch::metrics::depth_errors;
+/// let truth = [1.0, 2.0, 0.0, 4.0]; // the third pixel has no ground truth
+/// let predicted = [1.5, 2.0, 9.0, 3.0];
+/// let e = depth_errors(&predicted, &truth)?;
+/// assert_eq!(e.pixels, 3);
+/// assert!((e.abs_rel - (0.5 / 1.0 + 0.0 + 1.0 / 4.0) / 3.0).abs() < 1e-12);
+/// assert!((e.sq_rel - (0.25 / 1.0 + 0.0 + 1.0 / 4.0) / 3.0).abs() < 1e-12);
+/// assert!((e.rmse - ((0.25 + 0.0 + 1.0) / 3.0f64).sqrt()).abs() < 1e-12);
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+pub fn depth_errors(predicted: &[f32], truth: &[f32]) -> Result<DepthErrors> {
+    if predicted.len() != truth.len() {
+        return Err(Error::Metrics(format!(
+            "depth: {} predicted values for {} ground-truth pixels",
+            predicted.len(),
+            truth.len()
+        )));
+    }
+    let (mut abs_rel, mut sq_rel, mut squares, mut pixels) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    for (&d, &t) in predicted.iter().zip(truth) {
+        if !(t.is_finite() && t > 0.0) {
+            continue;
+        }
+        let (d, t) = (f64::from(d), f64::from(t));
+        let e = d - t;
+        abs_rel += e.abs() / t;
+        sq_rel += e * e / t;
+        squares += e * e;
+        pixels += 1;
+    }
+    let n = pixels as f64;
+    Ok(DepthErrors { abs_rel: abs_rel / n, sq_rel: sq_rel / n, rmse: (squares / n).sqrt(), pixels })
+}
+
+/// The depth errors of several views of one scene taken together, as the official test step reports a batch
+/// of target views: Abs.Rel and Sq.Rel over all their valid pixels pooled (the mean of the views' figures
+/// weighted by their pixel counts), RMSE the views' RMSEs weighted by their pixel counts (`rmse_d_avg`; with
+/// one scene per batch, each target view's RMSE is `rmse_d_i`). Views without ground truth count for nothing.
+///
+/// ```
+/// use raypatch::metrics::{depth_errors, pool_depth_errors};
+/// let a = depth_errors(&[2.0], &[1.0])?; // |e| = 1 over 1 pixel
+/// let b = depth_errors(&[3.0, 3.0, 3.0], &[3.0, 3.0, 3.0])?; // exact over 3 pixels
+/// let all = pool_depth_errors(&[a, b]);
+/// assert_eq!(all.pixels, 4);
+/// assert!((all.abs_rel - 0.25).abs() < 1e-12 && (all.rmse - 0.25).abs() < 1e-12);
+/// # Ok::<(), raypatch::Error>(())
+/// ```
+pub fn pool_depth_errors(views: &[DepthErrors]) -> DepthErrors {
+    let counted = || views.iter().filter(|v| v.pixels > 0);
+    let pixels: usize = counted().map(|v| v.pixels).sum();
+    let mean =
+        |figure: fn(&DepthErrors) -> f64| counted().map(|v| figure(v) * v.pixels as f64).sum::<f64>() / pixels as f64;
+    DepthErrors { abs_rel: mean(|v| v.abs_rel), sq_rel: mean(|v| v.sq_rel), rmse: mean(|v| v.rmse), pixels }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two views by hand; the figures equal those of the official test-step code (criterions.py and
+    /// `GenericModel.test_step`) run in PyTorch on the same values (one scene, the two views as its targets):
+    /// Abs.Rel 0.4375, Sq.Rel 0.9375, RMSE per view 0.8164966 and 3, rmse_d_avg 1.3623724.
+    #[test]
+    fn depth_errors_by_hand_and_pooled_as_the_official_test() {
+        // Ground truth 0 and NaN are no depth: the pixels predicted 5 and 7 count for nothing.
+        let a = depth_errors(&[1.0, 5.0, 5.0, 7.0, 1.0], &[2.0, 0.0, 4.0, f32::NAN, 1.0]).unwrap();
+        assert_eq!(a.pixels, 3);
+        // |1-2|/2 = 0.5, |5-4|/4 = 0.25, 0; squares 1/2, 1/4, 0; errors² 1, 1, 0.
+        assert!((a.abs_rel - 0.25).abs() < 1e-15);
+        assert!((a.sq_rel - 0.25).abs() < 1e-15);
+        assert!((a.rmse - (2.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        let b = depth_errors(&[6.0], &[3.0]).unwrap();
+        assert_eq!((b.abs_rel, b.sq_rel, b.rmse, b.pixels), (1.0, 3.0, 3.0, 1));
+        let pooled = pool_depth_errors(&[a, b]);
+        assert_eq!(pooled.pixels, 4);
+        assert!((pooled.abs_rel - 0.4375).abs() < 1e-15);
+        assert!((pooled.sq_rel - 0.9375).abs() < 1e-15);
+        assert!((pooled.rmse - (3.0 * (2.0f64 / 3.0).sqrt() + 3.0) / 4.0).abs() < 1e-15);
+        assert!((pooled.rmse - 1.3623724).abs() < 1e-6);
+        // A view without ground truth: NaN figures, ignored when pooling.
+        let none = depth_errors(&[1.0, 2.0], &[0.0, -1.0]).unwrap();
+        assert_eq!(none.pixels, 0);
+        assert!(none.abs_rel.is_nan() && none.rmse.is_nan());
+        assert_eq!(pool_depth_errors(&[a, b, none]), pooled);
+        assert!(depth_errors(&[1.0], &[1.0, 2.0]).unwrap_err().to_string().contains("1 predicted values for 2"));
+    }
 }

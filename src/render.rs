@@ -4,7 +4,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, Output, Outputs, RenderStats, Request};
-use raypatch_model::{InputViews, ModelConfig};
+use raypatch_model::{InputViews, ModelConfig, RayKind};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -168,6 +168,12 @@ impl Model {
         self.inner.config.patch_size()
     }
 
+    /// What the model's rays are: unit directions (SRT, OSRT) or unit-depth points (DeFiNe). Cameras given by
+    /// rays must hold this kind; pinhole cameras are turned into it.
+    pub fn ray_kind(&self) -> RayKind {
+        self.inner.config.ray_kind()
+    }
+
     /// Whether the model predicts log-depth (4 output channels).
     pub fn has_depth(&self) -> bool {
         self.inner.outputs().contains(Output::LogDepth)
@@ -205,7 +211,7 @@ impl Model {
     /// ```
     pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
         self.check_inputs(views)?;
-        Ok(Scene { inner: self.inner.encode(&input_views(views)?)? })
+        Ok(Scene { inner: self.inner.encode(&input_views(views, self.ray_kind())?)? })
     }
 
     /// Checks input views against what this model takes (see [`check_camera`](Self::check_camera)); returns
@@ -214,44 +220,35 @@ impl Model {
         let mut warnings = Vec::new();
         for (i, view) in views.iter().enumerate() {
             let octaves = self.config().position_octaves().0;
-            warnings.extend(check_camera(&view.camera, octaves, &format!("input view {i}"))?);
+            warnings.extend(check_camera(&view.camera, self.ray_kind(), octaves, &format!("input view {i}"))?);
         }
         Ok(warnings)
     }
 
-    /// Checks a target camera against what this model takes: an error for what its contract rules out (rays
-    /// that are not unit directions; a camera so far out that the positional encoding keeps no phase in
-    /// float32), warnings for legal values beyond the range where the engine matches PyTorch to float32
-    /// rounding.
+    /// Checks a target camera against what this model takes: an error for what its contract rules out (given
+    /// rays that are not of the model's [`RayKind`], see [`Camera::check_rays`]; a camera so far out that the
+    /// positional encoding keeps no phase in float32), warnings for legal values beyond the range where the
+    /// engine matches PyTorch to float32 rounding.
     pub fn check_camera(&self, camera: &Camera) -> Result<Vec<String>> {
-        check_camera(camera, self.config().position_octaves().1, "target camera")
+        check_camera(camera, self.ray_kind(), self.config().position_octaves().1, "target camera")
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
     pub fn profile_encode(&self, views: &[InputView]) -> Result<OpTimes> {
-        Ok(self.inner.encode_profiled(&input_views(views)?)?.1)
+        Ok(self.inner.encode_profiled(&input_views(views, self.ray_kind())?)?.1)
     }
 }
 
-/// How far a ray's length may be from 1: patch rays, resized from unit rays without renormalising, stay
-/// within 1e-3 of it; a scaled or unnormalised ray is far outside.
-const UNIT_RAY_TOLERANCE: f32 = 0.01;
 /// Positional-encoding arguments (coordinate times multiplier) beyond this keep no phase in float32 (its
 /// spacing there is 2 radians): the model cannot see where the camera is.
 const MAX_ENCODING_ARGUMENT: f64 = (1u64 << 24) as f64;
 /// Up to this the engine's sine and cosine match PyTorch's to float32 rounding (`shaders/posenc.wgsl`).
 const ACCURATE_ENCODING_ARGUMENT: f64 = (1u64 << 20) as f64;
 
-fn check_camera(camera: &Camera, octaves: &raypatch_model::Octaves, what: &str) -> Result<Vec<String>> {
-    // Only given rays need looking at: a pinhole camera's are unit directions by construction (and computing
-    // them here would do a render's ray work twice).
-    let given = camera.given_rays().map_or(&[][..], |grid| grid.directions.as_slice());
-    if let Some((i, d)) = given.iter().enumerate().find(|(_, d)| (d.length() - 1.0).abs() > UNIT_RAY_TOLERANCE) {
-        return Err(Error::Camera(format!(
-            "{what}: ray {i} is {d} of length {}; this model takes unit ray directions",
-            d.length()
-        )));
-    }
+fn check_camera(camera: &Camera, kind: RayKind, octaves: &raypatch_model::Octaves, what: &str) -> Result<Vec<String>> {
+    // Only given rays need looking at: a pinhole camera's are of the model's kind by construction (and
+    // computing them here would do a render's ray work twice).
+    camera.check_rays(kind).map_err(|reason| Error::Camera(format!("{what}: {reason}")))?;
     let top = octaves.max_multiplier();
     let position = camera.position();
     let argument = position.abs().max_element() * top;
@@ -271,7 +268,7 @@ fn check_camera(camera: &Camera, octaves: &raypatch_model::Octaves, what: &str) 
     Ok(warnings)
 }
 
-fn input_views(views: &[InputView]) -> Result<InputViews> {
+fn input_views(views: &[InputView], kind: RayKind) -> Result<InputViews> {
     let first = views.first().ok_or_else(|| Error::Views("no input view: a scene needs at least one".into()))?;
     let (width, height) = (first.image.width(), first.image.height());
     let mut inputs = InputViews {
@@ -304,7 +301,7 @@ fn input_views(views: &[InputView]) -> Result<InputViews> {
         }
         inputs.images.extend_from_slice(image.data());
         inputs.camera_pos.extend(camera.position().as_vec3().to_array());
-        inputs.rays.extend(camera.rays().directions.iter().flat_map(|d| d.to_array()));
+        inputs.rays.extend(camera.rays_of(kind).directions.iter().flat_map(|d| d.to_array()));
     }
     Ok(inputs)
 }
@@ -340,6 +337,12 @@ impl Rendered {
         self.get(Output::LogDepth)
     }
 
+    /// Depth = exp(log-depth) in the scene's unit (metres for ScanNet), `[height, width]` row-major, when
+    /// requested ([`Image::from_depth`] colours it, [`crate::metrics::depth_errors`] scores it).
+    pub fn depth(&self) -> Option<&[f32]> {
+        self.get(Output::Depth)
+    }
+
     /// The slot weights of an OSRT model, `[height, width, slots]` row-major, with the slot count, when
     /// requested.
     pub fn segmentation(&self) -> Option<(&[f32], usize)> {
@@ -371,20 +374,26 @@ impl Scene<'_> {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
-        check_camera(camera, self.inner.model().config.position_octaves().1, "target camera")?;
-        let frame = self.inner.render(&camera.target_views(), *request)?;
+        let config = &self.inner.model().config;
+        check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
+        let frame = self.inner.render(&self.target_views(camera), *request)?;
         Ok(Rendered { region: frame.region, outputs: frame.outputs })
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
     /// (builds the plan if it does not exist yet).
     pub fn render_stats(&self, camera: &Camera, request: &Request) -> Result<RenderStats> {
-        Ok(self.inner.render_stats(&camera.target_views(), *request)?)
+        Ok(self.inner.render_stats(&self.target_views(camera), *request)?)
     }
 
     /// Renders op by op and returns each op's label and time (for profiling).
     pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
-        Ok(self.inner.profile_render(&camera.target_views(), *request)?)
+        Ok(self.inner.profile_render(&self.target_views(camera), *request)?)
+    }
+
+    /// `camera` as the engine's render target, with rays of the model's kind.
+    fn target_views(&self, camera: &Camera) -> raypatch_model::TargetViews {
+        camera.target_views_of(self.inner.model().config.ray_kind())
     }
 
     /// Bytes the encode plan allocated for its intermediates (freed once encoded).
