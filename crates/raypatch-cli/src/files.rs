@@ -1,4 +1,4 @@
-//! The files a run writes: where each PNG goes (--out, --segmentation), the raw outputs (--out-raw), all
+//! The files a run writes: where each PNG goes (--out, --segmentation, --depth), the raw outputs (--out-raw), all
 //! checked before any GPU work and written all or none.
 
 use std::collections::HashMap;

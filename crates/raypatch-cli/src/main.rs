@@ -1,5 +1,5 @@
 //! render-frame: render novel views, depth and object masks of a scene with an SRT, RP-SRT, OSRT or RP-OSRT
-//! model, from the shell.
+//! model (and DeFiNe), from the shell.
 
 mod files;
 mod report;
@@ -85,8 +85,17 @@ struct Args {
     /// file or a folder as --out does. Adds `segmentation` to --outputs.
     #[arg(long, value_name = "DIR|FILE.png")]
     segmentation: Option<PathBuf>,
-    /// Print each target view's PSNR and SSIM against the scene's target images, and for OSRT models the
-    /// FG-ARI of the segmentation against the scene's `target_masks` (computed then), with their means.
+    /// Write depth pictures (models with a depth channel): per view, depth = exp(logdepth) coloured with the
+    /// turbo map (near red, far blue, no depth black) above a colour bar with its range in metres, into a
+    /// `.png` file or a folder as --out does. Adds `depth` to --outputs.
+    #[arg(long, value_name = "DIR|FILE.png")]
+    depth: Option<PathBuf>,
+    /// The depth range the --depth colours span, in metres [default: each view's own minimum and maximum].
+    #[arg(long, value_name = "MIN,MAX", requires = "depth", value_parser = parse_depth_range)]
+    depth_range: Option<(f32, f32)>,
+    /// Print each target view's PSNR and SSIM against the scene's target images, for OSRT models the FG-ARI of
+    /// the segmentation against the scene's `target_masks`, and for depth models Abs.Rel, Sq.Rel and RMSE of
+    /// the depth against the scene's `target_depth` (each computed then), with their means and pooled figures.
     #[arg(long)]
     metrics: bool,
     /// Render only this region (pixels; X,Y = top-left corner): only the patches it needs are computed.
@@ -129,6 +138,17 @@ fn parse_outputs(text: &str) -> Result<Outputs, String> {
         Some(output) => Ok(set.with(output)),
         None => Err(format!("unknown output {name:?}: expected a comma-separated list of {}", names())),
     })
+}
+
+/// `MIN,MAX` in metres, 0 <= MIN < MAX.
+fn parse_depth_range(text: &str) -> Result<(f32, f32), String> {
+    let bad = || format!("{text:?} is not MIN,MAX (two depths in metres, 0 <= MIN < MAX)");
+    let parts: Vec<f32> =
+        text.split(',').map(|p| p.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| bad())?;
+    match parts[..] {
+        [lo, hi] if lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi => Ok((lo, hi)),
+        _ => Err(bad()),
+    }
 }
 
 fn parse_region(text: &str) -> Result<Region, String> {
@@ -205,6 +225,8 @@ struct Shot {
     truth: Option<Image>,
     /// The target view's object ids, for --metrics (FG-ARI).
     masks: Option<Vec<u32>>,
+    /// The target view's depth in metres, for --metrics (Abs.Rel, Sq.Rel, RMSE).
+    depth: Option<Vec<f32>>,
     label: String,
     name: String,
 }
@@ -230,6 +252,7 @@ fn run(args: &Args) -> Result<()> {
         None => SceneData::from_bytes(DEFAULT_SCENE.0, DEFAULT_SCENE.1)?,
     };
     let scene_path = args.scene.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_SCENE.0));
+    data.check_rays(model.ray_kind())?;
 
     let frames = matches!(data.source, SceneSource::Frames(_));
     let default_view = if frames { data.targets.len() - 1 } else { 0 };
@@ -300,7 +323,12 @@ fn run(args: &Args) -> Result<()> {
     let metric_lines = if args.metrics {
         let truths: Vec<Truth> = shots
             .iter()
-            .map(|s| Truth { label: &s.label, image: s.truth.as_ref(), masks: s.masks.as_deref() })
+            .map(|s| Truth {
+                label: &s.label,
+                image: s.truth.as_ref(),
+                masks: s.masks.as_deref(),
+                depth: s.depth.as_deref(),
+            })
             .collect();
         report::metrics(&truths, &rendered, shots[0].camera.width())?
     } else {
@@ -312,6 +340,13 @@ fn run(args: &Args) -> Result<()> {
         for r in &rendered {
             let (weights, slots) = r.segmentation().expect("segmentation was requested");
             contents.push(Image::from_segmentation(r.region.width, r.region.height, weights, slots)?.encode_png()?);
+        }
+    }
+    if args.depth.is_some() {
+        for r in &rendered {
+            let depth = r.depth().expect("depth was requested");
+            let picture = Image::from_depth(r.region.width, r.region.height, depth, args.depth_range)?;
+            contents.push(picture.encode_png()?);
         }
     }
     if args.out_raw.is_some() {
@@ -326,6 +361,8 @@ fn run(args: &Args) -> Result<()> {
     let family = match (model.config().base(), k) {
         ("osrt", 1) => "OSRT",
         ("osrt", _) => "RP-OSRT",
+        ("define", 1) => "DeFiNe",
+        ("define", _) => "RP-DeFiNe",
         (_, 1) => "SRT",
         _ => "RP-SRT",
     };
@@ -402,7 +439,14 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
     if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
         bail!("--orbit {degrees}: expected a finite angle in degrees");
     }
-    let novel = |camera: Camera, label: String, name: String| Shot { camera, truth: None, masks: None, label, name };
+    let novel = |camera: Camera, label: String, name: String| Shot {
+        camera,
+        truth: None,
+        masks: None,
+        depth: None,
+        label,
+        name,
+    };
     if let Some(path) = &args.pose {
         let camera = raypatch::load_pose(path, reference)?;
         Ok(vec![novel(camera, format!("--pose {}", path.display()), "render".into())])
@@ -427,6 +471,7 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
                 camera: data.targets[v].camera.clone(),
                 truth: data.targets[v].image.clone(),
                 masks: data.targets[v].masks.clone(),
+                depth: data.targets[v].depth.clone(),
                 label: format!("target view {v}"),
                 name: format!("view_{v:03}"),
             })
@@ -434,8 +479,8 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
     }
 }
 
-/// The outputs to compute: --outputs, with what --logdepth, --segmentation and --metrics imply; each must be
-/// one the model renders and have somewhere to go.
+/// The outputs to compute: --outputs, with what --logdepth, --segmentation, --depth and --metrics imply; each
+/// must be one the model renders and have somewhere to go.
 fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Result<Outputs> {
     let mut outputs = args.outputs;
     if args.logdepth {
@@ -444,8 +489,12 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
     if args.segmentation.is_some() {
         outputs = outputs.with(Output::Segmentation);
     }
+    if args.depth.is_some() {
+        outputs = outputs.with(Output::Depth);
+    }
     let flag = |o: Output| match o {
         Output::Segmentation if args.segmentation.is_some() => "--segmentation".to_string(),
+        Output::Depth if args.depth.is_some() => "--depth".to_string(),
         Output::LogDepth if args.logdepth => "--logdepth".to_string(),
         o => format!("--outputs {}", o.name()),
     };
@@ -459,18 +508,23 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
             names.join(", ")
         );
     }
+    let depth_truth = shots.iter().all(|s| s.depth.is_some());
     if args.metrics {
         let masks = shots.iter().all(|s| s.masks.is_some());
         if masks && model_outputs.contains(Output::Segmentation) {
             outputs = outputs.with(Output::Segmentation);
         }
+        if depth_truth && model_outputs.contains(Output::Depth) {
+            outputs = outputs.with(Output::Depth);
+        }
         let images = outputs.contains(Output::Rgb) && shots.iter().all(|s| s.truth.is_some());
         let objects = masks && outputs.contains(Output::Segmentation);
-        if !images && !objects {
+        let depths = depth_truth && outputs.contains(Output::Depth);
+        if !images && !objects && !depths {
             bail!(
                 "--metrics: needs target views with ground truth: ground-truth images (scene `target_images`, or \
-                 frames) for rgb, or `target_masks` for an OSRT model's segmentation; not --orbit, --orbit-frames \
-                 or --pose"
+                 frames) for rgb, `target_masks` for an OSRT model's segmentation, or `target_depth` (frames: \
+                 `depth_file_path`) for a depth model; not --orbit, --orbit-frames or --pose"
             );
         }
     }
@@ -481,7 +535,11 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
                 args.segmentation.is_some() || args.out_raw.is_some() || args.metrics,
                 "--segmentation DIR|FILE.png or --out-raw FILE",
             ),
-            Output::LogDepth | Output::Depth => (args.out_raw.is_some(), "--out-raw FILE"),
+            Output::Depth => (
+                args.depth.is_some() || args.out_raw.is_some() || (args.metrics && depth_truth),
+                "--depth DIR|FILE.png or --out-raw FILE",
+            ),
+            Output::LogDepth => (args.out_raw.is_some(), "--out-raw FILE"),
         };
         if !written {
             bail!("{}: nothing would write it (add {writers})", flag(output));
@@ -493,7 +551,8 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
     Ok(outputs)
 }
 
-/// The files the run writes (rgb PNGs, segmentation PNGs, the raw outputs), checked before any GPU work.
+/// The files the run writes (rgb PNGs, segmentation PNGs, depth PNGs, the raw outputs), checked before any GPU
+/// work.
 fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs) -> Result<OutputFiles> {
     let names: Vec<String> = shots.iter().map(|s| s.name.clone()).collect();
     let mut files: Vec<(&'static str, PathBuf)> = Vec::new();
@@ -501,6 +560,7 @@ fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs)
     let pngs = [
         (outputs.contains(Output::Rgb), "--out", Some(&args.out)),
         (true, "--segmentation", args.segmentation.as_ref()),
+        (true, "--depth", args.depth.as_ref()),
     ];
     for (wanted, flag, dest) in pngs {
         if let Some(dest) = dest.filter(|_| wanted) {

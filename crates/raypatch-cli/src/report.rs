@@ -12,23 +12,28 @@ pub struct Truth<'a> {
     pub image: Option<&'a Image>,
     /// Object ids `[H, W]` of the whole image (0 = background).
     pub masks: Option<&'a [u32]>,
+    /// Depth `[H, W]` of the whole image, in metres (0 = none).
+    pub depth: Option<&'a [f32]>,
 }
 
-/// The ids of `masks` (`width` wide) inside `region`.
-fn crop_ids(masks: &[u32], width: usize, region: Region) -> Vec<u32> {
+/// The values of `values` (`[H, width]` of the whole image) inside `region`.
+fn crop<T: Copy>(values: &[T], width: usize, region: Region) -> Vec<T> {
     (region.y..region.y + region.height)
-        .flat_map(|y| masks[y * width + region.x..y * width + region.x + region.width].iter().copied())
+        .flat_map(|y| values[y * width + region.x..y * width + region.x + region.width].iter().copied())
         .collect()
 }
 
 /// Per view: PSNR and SSIM of the rgb against the ground-truth image, FG-ARI of the segmentation against the
-/// object masks (each where both exist); then their means, and the FG-ARI of all views pooled, as the
-/// official OSRT test step computes it per scene. `width` is the full image's width (masks are of the whole
+/// object masks, Abs.Rel, Sq.Rel and RMSE of the depth against the ground-truth depth (each where both exist);
+/// then their means, the FG-ARI of all views pooled, as the official OSRT test step computes it per scene,
+/// and the depth errors of all views together as the official test step reports them
+/// ([`metrics::pool_depth_errors`]). `width` is the full image's width (masks and depths are of the whole
 /// image; a region render is scored on the region).
 pub fn metrics(truths: &[Truth], rendered: &[Rendered], width: usize) -> Result<Vec<String>> {
     let mut lines = Vec::new();
     let (mut psnrs, mut ssims, mut aris) = (Vec::new(), Vec::new(), Vec::new());
     let (mut pooled_ids, mut pooled_weights, mut slots) = (Vec::new(), Vec::new(), 0);
+    let mut depths = Vec::new();
     for (truth, frame) in truths.iter().zip(rendered) {
         let mut parts = Vec::new();
         if let (Some(image), Some(rgb)) = (truth.image, frame.rgb()) {
@@ -46,13 +51,18 @@ pub fn metrics(truths: &[Truth], rendered: &[Rendered], width: usize) -> Result<
             ssims.push(s);
         }
         if let (Some(masks), Some((weights, n))) = (truth.masks, frame.segmentation()) {
-            let ids = crop_ids(masks, width, frame.region);
+            let ids = crop(masks, width, frame.region);
             let ari = metrics::fg_ari(&ids, weights, n)?;
             parts.push(format!("FG-ARI {ari:.4}"));
             aris.push(ari);
             pooled_ids.extend(ids);
             pooled_weights.extend_from_slice(weights);
             slots = n;
+        }
+        if let (Some(truth), Some(depth)) = (truth.depth, frame.depth()) {
+            let e = metrics::depth_errors(depth, &crop(truth, width, frame.region))?;
+            parts.push(depth_text(&e));
+            depths.push(e);
         }
         lines.push(format!("{}: {}", truth.label, parts.join(", ")));
     }
@@ -65,8 +75,26 @@ pub fn metrics(truths: &[Truth], rendered: &[Rendered], width: usize) -> Result<
         let pooled = metrics::fg_ari(&pooled_ids, &pooled_weights, slots)?;
         summary.push(format!("FG-ARI {:.4} (all views pooled, as the official test: {pooled:.4})", mean(&aris)));
     }
+    if !depths.is_empty() {
+        let pooled = metrics::pool_depth_errors(&depths);
+        summary.push(format!(
+            "depth of all views as the official test (pixels pooled; RMSE per view, weighted by pixels): {}",
+            depth_text(&pooled)
+        ));
+    }
     lines.push(format!("mean over {} view(s): {}", truths.len(), summary.join(", ")));
     Ok(lines)
+}
+
+/// "Abs.Rel A, Sq.Rel S, RMSE R m over N pixels with depth".
+fn depth_text(e: &metrics::DepthErrors) -> String {
+    if e.pixels == 0 {
+        return "no pixel with ground-truth depth".into();
+    }
+    format!(
+        "Abs.Rel {:.4}, Sq.Rel {:.4}, RMSE {:.4} m over {} pixels with depth",
+        e.abs_rel, e.sq_rel, e.rmse, e.pixels
+    )
 }
 
 /// The slowest ops of a plan, with their share of the plan's total.
