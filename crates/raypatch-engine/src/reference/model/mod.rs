@@ -1,20 +1,25 @@
-//! Float64 CPU reference of the whole model, SRT / RP-SRT and OSRT / RP-OSRT, composed from the kernel
-//! references of this module and computing what `models/` records, op for op (the official `SRTEncoder`,
-//! `SRTDecoder`, `OSRTEncoder`, `SlotMixerDecoder` and `RayPatchDecoder`). The benchmark harness measures the
-//! engine's error against it, and the numerical stress suite renders extreme scenes with both. It matches a
-//! float64 PyTorch run of the official model (`*_f64` in the golden files) to ~1e-12 with
-//! [`Argument::Float64`].
+//! Float64 CPU reference of the whole model, SRT / RP-SRT, OSRT / RP-OSRT and DeFiNe / RP-DeFiNe, composed
+//! from the kernel references of this module and computing what `models/` records, op for op (the official
+//! `SRTEncoder`, `SRTDecoder`, `OSRTEncoder`, `SlotMixerDecoder`, `DeFiNeEncoder`, `DeFiNeDecoder` and
+//! `RayPatchDecoder`). The benchmark harness measures the engine's error against it, and the numerical stress
+//! suite renders extreme scenes with both. It matches a float64 PyTorch run of the official model (`*_f64` in
+//! the golden files) to ~1e-12 with [`Argument::Float64`].
 //!
-//! Laid out like the engine's `models/`: this file holds the float64 layers every family shares, the model
-//! (read through the engine's module tree) and the render pipeline; `srt.rs` the SRT encoder, the ray
-//! predictor (the SRT decoder's and OSRT's allocation transformer) and the SRT decoder; `osrt.rs` slot
-//! attention and the slot mixer decoder; `ray_patch.rs` the patch rays and the Ray-Patch conv decoder.
+//! Laid out like the engine's `models/`: this file holds the float64 layers every family shares (a
+//! transformer layer serves SRT's, OSRT's and the Perceiver's), the model (read through the engine's module
+//! tree) and the render pipeline; `srt.rs` the SRT encoder, the ray predictor (the SRT decoder's and OSRT's
+//! allocation transformer) and the SRT decoder; `osrt.rs` slot attention and the slot mixer decoder;
+//! `define.rs` DeFiNe's ResNet-18 and Perceiver encoder and its two decoder heads; `ray_patch.rs` the patch
+//! rays and the Ray-Patch conv decoder.
 //!
 //! The positional-encoding arguments are the one place where the float32 model differs from the float64 one
 //! by more than rounding (up to ~1e-3 in rgb): choose [`Argument::RoundedToF32`] to measure the arithmetic
 //! error of a float32 engine (its arguments are rounded as torch rounds them), [`Argument::Float64`] to
-//! measure its distance from the float64 model.
+//! measure its distance from the float64 model. (The rays resized for patch rays or DeFiNe's encoder, and
+//! DeFiNe's ImageNet normalisation, follow the same choice: float32 as torch and the engine form them, or
+//! float64.)
 
+mod define;
 mod osrt;
 mod ray_patch;
 mod srt;
@@ -28,13 +33,14 @@ use crate::kernels::Activation;
 use crate::nn::{self, transformer::Projections as EngineProjections, Param, Source, WeightSet};
 
 use super::attention::attention;
+use super::concat::concat_columns;
 use super::conv::conv2d;
 use super::elementwise::map_columns;
 use super::matmul::linear;
 use super::norm::layernorm;
 use super::posenc::fourier_encode_with;
 pub use super::posenc::Argument;
-use super::resize::{bilinear, nearest};
+use super::resize::nearest;
 
 /// LayerNorm eps of the official modules (PyTorch's default), as `nn::norm` uses it.
 const LAYER_NORM_EPS: f64 = 1e-5;
@@ -91,6 +97,15 @@ struct Conv {
 }
 
 impl Conv {
+    /// The output size for an `h × w` input.
+    fn output_size(&self, h: usize, w: usize) -> (usize, usize) {
+        let nn::ConvSpec { window, upsample_input, .. } = self.spec;
+        conv_output_size(h, w, window, upsample_input).expect("conv reference: the window does not fit")
+    }
+
+    /// `act(conv(x) + b)`, or with `residual` `(mode, r)` that met as `mode` says: `r + act(conv(x) + b)`
+    /// ([`ConvMode::Accumulate`]) or `act(r + conv(x) + b)` ([`ConvMode::Residual`]). `stride` and
+    /// `upsample_input` are checked against the module.
     #[allow(clippy::too_many_arguments)]
     fn apply(
         &self,
@@ -99,14 +114,14 @@ impl Conv {
         stride: usize,
         upsample_input: bool,
         act: Activation,
-        residual: Option<&[f64]>,
+        residual: Option<(ConvMode, &[f64])>,
     ) -> Vec<f64> {
         let nn::ConvSpec { cin, cout, window, .. } = self.spec;
         let module = (window.stride, self.spec.upsample_input);
         assert_eq!((stride, upsample_input), module, "conv reference: not the module's stride and upsampling");
-        let (ho, wo) = conv_output_size(h, w, window, upsample_input).expect("conv reference: the window does not fit");
+        let (ho, wo) = self.output_size(h, w);
         let (mut out, mode) = match residual {
-            Some(r) => (r.to_vec(), ConvMode::Accumulate),
+            Some((mode, r)) => (r.to_vec(), mode),
             None => (vec![0.0; n * ho * wo * cout], ConvMode::Overwrite),
         };
         conv2d(x, (n, h, w), cin, &self.w, self.b.as_deref(), cout, window, upsample_input, act, mode, &mut out);
@@ -121,9 +136,13 @@ enum Projections {
 }
 
 /// One pre-norm transformer layer (the official `Transformer`): `x + to_out(attention(LN(x)))`, then
-/// `x + FF(LN(x))`.
+/// `x + FF(LN(x))`. HuggingFace's `PerceiverLayer` is the same layer with its keys and values read from
+/// `LN2(inputs)` in cross-attention (`kv_norm`), its query residual optional, and its q/k/v projections
+/// stacked into `to_qkv` / `to_kv`.
 struct Layer {
     attn_norm: Norm,
+    /// The Perceiver's `layernorm2` on a cross-attention's inputs.
+    kv_norm: Option<Norm>,
     projections: Projections,
     to_out: Dense,
     ff_norm: Norm,
@@ -131,6 +150,8 @@ struct Layer {
     ff_out: Dense,
     heads: usize,
     dim_head: usize,
+    /// `to_out(attention) + x` (every layer but the Perceiver decoders').
+    query_residual: bool,
 }
 
 impl Layer {
@@ -158,12 +179,16 @@ impl Layer {
         self.feed_forward(self.to_out.apply(&heads, Activation::None, Some(z)))
     }
 
-    /// `to_kv(latent)` `[tokens, 2·inner]`: what a cross-attention layer reads of the latent.
+    /// `to_kv(latent)` `[tokens, 2·inner]` (of `kv_norm(latent)` with one): what a cross-attention layer
+    /// reads of the latent.
     fn keys_values(&self, latent: &[f64]) -> Vec<f64> {
         let Projections::Cross { to_kv, .. } = &self.projections else {
             panic!("keys_values of a self-attention layer")
         };
-        to_kv.forward(latent)
+        match &self.kv_norm {
+            Some(norm) => to_kv.forward(&norm.apply(latent)),
+            None => to_kv.forward(latent),
+        }
     }
 
     /// A cross-attention layer on queries `[rows, dim]`, reading `kv` from [`keys_values`](Self::keys_values).
@@ -179,7 +204,8 @@ impl Layer {
             let (h, dh) = (self.heads, self.dim_head);
             attention(q, inner, 0, kv, ld, 0, kv, ld, inner, r.len(), tokens, h, dh, self.scale())
         });
-        self.feed_forward(self.to_out.apply(&heads, Activation::None, Some(x)))
+        let residual = self.query_residual.then_some(x);
+        self.feed_forward(self.to_out.apply(&heads, Activation::None, residual))
     }
 
     /// x + FF(LN(x)), FF = Linear → GELU → Linear.
@@ -203,6 +229,36 @@ impl Fourier {
 
     fn width(&self) -> usize {
         6 * self.multipliers.len()
+    }
+}
+
+/// The official `RayEncoder` on query rows: `cat(posenc(camera position), posenc(ray))`, after the raw
+/// `cat(ray, camera position)` with `raw` (as DeFiNe's encoder and decoders concatenate them).
+struct RayEncoder {
+    pos_enc: Fourier,
+    ray_enc: Fourier,
+    raw: bool,
+}
+
+impl RayEncoder {
+    fn width(&self) -> usize {
+        6 * usize::from(self.raw) + self.pos_enc.width() + self.ray_enc.width()
+    }
+
+    /// The features `[rows, width()]` of the query rows.
+    fn forward(&self, q: &QueryRows) -> Vec<f64> {
+        let rows = q.rows();
+        let pos = self.pos_enc.encode(q.positions, q.per_view, q.start, rows);
+        let ray = self.ray_enc.encode(q.rays, 1, 0, rows);
+        let encoded = concat_columns(&pos, self.pos_enc.width(), &ray, self.ray_enc.width());
+        if !self.raw {
+            return encoded;
+        }
+        let raw: Vec<f64> = (0..rows)
+            .flat_map(|r| q.rays[3 * r..3 * r + 3].iter().chain(&q.positions[(q.start + r) / q.per_view * 3..][..3]))
+            .copied()
+            .collect();
+        concat_columns(&raw, 6, &encoded, self.width() - 6)
     }
 }
 
@@ -233,11 +289,16 @@ impl Reader<'_> {
         Fourier { multipliers: f.multipliers.clone(), argument: self.argument }
     }
 
+    fn ray_encoder(&self, pos_enc: &nn::FourierEncoding, ray_enc: &nn::FourierEncoding, raw: bool) -> RayEncoder {
+        RayEncoder { pos_enc: self.fourier(pos_enc), ray_enc: self.fourier(ray_enc), raw }
+    }
+
     fn layers(&self, t: &nn::Transformer) -> Vec<Layer> {
         t.layers
             .iter()
             .map(|l| Layer {
                 attn_norm: self.norm(&l.attn_norm),
+                kv_norm: None,
                 projections: match &l.attn.projections {
                     EngineProjections::SelfAttention { to_qkv } => {
                         Projections::SelfAttention { to_qkv: self.dense(to_qkv) }
@@ -252,9 +313,18 @@ impl Reader<'_> {
                 ff_out: self.dense(&l.ff.net_3),
                 heads: l.attn.heads,
                 dim_head: l.attn.dim_head,
+                query_residual: true,
             })
             .collect()
     }
+}
+
+/// The encoder of a model family: the SRT encoder (SRT, and OSRT beneath its slots) or DeFiNe's (one per
+/// model: the variants' sizes do not matter).
+#[allow(clippy::large_enum_variant)]
+enum Encoder {
+    Srt(srt::SrtEncoder),
+    Define(define::DefineEncoder),
 }
 
 /// The decoder of a model family, with what the family adds to the SRT encoder (one per model: the variants'
@@ -263,29 +333,36 @@ impl Reader<'_> {
 enum Decoder {
     Srt(srt::SrtDecoder),
     Osrt(osrt::Osrt),
+    Define(define::Heads),
+}
+
+/// What turns a decoder head's query features into its image: the Ray-Patch conv decoder, if any, and the
+/// image's channels (SRT and OSRT: one head of 3, or 4 with log-depth; DeFiNe: rgb 3, then depth 1).
+struct Head {
+    channels: usize,
+    ray_patch: Option<ray_patch::ConvDecoder>,
 }
 
 /// The whole model in float64, read from a [`LoadedModel`].
 pub struct ReferenceModel {
     config: ModelConfig,
     argument: Argument,
-    /// Channels of the image before the sigmoid: 3, or 4 with log-depth.
-    channels: usize,
-    encoder: srt::SrtEncoder,
+    encoder: Encoder,
     decoder: Decoder,
-    ray_patch: Option<ray_patch::ConvDecoder>,
+    /// One per decoder head, in the decoder's order.
+    heads: Vec<Head>,
 }
 
 /// A scene encoded by the reference.
 pub struct ReferenceScene {
     /// The latent the decoder attends to: SRT's tokens `[tokens, token_dim]`, OSRT's slots
-    /// `[slots, slot_dim]` (the engine's `latent` output).
+    /// `[slots, slot_dim]`, DeFiNe's latents `[num_latents, latent_dim]` (the engine's `latent` output).
     pub latent: Vec<f64>,
-    /// Rows of `latent` (tokens, or slots).
+    /// Rows of `latent` (tokens, slots, or latents).
     pub tokens: usize,
     /// OSRT: the SRT encoder's tokens `[tokens, token_dim]` that slot attention reads (`set_latent`).
     pub set_latent: Option<Vec<f64>>,
-    /// Per decoder cross-attention layer, `[tokens, 2·inner]`: keys, then values.
+    /// Per decoder cross-attention layer (DeFiNe: per head), `[tokens, 2·inner]`: keys, then values.
     pub keys_values: Vec<Vec<f64>>,
     /// OSRT: the mixing block's keys `to_k(slots)` `[slots, att_dim]`.
     mixing_keys: Option<Vec<f64>>,
@@ -299,7 +376,7 @@ pub struct ReferenceFrame {
     pub width: usize,
     /// `[views, height, width, 3]`, after the sigmoid.
     pub rgb: Vec<f64>,
-    /// `[views, height, width]`, for models with a log-depth channel.
+    /// `[views, height, width]`, for models with a log-depth channel or head.
     pub logdepth: Option<Vec<f64>>,
     /// OSRT: the slot weights `[views, height, width, slots]` (for Ray-Patch, the patch rays' weights
     /// bilinearly resized to the image, not renormalised, as the official `OSRT.decoder` has them).
@@ -333,48 +410,60 @@ impl ReferenceModel {
     pub fn new(model: &LoadedModel, argument: Argument) -> Result<ReferenceModel, EngineError> {
         let config = model.config.clone();
         let source = Source::File(model);
-        let (channels, encoder, decoder, ray_patch) = match &config.family {
+        let (encoder, decoder, heads) = match &config.family {
             Family::Srt(c) => {
                 let (m, weights) = nn::build(source, |vars| crate::models::srt::Srt::new(vars, c))?;
                 let r = Reader { weights: &weights, argument };
                 let decoder = Decoder::Srt(srt::SrtDecoder::read(&r, &m.decoder));
-                (c.image_channels(), srt::SrtEncoder::read(&r, &m.encoder), decoder, r.ray_patch(&m.ray_patch))
+                let head = Head { channels: c.image_channels(), ray_patch: r.ray_patch(&m.ray_patch) };
+                (Encoder::Srt(srt::SrtEncoder::read(&r, &m.encoder)), decoder, vec![head])
             }
             Family::Osrt(c) => {
                 let (m, weights) = nn::build(source, |vars| crate::models::osrt::Osrt::new(vars, c))?;
                 let r = Reader { weights: &weights, argument };
                 let decoder = Decoder::Osrt(osrt::Osrt::read(&r, &m));
-                let encoder = srt::SrtEncoder::read(&r, &m.encoder.srt_encoder);
-                (c.image_channels(), encoder, decoder, r.ray_patch(&m.ray_patch))
+                let encoder = Encoder::Srt(srt::SrtEncoder::read(&r, &m.encoder.srt_encoder));
+                (encoder, decoder, vec![Head { channels: c.image_channels(), ray_patch: r.ray_patch(&m.ray_patch) }])
             }
-            Family::Define(_) => {
-                return Err(EngineError::Request("the float64 model reference does not cover DeFiNe yet".into()))
+            Family::Define(c) => {
+                let (m, weights) = nn::build(source, |vars| crate::models::define::Define::new(vars, c))?;
+                let r = Reader { weights: &weights, argument };
+                let heads = m
+                    .heads
+                    .iter()
+                    .map(|h| Head { channels: define::head_channels(h), ray_patch: r.ray_patch(&h.ray_patch) });
+                let encoder = Encoder::Define(define::DefineEncoder::read(&r, &m.encoder));
+                (encoder, Decoder::Define(define::Heads::read(&r, &m.heads)), heads.collect())
             }
         };
-        Ok(ReferenceModel { config, argument, channels, encoder, decoder, ray_patch })
+        Ok(ReferenceModel { config, argument, encoder, decoder, heads })
     }
 
     pub fn config(&self) -> &ModelConfig {
         &self.config
     }
 
-    /// Encodes posed input views: the SRT encoder's tokens, OSRT's slots from them, and what the decoder
-    /// reads of the latent (keys and values, and OSRT's mixing keys).
+    /// Encodes posed input views: the encoder's latent (SRT's tokens, DeFiNe's latents), OSRT's slots from
+    /// it, and what the decoder reads of the latent (keys and values, and OSRT's mixing keys).
     pub fn encode(&self, inputs: &InputViews) -> Result<ReferenceScene, ModelError> {
         inputs.check("input views")?;
-        let z = self.encoder.forward(inputs);
-        let tokens = z.len() / self.encoder.token_dim();
-        Ok(match &self.decoder {
-            Decoder::Srt(d) => d.scene(z, tokens),
-            Decoder::Osrt(o) => o.scene(z),
+        Ok(match (&self.encoder, &self.decoder) {
+            (Encoder::Srt(e), Decoder::Srt(d)) => {
+                let z = e.forward(inputs);
+                let tokens = z.len() / e.token_dim();
+                d.scene(z, tokens)
+            }
+            (Encoder::Srt(e), Decoder::Osrt(o)) => o.scene(e.forward(inputs)),
+            (Encoder::Define(e), Decoder::Define(d)) => d.scene(e.forward(inputs)?),
+            _ => unreachable!("the encoder and decoder of one family"),
         })
     }
 
     /// Renders target views of an encoded scene: the decoder on every query (pixel, or patch for Ray-Patch),
-    /// then the Ray-Patch decoder, then the sigmoid; OSRT's segmentation beside. Patch rays are made from
-    /// full-resolution rays as the official loader makes them (bilinear), in f32 with
-    /// [`Argument::RoundedToF32`] (PyTorch's float32 operation order, which the engine reproduces bit for bit)
-    /// and in f64 otherwise.
+    /// then per head the Ray-Patch decoder, then the output maps (the sigmoid; DeFiNe's log-depth); OSRT's
+    /// segmentation beside. Patch rays are made from full-resolution rays as the official loader makes them
+    /// (bilinear), in f32 with [`Argument::RoundedToF32`] (PyTorch's float32 operation order, which the
+    /// engine reproduces bit for bit) and in f64 otherwise.
     pub fn render(&self, scene: &ReferenceScene, targets: &TargetViews) -> Result<ReferenceFrame, ModelError> {
         let k = self.config.patch_size();
         let grid = targets.grid_for(&self.config, "target views")?;
@@ -386,7 +475,7 @@ impl ReferenceModel {
         };
         let queries = views * ph * pw;
         let positions = f64s(&targets.camera_pos);
-        let (mut features, mut weights) = (Vec::new(), Vec::new());
+        let (mut features, mut weights) = (vec![Vec::new(); self.heads.len()], Vec::new());
         for start in (0..queries).step_by(QUERY_CHUNK) {
             let rows = QUERY_CHUNK.min(queries - start);
             let q = QueryRows {
@@ -396,42 +485,62 @@ impl ReferenceModel {
                 rays: &rays[3 * start..3 * (start + rows)],
             };
             match &self.decoder {
-                Decoder::Srt(d) => features.extend(d.decode(scene, &q)),
+                Decoder::Srt(d) => features[0].extend(d.decode(scene, &q)),
                 Decoder::Osrt(o) => {
                     let (f, w) = o.decoder.decode(scene, &q);
-                    features.extend(f);
+                    features[0].extend(f);
                     weights.extend(w);
+                }
+                Decoder::Define(d) => {
+                    for (h, f) in features.iter_mut().enumerate() {
+                        f.extend(d.decode(h, scene, &q));
+                    }
                 }
             }
         }
 
-        let channels = self.channels;
-        let image = match &self.ray_patch {
-            None => features,
-            Some(rp) => rp.forward(features, views, ph, pw, channels),
-        };
-        // The official output resize (rp_kwargs h_out/w_out) when k does not divide the target size.
+        // Each head's image before its output map.
         let (height, width) = (grid.height, grid.width);
-        let image = if (ph * k, pw * k) == (height, width) {
-            image
-        } else {
-            nearest(&image, views, ph * k, pw * k, channels, height, width)
-        };
+        let images: Vec<Vec<f64>> = features
+            .into_iter()
+            .zip(&self.heads)
+            .map(|(features, head)| {
+                let image = match &head.ray_patch {
+                    None => features,
+                    Some(rp) => rp.forward(features, views, ph, pw, head.channels),
+                };
+                // The official output resize (rp_kwargs h_out/w_out) when k does not divide the target size.
+                if (ph * k, pw * k) == (height, width) {
+                    image
+                } else {
+                    nearest(&image, views, ph * k, pw * k, head.channels, height, width)
+                }
+            })
+            .collect();
         let (segmentation, slots) = match &self.decoder {
-            Decoder::Srt(_) => (None, 0),
             Decoder::Osrt(_) => {
                 let slots = scene.tokens;
                 // Ray-Patch: the patch weights bilinearly resized to the image (the official OSRT.decoder).
-                let resized = if k > 1 { bilinear(&weights, views, ph, pw, slots, height, width) } else { weights };
+                let resized = if k > 1 {
+                    ray_patch::resize_bilinear(&weights, views, (ph, pw), slots, (height, width), self.argument)
+                } else {
+                    weights
+                };
                 (Some(resized), slots)
             }
+            _ => (None, 0),
+        };
+        let channels = self.heads[0].channels;
+        let logdepth = match &self.decoder {
+            Decoder::Define(_) => Some(define::log_depth(&images[1])),
+            _ => (channels == 4).then(|| map_columns(&images[0], channels, 3, 1, Map::Identity)),
         };
         Ok(ReferenceFrame {
             views,
             height,
             width,
-            rgb: map_columns(&image, channels, 0, 3, Map::Sigmoid),
-            logdepth: (channels == 4).then(|| map_columns(&image, channels, 3, 1, Map::Identity)),
+            rgb: map_columns(&images[0], channels, 0, 3, Map::Sigmoid),
+            logdepth,
             segmentation,
             slots,
         })

@@ -3,16 +3,16 @@
 
 use raypatch_model::InputViews;
 
-use super::{f64s, leaky_relu, Conv, Dense, Fourier, Layer, QueryRows, Reader, ReferenceScene, OUT_MLP_SLOPE};
+use super::{f64s, leaky_relu, Conv, Dense, Layer, QueryRows, RayEncoder, Reader, ReferenceScene, OUT_MLP_SLOPE};
 use crate::kernels::Activation;
 use crate::models::srt::{
     RayPredictor as EngineRayPredictor, SrtDecoder as EngineSrtDecoder, SrtEncoder as EngineSrtEncoder,
 };
+use crate::reference::concat::concat_columns;
 
 /// `SRTEncoder`: conv blocks, per-patch linear, self-attention transformer.
 pub(super) struct SrtEncoder {
-    pos_enc: Fourier,
-    ray_enc: Fourier,
+    ray_encoder: RayEncoder,
     conv_blocks: Vec<(Conv, Conv)>,
     per_patch_linear: Dense,
     layers: Vec<Layer>,
@@ -20,8 +20,7 @@ pub(super) struct SrtEncoder {
 
 /// `RayPredictor`: query encodings → input MLP → cross-attention layers to the latent.
 pub(super) struct RayPredictor {
-    pos_enc: Fourier,
-    ray_enc: Fourier,
+    query_encoder: RayEncoder,
     input_mlp: (Dense, Dense),
     layers: Vec<Layer>,
 }
@@ -35,8 +34,7 @@ pub(super) struct SrtDecoder {
 impl SrtEncoder {
     pub(super) fn read(r: &Reader, e: &EngineSrtEncoder) -> SrtEncoder {
         SrtEncoder {
-            pos_enc: r.fourier(&e.pos_enc),
-            ray_enc: r.fourier(&e.ray_enc),
+            ray_encoder: r.ray_encoder(&e.pos_enc, &e.ray_enc, false),
             conv_blocks: e.conv_blocks.iter().map(|b| (r.conv(&b.conv_0), r.conv(&b.conv_3))).collect(),
             per_patch_linear: r.dense(&e.per_patch_linear),
             layers: r.layers(&e.transformer),
@@ -50,17 +48,11 @@ impl SrtEncoder {
     /// The latent tokens `[n·h'·w', token_dim]` of (checked) posed input views.
     pub(super) fn forward(&self, inputs: &InputViews) -> Vec<f64> {
         let (n, h, w) = (inputs.count, inputs.height, inputs.width);
-        let pixels = n * h * w;
         // [rgb, posenc(camera position), posenc(ray)] per pixel (NHWC), the position broadcast over its view.
-        let pos = self.pos_enc.encode(&f64s(&inputs.camera_pos), h * w, 0, pixels);
-        let rays = self.ray_enc.encode(&f64s(&inputs.rays), 1, 0, pixels);
-        let (pos_w, ray_w) = (self.pos_enc.width(), self.ray_enc.width());
-        let mut x = Vec::with_capacity(pixels * (3 + pos_w + ray_w));
-        for p in 0..pixels {
-            x.extend(inputs.images[3 * p..3 * p + 3].iter().map(|&v| v as f64));
-            x.extend_from_slice(&pos[p * pos_w..(p + 1) * pos_w]);
-            x.extend_from_slice(&rays[p * ray_w..(p + 1) * ray_w]);
-        }
+        let (positions, rays) = (f64s(&inputs.camera_pos), f64s(&inputs.rays));
+        let pixels = QueryRows { positions: &positions, per_view: h * w, start: 0, rays: &rays };
+        let encoded = self.ray_encoder.forward(&pixels);
+        let mut x = concat_columns(&f64s(&inputs.images), 3, &encoded, self.ray_encoder.width());
 
         let (mut h, mut w) = (h, w);
         for (first, second) in &self.conv_blocks {
@@ -76,8 +68,7 @@ impl SrtEncoder {
 impl RayPredictor {
     pub(super) fn read(r: &Reader, p: &EngineRayPredictor) -> RayPredictor {
         RayPredictor {
-            pos_enc: r.fourier(&p.pos_enc),
-            ray_enc: r.fourier(&p.ray_enc),
+            query_encoder: r.ray_encoder(&p.pos_enc, &p.ray_enc, false),
             input_mlp: (r.dense(&p.input_mlp_0), r.dense(&p.input_mlp_2)),
             layers: r.layers(&p.transformer),
         }
@@ -91,16 +82,7 @@ impl RayPredictor {
     /// The queries after the input MLP, `[rows, query_dim]`: input_mlp(cat(posenc(camera position),
     /// posenc(ray))).
     pub(super) fn queries(&self, q: &QueryRows) -> Vec<f64> {
-        let rows = q.rows();
-        let pos = self.pos_enc.encode(q.positions, q.per_view, q.start, rows);
-        let ray = self.ray_enc.encode(q.rays, 1, 0, rows);
-        let (pos_w, ray_w) = (self.pos_enc.width(), self.ray_enc.width());
-        let mut query = Vec::with_capacity(rows * (pos_w + ray_w));
-        for r in 0..rows {
-            query.extend_from_slice(&pos[r * pos_w..(r + 1) * pos_w]);
-            query.extend_from_slice(&ray[r * ray_w..(r + 1) * ray_w]);
-        }
-        let hidden = self.input_mlp.0.apply(&query, Activation::Relu, None);
+        let hidden = self.input_mlp.0.apply(&self.query_encoder.forward(q), Activation::Relu, None);
         self.input_mlp.1.forward(&hidden)
     }
 
