@@ -1,10 +1,12 @@
 //! The float64 reference of the whole model (`reference::model`), which the rest of this suite and the
-//! benchmark harness measure the engine against, checked on every golden case (SRT, RP-SRT, OSRT, RP-OSRT):
+//! benchmark harness measure the engine against, checked on every golden case (SRT, RP-SRT, OSRT, RP-OSRT,
+//! DeFiNe, RP-DeFiNe):
 //! - with float64 encoding arguments it is the float64 PyTorch run of the official model (`latent_f64`,
 //!   `set_latent_f64`, `rgb_f64`, `logdepth_f64`, `segmentation_f64`): the same maths in the same precision,
 //!   so only f64 rounding differs;
 //! - with the arguments rounded to f32 (as torch float32 and the engine form them) it is within float32
-//!   arithmetic error of the float32 PyTorch run and of the engine (latent, rgb, and OSRT's segmentation).
+//!   arithmetic error of the float32 PyTorch run and of the engine (latent, rgb, log-depth where the model has
+//!   it, and OSRT's segmentation).
 
 use std::path::{Path, PathBuf};
 
@@ -23,8 +25,8 @@ const F64_TOL: f64 = 1e-9;
 /// tolerance (f32 arithmetic through ~10 layers; ~5e-6 is seen), for rgb and OSRT's segmentation (both in
 /// [0, 1]).
 const F32_TOL: f64 = 1e-4;
-/// The same for the latent (SRT's tokens, OSRT's slots), relative to its largest magnitude, as the golden tests
-/// measure it.
+/// The same for the latent (SRT's tokens, OSRT's slots, DeFiNe's latents) and the log-depth (unbounded, as
+/// latents are), relative to the largest magnitude, as the golden tests measure it.
 const F32_LATENT_REL_TOL: f64 = 1e-4;
 
 fn f64_tensor(path: &Path, key: &str) -> Vec<f64> {
@@ -123,13 +125,16 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
 
         let model = engine_model(&loaded);
         let encoded = model.encode(&scene.inputs).unwrap();
-        let outputs = match want.segmentation {
-            Some(_) => Outputs::of(&[Output::Rgb, Output::Segmentation]),
-            None => Outputs::default(),
-        };
+        let mut outputs = Outputs::default();
+        if want.segmentation.is_some() {
+            outputs = outputs.with(Output::Segmentation);
+        }
+        if want.logdepth.is_some() {
+            outputs = outputs.with(Output::LogDepth);
+        }
         let frame = encoded.render(&scene.targets, outputs).unwrap();
-        // (what, engine error, torch float32 error, tolerance): the latent relative, rgb and segmentation
-        // (in [0, 1]) absolute.
+        // (what, engine error, torch float32 error, tolerance): the latent and log-depth relative, rgb and
+        // segmentation (in [0, 1]) absolute.
         let latent_scale = max_abs(&want_scene.latent);
         let engine_latent = crate::gpu().read(&encoded.latent).unwrap();
         let mut errors = vec![(
@@ -144,6 +149,15 @@ fn engine_and_float32_pytorch_match_the_reference_with_f32_arguments() {
             max_abs_diff(&f32_tensor(&expected, "rgb"), &want.rgb),
             F32_TOL,
         ));
+        if let Some(logdepth) = &want.logdepth {
+            let scale = max_abs(logdepth);
+            errors.push((
+                "log-depth rel",
+                max_abs_diff(frame.get(Output::LogDepth).expect("log-depth"), logdepth) / scale,
+                max_abs_diff(&f32_tensor(&expected, "logdepth"), logdepth) / scale,
+                F32_LATENT_REL_TOL,
+            ));
+        }
         if let Some(segmentation) = &want.segmentation {
             errors.push((
                 "segmentation",
