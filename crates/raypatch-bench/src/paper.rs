@@ -1,6 +1,6 @@
-//! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, SRT and OSRT rows, measured on an NVIDIA
-//! V100, and the attention-memory example of Section 5) beside ours where they apply, and their section of
-//! `tables.md`.
+//! The paper's figures (Ray-Patch, 3DV 2024: Table 1 on MSN-Easy, SRT and OSRT rows, and Table 3 on ScanNet,
+//! DeFiNe rows, measured on an NVIDIA V100, and the attention-memory example of Section 5) beside ours where
+//! they apply, and their section of `tables.md`.
 //! Reads the records of [`crate::report`] (which does not depend on this module).
 
 use serde::{Deserialize, Serialize};
@@ -15,19 +15,20 @@ pub struct Comparison {
     pub ours: String,
 }
 
-/// Which official model a row of the paper's Table 1 is: SRT / RP-SRT (the sweep's `official` records) or
-/// OSRT / RP-OSRT (`official-osrt`).
+/// Which official model a row of the paper's tables is: SRT / RP-SRT (the sweep's `official` records),
+/// OSRT / RP-OSRT (`official-osrt`) or DeFiNe / RP-DeFiNe (`official-define`).
 #[derive(Clone, Copy, PartialEq)]
 enum Family {
     Srt,
     Osrt,
+    Define,
 }
 
 /// A row of Table 1: the model, target size, k, rendering speed in fps on a V100, "Giga FLOPs".
 struct PaperRow(Family, (usize, usize), usize, f64, f64);
 
-/// Table 1, MSN-Easy.
-const TABLE_1: [PaperRow; 8] = [
+/// Table 1 (MSN-Easy) and Table 3 (ScanNet, DeFiNe: two 128x192 input views, 480x640 targets).
+const TABLES: [PaperRow; 10] = [
     PaperRow(Family::Srt, (60, 80), 1, 117.0, 48.2),
     PaperRow(Family::Srt, (60, 80), 2, 288.0, 15.8),
     PaperRow(Family::Srt, (60, 80), 4, 341.0, 7.3),
@@ -36,6 +37,8 @@ const TABLE_1: [PaperRow; 8] = [
     PaperRow(Family::Srt, (120, 160), 8, 305.0, 19.7),
     PaperRow(Family::Osrt, (120, 160), 1, 21.0, 278.6),
     PaperRow(Family::Osrt, (120, 160), 8, 278.0, 24.7),
+    PaperRow(Family::Define, (480, 640), 1, 7.0, 801.0),
+    PaperRow(Family::Define, (480, 640), 16, 208.0, 81.0),
 ];
 
 fn official(records: &[Record], family: Family, size: (usize, usize), k: usize) -> Option<&Record> {
@@ -43,6 +46,7 @@ fn official(records: &[Record], family: Family, size: (usize, usize), k: usize) 
     let model = match family {
         Family::Srt => "official",
         Family::Osrt => "official-osrt",
+        Family::Define => "official-define",
     };
     records.iter().find(|r| {
         r.group == "sweep"
@@ -58,6 +62,7 @@ fn name(family: Family, k: usize) -> String {
     let base = match family {
         Family::Srt => "SRT",
         Family::Osrt => "OSRT",
+        Family::Define => "DeFiNe",
     };
     if k == 1 {
         base.into()
@@ -78,7 +83,7 @@ fn fps_text(fps: f64) -> String {
 pub fn compare(records: &[Record]) -> Vec<Comparison> {
     let mut rows = Vec::new();
     let adapter = records.iter().find_map(|r| r.env.as_ref()).map_or(String::new(), |e| e.adapter.clone());
-    for &PaperRow(family, size, k, fps, gflops) in &TABLE_1 {
+    for &PaperRow(family, size, k, fps, gflops) in &TABLES {
         let ours = official(records, family, size, k);
         let name = |k| name(family, k);
         rows.push(Comparison {
@@ -98,7 +103,7 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             }),
         });
         if k > 1 {
-            let per_pixel = TABLE_1.iter().find(|row| row.0 == family && row.1 == size && row.2 == 1);
+            let per_pixel = TABLES.iter().find(|row| row.0 == family && row.1 == size && row.2 == 1);
             let srt = per_pixel.map_or(1.0, |row| row.3);
             let base = official(records, family, size, 1).and_then(|r| r.fps);
             let ours = match (base, ours.and_then(|r| r.fps)) {
@@ -124,15 +129,18 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             bytes(attention_score_bytes(960 * 1280 / 256, 2048, 8))
         ),
     });
-    for k in [1, 16] {
-        let size = format!("{}x{}", 960, 1280);
-        if let Some(r) =
-            records.iter().find(|r| r.model == "official" && r.k == k && r.target_size == size && r.group == "sweep")
-        {
+    for (family, model) in [(Family::Srt, "official"), (Family::Define, "official-define")] {
+        for k in [1, 16] {
+            let size = format!("{}x{}", 960, 1280);
+            let Some(r) =
+                records.iter().find(|r| r.model == model && r.k == k && r.target_size == size && r.group == "sweep")
+            else {
+                continue;
+            };
             rows.push(Comparison {
                 what: format!(
                     "official {} 960x1280: materialised scores vs the engine's planned peak",
-                    name(Family::Srt, k)
+                    name(family, k)
                 ),
                 paper: "-".into(),
                 ours: format!(

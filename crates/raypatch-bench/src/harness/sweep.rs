@@ -21,10 +21,19 @@ pub(crate) const OSRT: &str = "official-osrt";
 /// The group of the official ScanNet DeFiNe runs: `define_32_stereo_acc` (k = 1) and
 /// `rpdefine_16_32_stereo_acc` (k = 16).
 pub(crate) const DEFINE: &str = "official-define";
-/// DeFiNe's official stereo setting: two input views of 128x192, targets of 480x640 (and the paper's
-/// Figure 2 up to 960x1280).
+/// DeFiNe's official stereo setting: two input views of 128x192, targets of 480x640, and the sizes around it
+/// up to the paper's Figure 2's 960x1280 (the smaller ones predict the larger renders' time).
 const DEFINE_INPUTS: (usize, Size) = (2, (128, 192));
-const DEFINE_SIZES: [Size; 2] = [(480, 640), (960, 1280)];
+const DEFINE_SIZES: [Size; 4] = [(120, 160), (240, 320), (480, 640), (960, 1280)];
+
+/// One model of the sweep: its group, k and config, its input views (count, size) and its target sizes.
+struct Spec<'a> {
+    name: &'a str,
+    k: usize,
+    config: serde_json::Value,
+    inputs: (usize, Size),
+    sizes: &'a [Size],
+}
 
 impl Bench {
     /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes; the
@@ -36,28 +45,30 @@ impl Bench {
         } else {
             (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
         };
-        let one_view = (1, INPUT_SIZE);
-        let mut specs: Vec<(&str, usize, serde_json::Value, (usize, Size), &[Size])> = PATCH_SIZES
-            .iter()
-            .map(|&k| ("small", k, synthetic::small_config(k, SMALL_WIDTH), one_view, small_sizes))
-            .collect();
+        let spec = |name, k, config, sizes| Spec { name, k, config, inputs: (1, INPUT_SIZE), sizes };
+        let mut specs: Vec<Spec> =
+            PATCH_SIZES.iter().map(|&k| spec("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
         for (k, sizes) in official {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
-            specs.push(("official", k, config, one_view, sizes));
+            specs.push(spec("official", k, config, sizes));
         }
         if !self.quick || !self.only.is_empty() {
-            specs.push((OSRT, 1, synthetic::official_osrt_config(), one_view, &[(120, 160)]));
-            specs.push((OSRT, 8, synthetic::official_rposrt_config(), one_view, &[(120, 160)]));
+            specs.push(spec(OSRT, 1, synthetic::official_osrt_config(), &[(120, 160)]));
+            specs.push(spec(OSRT, 8, synthetic::official_rposrt_config(), &[(120, 160)]));
             for k in [1, 16] {
-                specs.push((DEFINE, k, synthetic::official_define_config(k), DEFINE_INPUTS, &DEFINE_SIZES));
+                let config = synthetic::official_define_config(k);
+                specs.push(Spec { inputs: DEFINE_INPUTS, ..spec(DEFINE, k, config, &DEFINE_SIZES) });
             }
         }
-        println!("random-weight models, 1 input view {}x{}, 1 target view", INPUT_SIZE.0, INPUT_SIZE.1);
+        println!(
+            "random-weight models, 1 input view {}x{} (DeFiNe: 2 views of 128x192), 1 target view",
+            INPUT_SIZE.0, INPUT_SIZE.1
+        );
         let f16 = self.gpu.features.contains(raypatch_engine::wgpu::Features::SHADER_F16);
         if !self.only.is_empty() {
-            specs.retain(|(name, k, _, _, _)| self.only.iter().any(|(n, only_k)| n == name && only_k == k));
+            specs.retain(|s| self.only.iter().any(|(n, only_k)| n == s.name && *only_k == s.k));
         }
-        for (name, k, config, (views, input_size), sizes) in specs {
+        for Spec { name, k, config, inputs: (views, input_size), sizes } in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
             let (inputs, _) = scene(views, input_size, input_size)?;
             // Whether the float64 references are affordable is decided from the first model's encode (the

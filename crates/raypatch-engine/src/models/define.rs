@@ -278,7 +278,7 @@ impl LightField for Define {
     fn check_inputs(&self, height: usize, width: usize) -> std::result::Result<(), String> {
         // The official encoder concatenates the ResNet's first feature map (⌈⌈s/2⌉/2⌉ a side) with the rays
         // resized to ⌊s/4⌋: they agree only for sides divisible by 4.
-        if height % 4 != 0 || width % 4 != 0 {
+        if !height.is_multiple_of(4) || !width.is_multiple_of(4) {
             return Err(format!(
                 "input views of {width}x{height}: DeFiNe needs input sizes divisible by 4 (its encoder joins the ResNet features at 1/4 size with the rays resized to H/4 x W/4)"
             ));
