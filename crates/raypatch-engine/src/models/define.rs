@@ -135,10 +135,11 @@ impl DefineEncoder {
         let latents = g.param(&label, self.latents);
         let args = MapColumnsArgs { x: g.b.all(latents), col: 0, out: latent.view, map: Map::Identity };
         map_columns(&mut g.b, &label, args);
-        let inner = self.cross_attention.dims.inner();
+        let (inner, (rows, cols)) =
+            (self.cross_attention.dims.inner(), self.cross_attention.values_shape(tokens.rows()));
         let kv = KeysValues {
             keys: g.transient("encoder.cross_attention.keys", tokens.rows(), inner),
-            values: g.transient("encoder.cross_attention.values", tokens.rows(), inner),
+            values: g.transient("encoder.cross_attention.values", rows, cols),
         };
         self.cross_attention.keys_values(g, tokens, kv);
         let widest = self.cross_attention.widest().max(tokens.rows());
@@ -292,10 +293,10 @@ impl LightField for Define {
         let mut cached = Vec::new();
         for head in &self.heads {
             let layer = &head.decoder.cross_attention;
-            let inner = layer.dims.inner();
+            let (inner, (rows, cols)) = (layer.dims.inner(), layer.values_shape(latent.rows()));
             let kv = KeysValues {
                 keys: g.output(&format!("decoder_{}.keys", head.name), latent.rows(), inner),
-                values: g.output(&format!("decoder_{}.values", head.name), latent.rows(), inner),
+                values: g.output(&format!("decoder_{}.values", head.name), rows, cols),
             };
             layer.keys_values(g, latent, kv);
             cached.extend([kv.keys, kv.values]);

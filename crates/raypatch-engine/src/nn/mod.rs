@@ -18,7 +18,7 @@ pub use conv::{Conv2d, ConvSpec};
 pub use gru::GruCell;
 pub use linear::{product_t, Linear};
 pub use norm::LayerNorm;
-pub use perceiver::{KeysValues, PerceiverDims, PerceiverLayer};
+pub use perceiver::{KeysValues, PerceiverDims, PerceiverLayer, Values};
 pub use pool::MaxPool2d;
 pub use posenc::FourierEncoding;
 pub use resnet::ResNet18;

@@ -11,12 +11,16 @@
 //! 1e-5 (HF ignores the config's `layer_norm_eps` here). Query rows never interact, so a layer can run on any
 //! slice of its queries: keys and values are projected once ([`PerceiverLayer::keys_values`]) and a scene's
 //! decoder keeps them.
+//!
+//! DeFiNe's cross-attentions have one head 1146 or 512 wide, beyond the fused attention kernel: their scores
+//! are materialised per query chunk (a matrix product and a row softmax) and the weighted sum of the values is
+//! a matrix product too, with the values kept transposed and without their bias (see [`Values`]).
 
-use super::{LayerNorm, Linear, Vars};
+use super::{LayerNorm, Linear, Param, Vars};
 use crate::error::Result;
 use crate::graph::{Graph, Tensor};
 use crate::kernels::attention::{attention, AttentionArgs, MAX_DIM_HEAD};
-use crate::kernels::mix::{mix_rows, MixArgs};
+use crate::kernels::matmul::{linear, LinearArgs};
 use crate::kernels::softmax::{softmax, Axis, SoftmaxArgs};
 use crate::kernels::Activation;
 
@@ -51,7 +55,7 @@ pub struct PerceiverLayer {
     /// `attention.self.{query,key,value}`.
     pub query: Linear,
     pub key: Linear,
-    pub value: Linear,
+    pub value: Values,
     /// `attention.output.dense`.
     pub output: Linear,
     /// `layernorm`, `mlp.dense1`, `mlp.dense2`.
@@ -60,7 +64,17 @@ pub struct PerceiverLayer {
     pub dense2: Linear,
 }
 
-/// Keys and values of a layer's inputs `[inputs, inner]` each.
+/// How a layer projects its values.
+pub enum Values {
+    /// `value` as an `nn.Linear`: values `[inputs, inner]`, as the fused attention kernel reads them.
+    Rows(Linear),
+    /// `value`'s weight `[inner, kv_dim]` read as data (f32) and its bias: values kept transposed and without
+    /// the bias, `[inner, inputs]`, so that softmax·V is a matrix product whose bias is `value.bias` (each row
+    /// of the softmax sums to 1, so the bias passes through it unchanged).
+    Transposed { path: String, weight: Param, bias: Param },
+}
+
+/// Keys `[inputs, inner]` and values (shaped as [`PerceiverLayer::values_shape`] says) of a layer's inputs.
 #[derive(Clone, Copy, Debug)]
 pub struct KeysValues {
     pub keys: Tensor,
@@ -72,6 +86,13 @@ impl PerceiverLayer {
         let (q, inner) = (dims.q_dim, dims.inner());
         let kv = dims.kv_dim.unwrap_or(q);
         let at = vars.pp("attention.self");
+        let value = at.pp("value");
+        let value = if inner / dims.heads > MAX_DIM_HEAD {
+            let path = value.path().to_string();
+            Values::Transposed { path, weight: value.dense("weight", inner, kv)?, bias: value.row("bias", inner)? }
+        } else {
+            Values::Rows(Linear::new(&value, kv, inner)?)
+        };
         Ok(PerceiverLayer {
             path: vars.path().to_string(),
             dims,
@@ -82,7 +103,7 @@ impl PerceiverLayer {
             },
             query: Linear::new(&at.pp("query"), q, inner)?,
             key: Linear::new(&at.pp("key"), kv, inner)?,
-            value: Linear::new(&at.pp("value"), kv, inner)?,
+            value,
             output: Linear::new(&vars.pp("attention.output.dense"), inner, q)?,
             layernorm: LayerNorm::new(&vars.pp("layernorm"), q)?,
             dense1: Linear::new(&vars.pp("mlp.dense1"), q, q)?,
@@ -101,15 +122,40 @@ impl PerceiverLayer {
         self.dims.inner() / self.dims.heads > MAX_DIM_HEAD
     }
 
+    /// The shape `[rows, cols]` of the values of `inputs` inputs: `[inputs, inner]`, or transposed.
+    pub fn values_shape(&self, inputs: usize) -> (usize, usize) {
+        match self.value {
+            Values::Rows(_) => (inputs, self.dims.inner()),
+            Values::Transposed { .. } => (self.dims.inner(), inputs),
+        }
+    }
+
     /// The cross-attention's keys and values of `inputs` `[n, kv_dim]`: key/value(layernorm2(inputs)), into
-    /// `out` (tensors `[n, inner]`).
+    /// `out` (keys `[n, inner]`, values as [`values_shape`](Self::values_shape)).
     pub fn keys_values(&self, g: &mut Graph, inputs: Tensor, out: KeysValues) {
         let normed = match &self.layernorm2 {
             Some(norm) => norm.forward(g, inputs),
             None => inputs,
         };
         self.key.forward_into(g, normed, out.keys, Activation::None, false);
-        self.value.forward_into(g, normed, out.values, Activation::None, false);
+        match &self.value {
+            Values::Rows(value) => value.forward_into(g, normed, out.values, Activation::None, false),
+            // Vᵀ without the bias: value.weight · normedᵀ.
+            Values::Transposed { path, weight, .. } => {
+                let label = g.label(path);
+                let weight = g.param(&label, *weight);
+                let x = g.b.all(weight);
+                let args = LinearArgs {
+                    x,
+                    weight: normed.id(),
+                    bias: None,
+                    out: out.values.view,
+                    act: Activation::None,
+                    accumulate: false,
+                };
+                linear(&mut g.b, &label, args);
+            }
+        }
     }
 
     /// The layer on the queries `x` `[rows, q_dim]`, attending to `kv` (cross-attention) or to `x` itself
@@ -118,9 +164,14 @@ impl PerceiverLayer {
     pub fn forward(&self, g: &mut Graph, x: Tensor, kv: Option<KeysValues>) -> Tensor {
         let normed = self.layernorm1.forward(g, x);
         let q = self.query.forward(g, normed, Activation::None);
-        let kv = kv.unwrap_or_else(|| KeysValues {
-            keys: self.key.forward(g, normed, Activation::None),
-            values: self.value.forward(g, normed, Activation::None),
+        let kv = kv.unwrap_or_else(|| {
+            let Values::Rows(value) = &self.value else {
+                panic!("{}: self-attention with heads wider than {MAX_DIM_HEAD}", self.path)
+            };
+            KeysValues {
+                keys: self.key.forward(g, normed, Activation::None),
+                values: value.forward(g, normed, Activation::None),
+            }
         });
         let context = self.attend(g, q, kv);
         let out = if self.dims.query_residual {
@@ -136,7 +187,8 @@ impl PerceiverLayer {
     }
 
     /// softmax(q·kᵀ / √d_head)·v per head: the fused online-softmax kernel, or for a single head wider than
-    /// it takes, the scores materialised (a matrix product, a row softmax, the weighted sum of the values).
+    /// it takes, the scores materialised (a matrix product, a row softmax, the weighted sum of the transposed
+    /// values as a matrix product plus the value bias).
     fn attend(&self, g: &mut Graph, q: Tensor, kv: KeysValues) -> Tensor {
         let (heads, inner) = (self.dims.heads, self.dims.inner());
         let dim_head = inner / heads;
@@ -145,7 +197,7 @@ impl PerceiverLayer {
         let path = format!("{}.attention.self", self.path);
         let out = g.transient(&format!("{path}.context"), q.rows(), inner);
         let label = g.label(&format!("{path}.context"));
-        if !self.materialises_scores() {
+        let Values::Transposed { bias, .. } = &self.value else {
             let args = AttentionArgs {
                 q: q.view,
                 q_col: 0,
@@ -160,14 +212,23 @@ impl PerceiverLayer {
             };
             attention(&mut g.b, &label, args);
             return out;
-        }
+        };
         assert_eq!(heads, 1, "{path}: heads wider than {MAX_DIM_HEAD} are taken one head at a time");
         let scores = super::product_t(g, &format!("{path}.scores"), q, kv.keys);
         let weights = g.transient(&format!("{path}.weights"), q.rows(), kv.keys.rows());
         let softmax_label = g.label(&format!("{path}.weights"));
         let args = SoftmaxArgs { x: scores.view, out: weights.view, axis: Axis::Rows, scale, eps: 0.0 };
         softmax(&mut g.b, &softmax_label, args);
-        mix_rows(&mut g.b, &label, MixArgs { w: weights.view, x: kv.values.id(), out: out.view });
+        let bias = g.param(&label, *bias);
+        let args = LinearArgs {
+            x: weights.view,
+            weight: kv.values.id(),
+            bias: Some(bias),
+            out: out.view,
+            act: Activation::None,
+            accumulate: false,
+        };
+        linear(&mut g.b, &label, args);
         out
     }
 }

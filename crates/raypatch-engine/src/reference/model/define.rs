@@ -111,7 +111,15 @@ fn stacked(parts: &[Dense]) -> Dense {
 impl Reader<'_> {
     /// HF's `PerceiverLayer` as a [`Layer`].
     fn perceiver(&self, l: &nn::PerceiverLayer) -> Layer {
-        let (query, key, value) = (self.dense(&l.query), self.dense(&l.key), self.dense(&l.value));
+        let value = match &l.value {
+            nn::Values::Rows(linear) => self.dense(linear),
+            // The same weight, read as data by the engine.
+            nn::Values::Transposed { weight, bias, .. } => {
+                let (n, k) = (l.dims.inner(), l.dims.kv_dim.unwrap_or(l.dims.q_dim));
+                Dense { w: self.get(*weight), b: Some(self.get(*bias)), n, k }
+            }
+        };
+        let (query, key) = (self.dense(&l.query), self.dense(&l.key));
         let projections = match l.dims.kv_dim {
             Some(_) => Projections::Cross { to_q: query, to_kv: stacked(&[key, value]) },
             None => Projections::SelfAttention { to_qkv: stacked(&[query, key, value]) },
