@@ -9,7 +9,7 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::{Output, Outputs, Region, Request};
 use raypatch_model::TargetViews;
 
-use super::{decoder_name, precision_name, print_row, set_times, Bench, Subject};
+use super::{decoder_name, model_outputs, precision_name, print_row, set_times, Bench, Subject};
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
 use crate::report::{KernelTime, Record};
@@ -111,7 +111,7 @@ impl Bench {
             return Ok(Vec::new());
         }
         let times = (|| -> Result<Option<GpuTimes>> {
-            s.encoded.render(targets, Outputs::default())?;
+            s.encoded.render(targets, model_outputs(&s.loaded.config))?;
             Ok(self.gpu.take_timestamps()?)
         })();
         self.gpu.set_timestamps(TimestampMode::Plan)?;
