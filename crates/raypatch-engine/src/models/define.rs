@@ -10,7 +10,7 @@ use raypatch_model::config::define::{DEPTH_MAX, DEPTH_MIN};
 use raypatch_model::{DefineConfig, RayFeatures, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{query_chunks, target_queries, Encoded, LightField};
+use super::{in_query_chunks, target_queries, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{ChannelNorm, Graph, HostInput, ImageSize, Tensor};
@@ -143,11 +143,9 @@ impl DefineEncoder {
         };
         self.cross_attention.keys_values(g, tokens, kv);
         let widest = self.cross_attention.widest().max(tokens.rows());
-        for chunk in query_chunks(g, self.num_latents, widest) {
-            g.with_suffix(format!("[{}..{}]", chunk.start, chunk.end), |g| {
-                self.cross_attention.forward(g, latent.slice(chunk.start, chunk.len()), Some(kv))
-            });
-        }
+        in_query_chunks(g, self.num_latents, widest, |g, start, rows| {
+            self.cross_attention.forward(g, latent.slice(start, rows), Some(kv));
+        });
         for layer in &self.self_attends {
             layer.forward(g, latent, None);
         }
@@ -326,13 +324,11 @@ impl LightField for Define {
             };
             let dims = head.decoder.final_layer.out_dim;
             let features = g.image(&format!("decoder_{}.features", head.name), patches, dims);
-            for chunk in query_chunks(g, patches.pixels(), head.decoder.widest(self.encoder.num_latents)) {
-                let (start, rows) = (chunk.start, chunk.len());
-                g.with_suffix(format!("[{start}..{}]", chunk.end), |g| {
-                    let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
-                    head.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, kv, out)
-                });
-            }
+            let widest = head.decoder.widest(self.encoder.num_latents);
+            in_query_chunks(g, patches.pixels(), widest, |g, start, rows| {
+                let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
+                head.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, kv, out)
+            });
             let image = match &head.ray_patch {
                 Some(rp) => rp.forward(g, features, (grid.height, grid.width)),
                 None => features,

@@ -140,8 +140,16 @@ pub fn image_outputs(g: &mut Graph, image: Tensor, outputs: Outputs) -> Vec<(Out
 const CHUNK_BYTES: usize = 32 << 20;
 const CHUNK_ALIGN: usize = 64;
 
+/// Records `decode(g, start, rows)` for each chunk of `queries` rows whose widest intermediate has `widest`
+/// columns, with the chunk's rows as the label suffix (e.g. `[0..4096]`).
+pub fn in_query_chunks(g: &mut Graph, queries: usize, widest: usize, mut decode: impl FnMut(&mut Graph, usize, usize)) {
+    for chunk in query_chunks(g, queries, widest) {
+        g.with_suffix(format!("[{}..{}]", chunk.start, chunk.end), |g| decode(g, chunk.start, chunk.len()));
+    }
+}
+
 /// The query chunks of `queries` rows whose widest intermediate has `widest` columns.
-pub fn query_chunks(g: &Graph, queries: usize, widest: usize) -> Vec<Range<usize>> {
+fn query_chunks(g: &Graph, queries: usize, widest: usize) -> Vec<Range<usize>> {
     let chunk_bytes = CHUNK_BYTES.min(usize::try_from(g.max_buffer_bytes).unwrap_or(usize::MAX));
     let chunk = (chunk_bytes / (4 * padded_cols(widest))) / CHUNK_ALIGN * CHUNK_ALIGN;
     let chunk = chunk.clamp(CHUNK_ALIGN, queries.div_ceil(CHUNK_ALIGN) * CHUNK_ALIGN);

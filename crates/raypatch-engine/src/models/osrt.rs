@@ -9,7 +9,7 @@ use raypatch_model::{OsrtConfig, TargetGrid};
 
 use super::ray_patch::{bilinear_output, bilinear_patch_span, RayPatchDecoder};
 use super::srt::{RayPredictor, SrtEncoder, OUT_MLP_SLOPE};
-use super::{image_output_set, image_outputs, query_chunks, target_queries, wants_image, Encoded, LightField};
+use super::{image_output_set, image_outputs, in_query_chunks, target_queries, wants_image, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, ImageSize, Tensor};
@@ -277,18 +277,15 @@ impl LightField for Osrt {
             (true, Some(_)) => Some(g.image("decoder_att.mixing_block.weights", patches, slots)),
         };
         let features = want_image.then(|| g.image("decoder_features", patches, self.decoder.render_mlp.out_dim()));
-        for chunk in query_chunks(g, patches.pixels(), self.decoder.widest) {
-            let (start, rows) = (chunk.start, chunk.len());
-            g.with_suffix(format!("[{start}..{}]", chunk.end), |g| {
-                let weights = match weights {
-                    Some(w) => w.slice(start, rows),
-                    None => g.transient("decoder_att.mixing_block.weights", rows, slots),
-                };
-                let out = ChunkOutputs { weights, image: features.map(|f| f.slice(start, rows)) };
-                let rays = rays.slice(start, rows);
-                self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &scene, out)
-            });
-        }
+        in_query_chunks(g, patches.pixels(), self.decoder.widest, |g, start, rows| {
+            let weights = match weights {
+                Some(w) => w.slice(start, rows),
+                None => g.transient("decoder_att.mixing_block.weights", rows, slots),
+            };
+            let out = ChunkOutputs { weights, image: features.map(|f| f.slice(start, rows)) };
+            let rays = rays.slice(start, rows);
+            self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &scene, out)
+        });
         let mut rendered = match features {
             Some(features) => {
                 let image = match &self.ray_patch {

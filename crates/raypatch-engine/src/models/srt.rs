@@ -6,7 +6,7 @@
 use raypatch_model::{EncoderConfig, RayPredictorConfig, SrtConfig, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{image_output_set, image_outputs, query_chunks, target_queries, Encoded, LightField};
+use super::{image_output_set, image_outputs, in_query_chunks, target_queries, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
@@ -109,7 +109,13 @@ impl SrtEncoder {
         let (pos, ray) = (self.pos_enc.width(), self.ray_enc.width());
         // [rgb, posenc(camera position), posenc(ray)] per pixel: RGB written by the host, encodings by the
         // GPU; the position is broadcast over its view's pixels.
-        let x = g.input("encoder_input", size.pixels(), 3 + pos + ray, HostInput::InputImages { col: 0, normalize: None }, Some(size));
+        let x = g.input(
+            "encoder_input",
+            size.pixels(),
+            3 + pos + ray,
+            HostInput::InputImages { col: 0, normalize: None },
+            Some(size),
+        );
         let camera_pos = g.input("input_camera_pos", size.n, 3, HostInput::InputCameraPos, None);
         let rays = g.input("input_rays", size.pixels(), 3, HostInput::InputRays, None);
         self.pos_enc.forward_into(g, camera_pos, size.h * size.w, 0, x, 3);
@@ -254,13 +260,10 @@ impl LightField for Srt {
         let kv: Vec<Tensor> =
             scene.iter().enumerate().map(|(l, t)| g.external(&format!("decoder.layers.{l}.kv"), t)).collect();
         let features = g.image("decoder_features", patches, self.config.decoder.out_dims);
-        for chunk in query_chunks(g, patches.pixels(), self.decoder.widest) {
-            let (start, rows) = (chunk.start, chunk.len());
-            g.with_suffix(format!("[{start}..{}]", chunk.end), |g| {
-                let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
-                self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &kv, out)
-            });
-        }
+        in_query_chunks(g, patches.pixels(), self.decoder.widest, |g, start, rows| {
+            let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
+            self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &kv, out)
+        });
         let image = match &self.ray_patch {
             Some(rp) => rp.forward(g, features, (grid.height, grid.width)),
             None => features,
