@@ -30,8 +30,7 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     let model = Model::load(gpu.clone(), dir.join("model.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
     let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
     let expected = TensorFile::open(&dir.join("expected.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let bounded_log_depth =
-        raypatch_model::load_model(dir.join("model.safetensors")).unwrap().config.base() == "define";
+    let bounded_log_depth = model.config.base() == "define";
 
     let start = Instant::now();
     let encoded = model.encode(&scene.inputs).unwrap_or_else(|e| panic!("{name}: {e}"));

@@ -10,13 +10,13 @@ use raypatch_model::config::define::{DEPTH_MAX, DEPTH_MIN};
 use raypatch_model::{DefineConfig, RayFeatures, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{in_query_chunks, target_queries, Encoded, LightField};
+use super::{in_query_chunks, resized, target_queries, Encoded, LightField};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{ChannelNorm, Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::copy::{copy_columns, CopyArgs};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
-use crate::kernels::resize::{bilinear, ResizeArgs};
+use crate::kernels::resize::bilinear;
 use crate::kernels::Activation;
 use crate::nn::{FourierEncoding, KeysValues, Linear, Param, PerceiverDims, PerceiverLayer, ResNet18, Vars};
 use crate::tensor::GpuTensor;
@@ -117,7 +117,7 @@ impl DefineEncoder {
         let tokens = g.image("encoder.tokens", grid, self.token_dim);
         let mut col = 0;
         for (i, &x) in features.iter().enumerate() {
-            let x = if i == 0 { x } else { resized(g, &format!("encoder.x{}", i + 1), x, grid) };
+            let x = if i == 0 { x } else { resized(g, &format!("encoder.x{}", i + 1), x, grid, bilinear) };
             let label = g.label(&format!("encoder.tokens.x{}", i + 1));
             copy_columns(&mut g.b, &label, CopyArgs { x: x.view, repeat: 1, first_row: 0, out: tokens.view, col });
             col += x.cols;
@@ -125,7 +125,7 @@ impl DefineEncoder {
         // The rays resized to H/4 × W/4 (the first feature map's size: `check_inputs` holds it to that).
         let camera_pos = g.input("input_camera_pos", size.n, 3, HostInput::InputCameraPos, None);
         let rays = g.input("input_rays", size.pixels(), 3, HostInput::InputRays, Some(size));
-        let rays = resized(g, "encoder.rays", rays, grid);
+        let rays = resized(g, "encoder.rays", rays, grid, bilinear);
         self.ray_encoder.forward_into(g, camera_pos, grid.h * grid.w, 0, rays, tokens, col);
 
         // The Perceiver: the learned latents cross-attend to the tokens (latent rows independently, so in
@@ -151,17 +151,6 @@ impl DefineEncoder {
         }
         latent
     }
-}
-
-/// `x` bilinearly resized to `to` (PyTorch `F.interpolate(mode="bilinear")`, align_corners False).
-fn resized(g: &mut Graph, path: &str, x: Tensor, to: ImageSize) -> Tensor {
-    let out = g.image(path, to, x.cols);
-    let label = g.label(path);
-    let from = x.size();
-    let args =
-        ResizeArgs { x: x.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
-    bilinear(&mut g.b, &label, args);
-    out
 }
 
 /// `DeFiNeDecoder` (`decoder_att_rgb`, `decoder_att_d`): the query features, the `PerceiverBasicDecoder`'s

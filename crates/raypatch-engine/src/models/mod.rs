@@ -18,7 +18,9 @@ use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use crate::kernels::resize::ResizeArgs;
 use crate::nn::{self, Source, Vars, WeightSet};
+use crate::plan::PlanBuilder;
 use crate::tensor::{padded_cols, GpuTensor};
 use ray_patch::RayPatchDecoder;
 
@@ -134,6 +136,26 @@ pub fn image_outputs(g: &mut Graph, image: Tensor, outputs: Outputs) -> Vec<(Out
     }
     out
 }
+
+/// The image `x` resized to `to` by `resize` (a kernel of `kernels::resize`) into a new image named `path`.
+pub fn resized(g: &mut Graph, path: &str, x: Tensor, to: ImageSize, resize: ResizeKernel) -> Tensor {
+    let out = g.image(path, to, x.cols);
+    resize_into(g, path, x, out, to, resize);
+    out
+}
+
+/// Records `resize` of the image `x` into `out` (`to.pixels()` rows: an image or a plan output), labelled `path`.
+pub fn resize_into(g: &mut Graph, path: &str, x: Tensor, out: Tensor, to: ImageSize, resize: ResizeKernel) {
+    let from = x.size();
+    let label = g.label(path);
+    let args =
+        ResizeArgs { x: x.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
+    resize(&mut g.b, &label, args);
+}
+
+/// A kernel of `kernels::resize` ([`bilinear`](crate::kernels::resize::bilinear) or
+/// [`nearest`](crate::kernels::resize::nearest)).
+pub type ResizeKernel = fn(&mut PlanBuilder, &str, ResizeArgs);
 
 /// Decoder queries are processed in chunks whose widest intermediate stays under this many bytes, so that
 /// memory is bounded at any resolution. Chunks start at multiples of 64 rows (buffer offset alignment).

@@ -5,13 +5,13 @@
 
 use raypatch_model::RayPatchConfig;
 
+use super::{resize_into, resized};
 use crate::error::Result;
 use crate::graph::{Graph, ImageSize, Tensor};
 use crate::kernels::conv::ConvMode;
-use crate::kernels::resize::{bilinear, nearest, ResizeArgs};
+use crate::kernels::resize::{bilinear, nearest};
 use crate::kernels::Activation;
 use crate::nn::{Conv2d, ConvSpec, Vars};
-use crate::plan::PlanBuilder;
 
 /// LeakyReLU slope of the conv decoder's feature convs.
 pub const CONV_DECODER_SLOPE: f32 = 0.2;
@@ -122,33 +122,7 @@ pub fn bilinear_patch_span(lo: usize, hi: usize, patches: usize, k: usize) -> (u
 /// Values of the patch grid `x` (an image) bilinearly resized to `size` into the plan output `name` (the
 /// official OSRT.decoder's `F.interpolate(..., mode="bilinear")` of the slot weights).
 pub fn bilinear_output(g: &mut Graph, name: &str, x: Tensor, size: ImageSize) -> Tensor {
-    let from = x.size();
     let out = g.output(name, size.pixels(), x.cols);
-    let label = g.label(name);
-    let args = ResizeArgs {
-        x: x.view,
-        n: from.n,
-        from: (from.h, from.w),
-        out: out.view,
-        to: (size.h, size.w),
-        accumulate: false,
-    };
-    bilinear(&mut g.b, &label, args);
-    out
-}
-
-/// The image `x` resized to `to` by `resize` (a kernel of `kernels::resize`) into a new image `label`.
-fn resized(
-    g: &mut Graph,
-    label: &str,
-    x: Tensor,
-    to: ImageSize,
-    resize: fn(&mut PlanBuilder, &str, ResizeArgs),
-) -> Tensor {
-    let from = x.size();
-    let out = g.image(label, to, x.cols);
-    let args =
-        ResizeArgs { x: x.view, n: from.n, from: (from.h, from.w), out: out.view, to: (to.h, to.w), accumulate: false };
-    resize(&mut g.b, label, args);
+    resize_into(g, name, x, out, size, bilinear);
     out
 }

@@ -212,10 +212,11 @@ impl Srt {
         Ok(Srt {
             encoder: SrtEncoder::new(&vars.pp("encoder"), &config.encoder)?,
             decoder: SrtDecoder::new(&vars.pp("decoder_att"), config)?,
-            ray_patch: match &config.ray_patch {
-                Some(rp) => Some(RayPatchDecoder::new(&vars.pp("decoder_rp.conv_decoder"), rp)?),
-                None => None,
-            },
+            ray_patch: config
+                .ray_patch
+                .as_ref()
+                .map(|rp| RayPatchDecoder::new(&vars.pp("decoder_rp.conv_decoder"), rp))
+                .transpose()?,
             config: config.clone(),
         })
     }
