@@ -3,7 +3,9 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use raypatch_engine::{AdapterChoice, EncodedScene, Gpu, GpuOptions, OpTimes, Output, Outputs, RenderStats, Request};
+use raypatch_engine::{
+    AdapterChoice, EncodedScene, Gpu, GpuOptions, MatmulKernel, OpTimes, Output, Outputs, RenderStats, Request,
+};
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
 use crate::camera::Camera;
@@ -26,6 +28,8 @@ pub struct EngineOptions {
     /// The largest GPU buffer the engine may use, in bytes, when below the adapter's own limit (`None`: the
     /// adapter's limit). Renders that would need larger buffers run in row bands (same pixels).
     pub max_buffer_bytes: Option<u64>,
+    /// The kernel linear layers run on (`None`: the adapter's fastest; `Some` to compare or check one).
+    pub matmul: Option<MatmulKernel>,
 }
 
 /// A GPU adapter wgpu can see.
@@ -84,6 +88,7 @@ impl Engine {
             gpu: Arc::new(Gpu::new(&GpuOptions {
                 adapter: options.adapter,
                 max_buffer_bytes: options.max_buffer_bytes,
+                matmul: options.matmul,
             })?),
         })
     }

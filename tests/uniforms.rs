@@ -4,6 +4,8 @@
 //! either side fails here, without a GPU. The shaders are the ones the engine compiles (variants included),
 //! from its one list, `kernels::UNIFORMS`.
 
+mod common;
+
 use naga::{ArraySize, Handle, Module, ScalarKind, Type, TypeInner, VectorSize};
 use raypatch_engine::kernels::{Field, ParamsLayout, ALL_SHADERS, UNIFORMS, VARIANTS};
 use raypatch_engine::wgpu::Features;
@@ -53,16 +55,7 @@ fn rust_type_of_scalar(kind: ScalarKind, what: &str) -> (&'static str, u32) {
 /// The struct bound as a uniform at group 0, binding 0 of `source`: its name, members (as Rust would
 /// write them) and size. Checks that every entry point reads it.
 fn params_struct(name: &str, source: &str, features: Features) -> (String, Vec<Field>, usize) {
-    let module =
-        naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
-    let capabilities = if features.contains(Features::SHADER_F16) {
-        naga::valid::Capabilities::SHADER_FLOAT16
-    } else {
-        naga::valid::Capabilities::empty()
-    };
-    let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities)
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+    let (module, info) = common::validate_wgsl(name, source, features);
 
     let bound: Vec<_> = module
         .global_variables

@@ -7,8 +7,9 @@ use std::ops::Range;
 
 use raypatch_engine::plan::{Plan, PlanBuilder};
 use raypatch_engine::tensor::padded_cols;
-use raypatch_engine::{Gpu, GpuOptions, GpuTensor};
+use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};
 
+#[allow(unused_imports)]
 pub use raypatch_engine::reference::Rng;
 
 /// The adapter every test in this binary shares (a real GPU if there is one, lavapipe otherwise).
@@ -73,4 +74,24 @@ pub fn read_written_rows(out: &GpuTensor, view: Range<usize>, sentinel: f32) -> 
         }
     }
     got
+}
+
+/// Parses and validates a WGSL source with naga, with the capabilities its optional wgpu features give
+/// (f16, subgroups in compute shaders); panics naming the shader on any error.
+pub fn validate_wgsl(name: &str, source: &str, features: wgpu::Features) -> (naga::Module, naga::valid::ModuleInfo) {
+    let module =
+        naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
+    let mut capabilities = naga::valid::Capabilities::empty();
+    if features.contains(wgpu::Features::SHADER_F16) {
+        capabilities |= naga::valid::Capabilities::SHADER_FLOAT16;
+    }
+    if features.contains(wgpu::Features::SUBGROUP) {
+        capabilities |= naga::valid::Capabilities::SUBGROUP;
+    }
+    let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities)
+        .subgroup_stages(naga::valid::ShaderStages::COMPUTE)
+        .subgroup_operations(naga::valid::SubgroupOperationSet::all())
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+    (module, info)
 }

@@ -1,9 +1,9 @@
 //! `linear` against the float64 reference: random shapes (tails of the 256x8 workgroup tile), every
 //! activation, with and without bias, accumulate, row-range views; plus erf accuracy through GELU.
 
-use raypatch_engine::kernels::matmul::{linear, LinearArgs};
+use raypatch_engine::kernels::matmul::{linear, LinearArgs, MatmulKernel};
 use raypatch_engine::kernels::Activation;
-use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::plan::{KernelChoice, PlanBuilder};
 use raypatch_engine::reference::matmul as reference;
 use raypatch_engine::tensor::{padded_cols, Dtype};
 
@@ -68,53 +68,71 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let bias_t = bias.as_ref().map(|b| gpu.upload("bias", 1, n, b).unwrap());
     let out_t = gpu.upload("out", out_rows, n, &vec![0.0; out_rows * n]).unwrap();
     let out_bytes: Vec<u8> = out_init.iter().flat_map(|v| v.to_le_bytes()).collect();
-    gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
-
-    let mut plan = PlanBuilder::new();
-    let x_id = plan.external("x", &x_t);
-    let w_id = plan.external("w", &w_t);
-    let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
-    let out_id = plan.external("out", &out_t);
-    let x_view = plan.rows_of(x_id, x_start, m);
-    let out_view = plan.rows_of(out_id, out_start, m);
-    let args = LinearArgs { x: x_view, weight: w_id, bias: bias_id, out: out_view, act, accumulate: case.accumulate };
-    linear(&mut plan, "linear", args);
-    run(plan);
-    let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
-
     let x = to_f64(&x_all[x_start * k..(x_start + m) * k]);
-    let w = to_f64(&w);
-    let bias = bias.map(|b| to_f64(&b));
+    let w64 = to_f64(&w);
+    let bias64 = bias.as_ref().map(|b| to_f64(b));
     let residual = residual.map(|r| to_f64(&r));
-    let expected = reference::linear(&x, m, k, &w, n, bias.as_deref(), act, residual.as_deref());
+    let expected = reference::linear(&x, m, k, &w64, n, bias64.as_deref(), act, residual.as_deref());
+    let w = w64;
+    let bias = bias64;
 
-    let what =
-        format!("m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}", case.bias, case.accumulate, case.view);
-    let mut values = Vec::with_capacity(m * n);
-    for r in 0..out_rows {
-        let row = &got[r * ldo..(r + 1) * ldo];
-        if (out_start..out_start + m).contains(&r) {
-            values.extend_from_slice(&row[..n]);
-            assert!(row[n..].iter().all(|&v| v == 0.0), "{what}: padding of out row {r} is {:?}", &row[n..]);
-        } else {
-            assert_eq!(row, &out_init[r * ldo..(r + 1) * ldo], "{what}: row {r} outside the view changed");
+    for kernel in matmul_kernels() {
+        gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
+        let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+        let x_id = plan.external("x", &x_t);
+        let w_id = plan.external("w", &w_t);
+        let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
+        let out_id = plan.external("out", &out_t);
+        let x_view = plan.rows_of(x_id, x_start, m);
+        let out_view = plan.rows_of(out_id, out_start, m);
+        let args =
+            LinearArgs { x: x_view, weight: w_id, bias: bias_id, out: out_view, act, accumulate: case.accumulate };
+        linear(&mut plan, "linear", args);
+        run(plan);
+        let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
+
+        let what = format!(
+            "{kernel:?}: m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}",
+            case.bias, case.accumulate, case.view
+        );
+        let mut values = Vec::with_capacity(m * n);
+        for r in 0..out_rows {
+            let row = &got[r * ldo..(r + 1) * ldo];
+            if (out_start..out_start + m).contains(&r) {
+                values.extend_from_slice(&row[..n]);
+                assert!(row[n..].iter().all(|&v| v == 0.0), "{what}: padding of out row {r} is {:?}", &row[n..]);
+            } else {
+                assert_eq!(row, &out_init[r * ldo..(r + 1) * ldo], "{what}: row {r} outside the view changed");
+            }
         }
-    }
 
-    // f32 accumulation error: a sum of K terms carries relative rounding errors of u = 2^-24 on each
-    // partial sum, and those add up like a random walk, so |err| <~ c·√K·u·Σ|x·w| (Higham's probabilistic
-    // bound); bias and residual add their own magnitudes, the activations are 1-Lipschitz (GELU 1.13)
-    // and GELU's erf error (< 1e-7·|v|/2) is far below the bound.
-    // c = 4 (measured c <= 0.72 over these cases); a single wrong product (~Σ|x·w|/K) fails by far.
-    let magnitude = (0..m)
-        .flat_map(|i| (0..n).map(move |j| (i, j)))
-        .map(|(i, j)| {
-            let sum: f64 = (0..k).map(|l| (x[i * k + l] * w[j * k + l]).abs()).sum();
-            sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
-        })
-        .fold(0.0, f64::max);
-    let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
-    assert_close(&what, &values, &expected, tol, 0.0);
+        // f32 accumulation error: a sum of K terms carries relative rounding errors of u = 2^-24 on each
+        // partial sum, and those add up like a random walk, so |err| <~ c·√K·u·Σ|x·w| (Higham's probabilistic
+        // bound); bias and residual add their own magnitudes, the activations are 1-Lipschitz (GELU 1.13)
+        // and GELU's erf error (< 1e-7·|v|/2) is far below the bound.
+        // c = 4 (measured c <= 0.72 over these cases); a single wrong product (~Σ|x·w|/K) fails by far.
+        let magnitude = (0..m)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let sum: f64 = (0..k).map(|l| (x[i * k + l] * w[j * k + l]).abs()).sum();
+                sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
+            })
+            .fold(0.0, f64::max);
+        let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
+        assert_close(&what, &values, &expected, tol, 0.0);
+    }
+}
+
+/// Every matmul kernel the test adapter runs: `Rows` everywhere, `Lanes` where the adapter has 8-lane
+/// subgroups (lavapipe), whichever the adapter would pick by default.
+fn matmul_kernels() -> Vec<MatmulKernel> {
+    let gpu = gpu();
+    let lanes = MatmulKernel::Lanes.supported(&gpu.info, gpu.features);
+    if let Err(why) = &lanes {
+        eprintln!("matmul_lanes not tested on {}: {why}", gpu.describe());
+    }
+    [MatmulKernel::Rows].into_iter().chain(lanes.ok().map(|_| MatmulKernel::Lanes)).collect()
 }
 
 const ACTIVATIONS: [Activation; 4] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.1), Activation::Gelu];
@@ -165,11 +183,25 @@ fn linear_f16_weights() {
     }
 }
 
-/// Shapes on and just past the edges of the 256x8 workgroup tile and the 4x8 invocation block.
+/// Shapes on and just past the edges of the tiles: `Rows`' 256x8 workgroup tile and 4x8 invocation block,
+/// `Lanes`' 8x24 workgroup tile and 32-column steps along K (8 texels).
 #[test]
 fn linear_tile_edges() {
     let mut rng = Rng::new(3);
-    let shapes = [(1, 1, 1), (256, 4, 8), (257, 5, 9), (255, 3, 7), (4, 8, 12), (513, 9, 16), (3, 2, 5)];
+    let shapes = [
+        (1, 1, 1),
+        (256, 4, 8),
+        (257, 5, 9),
+        (255, 3, 7),
+        (4, 8, 12),
+        (513, 9, 16),
+        (3, 2, 5),
+        (8, 32, 24),
+        (9, 33, 25),
+        (7, 31, 23),
+        (16, 64, 48),
+        (17, 65, 49),
+    ];
     for (i, &(m, k, n)) in shapes.iter().enumerate() {
         let case =
             Case { m, k, n, act: ACTIVATIONS[i % 4], bias: i % 2 == 0, accumulate: i % 3 == 0, view: i % 2 == 1 };

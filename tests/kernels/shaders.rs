@@ -1,20 +1,20 @@
 //! Every WGSL file parses and validates with naga, independent of any adapter, and so do the variants
-//! made from them (f16 weights).
+//! made from them (f16 weights), and the generated ones are current.
 
 #[test]
 fn all_shaders_validate() {
     let kernels = raypatch_engine::kernels::ALL_SHADERS.iter().chain(&raypatch_engine::kernels::VARIANTS);
     for shader in kernels {
-        let source = shader.wgsl();
-        let module = naga::front::wgsl::parse_str(&source)
-            .unwrap_or_else(|e| panic!("{}.wgsl: {}", shader.name, e.emit_to_string(&source)));
-        let capabilities = if shader.features.contains(raypatch_engine::wgpu::Features::SHADER_F16) {
-            naga::valid::Capabilities::SHADER_FLOAT16
-        } else {
-            naga::valid::Capabilities::empty()
-        };
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities)
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{}.wgsl: {e:?}", shader.name));
+        crate::common::validate_wgsl(&format!("{}.wgsl", shader.name), &shader.wgsl(), shader.features);
+    }
+}
+
+/// `shaders/matmul_lanes.wgsl` is what `tools/gen_matmul_lanes.py` writes (skipped without python3).
+#[test]
+fn generated_shaders_are_current() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/tools/gen_matmul_lanes.py");
+    match std::process::Command::new("python3").arg(root).arg("--check").output() {
+        Ok(out) => assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stdout)),
+        Err(e) => eprintln!("python3 not found ({e}): generated shaders not checked"),
     }
 }

@@ -12,7 +12,7 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    AdapterChoice, Camera, Engine, EngineOptions, Image, Output, Outputs, Region, Request, SceneData, SceneSource,
+    AdapterChoice, Camera, Engine, EngineOptions, Image, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource,
 };
 
 use files::{is_folder, png_paths, raw_bytes, OutputFiles};
@@ -110,6 +110,9 @@ struct Args {
     /// Largest GPU buffer to use, in MiB (default: the adapter's limit); larger renders run in row bands.
     #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(1..=MAX_BUFFER_MIB))]
     max_buffer_mib: Option<u64>,
+    /// The kernel of the linear layers (default: the adapter's fastest: `lanes` on lavapipe, `rows` on GPUs).
+    #[arg(long, value_name = "KERNEL", value_parser = ["rows", "lanes"])]
+    matmul_kernel: Option<String>,
     /// Print load, encode and render times and the planned peak GPU memory.
     #[arg(long)]
     timings: bool,
@@ -240,7 +243,12 @@ fn run(args: &Args) -> Result<()> {
     }
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let max_buffer_bytes = args.max_buffer_mib.map(|mib| mib << 20);
-    let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes }).context("--adapter")?;
+    let matmul = args.matmul_kernel.as_deref().map(|k| match k {
+        "lanes" => MatmulKernel::Lanes,
+        _ => MatmulKernel::Rows,
+    });
+    let context = if matmul.is_some() { "--adapter / --matmul-kernel" } else { "--adapter" };
+    let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul }).context(context)?;
     let start = Instant::now();
     let model = match &args.model {
         Some(path) => engine.load(path)?,

@@ -5,7 +5,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use std::sync::Weak;
+
 use crate::error::{EngineError, Result};
+use crate::kernels::matmul::MatmulKernel;
+use crate::kernels::pack::{self, Layout};
+use crate::plan::{KernelChoice, PlanBuilder, TextureRef};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
 /// One WGSL file: a kernel family. Its entry points are the kernels.
@@ -52,6 +57,8 @@ pub struct GpuOptions {
     /// The largest buffer the engine may bind, in bytes, when below the adapter's own limit (to bound memory;
     /// `None`: the adapter's limit). Renders whose buffers would be larger run in row bands.
     pub max_buffer_bytes: Option<u64>,
+    /// The matmul kernel of linear layers; `None`: the adapter's best ([`MatmulKernel::best_for`]).
+    pub matmul: Option<MatmulKernel>,
 }
 
 /// Counters that let tests and the benchmark see what the engine did.
@@ -59,6 +66,9 @@ pub struct GpuOptions {
 pub struct GpuCounters {
     pub pipelines_compiled: AtomicU64,
     pub buffers_created: AtomicU64,
+    /// Textures: plans' scratch textures and packed weights (`matmul_lanes`).
+    pub textures_created: AtomicU64,
+    /// Bytes of buffers and textures.
     pub bytes_allocated: AtomicU64,
     pub submits: AtomicU64,
     pub dispatches: AtomicU64,
@@ -68,6 +78,7 @@ pub struct GpuCounters {
 pub struct CounterSnapshot {
     pub pipelines_compiled: u64,
     pub buffers_created: u64,
+    pub textures_created: u64,
     pub bytes_allocated: u64,
     pub submits: u64,
     pub dispatches: u64,
@@ -82,16 +93,27 @@ pub struct Gpu {
     pub features: wgpu::Features,
     /// The largest buffer the engine binds: the adapter's limit, or the smaller one asked for.
     pub max_buffer_bytes: u64,
+    /// Kernel variants plans record on this adapter.
+    pub kernels: KernelChoice,
     pipelines: Mutex<HashMap<(&'static str, &'static str), Arc<wgpu::ComputePipeline>>>,
+    /// Weights packed into textures for `matmul_lanes`, per weight buffer (dropped with the weight).
+    packed: Mutex<Vec<PackedWeight>>,
     pub counters: GpuCounters,
     pub(crate) timestamps: Mutex<Timestamps>,
 }
 
 /// Features the engine uses when the adapter has them: GPU timestamps around plans and between their ops,
-/// and f16 in shaders (weights stored as f16).
+/// f16 in shaders (weights stored as f16), and subgroup operations (`matmul_lanes`).
 pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
     .union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES)
-    .union(wgpu::Features::SHADER_F16);
+    .union(wgpu::Features::SHADER_F16)
+    .union(wgpu::Features::SUBGROUP);
+
+/// A weight's packed texture, kept while the weight's buffer lives.
+struct PackedWeight {
+    buffer: Weak<wgpu::Buffer>,
+    texture: Arc<wgpu::Texture>,
+}
 
 /// Whether executed plans are timed on the GPU (see [`Gpu::set_timestamps`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -243,6 +265,16 @@ impl Gpu {
         .map_err(|e| EngineError::Device(e.to_string()))?;
         let adapter_max = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let max_buffer_bytes = options.max_buffer_bytes.map_or(adapter_max, |m| m.min(adapter_max));
+        let matmul = match options.matmul {
+            None => MatmulKernel::best_for(&info, features),
+            Some(kernel) => {
+                if let Err(why) = kernel.supported(&info, features) {
+                    return Err(EngineError::Device(format!("matmul kernel {kernel:?} on {}: {why}", info.name)));
+                }
+                kernel
+            }
+        };
+        let max_texels = pack::TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
         Ok(Gpu {
             device,
             queue,
@@ -250,7 +282,9 @@ impl Gpu {
             limits,
             features,
             max_buffer_bytes,
+            kernels: KernelChoice { matmul, max_texels },
             pipelines: Mutex::new(HashMap::new()),
+            packed: Mutex::new(Vec::new()),
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
         })
@@ -345,6 +379,49 @@ impl Gpu {
             usage,
             mapped_at_creation: false,
         })
+    }
+
+    /// An rgba32float storage texture of at least `texels` texels, [`pack::TEXTURE_WIDTH`] wide.
+    pub(crate) fn create_texture(&self, label: &str, texels: usize) -> Result<wgpu::Texture> {
+        let (width, height) = pack::texture_size(texels);
+        if height > self.limits.max_texture_dimension_2d {
+            return Err(EngineError::Request(format!(
+                "{label}: a texture of {texels} texels needs {height} rows, more than the adapter's {}",
+                self.limits.max_texture_dimension_2d
+            )));
+        }
+        self.counters.textures_created.fetch_add(1, Ordering::Relaxed);
+        self.counters.bytes_allocated.fetch_add(width as u64 * height as u64 * 16, Ordering::Relaxed);
+        Ok(self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::STORAGE_BINDING,
+            view_formats: &[],
+        }))
+    }
+
+    /// The 8-lane packed texture of an f32 weight (`matmul_lanes` reads it), packed on the GPU the first time
+    /// a plan binds it and kept while the weight's buffer lives.
+    pub(crate) fn packed_weight(&self, name: &str, weight: &GpuTensor) -> Result<Arc<wgpu::Texture>> {
+        let mut packed = self.packed.lock().expect("packed weights poisoned");
+        packed.retain(|p| p.buffer.strong_count() > 0);
+        let buffer = Arc::downgrade(&weight.buffer);
+        if let Some(p) = packed.iter().find(|p| p.buffer.ptr_eq(&buffer)) {
+            return Ok(p.texture.clone());
+        }
+        let texels = pack::packed_texels(weight.rows, weight.cols, Layout::Lanes8);
+        let texture = Arc::new(self.create_texture(&format!("{name} (packed)"), texels)?);
+        let mut plan = PlanBuilder::new();
+        let src = plan.external(name, weight);
+        let src = plan.all(src);
+        pack::pack(&mut plan, &format!("pack {name}"), src, TextureRef::External(texture.clone()), Layout::Lanes8);
+        plan.build(self)?.execute(self);
+        packed.push(PackedWeight { buffer, texture: texture.clone() });
+        Ok(texture)
     }
 
     /// Checks that a buffer of `bytes` can be bound as one storage buffer (see [`Gpu::max_buffer_bytes`]).
@@ -461,6 +538,7 @@ impl Gpu {
         CounterSnapshot {
             pipelines_compiled: c.pipelines_compiled.load(Ordering::Relaxed),
             buffers_created: c.buffers_created.load(Ordering::Relaxed),
+            textures_created: c.textures_created.load(Ordering::Relaxed),
             bytes_allocated: c.bytes_allocated.load(Ordering::Relaxed),
             submits: c.submits.load(Ordering::Relaxed),
             dispatches: c.dispatches.load(Ordering::Relaxed),

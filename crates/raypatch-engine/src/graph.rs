@@ -85,8 +85,10 @@ pub struct Graph<'w> {
 
 impl<'w> Graph<'w> {
     pub fn new(gpu: &Gpu, weights: &'w [GpuTensor]) -> Self {
+        let mut b = PlanBuilder::new();
+        b.kernels = gpu.kernels;
         Graph {
-            b: PlanBuilder::new(),
+            b,
             weights,
             max_buffer_bytes: gpu.max_buffer_bytes,
             suffix: String::new(),
@@ -144,6 +146,6 @@ impl<'w> Graph<'w> {
 
     /// A module's weight, bound into the plan.
     pub fn param(&mut self, path: &str, p: Param) -> TensorId {
-        self.b.external(path, &self.weights[p.index()])
+        self.b.weight(path, &self.weights[p.index()])
     }
 }

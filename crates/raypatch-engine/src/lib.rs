@@ -20,6 +20,7 @@ pub mod tensor;
 pub use error::{EngineError, Result};
 pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
+pub use kernels::matmul::MatmulKernel;
 pub use nn::{KeptF32, LoadOptions, WeightStorage};
 pub use scene::{EncodedScene, Model, OpTimes};
 pub use tensor::GpuTensor;

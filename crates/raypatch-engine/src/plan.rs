@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use crate::error::{EngineError, Result};
 use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
+use crate::kernels::matmul::MatmulKernel;
 use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
@@ -38,7 +39,21 @@ pub enum Access {
     ReadWrite,
 }
 
-/// One kernel dispatch. Its params are bound at binding 0 as a uniform; `bindings` follow from binding 1.
+/// A texture an op binds: rgba32float storage holding a packed matrix (`kernels::pack`).
+#[derive(Clone, Debug)]
+pub enum TextureRef {
+    /// One of the plan's scratch textures, sized for its largest use ([`PlanBuilder::scratch_texels`]). Each
+    /// serves every op of the plan: an op packs into it right before the op that reads it, and ops run in
+    /// order.
+    Scratch(usize),
+    /// The 8-lane packing of a model weight ([`PlanBuilder::weight`]), made once and kept by the [`Gpu`].
+    PackedWeight(TensorId),
+    /// A texture owned elsewhere.
+    External(Arc<wgpu::Texture>),
+}
+
+/// One kernel dispatch. Its params are bound at binding 0 as a uniform; `bindings` follow from binding 1,
+/// then `textures`.
 pub struct Op {
     pub label: String,
     pub shader: &'static Shader,
@@ -46,6 +61,7 @@ pub struct Op {
     /// Uniform contents as 32-bit words: the kernel's `Params` struct cast with bytemuck (`kernels::params!`).
     pub params: Vec<u32>,
     pub bindings: Vec<(View, Access)>,
+    pub textures: Vec<(TextureRef, Access)>,
     pub workgroups: [u32; 3],
     /// Multiply-adds of the op's arithmetic (matmuls, attention products, convolutions); 0 for ops whose
     /// work is linear in their data (norms, encodings, resizes, elementwise maps).
@@ -72,8 +88,10 @@ enum Storage {
     Input,
     /// Read by the host after execution; has its own buffer.
     Output,
-    /// Owned elsewhere (weights, scene caches).
+    /// Owned elsewhere (scene caches).
     External(GpuTensor),
+    /// A model weight: owned elsewhere and never written, so packings of it can be kept.
+    Weight(GpuTensor),
 }
 
 #[derive(Clone, Debug)]
@@ -99,6 +117,11 @@ impl TensorInfo {
 pub struct PlanBuilder {
     tensors: Vec<TensorInfo>,
     ops: Vec<Op>,
+    /// Which kernels the wrappers record where there is a choice (set from the [`Gpu`] by the model graph;
+    /// tests set it to check every variant).
+    pub kernels: KernelChoice,
+    /// Texels of each scratch texture: the largest that any op asked for.
+    scratch_texels: Vec<usize>,
     /// The first tensor too large for the kernels' u32 element offsets: [`build`](Self::build) reports it.
     unindexable: Option<(String, u64)>,
 }
@@ -129,6 +152,13 @@ impl PlanBuilder {
     }
     pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
         self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::External(tensor.clone()))
+    }
+    /// A model weight: an external tensor that nothing ever writes.
+    pub fn weight(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
+        self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::Weight(tensor.clone()))
+    }
+    pub fn is_weight(&self, id: TensorId) -> bool {
+        matches!(self.tensors[id.0].storage, Storage::Weight(_))
     }
 
     pub fn rows(&self, id: TensorId) -> usize {
@@ -165,6 +195,14 @@ impl PlanBuilder {
         self.unindexable.is_some()
     }
 
+    /// Makes scratch texture `slot` ([`TextureRef::Scratch`]) hold at least `texels` texels.
+    pub fn scratch_texels(&mut self, slot: usize, texels: usize) {
+        if self.scratch_texels.len() <= slot {
+            self.scratch_texels.resize(slot + 1, 0);
+        }
+        self.scratch_texels[slot] = self.scratch_texels[slot].max(texels);
+    }
+
     pub fn push(&mut self, op: Op) {
         self.ops.push(op);
     }
@@ -184,7 +222,7 @@ impl PlanBuilder {
     }
 
     pub fn build(self, gpu: &Gpu) -> Result<Plan> {
-        let PlanBuilder { tensors, ops, unindexable } = self;
+        let PlanBuilder { tensors, ops, unindexable, scratch_texels, .. } = self;
         if let Some((what, bytes)) = unindexable {
             return Err(EngineError::TooLarge { what, bytes, max: gpu.max_buffer_bytes });
         }
@@ -254,7 +292,7 @@ impl PlanBuilder {
                     peak_bytes += info.bytes();
                     Arc::new(gpu.create_buffer(&info.name, info.bytes(), storage_usage()))
                 }
-                Storage::External(tensor) => tensor.buffer.clone(),
+                Storage::External(tensor) | Storage::Weight(tensor) => tensor.buffer.clone(),
             });
         }
 
@@ -275,8 +313,34 @@ impl PlanBuilder {
         }
         gpu.queue.write_buffer(&uniforms, 0, &staged);
 
+        // Textures: the scratch ones, and the packed weights (made on first use, kept by the Gpu).
+        let scratch = scratch_texels
+            .iter()
+            .enumerate()
+            .map(|(slot, &texels)| gpu.create_texture(&format!("scratch{slot}"), texels).map(Arc::new))
+            .collect::<Result<Vec<_>>>()?;
+        peak_bytes += scratch.iter().map(|t| texture_bytes(t)).sum::<u64>();
+        let mut textures: Vec<Arc<wgpu::Texture>> = Vec::new();
+        let mut views: Vec<Vec<wgpu::TextureView>> = Vec::with_capacity(ops.len());
+        for op in &ops {
+            let mut op_views = Vec::with_capacity(op.textures.len());
+            for (texture, _) in &op.textures {
+                let texture = match texture {
+                    TextureRef::Scratch(slot) => scratch[*slot].clone(),
+                    TextureRef::PackedWeight(id) => match &tensors[id.0].storage {
+                        Storage::Weight(tensor) => gpu.packed_weight(&tensors[id.0].name, tensor)?,
+                        _ => panic!("op {}: only model weights have kept packings", op.label),
+                    },
+                    TextureRef::External(texture) => texture.clone(),
+                };
+                op_views.push(texture.create_view(&Default::default()));
+                textures.push(texture);
+            }
+            views.push(op_views);
+        }
+
         let mut planned = Vec::with_capacity(ops.len());
-        for (op, &param_offset) in ops.iter().zip(&offsets) {
+        for ((op, &param_offset), op_views) in ops.iter().zip(&offsets).zip(&views) {
             let pipeline = gpu.pipeline(op.shader, op.entry);
             let param_size = ((op.params.len() * 4) as u64).max(16).div_ceil(16) * 16;
             let mut entries = vec![wgpu::BindGroupEntry {
@@ -306,6 +370,12 @@ impl PlanBuilder {
                     }),
                 });
             }
+            for (t, view) in op_views.iter().enumerate() {
+                entries.push(wgpu::BindGroupEntry {
+                    binding: (1 + op.bindings.len() + t) as u32,
+                    resource: wgpu::BindingResource::TextureView(view),
+                });
+            }
             let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some(&op.label),
                 layout: &pipeline.get_bind_group_layout(0),
@@ -325,8 +395,22 @@ impl PlanBuilder {
 
         let infos = tensors.iter().map(|t| (t.name.clone(), t.rows, t.cols, t.dtype)).collect();
         let multiply_adds = ops.iter().map(|op| op.multiply_adds).sum();
-        Ok(Plan { ops: planned, buffers, infos, peak_bytes, multiply_adds, _uniforms: uniforms })
+        Ok(Plan { ops: planned, buffers, infos, peak_bytes, multiply_adds, _uniforms: uniforms, _textures: textures })
     }
+}
+
+/// Bytes of an rgba32float texture.
+pub(crate) fn texture_bytes(texture: &wgpu::Texture) -> u64 {
+    texture.width() as u64 * texture.height() as u64 * 16
+}
+
+/// Kernel variants, where an op has several.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct KernelChoice {
+    pub matmul: MatmulKernel,
+    /// Texels the adapter's largest texture holds (`TEXTURE_WIDTH` x its largest 2-D dimension): ops whose
+    /// packed operands would not fit fall back to buffer kernels.
+    pub max_texels: usize,
 }
 
 struct PlannedOp {
@@ -347,6 +431,7 @@ pub struct Plan {
     peak_bytes: u64,
     multiply_adds: u64,
     _uniforms: wgpu::Buffer,
+    _textures: Vec<Arc<wgpu::Texture>>,
 }
 
 /// What one op wrote, read back by [`Plan::execute_debug`].

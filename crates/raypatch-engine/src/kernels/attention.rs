@@ -100,6 +100,7 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         entry: "attention",
         params: params.words(),
         bindings: vec![(q, Access::Read), (k, Access::Read), (v, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
         multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
     });

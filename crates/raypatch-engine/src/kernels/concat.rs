@@ -49,6 +49,7 @@ pub fn concat_columns(plan: &mut PlanBuilder, label: &str, a: View, b: View, out
         entry: "concat_columns",
         params: params.words(),
         bindings: vec![(a, Access::Read), (b, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid((a.rows * out_ld).div_ceil(GROUP_SIZE)),
         multiply_adds: 0,
     });

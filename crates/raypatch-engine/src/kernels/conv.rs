@@ -197,6 +197,7 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
             (bias_view, Access::Read),
             (out, if mode.reads_out() { Access::ReadWrite } else { Access::Write }),
         ],
+        textures: Vec::new(),
         workgroups: grid(pixel_tiles * cout_tiles),
         multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
     });

@@ -70,6 +70,7 @@ pub fn copy_columns(plan: &mut PlanBuilder, label: &str, args: CopyArgs) {
         entry: "copy_columns",
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::ReadWrite)],
+        textures: Vec::new(),
         workgroups: grid((out.rows * cols).div_ceil(GROUP_SIZE)),
         multiply_adds: 0,
     });

@@ -103,6 +103,7 @@ pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
         entry: "map_columns",
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid((x.rows * ld4).div_ceil(GROUP_SIZE)),
         multiply_adds: 0, // elementwise: not multiply-add work worth counting
     });

@@ -61,6 +61,7 @@ pub fn gru_cell(plan: &mut PlanBuilder, label: &str, args: GruArgs) {
         entry: "gru_cell",
         params: params.words(),
         bindings: vec![(gi, Access::Read), (gh, Access::Read), (h, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid((h.rows * ld).div_ceil(GROUP_SIZE)),
         multiply_adds: 0,
     });

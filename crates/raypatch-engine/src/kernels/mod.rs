@@ -70,6 +70,7 @@ pub mod gru;
 pub mod matmul;
 pub mod mix;
 pub mod norm;
+pub mod pack;
 pub mod pool;
 pub mod posenc;
 pub mod resize;
@@ -129,7 +130,7 @@ impl Window {
 
 /// A shader from `shaders/NAME.wgsl`, optionally preceded by shared WGSL files (WGSL has no includes).
 macro_rules! shader {
-    ($name:literal $(, $prelude:literal)*) => {
+    ($name:literal, $features:expr $(, $prelude:literal)*) => {
         Shader {
             name: $name,
             source: concat!(
@@ -138,20 +139,22 @@ macro_rules! shader {
             ),
             prefix: "",
             replace: &[],
-            features: wgpu::Features::empty(),
+            features: $features,
         }
     };
 }
 
 /// The one list of shaders: each line declares a `pub static` [`Shader`] and pairs it with the Rust
 /// struct of its uniform; [`ALL_SHADERS`], [`VARIANTS`] and [`UNIFORMS`] are made from it.
-/// - under `shaders`, `NAME = "file" ["prelude", ...] => Params`: `shaders/file.wgsl` after the preludes;
+/// - under `shaders`, `NAME = "file" ["prelude", ...] [needs FEATURES] => Params`: `shaders/file.wgsl` after
+///   the preludes, needing optional wgpu features;
 /// - under `variants`, `NAME = BASE { name, prefix, replace, features } => Params`: BASE's source
 ///   compiled with a prefix and text replacements, for optional features.
 macro_rules! shaders {
     (
         shaders {
-            $($(#[$meta:meta])* $name:ident = $file:literal [$($prelude:literal),*] => $params:ty;)*
+            $($(#[$meta:meta])* $name:ident = $file:literal [$($prelude:literal),*]
+                $(needs $needs:expr)? => $params:ty;)*
         }
         variants {
             $($(#[$vmeta:meta])* $vname:ident = $base:ident {
@@ -159,7 +162,8 @@ macro_rules! shaders {
             } => $vparams:ty;)*
         }
     ) => {
-        $($(#[$meta])* pub static $name: Shader = shader!($file $(, $prelude)*);)*
+        $($(#[$meta])* pub static $name: Shader =
+            shader!($file, wgpu::Features::empty() $(.union($needs))? $(, $prelude)*);)*
         $($(#[$vmeta])* pub static $vname: Shader = Shader {
             name: $vfile,
             source: $base.source,
@@ -186,6 +190,10 @@ macro_rules! shaders {
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation"] => matmul::MatmulParams;
+        /// The linear layer for CPU adapters: see `tools/gen_matmul_lanes.py`.
+        MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
+            => matmul::MatmulLanesParams;
+        PACK = "pack" ["texels"] => pack::PackParams;
         ATTENTION = "attention" [] => attention::AttentionParams;
         LAYERNORM = "layernorm" [] => norm::LayerNormParams;
         POSENC = "posenc" [] => posenc::PosencParams;

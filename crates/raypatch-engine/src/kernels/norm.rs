@@ -72,6 +72,7 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
         entry: "layernorm",
         params: params.words(),
         bindings,
+        textures: Vec::new(),
         workgroups: grid(x.rows.div_ceil(ROWS_PER_GROUP)),
         multiply_adds: 0,
     });

@@ -85,6 +85,7 @@ pub fn max_pool2d(plan: &mut PlanBuilder, label: &str, args: PoolArgs) {
         entry: "max_pool2d",
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid(total.div_ceil(64)),
         multiply_adds: 0,
     });

@@ -134,6 +134,7 @@ pub fn fourier_encode(plan: &mut PlanBuilder, label: &str, args: FourierArgs) {
         entry: "fourier_encode",
         params: params.words(),
         bindings: vec![(coords, Access::Read), (out, Access::ReadWrite)],
+        textures: Vec::new(),
         workgroups: grid(out.rows.div_ceil(ROWS_PER_GROUP)),
         multiply_adds: 0,
     });

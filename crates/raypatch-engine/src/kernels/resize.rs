@@ -72,6 +72,7 @@ fn resize(plan: &mut PlanBuilder, label: &str, entry: &'static str, args: Resize
         entry,
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, if accumulate { Access::ReadWrite } else { Access::Write })],
+        textures: Vec::new(),
         workgroups: grid(total.div_ceil(64)),
         multiply_adds: 0,
     });

@@ -91,6 +91,7 @@ fn record(
         entry,
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
         workgroups: grid(invocations.div_ceil(GROUP_SIZE)),
         multiply_adds: 0,
     });
