@@ -13,7 +13,7 @@
 // mask on every assignment, so fewer assignments are faster.
 //
 // Workgroup: one subgroup of 8 lanes computing 8 rows x 24 columns of out; lane l owns
-// columns 8g + l of its 3 column groups g. Groups are numbered tile-fastest.
+// columns 8g + l of its 3 column groups g.
 
 struct Params {
     m: u32,
@@ -60,11 +60,17 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     let group = wid.x + wid.y * nwg.x;
     let col_groups = (p.n + 7u) / 8u;
     let tiles = (col_groups + 2u) / 3u;
-    let tile = group % tiles;
-    let row0 = (group / tiles) * 8u;
-    if (row0 >= p.m) {
+    // Bands of 8 row tiles: within a band the groups go row tile fastest, so consecutive groups reuse one
+    // tile of w from cache, and the band's rows of x stay in cache while its tiles of w stream past.
+    let row_tiles = (p.m + 7u) / 8u;
+    let band = group / (tiles * 8u);
+    let band_rows = min(8u, row_tiles - min(band * 8u, row_tiles));
+    let in_band = group - band * tiles * 8u;
+    if (band_rows == 0u || in_band >= tiles * band_rows) {
         return;
     }
+    let tile = in_band / band_rows;
+    let row0 = (band * 8u + in_band % band_rows) * 8u;
     // Rows past the end of x and groups past the end of w are clamped; their results are not stored.
     let last_row = p.m - 1u;
     let x0 = min(row0 + 0u, last_row) * p.k4p + lane;

@@ -16,6 +16,9 @@ from pathlib import Path
 # (300x1536x1536 on 2 AVX2 threads: 8x1 16, 8x2 21, 8x3 23, 8x4 16, 16x2 18 GMAC/s).
 ROWS = 8
 GROUPS = 3
+# Row tiles per band of the group order (see the kernel): 8 (64 rows) took the 4800-row encoder layers with
+# 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w (5-7 MB) no longer fits in cache.
+BAND = 8
 LANES = 8  # the subgroup: lavapipe's SIMD width with AVX2, checked by the wrapper
 
 SHADER = Path(__file__).resolve().parent.parent / "shaders" / "matmul_lanes.wgsl"
@@ -36,7 +39,7 @@ HEADER = f"""\
 // mask on every assignment, so fewer assignments are faster.
 //
 // Workgroup: one subgroup of {LANES} lanes computing {ROWS} rows x {LANES * GROUPS} columns of out; lane l owns
-// columns 8g + l of its {GROUPS} column groups g. Groups are numbered tile-fastest.
+// columns 8g + l of its {GROUPS} column groups g.
 
 struct Params {{
     m: u32,
@@ -88,11 +91,17 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     let group = wid.x + wid.y * nwg.x;
     let col_groups = (p.n + 7u) / 8u;
     let tiles = (col_groups + {GROUPS - 1}u) / {GROUPS}u;
-    let tile = group % tiles;
-    let row0 = (group / tiles) * {ROWS}u;
-    if (row0 >= p.m) {{
+    // Bands of {BAND} row tiles: within a band the groups go row tile fastest, so consecutive groups reuse one
+    // tile of w from cache, and the band's rows of x stay in cache while its tiles of w stream past.
+    let row_tiles = (p.m + {ROWS - 1}u) / {ROWS}u;
+    let band = group / (tiles * {BAND}u);
+    let band_rows = min({BAND}u, row_tiles - min(band * {BAND}u, row_tiles));
+    let in_band = group - band * tiles * {BAND}u;
+    if (band_rows == 0u || in_band >= tiles * band_rows) {{
         return;
     }}
+    let tile = in_band / band_rows;
+    let row0 = (band * {BAND}u + in_band % band_rows) * {ROWS}u;
     // Rows past the end of x and groups past the end of w are clamped; their results are not stored.
     let last_row = p.m - 1u;"""]
     s += [f"    let x{i} = min(row0 + {i}u, last_row) * p.k4p + lane;" for i in r]

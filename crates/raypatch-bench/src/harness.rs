@@ -14,7 +14,7 @@ use anyhow::{Context, Result};
 use raypatch_engine::gpu::TimestampMode;
 use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, Model, Output, Outputs, Request, WeightStorage,
+    AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Request, WeightStorage,
 };
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, TargetViews};
 use serde::{Deserialize, Serialize};
@@ -33,6 +33,8 @@ pub struct Options {
     pub quick: bool,
     pub out: PathBuf,
     pub adapter: Option<String>,
+    /// The matmul kernel to force (`None`: the adapter's fastest).
+    pub matmul: Option<MatmulKernel>,
     /// Measured runs per configuration (default 5, quick 3).
     pub repeats: Option<usize>,
     /// Skip configurations whose render is predicted (from its multiply-adds, counted from the ops its plan
@@ -171,13 +173,14 @@ pub fn run(options: &Options) -> Result<()> {
     let scratch = options.out.join("scratch");
     std::fs::create_dir_all(&scratch).with_context(|| format!("{}: cannot create", scratch.display()))?;
     let adapter = options.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
-    let gpu = Arc::new(Gpu::new(&GpuOptions { adapter, ..Default::default() })?);
+    let gpu = Arc::new(Gpu::new(&GpuOptions { adapter, matmul: options.matmul, ..Default::default() })?);
     let timestamps = gpu.set_timestamps(TimestampMode::Plan).is_ok();
     let env = Environment {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend),
         driver: format!("{} {}", gpu.info.driver, gpu.info.driver_info).trim().to_string(),
         machine: measure::machine(),
+        matmul_kernel: format!("{:?}", gpu.kernels.matmul),
     };
     let torch = if options.pytorch { pytorch::probe() } else { Err("--no-pytorch".to_string()) };
     let runs = options.repeats.unwrap_or(if options.quick { 3 } else { 5 });
@@ -205,7 +208,7 @@ pub fn run(options: &Options) -> Result<()> {
         bench.env.backend,
         bench.env.driver
     );
-    println!("machine: {}; timing: {timing}", bench.env.machine);
+    println!("machine: {}; timing: {timing}; matmul kernel: {}", bench.env.machine, bench.env.matmul_kernel);
     match &bench.torch {
         Ok(version) => {
             println!("PyTorch {version}: timing tools/raypatch_reference.py on the same inputs")

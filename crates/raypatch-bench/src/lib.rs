@@ -5,6 +5,7 @@
 //! `raypatch-bench --quick --out DIR` is the smoke test.
 
 pub mod flops;
+pub mod gemm;
 pub mod harness;
 pub mod kernels;
 pub mod measure;

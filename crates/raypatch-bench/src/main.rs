@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
+use raypatch_engine::{AdapterChoice, Gpu, GpuOptions};
 
 #[derive(Parser)]
 #[command(version, about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots")]
@@ -24,6 +25,9 @@ struct Args {
     /// Skip sizes whose render is predicted to take longer than this many seconds (default 120, quick 1.5).
     #[arg(long)]
     max_render_seconds: Option<f64>,
+    /// The kernel of the linear layers: rows or lanes (default: the adapter's fastest).
+    #[arg(long, value_name = "KERNEL", value_parser = ["rows", "lanes"])]
+    matmul_kernel: Option<String>,
     /// Do not time PyTorch even if it is installed.
     #[arg(long)]
     no_pytorch: bool,
@@ -39,6 +43,10 @@ struct Args {
     /// K = 16, from two 128x192 views at 480x640 and 960x1280). Skips the golden cases. Merge into a full run with --replot.
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
+    /// Measure only the hot linear layers of the official RP-SRT alone, on every matmul kernel the adapter
+    /// runs and in PyTorch: gemm.json and gemm.md in --out.
+    #[arg(long)]
+    gemm: bool,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
     /// later files' configurations replace earlier ones' (and the merged results are written too).
     #[arg(long, value_name = "RESULTS_JSON")]
@@ -60,10 +68,23 @@ fn main() -> ExitCode {
             }
         };
     }
+    if args.gemm {
+        return match gemm(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("raypatch-bench: {e:#}");
+                ExitCode::from(2)
+            }
+        };
+    }
     let options = raypatch_bench::Options {
         quick: args.quick,
         out: args.out,
         adapter: args.adapter,
+        matmul: args.matmul_kernel.as_deref().map(|k| match k {
+            "lanes" => raypatch_engine::MatmulKernel::Lanes,
+            _ => raypatch_engine::MatmulKernel::Rows,
+        }),
         repeats: args.repeats,
         max_render_seconds: args.max_render_seconds,
         pytorch: !args.no_pytorch,
@@ -79,6 +100,18 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+fn gemm(args: &Args) -> anyhow::Result<()> {
+    use anyhow::Context;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
+    println!("raypatch-bench --gemm on {}", gpu.describe());
+    let torch = !args.no_pytorch && raypatch_bench::pytorch::probe().is_ok();
+    let table = raypatch_bench::gemm::run(&gpu, torch, args.repeats.unwrap_or(10), &args.out)?;
+    println!("\n{table}");
+    Ok(())
 }
 
 fn parse_only(text: &str) -> Result<(String, usize), String> {

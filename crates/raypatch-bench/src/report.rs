@@ -17,6 +17,13 @@ pub struct Environment {
     pub backend: String,
     pub driver: String,
     pub machine: String,
+    /// The kernel of the linear layers (`Rows`, `Lanes`); absent in results from before it had a choice.
+    #[serde(default = "rows_kernel")]
+    pub matmul_kernel: String,
+}
+
+fn rows_kernel() -> String {
+    "Rows".to_string()
 }
 
 /// One measured configuration.
@@ -207,7 +214,10 @@ pub fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
 pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
     let mut out = String::new();
     if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
-        out += &format!("Adapter: {} ({}, {}). Machine: {}.\n\n", env.adapter, env.backend, env.driver, env.machine);
+        out += &format!(
+        "Adapter: {} ({}, {}). Machine: {}. Matmul kernel: {}.\n\n",
+        env.adapter, env.backend, env.driver, env.machine, env.matmul_kernel
+    );
     }
     let timing = records.first().map_or("", |r| r.timing.as_str());
     out += &format!("### Sweep (random weights; render time: {timing}, median [min–max] ms)\n\n");

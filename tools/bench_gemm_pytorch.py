@@ -1,0 +1,56 @@
+"""Times PyTorch's linear layer (torch.nn.functional.linear with bias, float32, CPU) on the shapes raypatch-bench
+--gemm measures, for the GMAC/s table of docs/PERFORMANCE.md:
+
+    python3 tools/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N]
+
+Prints one JSON object: the torch version, its thread count, and per shape (M x K x N: x [M, K], weight [N, K])
+the median, min and max wall time in ms over the runs after one warm-up. Exit code 3 when PyTorch cannot be
+imported, 2 on a bad shape.
+"""
+
+import argparse
+import json
+import statistics
+import sys
+import time
+
+try:
+    import torch
+except ImportError as error:
+    print(f"PyTorch is not available: {error}", file=sys.stderr)
+    sys.exit(3)
+
+
+def shape(text):
+    try:
+        m, k, n = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--shape {text!r}: expected MxKxN, e.g. 300x1536x1536")
+    if min(m, k, n) < 1:
+        raise argparse.ArgumentTypeError(f"--shape {text!r}: every side must be at least 1")
+    return m, k, n
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--shape", type=shape, action="append", required=True)
+    parser.add_argument("--repeats", type=int, default=10)
+    args = parser.parse_args()
+    torch.manual_seed(0)
+    results = []
+    for m, k, n in args.shape:
+        x, w, b = torch.randn(m, k), torch.randn(n, k), torch.randn(n)
+        times = []
+        with torch.no_grad():
+            for i in range(args.repeats + 1):
+                start = time.perf_counter()
+                torch.nn.functional.linear(x, w, b)
+                if i > 0:
+                    times.append((time.perf_counter() - start) * 1e3)
+        results.append({"m": m, "k": k, "n": n, "median_ms": statistics.median(times), "min_ms": min(times),
+                        "max_ms": max(times), "runs": len(times)})
+    print(json.dumps({"torch": torch.__version__, "threads": torch.get_num_threads(), "shapes": results}))
+
+
+if __name__ == "__main__":
+    main()
