@@ -48,7 +48,10 @@ pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
-pub use raypatch_engine::{AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, Region, RenderStats, Request};
+pub use raypatch_engine::{
+    AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Region, RenderStats,
+    Request,
+};
 pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 
 pub use raypatch_engine;

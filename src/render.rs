@@ -4,7 +4,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, Gpu, GpuOptions, MatmulKernel, OpTimes, Output, Outputs, RenderStats, Request,
+    AdapterChoice, EncodedScene, Gpu, GpuOptions, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir,
+    PipelineCacheStatus, RenderStats, Request,
 };
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
@@ -30,6 +31,9 @@ pub struct EngineOptions {
     pub max_buffer_bytes: Option<u64>,
     /// The kernel linear layers run on (`None`: the adapter's fastest; `Some` to compare or check one).
     pub matmul: Option<MatmulKernel>,
+    /// Where compiled GPU pipelines are kept between runs (Vulkan): by default `$RAYPATCH_CACHE_DIR` (`off`
+    /// turns it off), else `$XDG_CACHE_HOME/raypatch`, else `$HOME/.cache/raypatch`.
+    pub pipeline_cache: PipelineCacheDir,
 }
 
 /// A GPU adapter wgpu can see.
@@ -89,6 +93,7 @@ impl Engine {
                 adapter: options.adapter,
                 max_buffer_bytes: options.max_buffer_bytes,
                 matmul: options.matmul,
+                pipeline_cache: options.pipeline_cache,
             })?),
         })
     }
@@ -140,6 +145,26 @@ impl Engine {
     /// that work is skipped or reused.
     pub fn counters(&self) -> raypatch_engine::gpu::CounterSnapshot {
         self.gpu.counters()
+    }
+
+    /// The file compiled pipelines are kept in between runs, or why there is none (the backend has no
+    /// pipeline cache, or it is turned off). It is written when the engine and everything loaded on it are
+    /// dropped, or by [`save_pipeline_cache`](Self::save_pipeline_cache). The time spent compiling is
+    /// [`counters`](Self::counters)`().pipeline_compile_nanos`.
+    pub fn pipeline_cache(&self) -> PipelineCacheStatus {
+        self.gpu.pipeline_cache_status()
+    }
+
+    /// Writes the pipeline cache now if pipelines were compiled since it was last written; whether it wrote.
+    pub fn save_pipeline_cache(&self) -> Result<bool> {
+        self.gpu.save_pipeline_cache().map_err(|source| Error::Io {
+            path: match self.pipeline_cache() {
+                PipelineCacheStatus::File { path, .. } => path.display().to_string(),
+                PipelineCacheStatus::Unavailable(_) => "pipeline cache".into(),
+            },
+            action: "cannot write",
+            source,
+        })
     }
 }
 

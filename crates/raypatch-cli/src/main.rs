@@ -113,7 +113,8 @@ struct Args {
     /// The kernel of the linear layers (default: the adapter's fastest: `lanes` on lavapipe, `rows` on GPUs).
     #[arg(long, value_name = "KERNEL", value_parser = ["rows", "lanes"])]
     matmul_kernel: Option<String>,
-    /// Print load, encode and render times and the planned peak GPU memory.
+    /// Print load, encode and render times, the planned peak GPU memory, and the time spent compiling GPU
+    /// pipelines with the pipeline cache file used (set RAYPATCH_CACHE_DIR to move it, or to `off`).
     #[arg(long)]
     timings: bool,
     /// Render this many times more after the first render and report the median (with --timings).
@@ -248,7 +249,8 @@ fn run(args: &Args) -> Result<()> {
         _ => MatmulKernel::Rows,
     });
     let context = if matmul.is_some() { "--adapter / --matmul-kernel" } else { "--adapter" };
-    let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul }).context(context)?;
+    let engine =
+        Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul, ..Default::default() }).context(context)?;
     let start = Instant::now();
     let model = match &args.model {
         Some(path) => engine.load(path)?,
@@ -424,6 +426,7 @@ fn run(args: &Args) -> Result<()> {
             mib(model.weight_bytes()),
             mib(scene.cache_bytes())
         );
+        println!("{}", report::pipelines(&engine.counters(), &engine.pipeline_cache()));
     }
     if args.profile {
         print_profile("encode", &model.profile_encode(&inputs)?);

@@ -4,7 +4,8 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use raypatch::{metrics, Image, OpTimes, Region, Rendered};
+use raypatch::raypatch_engine::gpu::CounterSnapshot;
+use raypatch::{metrics, Image, OpTimes, PipelineCacheStatus, Region, Rendered};
 
 /// The ground truth of one rendered view, when the scene has it.
 pub struct Truth<'a> {
@@ -106,6 +107,15 @@ pub fn print_profile(what: &str, ops: &OpTimes) {
     for (label, t) in sorted.iter().take(12) {
         println!("  {:8.2} ms {:5.1}%  {label}", ms(*t), 100.0 * t.as_secs_f64() / total);
     }
+}
+
+/// "pipelines: N compiled in T ms; pipeline cache FILE (K KiB loaded)", or "; no pipeline cache: WHY".
+pub fn pipelines(counters: &CounterSnapshot, cache: &PipelineCacheStatus) -> String {
+    format!(
+        "pipelines: {} compiled in {:.1} ms (part of load, encode and render plan); {cache}",
+        counters.pipelines_compiled,
+        ms(Duration::from_nanos(counters.pipeline_compile_nanos))
+    )
 }
 
 pub fn ms(d: Duration) -> f64 {

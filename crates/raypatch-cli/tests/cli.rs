@@ -33,9 +33,14 @@ fn target_views_match_pytorch_with_metrics_and_raw_output() {
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(png_size(&dir.path().join("views/view_000.png")), (24, 16));
     assert_eq!(png_size(&dir.path().join("views/view_001.png")), (24, 16));
-    for text in
-        ["target view 0: PSNR", "target view 1: PSNR", "mean over 2 view(s): PSNR", "SSIM", "planned peak GPU memory"]
-    {
+    for text in [
+        "target view 0: PSNR",
+        "target view 1: PSNR",
+        "mean over 2 view(s): PSNR",
+        "SSIM",
+        "planned peak GPU memory",
+        "pipelines: ",
+    ] {
         assert!(r.stdout.contains(text), "no {text:?} in {}", r.stdout);
     }
     // The raw output is the model's: equal to PyTorch's within the golden tolerance.
@@ -538,4 +543,34 @@ fn frame_folders_carry_depth_pngs_in_millimetres() {
     json["frames"][1]["depth_file_path"] = serde_json::json!(7);
     std::fs::write(&transforms, json.to_string()).unwrap();
     fails(d, &["--scene", &scene], &["transforms.json", "frame 1: `depth_file_path` is 7"]);
+}
+
+#[test]
+fn timings_name_the_pipeline_cache_in_raypatch_cache_dir() {
+    let dir = TempDir::new().unwrap();
+    let cache = dir.path().join("cache");
+    let timed = |value: &std::ffi::OsStr| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_render-frame"))
+            .args(["--timings", "--out", "view.png"])
+            .env("RAYPATCH_CACHE_DIR", value)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        stdout.lines().find(|l| l.starts_with("pipelines: ")).unwrap_or_else(|| panic!("{stdout}")).to_string()
+    };
+    let first = timed(cache.as_os_str());
+    assert!(first.contains(" compiled in ") && first.contains(" ms"), "{first}");
+    if first.contains("no pipeline cache: ") {
+        eprintln!("no pipeline cache on this adapter: {first}");
+        assert!(!cache.exists());
+    } else {
+        assert!(first.contains(&cache.display().to_string()) && first.ends_with("(new)"), "{first}");
+        let files = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().path()).collect::<Vec<_>>();
+        assert_eq!(files.len(), 1, "{files:?}");
+        assert!(std::fs::metadata(&files[0]).unwrap().len() > 0);
+        assert!(timed(cache.as_os_str()).ends_with(" KiB read)"));
+    }
+    assert!(timed("off".as_ref()).ends_with("no pipeline cache: RAYPATCH_CACHE_DIR=off"));
 }

@@ -3,13 +3,14 @@
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use std::sync::Weak;
 
 use crate::error::{EngineError, Result};
 use crate::kernels::matmul::MatmulKernel;
 use crate::kernels::pack::{self, Layout};
+use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir};
 use crate::plan::{KernelChoice, PlanBuilder, TextureRef};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
@@ -59,12 +60,17 @@ pub struct GpuOptions {
     pub max_buffer_bytes: Option<u64>,
     /// The matmul kernel of linear layers; `None`: the adapter's best ([`MatmulKernel::best_for`]).
     pub matmul: Option<MatmulKernel>,
+    /// Where compiled pipelines are kept between runs, on backends with a pipeline cache (Vulkan); see
+    /// [`pipeline_cache`].
+    pub pipeline_cache: PipelineCacheDir,
 }
 
 /// Counters that let tests and the benchmark see what the engine did.
 #[derive(Debug, Default)]
 pub struct GpuCounters {
     pub pipelines_compiled: AtomicU64,
+    /// Nanoseconds spent compiling them (shader modules and compute pipelines).
+    pub pipeline_compile_nanos: AtomicU64,
     pub buffers_created: AtomicU64,
     /// Textures: plans' scratch textures and packed weights (`matmul_lanes`).
     pub textures_created: AtomicU64,
@@ -77,6 +83,7 @@ pub struct GpuCounters {
 #[derive(Clone, Debug, Copy, Default)]
 pub struct CounterSnapshot {
     pub pipelines_compiled: u64,
+    pub pipeline_compile_nanos: u64,
     pub buffers_created: u64,
     pub textures_created: u64,
     pub bytes_allocated: u64,
@@ -96,6 +103,8 @@ pub struct Gpu {
     /// Kernel variants plans record on this adapter.
     pub kernels: KernelChoice,
     pipelines: Mutex<HashMap<(&'static str, &'static str), Arc<wgpu::ComputePipeline>>>,
+    /// The driver's cache of compiled pipelines, kept on disk between runs (written when dropped).
+    pub(crate) pipeline_cache: DiskCache,
     /// Weights packed into textures for `matmul_lanes`, per weight buffer (dropped with the weight).
     packed: Mutex<Vec<PackedWeight>>,
     pub counters: GpuCounters,
@@ -256,9 +265,10 @@ impl Gpu {
         let info = adapter.get_info();
         let limits = adapter.limits();
         let features = adapter.features() & OPTIONAL_FEATURES;
+        let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("raypatch"),
-            required_features: features,
+            required_features: features | pipeline_cache::features(&cache_file),
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -275,6 +285,7 @@ impl Gpu {
             }
         };
         let max_texels = pack::TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
+        let pipeline_cache = DiskCache::open(&device, cache_file);
         Ok(Gpu {
             device,
             queue,
@@ -284,6 +295,7 @@ impl Gpu {
             max_buffer_bytes,
             kernels: KernelChoice { matmul, max_texels },
             pipelines: Mutex::new(HashMap::new()),
+            pipeline_cache,
             packed: Mutex::new(Vec::new()),
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
@@ -346,25 +358,31 @@ impl Gpu {
         format!("{} ({:?}, {} {})", self.info.name, self.info.backend, self.info.driver, self.info.driver_info)
     }
 
-    /// The compute pipeline of `shader`'s `entry`, compiled on first use and cached for the life of the Gpu.
+    /// The compute pipeline of `shader`'s `entry`, compiled on first use (through the pipeline cache on disk,
+    /// where there is one) and cached for the life of the Gpu.
     pub fn pipeline(&self, shader: &'static Shader, entry: &'static str) -> Arc<wgpu::ComputePipeline> {
         let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
         cache
             .entry((shader.name, entry))
             .or_insert_with(|| {
                 self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
+                let start = Instant::now();
                 let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some(shader.name),
                     source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
                 });
-                Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(entry),
                     layout: None,
                     module: &module,
                     entry_point: Some(entry),
                     compilation_options: Default::default(),
-                    cache: None,
-                }))
+                    cache: self.pipeline_cache.wgpu(),
+                });
+                let nanos = start.elapsed().as_nanos().try_into().unwrap_or(u64::MAX);
+                self.counters.pipeline_compile_nanos.fetch_add(nanos, Ordering::Relaxed);
+                self.pipeline_cache.compiled();
+                Arc::new(pipeline)
             })
             .clone()
     }
@@ -537,6 +555,7 @@ impl Gpu {
         let c = &self.counters;
         CounterSnapshot {
             pipelines_compiled: c.pipelines_compiled.load(Ordering::Relaxed),
+            pipeline_compile_nanos: c.pipeline_compile_nanos.load(Ordering::Relaxed),
             buffers_created: c.buffers_created.load(Ordering::Relaxed),
             textures_created: c.textures_created.load(Ordering::Relaxed),
             bytes_allocated: c.bytes_allocated.load(Ordering::Relaxed),

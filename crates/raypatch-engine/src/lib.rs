@@ -12,6 +12,7 @@ pub mod graph;
 pub mod kernels;
 pub mod models;
 pub mod nn;
+pub mod pipeline_cache;
 pub mod plan;
 pub mod reference;
 pub mod scene;
@@ -22,6 +23,7 @@ pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use kernels::matmul::MatmulKernel;
 pub use nn::{KeptF32, LoadOptions, WeightStorage};
+pub use pipeline_cache::{PipelineCacheDir, PipelineCacheStatus};
 pub use scene::{EncodedScene, Model, OpTimes};
 pub use tensor::GpuTensor;
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
