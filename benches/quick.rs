@@ -10,6 +10,7 @@ fn main() -> ExitCode {
         quick: true,
         out,
         adapter: None,
+        matmul: None,
         repeats: None,
         max_render_seconds: None,
         pytorch: true,
