@@ -10,15 +10,17 @@ imported, 2 on a bad shape.
 
 import argparse
 import json
-import statistics
 import sys
-import time
+from pathlib import Path
 
 try:
     import torch
 except ImportError as error:
     print(f"PyTorch is not available: {error}", file=sys.stderr)
     sys.exit(3)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pytorch import summary, timed  # noqa: E402
 
 
 def shape(text):
@@ -36,19 +38,15 @@ def main():
     parser.add_argument("--shape", type=shape, action="append", required=True)
     parser.add_argument("--repeats", type=int, default=10)
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error("--repeats must be at least 1")
     torch.manual_seed(0)
     results = []
     for m, k, n in args.shape:
         x, w, b = torch.randn(m, k), torch.randn(n, k), torch.randn(n)
-        times = []
         with torch.no_grad():
-            for i in range(args.repeats + 1):
-                start = time.perf_counter()
-                torch.nn.functional.linear(x, w, b)
-                if i > 0:
-                    times.append((time.perf_counter() - start) * 1e3)
-        results.append({"m": m, "k": k, "n": n, "median_ms": statistics.median(times), "min_ms": min(times),
-                        "max_ms": max(times), "runs": len(times)})
+            _, times = timed(lambda: torch.nn.functional.linear(x, w, b), args.repeats)
+        results.append({"m": m, "k": k, "n": n, **summary(times)})
     print(json.dumps({"torch": torch.__version__, "threads": torch.get_num_threads(), "shapes": results}))
 
 

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::process::Command;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use raypatch_engine::kernels::matmul::{linear, LinearArgs, MatmulKernel};
@@ -14,7 +14,7 @@ use raypatch_engine::reference::Rng;
 use raypatch_engine::Gpu;
 use serde::{Deserialize, Serialize};
 
-use crate::measure::Stats;
+use crate::measure::{repeat, Repeats, Sample, Stats};
 use crate::report::write_file;
 
 /// (M, K, N, where): x `[M, K]`, weight `[N, K]`; the official srt_MDBN_32 / rpsrt_MDBN_8_32 at 120x160.
@@ -59,16 +59,14 @@ fn time_linear(gpu: &Gpu, kernel: MatmulKernel, (m, k, n): (usize, usize, usize)
     let act = Activation::None;
     linear(&mut plan, "linear", LinearArgs { x, weight, bias: Some(bias), out, act, accumulate: false });
     let plan = plan.build(gpu)?;
-    let mut samples = Vec::with_capacity(runs);
-    for i in 0..=runs {
+    let repeats = Repeats { warmup: 1, runs, budget: Duration::MAX };
+    let (wall, _) = repeat(repeats, || -> Result<Sample> {
         let start = Instant::now();
         plan.execute(gpu);
         gpu.wait()?;
-        if i > 0 {
-            samples.push(start.elapsed());
-        }
-    }
-    Ok(Stats::of(&samples).expect("at least one run"))
+        Ok(Sample { wall: start.elapsed(), gpu: None })
+    })?;
+    Ok(wall)
 }
 
 #[derive(Deserialize)]

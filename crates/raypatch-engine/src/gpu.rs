@@ -2,16 +2,14 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant};
-
-use std::sync::Weak;
 
 use crate::error::{EngineError, Result};
 use crate::kernels::matmul::MatmulKernel;
 use crate::kernels::pack::{self, Layout};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir};
-use crate::plan::{KernelChoice, PlanBuilder, TextureRef};
+use crate::plan::{texture_bytes, KernelChoice, PlanBuilder, TextureRef};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
 /// One WGSL file: a kernel family. Its entry points are the kernels.
@@ -408,9 +406,7 @@ impl Gpu {
                 self.limits.max_texture_dimension_2d
             )));
         }
-        self.counters.textures_created.fetch_add(1, Ordering::Relaxed);
-        self.counters.bytes_allocated.fetch_add(width as u64 * height as u64 * 16, Ordering::Relaxed);
-        Ok(self.device.create_texture(&wgpu::TextureDescriptor {
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
             label: Some(label),
             size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
             mip_level_count: 1,
@@ -419,7 +415,10 @@ impl Gpu {
             format: wgpu::TextureFormat::Rgba32Float,
             usage: wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
-        }))
+        });
+        self.counters.textures_created.fetch_add(1, Ordering::Relaxed);
+        self.counters.bytes_allocated.fetch_add(texture_bytes(&texture), Ordering::Relaxed);
+        Ok(texture)
     }
 
     /// The 8-lane packed texture of an f32 weight (`matmul_lanes` reads it), packed on the GPU the first time
