@@ -1,16 +1,21 @@
 // Packs a [rows, cols] buffer into a texture in the layout of texels.wgsl (row or 8-lane), zero-filling the
-// padding texels and the rows up to a whole group of lanes: what matmul_lanes reads. One invocation per texel.
+// padding texels and the rows past the source's (up to a whole group of lanes, and any zero rows asked
+// for): what matmul_lanes reads. A row may be cut into segments (a convolution weight's taps), each padded
+// to whole blocks of 8 texels. One invocation per texel.
 
 struct Params {
     rows: u32,
     // vec4s per row of the source buffer: ld(cols) / 4.
     ld4: u32,
-    // Texels per packed row: ceil(cols / 4) rounded up to 8.
+    // Texels per packed row: segments of seg4p texels.
     k4p: u32,
     // 1 (row layout) or 8 (8-lane layout).
     lanes: u32,
-    // Texels to write: rows rounded up to lanes, times k4p.
+    // Texels to write.
     texels: u32,
+    // Source vec4s per segment, and packed texels per segment (seg4 rounded up to 8).
+    seg4: u32,
+    seg4p: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -27,9 +32,11 @@ fn pack(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let step = t / p.lanes;
     let row = (step / p.k4p) * p.lanes + t % p.lanes;
     let c4 = step % p.k4p;
+    let segment = c4 / p.seg4p;
+    let in_segment = c4 % p.seg4p;
     var v = vec4<f32>(0.0);
-    if (row < p.rows && c4 < p.ld4) {
-        v = src[row * p.ld4 + c4];
+    if (row < p.rows && in_segment < p.seg4) {
+        v = src[row * p.ld4 + segment * p.seg4 + in_segment];
     }
     textureStore(dst, texel(t), v);
 }

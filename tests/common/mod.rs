@@ -5,6 +5,7 @@ use std::sync::OnceLock;
 
 use std::ops::Range;
 
+use raypatch_engine::kernels::matmul::MatmulKernel;
 use raypatch_engine::plan::{Plan, PlanBuilder};
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};
@@ -20,6 +21,17 @@ pub fn gpu() -> &'static Gpu {
         eprintln!("tests run on {}", gpu.describe());
         gpu
     })
+}
+
+/// Every GEMM kernel (linear layers and convolutions) the test adapter runs: `Rows` everywhere, `Lanes`
+/// where the adapter has 8-lane subgroups (lavapipe), whichever the adapter would pick by default.
+pub fn matmul_kernels() -> Vec<MatmulKernel> {
+    let gpu = gpu();
+    let lanes = MatmulKernel::Lanes.supported(&gpu.info, gpu.features);
+    if let Err(why) = &lanes {
+        eprintln!("matmul_lanes not tested on {}: {why}", gpu.describe());
+    }
+    [MatmulKernel::Rows].into_iter().chain(lanes.ok().map(|_| MatmulKernel::Lanes)).collect()
 }
 
 /// Builds a plan, executes it once, and waits for it.

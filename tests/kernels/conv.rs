@@ -2,7 +2,8 @@
 
 use raypatch_engine::kernels::conv::{conv2d, conv_output_size, pack_conv, Conv2dArgs, ConvMode};
 use raypatch_engine::kernels::{Activation, Window};
-use raypatch_engine::plan::{PlanBuilder, View};
+use raypatch_engine::kernels::matmul::MatmulKernel;
+use raypatch_engine::plan::{KernelChoice, PlanBuilder, View};
 use raypatch_engine::reference::conv as reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
@@ -80,8 +81,9 @@ struct Case {
 }
 
 impl Case {
-    /// Runs the case on the GPU and returns (gpu, reference) outputs.
-    fn run(&self, rng: &mut Rng) -> (Vec<f32>, Vec<f64>) {
+    /// Runs the case on the GPU with `kernel` as the plan's GEMM kernel and returns (gpu, reference)
+    /// outputs and whether `matmul_lanes` ran it.
+    fn run(&self, rng: &mut Rng, kernel: MatmulKernel) -> (Vec<f32>, Vec<f64>, bool) {
         let &Case { n, h, w, cin, cout, window, upsample, act, bias, mode } = self;
         let k = window.kernel;
         let (ho, wo) = conv_output_size(h, w, window, upsample).expect("the case's window fits");
@@ -100,13 +102,16 @@ impl Case {
         let bt = bias_data.as_ref().map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
 
         let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
         let xv = xp.view(&mut plan, "x");
         let ov = op.view(&mut plan, "out");
-        let wid = plan.external("w", &wt);
+        // A model weight, as the models bind it (matmul_lanes keeps its packing).
+        let wid = plan.weight("w", &wt);
         let bid = bt.as_ref().map(|b| plan.external("b", b));
         let (weight, bias, upsample_input) = (wid, bid, upsample);
         let args = Conv2dArgs { x: xv, n, h, w, cin, weight, bias, out: ov, cout, window, upsample_input, act, mode };
         conv2d(&mut plan, "conv", args);
+        let lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 
@@ -125,15 +130,23 @@ impl Case {
             mode,
             &mut expected,
         );
-        (got, expected)
+        (got, expected, lanes)
     }
 
-    fn check(&self, rng: &mut Rng) {
-        let (got, expected) = self.run(rng);
-        // f32 accumulation of K = k²·cin products (|x| <= 1, weights scaled so outputs are O(1)): the error
-        // grows like sqrt(K)·2^-24; measured at most 2.2e-6 (3×3, cin = 800) on lavapipe, so 1e-5 +
-        // 1e-6·max|ref| leaves ~4x.
-        assert_close(&format!("{self:?}"), &got, &expected, 1e-5, 1e-6);
+    /// Checks the case on every GEMM kernel the adapter runs (the same data for each); returns whether
+    /// `matmul_lanes` ran it.
+    fn check(&self, rng: &mut Rng) -> bool {
+        let seed = rng.next_u64();
+        let mut lanes = false;
+        for kernel in matmul_kernels() {
+            let (got, expected, ran) = self.run(&mut Rng::new(seed), kernel);
+            // f32 accumulation of K = k²·cin products (|x| <= 1, weights scaled so outputs are O(1)): the
+            // error grows like sqrt(K)·2^-24; measured at most 2.2e-6 (3×3, cin = 800) on lavapipe, so 1e-5
+            // + 1e-6·max|ref| leaves ~4x.
+            assert_close(&format!("{kernel:?} {self:?}"), &got, &expected, 1e-5, 1e-6);
+            lanes |= ran;
+        }
+        lanes
     }
 }
 
@@ -260,10 +273,46 @@ fn conv3x3_model_channel_counts() {
         (800, 7, 1, false, Activation::None),
         (5, 800, 2, true, leaky),
     ];
+    let mut lanes = 0;
     for (cin, cout, stride, upsample, act) in shapes {
         let (window, mode) = (k3(stride), ConvMode::Overwrite);
-        Case { n: 1, h: 7, w: 9, cin, cout, window, upsample, act, bias: true, mode }.check(&mut rng);
+        lanes += Case { n: 1, h: 7, w: 9, cin, cout, window, upsample, act, bias: true, mode }.check(&mut rng) as usize;
     }
+    // The first three suit matmul_lanes; the 7-channel output and the 5-channel input do not.
+    assert_eq!(lanes, if lanes_supported() { 3 } else { 0 }, "convolutions that ran on matmul_lanes");
+}
+
+#[test]
+fn conv_lanes_random_shapes() {
+    // Shapes matmul_lanes takes (at least 24 output channels, input channels in nearly whole blocks of 32,
+    // and (24 -> 12) the Ray-Patch decoder's last upsampling conv):
+    // kernels 1, 3, 5, strides 1 and 2, paddings 0..2, upsampling, every mode and activation, output
+    // channels past a 24-channel tile, pixels past an 8-row tile, several bands of 64 rows.
+    let mut rng = Rng::new(8);
+    for case in 0..24 {
+        let kernel = [1, 3, 5][case % 3];
+        let padding = rng.range(0, kernel.min(3) - 1);
+        let upsample = case % 4 == 3;
+        let least = kernel.saturating_sub(2 * padding).max(1).div_ceil(1 << usize::from(upsample));
+        let c = Case {
+            n: rng.range(1, 2),
+            h: rng.range(least, least + 11),
+            w: rng.range(least, least + 11),
+            cin: [32, 29, 61, 96, 190, 24][rng.range(0, 5)],
+            cout: if case % 7 == 6 { 12 } else { rng.range(24, 80) },
+            window: Window { kernel, stride: 1 + case % 2, padding },
+            upsample,
+            act: ACTS[case % 3],
+            bias: case % 5 != 0,
+            mode: MODES[(case / 3) % 3],
+        };
+        let lanes = c.check(&mut rng);
+        assert_eq!(lanes, lanes_supported(), "{c:?}: matmul_lanes ran it: {lanes}");
+    }
+}
+
+fn lanes_supported() -> bool {
+    matmul_kernels().contains(&MatmulKernel::Lanes)
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! `linear` against the float64 reference: random shapes (tails of the 256x8 workgroup tile), every
 //! activation, with and without bias, accumulate, row-range views; plus erf accuracy through GELU.
 
-use raypatch_engine::kernels::matmul::{linear, LinearArgs, MatmulKernel};
+use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::{KernelChoice, PlanBuilder};
 use raypatch_engine::reference::matmul as reference;
@@ -122,17 +122,6 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
         let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
         assert_close(&what, &values, &expected, tol, 0.0);
     }
-}
-
-/// Every matmul kernel the test adapter runs: `Rows` everywhere, `Lanes` where the adapter has 8-lane
-/// subgroups (lavapipe), whichever the adapter would pick by default.
-fn matmul_kernels() -> Vec<MatmulKernel> {
-    let gpu = gpu();
-    let lanes = MatmulKernel::Lanes.supported(&gpu.info, gpu.features);
-    if let Err(why) = &lanes {
-        eprintln!("matmul_lanes not tested on {}: {why}", gpu.describe());
-    }
-    [MatmulKernel::Rows].into_iter().chain(lanes.ok().map(|_| MatmulKernel::Lanes)).collect()
 }
 
 const ACTIVATIONS: [Activation; 4] = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.1), Activation::Gelu];

@@ -389,7 +389,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
     let mut configs: Vec<&str> = kernels.iter().map(|k| k.config.as_str()).collect();
     configs.dedup();
     for config in configs {
-        out += &format!("### Where the render time goes: {config} (GPU timestamps between ops)\n\n");
+        out += &format!("### Where the time goes: {config} (GPU timestamps between ops)\n\n");
         let rows: Vec<&KernelTime> = kernels.iter().filter(|k| k.config == config).collect();
         let family = rows
             .iter()

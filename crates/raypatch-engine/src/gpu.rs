@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use crate::error::{EngineError, Result};
 use crate::kernels::matmul::MatmulKernel;
-use crate::kernels::pack::{self, Layout};
+use crate::kernels::pack::{self, Packing};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir};
 use crate::plan::{texture_bytes, KernelChoice, PlanBuilder, TextureRef};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
@@ -119,6 +119,7 @@ pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
 /// A weight's packed texture, kept while the weight's buffer lives.
 struct PackedWeight {
     buffer: Weak<wgpu::Buffer>,
+    packing: Packing,
     texture: Arc<wgpu::Texture>,
 }
 
@@ -421,23 +422,23 @@ impl Gpu {
         Ok(texture)
     }
 
-    /// The 8-lane packed texture of an f32 weight (`matmul_lanes` reads it), packed on the GPU the first time
-    /// a plan binds it and kept while the weight's buffer lives.
-    pub(crate) fn packed_weight(&self, name: &str, weight: &GpuTensor) -> Result<Arc<wgpu::Texture>> {
+    /// An f32 weight packed into a texture as `packing` says (`matmul_lanes` reads it), packed on the GPU the
+    /// first time a plan binds it and kept while the weight's buffer lives.
+    pub(crate) fn packed_weight(&self, name: &str, weight: &GpuTensor, packing: Packing) -> Result<Arc<wgpu::Texture>> {
         let mut packed = self.packed.lock().expect("packed weights poisoned");
         packed.retain(|p| p.buffer.strong_count() > 0);
         let buffer = Arc::downgrade(&weight.buffer);
-        if let Some(p) = packed.iter().find(|p| p.buffer.ptr_eq(&buffer)) {
+        if let Some(p) = packed.iter().find(|p| p.buffer.ptr_eq(&buffer) && p.packing == packing) {
             return Ok(p.texture.clone());
         }
-        let texels = pack::packed_texels(weight.rows, weight.cols, Layout::Lanes8);
+        let texels = packing.texels(weight.rows, weight.cols);
         let texture = Arc::new(self.create_texture(&format!("{name} (packed)"), texels)?);
         let mut plan = PlanBuilder::new();
         let src = plan.external(name, weight);
         let src = plan.all(src);
-        pack::pack(&mut plan, &format!("pack {name}"), src, TextureRef::External(texture.clone()), Layout::Lanes8);
+        pack::pack(&mut plan, &format!("pack {name}"), src, TextureRef::External(texture.clone()), packing);
         plan.build(self)?.execute(self);
-        packed.push(PackedWeight { buffer, texture: texture.clone() });
+        packed.push(PackedWeight { buffer, packing, texture: texture.clone() });
         Ok(texture)
     }
 

@@ -14,6 +14,7 @@ use std::sync::Arc;
 use crate::error::{EngineError, Result};
 use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
 use crate::kernels::matmul::MatmulKernel;
+use crate::kernels::pack::Packing;
 use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
@@ -46,8 +47,8 @@ pub enum TextureRef {
     /// serves every op of the plan: an op packs into it right before the op that reads it, and ops run in
     /// order.
     Scratch(usize),
-    /// The 8-lane packing of a model weight ([`PlanBuilder::weight`]), made once and kept by the [`Gpu`].
-    PackedWeight(TensorId),
+    /// A packing of a model weight ([`PlanBuilder::weight`]), made once and kept by the [`Gpu`].
+    PackedWeight(TensorId, Packing),
     /// A texture owned elsewhere.
     External(Arc<wgpu::Texture>),
 }
@@ -211,6 +212,11 @@ impl PlanBuilder {
         self.ops.len()
     }
 
+    /// The kernel of each op recorded so far, as `shader.entry` (what profiles name them).
+    pub fn op_kernels(&self) -> impl Iterator<Item = String> + '_ {
+        self.ops.iter().map(|op| format!("{}.{}", op.shader.name, op.entry))
+    }
+
     /// Multiply-adds of the ops recorded so far.
     pub fn multiply_adds(&self) -> u64 {
         self.ops.iter().map(|op| op.multiply_adds).sum()
@@ -327,8 +333,8 @@ impl PlanBuilder {
             for (texture, _) in &op.textures {
                 let texture = match texture {
                     TextureRef::Scratch(slot) => scratch[*slot].clone(),
-                    TextureRef::PackedWeight(id) => match &tensors[id.0].storage {
-                        Storage::Weight(tensor) => gpu.packed_weight(&tensors[id.0].name, tensor)?,
+                    TextureRef::PackedWeight(id, packing) => match &tensors[id.0].storage {
+                        Storage::Weight(tensor) => gpu.packed_weight(&tensors[id.0].name, tensor, *packing)?,
                         _ => panic!("op {}: only model weights have kept packings", op.label),
                     },
                     TextureRef::External(texture) => texture.clone(),

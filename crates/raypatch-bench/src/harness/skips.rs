@@ -104,18 +104,20 @@ impl Bench {
         ])
     }
 
-    /// One render with a timestamp between every two ops, summed per op (layer indices and query chunks
-    /// folded) and per kernel.
+    /// One encode and one render with a timestamp between every two ops, summed per op (layer indices and
+    /// query chunks folded) and per kernel.
     pub(super) fn kernel_breakdown(&self, s: &Subject, targets: &TargetViews) -> Result<Vec<KernelTime>> {
         if self.gpu.set_timestamps(TimestampMode::Ops).is_err() {
             return Ok(Vec::new());
         }
-        let times = (|| -> Result<Option<GpuTimes>> {
+        let times = (|| -> Result<(Option<GpuTimes>, Option<GpuTimes>)> {
+            s.model.encode(s.inputs)?;
+            let encode = self.gpu.take_timestamps()?;
             s.encoded.render(targets, model_outputs(&s.loaded.config))?;
-            Ok(self.gpu.take_timestamps()?)
+            Ok((encode, self.gpu.take_timestamps()?))
         })();
         self.gpu.set_timestamps(TimestampMode::Plan)?;
-        let Some(times) = times? else { bail!("no timestamps came back") };
+        let (Some(encode), Some(render)) = times? else { bail!("no timestamps came back") };
         let k = s.loaded.config.patch_size();
         let grid = targets.grid_for(&s.loaded.config, "target views")?;
         let config = format!(
@@ -126,6 +128,8 @@ impl Bench {
             grid.width,
             precision_name(s.storage)
         );
-        Ok(crate::kernels::fold(&config, &times))
+        let mut rows = crate::kernels::fold(&format!("{config} render"), &render);
+        rows.extend(crate::kernels::fold(&format!("{config} encode"), &encode));
+        Ok(rows)
     }
 }

@@ -1,8 +1,10 @@
 //! Square K×K convolutions on NHWC images (`shaders/conv.wgsl`), any stride and zero padding: the SRT
 //! encoder's conv blocks (3×3, stride 1 and 2), the Ray-Patch decoder's upsample-then-conv layers, and
 //! ResNet's 7×7 stem, 3×3 blocks and 1×1 downsamples, with BatchNorm folded into the weight and bias by the
-//! model loader, the activation fused, and a residual sum fused before it.
+//! model loader, the activation fused, and a residual sum fused before it. On CPU adapters most run on
+//! `matmul_lanes` instead (`kernels::matmul::gemm_lanes`, an implicit GEMM), the rest on `shaders/conv.wgsl`.
 
+use crate::kernels::matmul::{gemm_lanes, lanes_fit, MatmulKernel, LANES_COLS};
 use crate::kernels::{Activation, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 use crate::tensor::padded_cols;
@@ -62,6 +64,17 @@ params! {
         /// ceil(npix / (64 * PX)): pixel tiles.
         pixel_tiles: u32,
     }
+}
+
+/// Whether the plan's kernel is `matmul_lanes` and this convolution suits it: its operands fit in textures
+/// and at least a third of the kernel's work is useful. It computes whole tiles of 24 output channels and
+/// pads each tap's input channels to whole blocks of 8 texels (32 channels); `conv.wgsl` runs 3-8x slower
+/// on llvmpipe, so the Ray-Patch decoder's 3-channel RGB convs and ResNet's 3-channel stem stay there.
+fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
+    let cin4 = padded_cols(args.cin) / 4;
+    let useful_cin = cin4 as f64 / (cin4.div_ceil(8) * 8) as f64;
+    let useful_cout = args.cout as f64 / (args.cout.div_ceil(LANES_COLS) * LANES_COLS) as f64;
+    plan.kernels.matmul == MatmulKernel::Lanes && useful_cin * useful_cout >= 1.0 / 3.0 && lanes_fit(plan, args)
 }
 
 /// How a convolution's result meets what `out` already holds.
@@ -160,6 +173,9 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     assert_eq!(out.rows, npix, "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}", out.rows);
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
 
+    if lanes_suit(plan, &args) {
+        return gemm_lanes(plan, label, args);
+    }
     let cout4 = padded_cols(cout) / 4;
     let cout_tiles = cout4.div_ceil(COUT_VEC4S_PER_INVOCATION);
     let pixel_tiles = npix.div_ceil(64 * PIXELS_PER_INVOCATION);

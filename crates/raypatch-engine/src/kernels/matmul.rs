@@ -1,21 +1,24 @@
 //! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in two
 //! kernels that compute the same sums: `shaders/matmul.wgsl` (register tiles, buffers only) and
-//! `shaders/matmul_lanes.wgsl` (for CPU adapters: textures and subgroup broadcasts).
+//! `shaders/matmul_lanes.wgsl` (for CPU adapters: textures and subgroup broadcasts), an implicit GEMM that
+//! runs convolutions too ([`gemm_lanes`], called by `kernels::conv` as well).
 
-use crate::kernels::pack::{self, Layout};
-use crate::kernels::{Activation, MATMUL, MATMUL_F16, MATMUL_LANES};
+use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
+use crate::kernels::pack::{self, Packing};
+use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View};
 use crate::tensor::{padded_cols, Dtype};
 
-/// Which kernel linear layers run on.
+/// Which kernel linear layers and convolutions run on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum MatmulKernel {
     /// `matmul.linear`: 4x8 outputs per invocation from storage buffers; any adapter, f32 or f16 weights.
     #[default]
     Rows,
-    /// `matmul_lanes.linear`: invocations along N, operands packed into textures, rows of x handed between
-    /// lanes by subgroup broadcasts. For CPU adapters (llvmpipe), where it is ~6x faster; needs subgroups of
-    /// exactly 8 lanes. Layers with f16 weights, or operands too large for a texture, use `Rows`.
+    /// `matmul_lanes.gemm`: invocations along N, operands packed into textures, rows of x handed between
+    /// lanes by subgroup broadcasts. For CPU adapters (llvmpipe), where it is ~4x faster; needs subgroups of
+    /// exactly 8 lanes. Linear layers with f16 weights, operands too large for a texture, and convolutions
+    /// with few output channels or few input channels per tap ([`lanes_fit`]) use `Rows` (and `conv.wgsl`).
     Lanes,
 }
 
@@ -50,7 +53,7 @@ impl MatmulKernel {
 /// (`tools/gen_matmul_lanes.py`).
 const LANES: u32 = 8;
 const LANES_ROWS: usize = 8;
-const LANES_COLS: usize = 8 * 3;
+pub(crate) const LANES_COLS: usize = 8 * 3;
 
 /// Rows of `out` one workgroup computes: 64 invocations x 4 rows (`WG * ROWS` in the shader).
 const ROWS_PER_GROUP: usize = 256;
@@ -136,10 +139,25 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         plan.dtype(x.id) == Dtype::F32 && bias.is_none_or(|b| plan.dtype(b) == Dtype::F32),
         "linear {label}: x and bias must be f32"
     );
-    let lanes_fit = pack::packed_texels(m, k, Layout::Rows).max(pack::packed_texels(n, k, Layout::Lanes8))
-        <= plan.kernels.max_texels;
-    if plan.kernels.matmul == MatmulKernel::Lanes && plan.dtype(w) == Dtype::F32 && lanes_fit {
-        return linear_lanes(plan, label, args);
+    if plan.kernels.matmul == MatmulKernel::Lanes && plan.dtype(w) == Dtype::F32 {
+        let args = Conv2dArgs {
+            x,
+            n: 1,
+            h: 1,
+            w: m,
+            cin: k,
+            weight: w,
+            bias,
+            out,
+            cout: n,
+            window: Window::new(1, 1, 0),
+            upsample_input: false,
+            act,
+            mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
+        };
+        if lanes_fit(plan, &args) {
+            return gemm_lanes(plan, label, args);
+        }
     }
     let shader = match plan.dtype(w) {
         Dtype::F32 => &MATMUL,
@@ -167,55 +185,92 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
 params! {
     /// The uniform of `shaders/matmul_lanes.wgsl`.
     MatmulLanesParams {
+        /// out is [m, n]: output pixels (rows) by channels.
         m: u32,
         n: u32,
-        /// Texels per packed row of x and w.
+        /// Texels per tap: per row of the x texture, per tap of a column of the w texture.
         k4p: u32,
-        /// ld(N): floats per row of out.
+        /// ld(n): floats per row of out.
         ldo: u32,
         act: u32,
         slope: f32,
         has_bias: u32,
-        accumulate: u32,
+        /// [`ConvMode::code`].
+        mode: u32,
+        /// The input image and the output's size.
+        h: u32,
+        w: u32,
+        ho: u32,
+        wo: u32,
+        /// The window: k × k taps, stride, zero padding.
+        k: u32,
+        stride: u32,
+        pad: u32,
+        /// 1 when the input is upsampled 2× (nearest) first.
+        up: u32,
+        /// The zero row of the x texture.
+        zero_row: u32,
     }
 }
 
-/// [`linear`] on `matmul_lanes`: x packed into the plan's scratch texture 0 (row layout) right before; a
-/// model weight's 8-lane packing made once, any other w (attention keys, values) packed into scratch
-/// texture 1.
-fn linear_lanes(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
-    let LinearArgs { x, weight: w, bias, out, act, accumulate } = args;
-    let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
-    plan.scratch_texels(0, pack::packed_texels(m, k, Layout::Rows));
-    pack::pack(plan, &format!("{label}.pack_x"), x, TextureRef::Scratch(0), Layout::Rows);
-    let w_texture = if plan.is_weight(w) {
-        TextureRef::PackedWeight(w)
+/// Whether [`gemm_lanes`] can run a convolution (or a linear layer as a 1×1 one): its packed operands fit
+/// in textures.
+pub(crate) fn lanes_fit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
+    let w_packing = Packing::conv_weight(args.window.kernel * args.window.kernel);
+    let w_texels = w_packing.texels(args.cout, plan.cols(args.weight));
+    Packing::IMAGE.texels(args.x.rows, args.cin).max(w_texels) <= plan.kernels.max_texels
+}
+
+/// A convolution, or a linear layer as a 1×1 convolution over a 1 × M image, on `matmul_lanes`: x packed
+/// into the plan's scratch texture 0 (one pixel per row, then a zero pixel) right before; a model weight's
+/// packing (8 rows interleaved, each tap's channels padded to whole blocks) made once, any other w
+/// (attention keys, values) packed into scratch texture 1. Check [`lanes_fit`] first.
+pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
+    let Conv2dArgs { x, n, h, w, cin, weight, bias, out, cout, window, upsample_input, act, mode } = args;
+    let Window { kernel, stride, padding } = window;
+    let (ho, wo) = conv_output_size(h, w, window, upsample_input).expect("the window fits (checked by the caller)");
+    let taps = kernel * kernel;
+    plan.scratch_texels(0, Packing::IMAGE.texels(x.rows, cin));
+    pack::pack(plan, &format!("{label}.pack_x"), x, TextureRef::Scratch(0), Packing::IMAGE);
+    let w_packing = Packing::conv_weight(taps);
+    let w_texture = if plan.is_weight(weight) {
+        TextureRef::PackedWeight(weight, w_packing)
     } else {
-        plan.scratch_texels(1, pack::packed_texels(n, k, Layout::Lanes8));
-        pack::pack(plan, &format!("{label}.pack_w"), plan.all(w), TextureRef::Scratch(1), Layout::Lanes8);
+        plan.scratch_texels(1, w_packing.texels(cout, plan.cols(weight)));
+        pack::pack(plan, &format!("{label}.pack_w"), plan.all(weight), TextureRef::Scratch(1), w_packing);
         TextureRef::Scratch(1)
     };
+    let npix = n * ho * wo;
     let (act, slope) = act.params();
     let params = MatmulLanesParams {
-        m: m as u32,
-        n: n as u32,
-        k4p: pack::texels_per_row(k) as u32,
-        ldo: padded_cols(n) as u32,
+        m: npix as u32,
+        n: cout as u32,
+        k4p: Packing::IMAGE.texels_per_row(cin) as u32,
+        ldo: padded_cols(cout) as u32,
         act,
         slope,
         has_bias: bias.is_some() as u32,
-        accumulate: accumulate as u32,
+        mode: mode.code(),
+        h: h as u32,
+        w: w as u32,
+        ho: ho as u32,
+        wo: wo as u32,
+        k: kernel as u32,
+        stride: stride as u32,
+        pad: padding as u32,
+        up: u32::from(upsample_input),
+        zero_row: x.rows as u32,
     };
-    let groups = m.div_ceil(LANES_ROWS) * n.div_ceil(LANES_COLS);
-    let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
+    let groups = npix.div_ceil(LANES_ROWS) * cout.div_ceil(LANES_COLS);
+    let out_access = if mode.reads_out() { Access::ReadWrite } else { Access::Write };
     plan.push(Op {
         label: label.to_string(),
         shader: &MATMUL_LANES,
-        entry: "linear",
+        entry: "gemm",
         params: params.words(),
-        bindings: vec![(plan.all(bias.unwrap_or(w)), Access::Read), (out, out_access)],
+        bindings: vec![(plan.all(bias.unwrap_or(weight)), Access::Read), (out, out_access)],
         textures: vec![(TextureRef::Scratch(0), Access::Read), (w_texture, Access::Read)],
         workgroups: grid(groups),
-        multiply_adds: (m as u64) * (n as u64) * (k as u64),
+        multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
     });
 }

@@ -27,15 +27,53 @@ impl Layout {
     }
 }
 
-/// Texels per packed row of a `cols`-wide matrix: ceil(cols / 4) rounded up to 8 (matmul_lanes reads 8 at
-/// a time).
-pub fn texels_per_row(cols: usize) -> usize {
-    cols.div_ceil(4).div_ceil(8) * 8
+/// How a matrix lies in a texture: its row order, the runs each row is cut into, and zero rows after it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Packing {
+    pub layout: Layout,
+    /// Equal runs each row is cut into, each padded to whole blocks of 8 texels (matmul_lanes reads 8 at a
+    /// time): a convolution weight's k·k taps, so that the kernel steps through each tap's input channels in
+    /// whole blocks. 1 for a plain matrix.
+    pub segments: usize,
+    /// Zero rows after the matrix's: the row a convolution's taps in the zero padding read.
+    pub zero_rows: usize,
 }
 
-/// Texels of a packed `[rows, cols]` matrix.
-pub fn packed_texels(rows: usize, cols: usize, layout: Layout) -> usize {
-    rows.div_ceil(layout.lanes()) * layout.lanes() * texels_per_row(cols)
+impl Packing {
+    /// The activations of a linear layer: row after row.
+    pub const ROWS: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 0 };
+    /// The weights of a linear layer: 8 rows interleaved.
+    pub const LANES8: Packing = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
+    /// A convolution's input image: one pixel per row, then a zero pixel.
+    pub const IMAGE: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 1 };
+
+    /// A convolution weight with `taps` taps per row, 8 rows interleaved.
+    pub const fn conv_weight(taps: usize) -> Packing {
+        Packing { layout: Layout::Lanes8, segments: taps, zero_rows: 0 }
+    }
+
+    /// Source vec4s per segment of a row of a `cols`-wide matrix.
+    fn segment_vec4s(self, cols: usize) -> usize {
+        let vec4s = padded_cols(cols) / 4;
+        assert!(vec4s % self.segments == 0, "{cols} columns do not split into {} segments of whole vec4s", self.segments);
+        vec4s / self.segments
+    }
+
+    /// Texels per packed segment: its vec4s rounded up to 8.
+    pub fn texels_per_segment(self, cols: usize) -> usize {
+        self.segment_vec4s(cols).div_ceil(8) * 8
+    }
+
+    /// Texels per packed row of a `cols`-wide matrix.
+    pub fn texels_per_row(self, cols: usize) -> usize {
+        self.segments * self.texels_per_segment(cols)
+    }
+
+    /// Texels of a packed `[rows, cols]` matrix: its rows and zero rows, rounded up to whole groups of lanes.
+    pub fn texels(self, rows: usize, cols: usize) -> usize {
+        let lanes = self.layout.lanes();
+        (rows + self.zero_rows).div_ceil(lanes) * lanes * self.texels_per_row(cols)
+    }
 }
 
 /// Width and height of a texture holding `texels` texels.
@@ -55,19 +93,24 @@ params! {
         lanes: u32,
         /// Texels written.
         texels: u32,
+        /// Source vec4s per segment, and packed texels per segment.
+        seg4: u32,
+        seg4p: u32,
     }
 }
 
-/// Packs the f32 view `src` into texture `dst` in `layout`, padding texels zeroed.
-pub fn pack(plan: &mut PlanBuilder, label: &str, src: View, dst: TextureRef, layout: Layout) {
+/// Packs the f32 view `src` into texture `dst` as `packing` says, padding texels and zero rows zeroed.
+pub fn pack(plan: &mut PlanBuilder, label: &str, src: View, dst: TextureRef, packing: Packing) {
     let cols = plan.cols(src.id);
-    let texels = packed_texels(src.rows, cols, layout);
+    let texels = packing.texels(src.rows, cols);
     let params = PackParams {
         rows: src.rows as u32,
         ld4: (padded_cols(cols) / 4) as u32,
-        k4p: texels_per_row(cols) as u32,
-        lanes: layout.lanes() as u32,
+        k4p: packing.texels_per_row(cols) as u32,
+        lanes: packing.layout.lanes() as u32,
         texels: texels as u32,
+        seg4: packing.segment_vec4s(cols) as u32,
+        seg4p: packing.texels_per_segment(cols) as u32,
     };
     plan.push(Op {
         label: label.to_string(),
