@@ -55,7 +55,11 @@ impl Packing {
     /// Source vec4s per segment of a row of a `cols`-wide matrix.
     fn segment_vec4s(self, cols: usize) -> usize {
         let vec4s = padded_cols(cols) / 4;
-        assert!(vec4s % self.segments == 0, "{cols} columns do not split into {} segments of whole vec4s", self.segments);
+        assert!(
+            vec4s.is_multiple_of(self.segments),
+            "{cols} columns do not split into {} segments of whole vec4s",
+            self.segments
+        );
         vec4s / self.segments
     }
 
