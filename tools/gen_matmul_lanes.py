@@ -86,6 +86,10 @@ struct Params {{
 // Where output pixel q's window starts: (the row of x of its image's first pixel, top row, left column) in
 // the effective image.
 fn window_corner(q: u32) -> vec3<i32> {{
+    // One output row (a linear layer): no divisions, which llvmpipe runs lane by lane (a uniform branch).
+    if (p.m == p.wo) {{
+        return vec3<i32>(0, -i32(p.pad), i32(q * p.stride) - i32(p.pad));
+    }}
     let r = q / p.wo;
     return vec3<i32>(i32((r / p.ho) * p.h), i32((r % p.ho) * p.stride) - i32(p.pad),
                      i32((q % p.wo) * p.stride) - i32(p.pad));
