@@ -5,6 +5,7 @@
 //! `matmul_lanes` instead (`kernels::matmul::gemm_lanes`, an implicit GEMM), the rest on `shaders/conv.wgsl`.
 
 use crate::kernels::matmul::{gemm_lanes, lanes_fit, MatmulKernel, LANES_COLS};
+use crate::kernels::pack::Packing;
 use crate::kernels::{Activation, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 use crate::tensor::padded_cols;
@@ -71,8 +72,9 @@ params! {
 /// pads each tap's input channels to whole blocks of 8 texels (32 channels); `conv.wgsl` runs 3-8x slower
 /// on llvmpipe, so the Ray-Patch decoder's 3-channel RGB convs and ResNet's 3-channel stem stay there.
 fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
+    // A tap's input channels as vec4s, and as the texels matmul_lanes reads for them.
     let cin4 = padded_cols(args.cin) / 4;
-    let useful_cin = cin4 as f64 / (cin4.div_ceil(8) * 8) as f64;
+    let useful_cin = cin4 as f64 / Packing::IMAGE.texels_per_row(args.cin) as f64;
     let useful_cout = args.cout as f64 / (args.cout.div_ceil(LANES_COLS) * LANES_COLS) as f64;
     plan.kernels.matmul == MatmulKernel::Lanes && useful_cin * useful_cout >= 1.0 / 3.0 && lanes_fit(plan, args)
 }
