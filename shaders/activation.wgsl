@@ -1,5 +1,5 @@
-// Activations and the functions shaders share (prepended to the sources of matmul, conv, elementwise and gru
-// by kernels/mod.rs). `act` codes follow `Activation::params`: 0 none, 1 ReLU, 2 LeakyReLU(slope), 3 exact
+// Activations and the functions shaders share (prepended to the sources of matmul, matmul_lanes, conv,
+// elementwise and gru by kernels/mod.rs). `act` codes follow `Activation::params`: 0 none, 1 ReLU, 2 LeakyReLU(slope), 3 exact
 // (erf) GELU.
 
 // 1 / (1 + exp(-v)) without overflow: exp only ever sees -|v| ≤ 0, and for v < 0 the form e / (1 + e),
@@ -78,4 +78,20 @@ fn activate(v: vec4<f32>, act: u32, slope: f32) -> vec4<f32> {
             return v;
         }
     }
+}
+
+// What a matmul or convolution writes: its sum `v` (bias added) against what out held (`prior`; read it
+// only when mode is not 0): mode 0 act(v), 1 prior + act(v) (accumulate), 2 act(prior + v) (residual before
+// the activation, kernels::conv::ConvMode). Columns past the output's width (`real` false) become 0 before
+// the accumulation, where prior is 0 too: the padding stays zero.
+fn epilogue(v: vec4<f32>, prior: vec4<f32>, mode: u32, act: u32, slope: f32, real: vec4<bool>) -> vec4<f32> {
+    var r = v;
+    if (mode == 2u) {
+        r += prior;
+    }
+    r = select(vec4<f32>(0.0), activate(r, act, slope), real);
+    if (mode == 1u) {
+        r += prior;
+    }
+    return r;
 }

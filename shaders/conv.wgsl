@@ -103,15 +103,11 @@ fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
         let pix = pix0 + i * WG;
         if (pix < p.npix) {
             let o = pix * p.cout4 + col;
-            var v = m[i] + b;
-            if (p.mode == 2u) {
-                v += out[o];
+            var prior = vec4<f32>(0.0);
+            if (p.mode != 0u) {
+                prior = out[o];
             }
-            v = select(vec4<f32>(0.0), activate(v, p.act, p.slope), real);
-            if (p.mode == 1u) {
-                v += out[o];
-            }
-            out[o] = v;
+            out[o] = epilogue(m[i] + b, prior, p.mode, p.act, p.slope, real);
         }
     }
 }

@@ -50,12 +50,12 @@ fn store4(row: u32, c4: u32, acc: vec4<f32>) {
         v += bias[c4];
     }
     let cols = vec4<u32>(4u * c4) + vec4<u32>(0u, 1u, 2u, 3u);
-    v = select(vec4<f32>(0.0), activate(v, p.act, p.slope), cols < vec4<u32>(p.n));
     let at = row * p.n4 + c4;
+    var prior = vec4<f32>(0.0);
     if (p.accumulate != 0u) {
-        v += out[at];
+        prior = out[at];
     }
-    out[at] = v;
+    out[at] = epilogue(v, prior, p.accumulate, p.act, p.slope, cols < vec4<u32>(p.n));
 }
 
 @compute @workgroup_size(64)

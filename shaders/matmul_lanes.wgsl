@@ -80,7 +80,8 @@ fn tap_texel(corner: vec3<i32>, ky: u32, kx: u32, lane: u32) -> u32 {
     return row * p.k4p + lane;
 }
 
-// Bias, residual, activation, zeroed padding column, accumulate, store: one element of out.
+// Bias, then the shared epilogue (activation.wgsl: residual, activation, zeroed padding column, accumulate),
+// and the store: one element of out.
 fn finish(row: u32, col: u32, acc: f32) {
     if (row >= p.m || col >= p.ldo) {
         return;
@@ -90,14 +91,11 @@ fn finish(row: u32, col: u32, acc: f32) {
     if (p.has_bias != 0u && col < p.n) {
         v += bias[col];
     }
-    if (p.mode == 2u) {
-        v += out[at];
+    var prior = 0.0;
+    if (p.mode != 0u) {
+        prior = out[at];
     }
-    v = select(0.0, activate(vec4<f32>(v), p.act, p.slope).x, col < p.n);
-    if (p.mode == 1u) {
-        v += out[at];
-    }
-    out[at] = v;
+    out[at] = epilogue(vec4<f32>(v), vec4<f32>(prior), p.mode, p.act, p.slope, vec4<bool>(col < p.n)).x;
 }
 
 @compute @workgroup_size(8)
