@@ -1,10 +1,14 @@
-// Linear layer: out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when accumulating.
+// Linear layer: out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when accumulating, in two kernels
+// that compute the same sums: `linear` (register tiles; kernels::matmul::MatmulKernel::Rows) and
+// `linear_tiled` (workgroup-memory tiles, for GPUs; MatmulKernel::Tiled), below it.
 //
 // x: [M, K] rows, w: [N, K] rows (nn.Linear layout), both padded with zeros to whole vec4s, so the K loop
 // runs over whole vec4s. w is f32, or f16 in the matmul_f16 variant (kernels/mod.rs replaces the WeightVec
-// alias below), widened to f32 as it is loaded: the arithmetic is f32 either way. Each invocation computes a 4x8 block of out: per vec4 step along K it loads 4 vec4s
-// of x (4 rows) and 8 of w (8 rows) and takes 32 dot products; the block is written back as two vec4s
-// per row, padding columns included (as zeros).
+// alias below), widened to f32 as it is loaded: the arithmetic is f32 either way.
+//
+// `linear`: each invocation computes a 4x8 block of out: per vec4 step along K it loads 4 vec4s of x
+// (4 rows) and 8 of w (8 rows) and takes 32 dot products; the block is written back as two vec4s per row,
+// padding columns included (as zeros).
 //
 // Why 4x8: lavapipe (Mesa 25.0) turns every storage-buffer load inside a loop into a per-invocation
 // scalar loop with bounds checks, uniform address or not, so loads cost far more than arithmetic and the
@@ -121,6 +125,86 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
         let row = row0 + i / 2u;
         let c4 = 2u * tile + i % 2u;
         // The second half of the last tile may lie past ld(N).
+        if (row < p.m && c4 < p.n4) {
+            store4(row, c4, block[i]);
+        }
+    }
+}
+
+// `linear_tiled`: the classic GPU tiling. A workgroup of 16 x 16 invocations computes a 64 x 64 tile of out;
+// per step of 32 floats along K it copies 64 rows of x and 64 rows of w into workgroup memory (two vec4s
+// each per invocation, read by 8 neighbouring invocations as 128 contiguous bytes) and every invocation
+// takes a 4 x 4 block of dot products from there, so each value loaded from memory serves 64 outputs.
+// Invocation (tx, ty) owns rows ty + 16i (i < 4) and the 4 columns of vec4 column tx: its stores of a row
+// are one vec4, and 16 neighbouring invocations store 256 contiguous bytes.
+//
+// In workgroup memory both tiles are K-major ([K step][row]), so the 16 invocations of a row of the
+// workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted, column c at
+// (c % 4) * 16 + c / 4, so that invocation tx's column j sits at j * 16 + tx. The two tiles take 16 KiB,
+// WebGPU's guaranteed minimum of workgroup memory. 64 x 64 tiles keep enough workgroups for a GPU's
+// cores at the engine's shapes (M = 300 rows: 5 x 24 workgroups on a 1536-column layer).
+
+const TILE: u32 = 64u;
+// vec4s of K per step.
+const TILE_K4: u32 = 8u;
+var<workgroup> x_tile: array<vec4<f32>, 512>;
+var<workgroup> w_tile: array<vec4<f32>, 512>;
+
+@compute @workgroup_size(16, 16)
+fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let tiles = (p.n4 + 15u) / 16u;
+    let group = wid.x + wid.y * nwg.x;
+    let tile = group % tiles;
+    let row0 = (group / tiles) * TILE;
+    // The same for every invocation of the workgroup, so the barriers below stay in uniform control flow.
+    if (row0 >= p.m) {
+        return;
+    }
+    let col0 = tile * TILE;
+    let tx = lid.x;
+    let ty = lid.y;
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
+    for (var k0 = 0u; k0 < p.k4; k0 += TILE_K4) {
+        // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed),
+        // K past the end reads zeros.
+        for (var e = li; e < TILE * TILE_K4; e += 256u) {
+            let r = e / TILE_K4;
+            let kk = e % TILE_K4;
+            var xv = vec4<f32>(0.0);
+            var wv = vec4<f32>(0.0);
+            if (k0 + kk < p.k4) {
+                xv = x[min(row0 + r, p.m - 1u) * p.k4 + k0 + kk];
+                wv = vec4<f32>(w[min(col0 + r, p.n - 1u) * p.w_ld4 + k0 + kk]);
+            }
+            x_tile[kk * TILE + r] = xv;
+            w_tile[kk * TILE + (r % 4u) * 16u + r / 4u] = wv;
+        }
+        workgroupBarrier();
+        for (var kk = 0u; kk < TILE_K4; kk++) {
+            let at = kk * TILE;
+            let b0 = w_tile[at + tx];
+            let b1 = w_tile[at + 16u + tx];
+            let b2 = w_tile[at + 32u + tx];
+            let b3 = w_tile[at + 48u + tx];
+            let a0 = x_tile[at + ty];
+            let a1 = x_tile[at + 16u + ty];
+            let a2 = x_tile[at + 32u + ty];
+            let a3 = x_tile[at + 48u + ty];
+            acc0 += vec4<f32>(dot(a0, b0), dot(a0, b1), dot(a0, b2), dot(a0, b3));
+            acc1 += vec4<f32>(dot(a1, b0), dot(a1, b1), dot(a1, b2), dot(a1, b3));
+            acc2 += vec4<f32>(dot(a2, b0), dot(a2, b1), dot(a2, b2), dot(a2, b3));
+            acc3 += vec4<f32>(dot(a3, b0), dot(a3, b1), dot(a3, b2), dot(a3, b3));
+        }
+        workgroupBarrier();
+    }
+    let c4 = tile * 16u + tx;
+    let block = array<vec4<f32>, 4>(acc0, acc1, acc2, acc3);
+    for (var i = 0u; i < 4u; i++) {
+        let row = row0 + ty + 16u * i;
         if (row < p.m && c4 < p.n4) {
             store4(row, c4, block[i]);
         }

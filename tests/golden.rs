@@ -1,5 +1,6 @@
 //! Parity with the official PyTorch model: every case in assets/golden (written by tools/make_golden.py)
-//! is encoded and rendered on the GPU and compared with the latent and rgb PyTorch computed.
+//! is encoded and rendered on the GPU, on every matmul kernel the adapter runs, and compared with the latent
+//! and rgb PyTorch computed.
 //! Tolerances (issues #2, #11): max |rgb - rgb_torch| <= 1e-4 and the same for the segmentation (slot weights);
 //! max |z - z_torch| / max |z_torch| <= 1e-4 for the latent (OSRT: the slots) and SRT's log-depth (its raw
 //! fourth channel); DeFiNe's log-depth (the log of a depth in 0.1..10, issue #12) max abs <= 1e-4.
@@ -9,7 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use raypatch::metrics::fg_ari;
-use raypatch_engine::{Frame, Gpu, GpuOptions, Model, Output, Outputs};
+use raypatch_engine::{Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs};
 use raypatch_model::TensorFile;
 
 const OUTPUT_MAX_ABS: f64 = 1e-4;
@@ -132,7 +133,6 @@ fn shared_gpu() -> Arc<Gpu> {
 
 #[test]
 fn golden_cases_match_pytorch() {
-    let gpu = shared_gpu();
     let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
         .expect("assets/golden is missing: run python3 tools/make_golden.py --out assets/golden")
         .map(|e| e.unwrap().path())
@@ -154,7 +154,18 @@ fn golden_cases_match_pytorch() {
     ] {
         assert!(names.iter().any(|n| n == required), "golden case {required} is missing from assets/golden");
     }
-    let failures: Vec<String> = cases.iter().flat_map(|dir| check_case(&gpu, dir)).collect();
+    let mut failures = Vec::new();
+    for kernel in MatmulKernel::ALL {
+        let gpu = match Gpu::new(&GpuOptions { matmul: Some(kernel), ..Default::default() }) {
+            Ok(gpu) => Arc::new(gpu),
+            Err(why) => {
+                eprintln!("golden cases not run on {kernel:?}: {why}");
+                continue;
+            }
+        };
+        eprintln!("matmul kernel {kernel:?}:");
+        failures.extend(cases.iter().flat_map(|dir| check_case(&gpu, dir)).map(|f| format!("{kernel:?}: {f}")));
+    }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 

@@ -23,15 +23,15 @@ pub fn gpu() -> &'static Gpu {
     })
 }
 
-/// Every GEMM kernel (linear layers and convolutions) the test adapter runs: `Rows` everywhere, `Lanes`
-/// where the adapter has 8-lane subgroups (lavapipe), whichever the adapter would pick by default.
+/// Every GEMM kernel (linear layers and convolutions) the test adapter runs, whichever the adapter would
+/// pick by default: `Rows` and `Tiled` everywhere, `Lanes` where the adapter has 8-lane subgroups (lavapipe).
 pub fn matmul_kernels() -> Vec<MatmulKernel> {
     let gpu = gpu();
     let lanes = MatmulKernel::Lanes.supported(&gpu.info, gpu.features);
     if let Err(why) = &lanes {
         eprintln!("matmul_lanes not tested on {}: {why}", gpu.describe());
     }
-    [MatmulKernel::Rows].into_iter().chain(lanes.ok().map(|_| MatmulKernel::Lanes)).collect()
+    [MatmulKernel::Rows, MatmulKernel::Tiled].into_iter().chain(lanes.ok().map(|_| MatmulKernel::Lanes)).collect()
 }
 
 /// Builds a plan, executes it once, and waits for it.

@@ -1,5 +1,6 @@
-//! `linear` against the float64 reference: random shapes (tails of the 256x8 workgroup tile), every
-//! activation, with and without bias, accumulate, row-range views; plus erf accuracy through GELU.
+//! `linear` on every kernel against the float64 reference: random shapes (tails of the 256x8, 64x64 and
+//! 8x24 workgroup tiles, several 32-float K steps of the 64x64 one), every activation, with and without
+//! bias, accumulate, row-range views; plus erf accuracy through GELU.
 
 use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;

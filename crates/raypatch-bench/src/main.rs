@@ -4,8 +4,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
-use raypatch_engine::{AdapterChoice, Gpu, GpuOptions};
+use raypatch_engine::{AdapterChoice, Gpu, GpuOptions, MatmulKernel};
 
 #[derive(Parser)]
 #[command(version, about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots")]
@@ -25,9 +26,10 @@ struct Args {
     /// Skip sizes whose render is predicted to take longer than this many seconds (default 120, quick 1.5).
     #[arg(long)]
     max_render_seconds: Option<f64>,
-    /// The kernel of the linear layers: rows or lanes (default: the adapter's fastest).
-    #[arg(long, value_name = "KERNEL", value_parser = ["rows", "lanes"])]
-    matmul_kernel: Option<String>,
+    /// The kernel of the linear layers (default: the adapter's fastest).
+    #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
+        .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
+    matmul_kernel: Option<MatmulKernel>,
     /// Do not time PyTorch even if it is installed.
     #[arg(long)]
     no_pytorch: bool,
@@ -81,10 +83,7 @@ fn main() -> ExitCode {
         quick: args.quick,
         out: args.out,
         adapter: args.adapter,
-        matmul: args.matmul_kernel.as_deref().map(|k| match k {
-            "lanes" => raypatch_engine::MatmulKernel::Lanes,
-            _ => raypatch_engine::MatmulKernel::Rows,
-        }),
+        matmul: args.matmul_kernel,
         repeats: args.repeats,
         max_render_seconds: args.max_render_seconds,
         pytorch: !args.no_pytorch,

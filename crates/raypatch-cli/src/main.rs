@@ -9,10 +9,12 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    AdapterChoice, Camera, Engine, EngineOptions, Image, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource,
+    AdapterChoice, Camera, Engine, EngineOptions, Image, MatmulKernel, Output, Outputs, Region, Request, SceneData,
+    SceneSource,
 };
 
 use files::{is_folder, png_paths, raw_bytes, OutputFiles};
@@ -110,9 +112,10 @@ struct Args {
     /// Largest GPU buffer to use, in MiB (default: the adapter's limit); larger renders run in row bands.
     #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(1..=MAX_BUFFER_MIB))]
     max_buffer_mib: Option<u64>,
-    /// The kernel of the linear layers (default: the adapter's fastest: `lanes` on lavapipe, `rows` on GPUs).
-    #[arg(long, value_name = "KERNEL", value_parser = ["rows", "lanes"])]
-    matmul_kernel: Option<String>,
+    /// The kernel of the linear layers (default: the adapter's fastest: `lanes` on lavapipe, `tiled` on GPUs).
+    #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
+        .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
+    matmul_kernel: Option<MatmulKernel>,
     /// Print load, encode and render times, the planned peak GPU memory, and the time spent compiling GPU
     /// pipelines with the pipeline cache file used (set RAYPATCH_CACHE_DIR to move it, or to `off`).
     #[arg(long)]
@@ -244,10 +247,7 @@ fn run(args: &Args) -> Result<()> {
     }
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let max_buffer_bytes = args.max_buffer_mib.map(|mib| mib << 20);
-    let matmul = args.matmul_kernel.as_deref().map(|k| match k {
-        "lanes" => MatmulKernel::Lanes,
-        _ => MatmulKernel::Rows,
-    });
+    let matmul = args.matmul_kernel;
     let context = if matmul.is_some() { "--adapter / --matmul-kernel" } else { "--adapter" };
     let engine =
         Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul, ..Default::default() }).context(context)?;

@@ -1,7 +1,8 @@
-//! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in two
-//! kernels that compute the same sums: `shaders/matmul.wgsl` (register tiles, buffers only) and
-//! `shaders/matmul_lanes.wgsl` (for CPU adapters: textures and subgroup broadcasts), an implicit GEMM that
-//! runs convolutions too ([`gemm_lanes`], called by `kernels::conv` as well).
+//! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in three
+//! kernels that compute the same sums ([`MatmulKernel`]): `shaders/matmul.wgsl`'s `linear` (register tiles,
+//! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), and `shaders/matmul_lanes.wgsl` (for
+//! CPU adapters: textures and subgroup broadcasts), an implicit GEMM that runs convolutions too
+//! ([`gemm_lanes`], called by `kernels::conv` as well).
 
 use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::pack::{self, Packing};
@@ -15,6 +16,9 @@ pub enum MatmulKernel {
     /// `matmul.linear`: 4x8 outputs per invocation from storage buffers; any adapter, f32 or f16 weights.
     #[default]
     Rows,
+    /// `matmul.linear_tiled`: 64x64 tiles of out per workgroup of 256 invocations, operands staged in
+    /// workgroup memory; for GPUs. Any adapter, f32 or f16 weights.
+    Tiled,
     /// `matmul_lanes.gemm`: invocations along N, operands packed into textures, rows of x handed between
     /// lanes by subgroup broadcasts. For CPU adapters (llvmpipe), where it is ~4x faster; needs subgroups of
     /// exactly 8 lanes. Linear layers with f16 weights, operands too large for a texture, and convolutions
@@ -23,10 +27,30 @@ pub enum MatmulKernel {
 }
 
 impl MatmulKernel {
-    /// The faster kernel on this adapter: `Lanes` on CPU adapters that can run it, `Rows` elsewhere.
+    /// Every kernel.
+    pub const ALL: [MatmulKernel; 3] = [MatmulKernel::Rows, MatmulKernel::Tiled, MatmulKernel::Lanes];
+
+    /// The name `--matmul-kernel` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            MatmulKernel::Rows => "rows",
+            MatmulKernel::Tiled => "tiled",
+            MatmulKernel::Lanes => "lanes",
+        }
+    }
+
+    /// The kernel called `name` ([`name`](Self::name)).
+    pub fn from_name(name: &str) -> Option<MatmulKernel> {
+        MatmulKernel::ALL.into_iter().find(|k| k.name() == name)
+    }
+
+    /// The kernel for this adapter: `Lanes` on CPU adapters that can run it, `Rows` on other CPU adapters
+    /// (on llvmpipe the workgroup tiles of `Tiled` are emulated memory), `Tiled` on GPUs.
     pub fn best_for(info: &wgpu::AdapterInfo, features: wgpu::Features) -> MatmulKernel {
         let cpu = info.device_type == wgpu::DeviceType::Cpu;
-        if cpu && MatmulKernel::Lanes.supported(info, features).is_ok() {
+        if !cpu {
+            MatmulKernel::Tiled
+        } else if MatmulKernel::Lanes.supported(info, features).is_ok() {
             MatmulKernel::Lanes
         } else {
             MatmulKernel::Rows
@@ -36,7 +60,7 @@ impl MatmulKernel {
     /// Whether the adapter can run this kernel, and if not why.
     pub fn supported(self, info: &wgpu::AdapterInfo, features: wgpu::Features) -> Result<(), String> {
         match self {
-            MatmulKernel::Rows => Ok(()),
+            MatmulKernel::Rows | MatmulKernel::Tiled => Ok(()),
             MatmulKernel::Lanes if !features.contains(wgpu::Features::SUBGROUP) => {
                 Err("the adapter has no subgroup operations".into())
             }
@@ -55,10 +79,10 @@ const LANES: u32 = 8;
 const LANES_ROWS: usize = 8;
 pub(crate) const LANES_COLS: usize = 8 * 3;
 
-/// Rows of `out` one workgroup computes: 64 invocations x 4 rows (`WG * ROWS` in the shader).
-const ROWS_PER_GROUP: usize = 256;
-/// Columns of `out` one workgroup computes: the shader's 8-column tile of w.
-const COLS_PER_GROUP: usize = 8;
+/// Rows and columns of `out` one workgroup of `linear` computes: 64 invocations x 4 rows (`WG * ROWS` in
+/// the shader) by an 8-column tile of w; of `linear_tiled`, its `TILE` x `TILE`.
+const ROWS_TILE: (usize, usize) = (256, 8);
+const TILED_TILE: (usize, usize) = (64, 64);
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -102,7 +126,8 @@ pub struct LinearArgs {
 /// bias: optional `[1, N]` tensor; out: `[M, N]` view (written with [`Access::Write`], or
 /// [`Access::ReadWrite`] when accumulating). The activation is applied before the add. The padding
 /// columns of `out` are written as zeros (when accumulating they are zero already and stay zero).
-/// Records `M·N·K` multiply-adds. Runs on the plan's [`MatmulKernel`] (`plan.kernels.matmul`).
+/// Records `M·N·K` multiply-adds. Runs on the plan's [`MatmulKernel`] (`plan.kernels.matmul`); `Lanes`
+/// hands f16 weights and operands too large for its textures to `Rows`.
 pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let LinearArgs { x, weight: w, bias, out, act, accumulate } = args;
     let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
@@ -163,12 +188,16 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         Dtype::F32 => &MATMUL,
         Dtype::F16 => &MATMUL_F16,
     };
-    let groups = m.div_ceil(ROWS_PER_GROUP) * padded_cols(n).div_ceil(COLS_PER_GROUP);
+    let (entry, (tile_rows, tile_cols)) = match plan.kernels.matmul {
+        MatmulKernel::Tiled => ("linear_tiled", TILED_TILE),
+        _ => ("linear", ROWS_TILE),
+    };
+    let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
     plan.push(Op {
         label: label.to_string(),
         shader,
-        entry: "linear",
+        entry,
         params: params.words(),
         bindings: vec![
             (x, Access::Read),
