@@ -90,11 +90,13 @@ fn pytorch(runs: usize) -> Result<Vec<Stats>> {
     Ok(json.shapes)
 }
 
-/// Measures every shape on every kernel `gpu` runs (and PyTorch when `torch`), writes gemm.json and gemm.md
-/// into `out`, and returns the Markdown table.
-pub fn run(gpu: &Gpu, torch: bool, runs: usize, out: &Path) -> Result<String> {
-    let kernels: Vec<MatmulKernel> =
-        MatmulKernel::ALL.into_iter().filter(|k| k.supported(&gpu.info, gpu.features).is_ok()).collect();
+/// Measures every shape on every kernel `gpu` runs, or on `only` (and PyTorch when `torch`), writes gemm.json
+/// and gemm.md into `out`, and returns the Markdown table.
+pub fn run(gpu: &Gpu, only: Option<MatmulKernel>, torch: bool, runs: usize, out: &Path) -> Result<String> {
+    let kernels: Vec<MatmulKernel> = MatmulKernel::ALL
+        .into_iter()
+        .filter(|&k| only.is_none_or(|o| o == k) && k.supported(&gpu.info, gpu.features).is_ok())
+        .collect();
     let torch_times = if torch { Some(pytorch(runs)?) } else { None };
     let mut records = Vec::new();
     for (i, (m, k, n, place)) in SHAPES.into_iter().enumerate() {

@@ -46,7 +46,7 @@ struct Args {
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
     /// Measure only the hot linear layers of the official RP-SRT alone, on every matmul kernel the adapter
-    /// runs and in PyTorch: gemm.json and gemm.md in --out.
+    /// runs (or the --matmul-kernel one) and in PyTorch: gemm.json and gemm.md in --out.
     #[arg(long)]
     gemm: bool,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
@@ -108,7 +108,7 @@ fn gemm(args: &Args) -> anyhow::Result<()> {
     let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
     println!("raypatch-bench --gemm on {}", gpu.describe());
     let torch = !args.no_pytorch && raypatch_bench::pytorch::probe().is_ok();
-    let table = raypatch_bench::gemm::run(&gpu, torch, args.repeats.unwrap_or(10), &args.out)?;
+    let table = raypatch_bench::gemm::run(&gpu, args.matmul_kernel, torch, args.repeats.unwrap_or(10), &args.out)?;
     println!("\n{table}");
     Ok(())
 }
