@@ -10,7 +10,7 @@ use raypatch_model::config::define::{DEPTH_MAX, DEPTH_MIN};
 use raypatch_model::{DefineConfig, RayFeatures, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{in_query_chunks, resized, target_queries, Encoded, LightField};
+use super::{in_query_chunks, resized, target_queries, Encoded, LightField, QueryRows};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{ChannelNorm, Graph, HostInput, ImageSize, Tensor};
@@ -44,26 +44,16 @@ impl RayEncoder {
         6 + self.pos_enc.width() + self.ray_enc.width()
     }
 
-    /// The features of `rays` (rows `start..` of a broadcast with `per_view` rays per camera position) into
-    /// columns `col..col + width()` of `out`.
-    #[allow(clippy::too_many_arguments)]
-    fn forward_into(
-        &self,
-        g: &mut Graph,
-        camera_pos: Tensor,
-        per_view: usize,
-        start: usize,
-        rays: Tensor,
-        out: Tensor,
-        col: usize,
-    ) {
+    /// The features of the query rows `q` into columns `col..col + width()` of `out`.
+    fn forward_into(&self, g: &mut Graph, q: QueryRows, out: Tensor, col: usize) {
         let label = g.label(&format!("{}.rays", self.pos_enc.path));
-        copy_columns(&mut g.b, &label, CopyArgs { x: rays.view, repeat: 1, first_row: 0, out: out.view, col });
+        copy_columns(&mut g.b, &label, CopyArgs { x: q.rays.view, repeat: 1, first_row: 0, out: out.view, col });
         let label = g.label(&format!("{}.camera_pos", self.pos_enc.path));
-        let args = CopyArgs { x: camera_pos.view, repeat: per_view, first_row: start, out: out.view, col: col + 3 };
+        let args =
+            CopyArgs { x: q.camera_pos.view, repeat: q.per_view, first_row: q.start, out: out.view, col: col + 3 };
         copy_columns(&mut g.b, &label, args);
-        self.pos_enc.forward_into(g, camera_pos, per_view, start, out, col + 6);
-        self.ray_enc.forward_into(g, rays, 1, 0, out, col + 6 + self.pos_enc.width());
+        self.pos_enc.forward_into(g, q.camera_pos, q.per_view, q.start, out, col + 6);
+        self.ray_enc.forward_into(g, q.rays, 1, 0, out, col + 6 + self.pos_enc.width());
     }
 }
 
@@ -126,7 +116,8 @@ impl DefineEncoder {
         let camera_pos = g.input("input_camera_pos", size.n, 3, HostInput::InputCameraPos, None);
         let rays = g.input("input_rays", size.pixels(), 3, HostInput::InputRays, Some(size));
         let rays = resized(g, "encoder.rays", rays, grid, bilinear);
-        self.ray_encoder.forward_into(g, camera_pos, grid.h * grid.w, 0, rays, tokens, col);
+        let rays = QueryRows { camera_pos, per_view: grid.h * grid.w, start: 0, rays };
+        self.ray_encoder.forward_into(g, rays, tokens, col);
 
         // The Perceiver: the learned latents cross-attend to the tokens (latent rows independently, so in
         // chunks that bound the scores), then attend to themselves.
@@ -181,21 +172,11 @@ impl DefineDecoder {
         layer.widest().max(scores).max(self.query_encoder.width())
     }
 
-    /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view) into `out`.
-    #[allow(clippy::too_many_arguments)]
-    fn forward(
-        &self,
-        g: &mut Graph,
-        camera_pos: Tensor,
-        per_view: usize,
-        start: usize,
-        rays: Tensor,
-        kv: KeysValues,
-        out: Tensor,
-    ) {
+    /// The decoder on query rows `q` into `out`.
+    fn forward(&self, g: &mut Graph, q: QueryRows, kv: KeysValues, out: Tensor) {
         let path = format!("{}.query", self.cross_attention.path);
-        let queries = g.transient(&path, rays.rows(), self.query_encoder.width());
-        self.query_encoder.forward_into(g, camera_pos, per_view, start, rays, queries, 0);
+        let queries = g.transient(&path, q.rows(), self.query_encoder.width());
+        self.query_encoder.forward_into(g, q, queries, 0);
         let h = self.cross_attention.forward(g, queries, Some(kv));
         self.final_layer.forward_into(g, h, out, Activation::None, false);
     }
@@ -300,7 +281,7 @@ impl LightField for Define {
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
         let k = self.patch_size();
-        let (camera_pos, rays, patches) = target_queries(g, self.heads[0].ray_patch.as_ref(), k, views, grid);
+        let (queries, patches) = target_queries(g, self.heads[0].ray_patch.as_ref(), k, views, grid);
         let mut rendered = Vec::new();
         for (h, head) in self.heads.iter().enumerate() {
             // A head runs only for the outputs it gives that were asked for.
@@ -315,8 +296,7 @@ impl LightField for Define {
             let features = g.image(&format!("decoder_{}.features", head.name), patches, dims);
             let widest = head.decoder.widest(self.encoder.num_latents);
             in_query_chunks(g, patches.pixels(), widest, |g, start, rows| {
-                let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
-                head.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, kv, out)
+                head.decoder.forward(g, queries.slice(start, rows), kv, features.slice(start, rows))
             });
             let image = match &head.ray_patch {
                 Some(rp) => rp.forward(g, features, (grid.height, grid.width)),

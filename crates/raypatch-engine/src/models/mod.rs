@@ -83,16 +83,38 @@ fn build_from(config: &ModelConfig, source: Source) -> Result<(Box<dyn LightFiel
     })
 }
 
-/// The target cameras, the decoder's rays and the query grid of a render of `views` target views on `grid`:
-/// one query per pixel (k = 1), or per k×k patch, the patch rays made from full-resolution rays by the
-/// Ray-Patch decoder's resize unless the grid holds patch rays already.
+/// Query rows `start..start + rays.rows()` of the rays of some views, `per_view` rays a view: the rays, and
+/// the camera positions `[views, 3]` they are cast from (row r's is camera_pos[(start + r) / per_view]).
+/// What a decoder turns into queries, whole or one chunk at a time ([`slice`](Self::slice)).
+#[derive(Clone, Copy, Debug)]
+pub struct QueryRows {
+    pub camera_pos: Tensor,
+    pub per_view: usize,
+    pub start: usize,
+    pub rays: Tensor,
+}
+
+impl QueryRows {
+    /// The `rows` rows from `start` of these.
+    pub fn slice(&self, start: usize, rows: usize) -> QueryRows {
+        QueryRows { start: self.start + start, rays: self.rays.slice(start, rows), ..*self }
+    }
+
+    pub fn rows(&self) -> usize {
+        self.rays.rows()
+    }
+}
+
+/// The queries of a render of `views` target views on `grid` and their grid: one query per pixel (k = 1), or
+/// per k×k patch, the patch rays made from full-resolution rays by the Ray-Patch decoder's resize unless the
+/// grid holds patch rays already.
 pub fn target_queries(
     g: &mut Graph,
     ray_patch: Option<&RayPatchDecoder>,
     k: usize,
     views: usize,
     grid: TargetGrid,
-) -> (Tensor, Tensor, ImageSize) {
+) -> (QueryRows, ImageSize) {
     let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
     let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);
     let rays = match ray_patch {
@@ -103,7 +125,7 @@ pub fn target_queries(
         }
         _ => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
     };
-    (camera_pos, rays, patches)
+    (QueryRows { camera_pos, per_view: patches.h * patches.w, start: 0, rays }, patches)
 }
 
 /// The outputs of a final image of `channels` channels: rgb, and log-depth and depth from a fourth channel.

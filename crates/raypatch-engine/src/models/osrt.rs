@@ -9,7 +9,9 @@ use raypatch_model::{OsrtConfig, TargetGrid};
 
 use super::ray_patch::{bilinear_output, bilinear_patch_span, RayPatchDecoder};
 use super::srt::{RayPredictor, SrtEncoder, OUT_MLP_SLOPE};
-use super::{image_output_set, image_outputs, in_query_chunks, target_queries, wants_image, Encoded, LightField};
+use super::{
+    image_output_set, image_outputs, in_query_chunks, target_queries, wants_image, Encoded, LightField, QueryRows,
+};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, ImageSize, Tensor};
@@ -158,21 +160,11 @@ impl SlotMixerDecoder {
         })
     }
 
-    /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view): the mixing
-    /// weights into `out.weights`, and the render MLP's output into `out.image` when it is wanted.
-    #[allow(clippy::too_many_arguments)]
-    fn forward(
-        &self,
-        g: &mut Graph,
-        camera_pos: Tensor,
-        per_view: usize,
-        start: usize,
-        rays: Tensor,
-        scene: &SceneTensors,
-        out: ChunkOutputs,
-    ) {
+    /// The decoder on query rows `q`: the mixing weights into `out.weights`, and the render MLP's output into
+    /// `out.image` when it is wanted.
+    fn forward(&self, g: &mut Graph, q: QueryRows, scene: &SceneTensors, out: ChunkOutputs) {
         let at = &self.allocation_transformer;
-        let queries = at.queries(g, camera_pos, per_view, start, rays);
+        let queries = at.queries(g, q);
         // The transformer works in place; the render MLP needs the queries as they were (a bit-exact copy).
         let x = g.transient("decoder_att.allocation_transformer.x", queries.rows(), queries.cols);
         let label = g.label("decoder_att.allocation_transformer.x");
@@ -260,7 +252,7 @@ impl LightField for Osrt {
         grid: TargetGrid,
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
-        let (camera_pos, rays, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
+        let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let layers = scene.len() - 2;
         let external = |g: &mut Graph, name: &str, t: &GpuTensor| g.external(name, t);
         let scene = SceneTensors {
@@ -284,8 +276,7 @@ impl LightField for Osrt {
                 None => g.transient("decoder_att.mixing_block.weights", rows, slots),
             };
             let out = ChunkOutputs { weights, image: features.map(|f| f.slice(start, rows)) };
-            let rays = rays.slice(start, rows);
-            self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &scene, out)
+            self.decoder.forward(g, queries.slice(start, rows), &scene, out)
         });
         let mut rendered = match features {
             Some(features) => {

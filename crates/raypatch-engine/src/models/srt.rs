@@ -6,7 +6,7 @@
 use raypatch_model::{EncoderConfig, RayPredictorConfig, SrtConfig, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
-use super::{image_output_set, image_outputs, in_query_chunks, target_queries, Encoded, LightField};
+use super::{image_output_set, image_outputs, in_query_chunks, target_queries, Encoded, LightField, QueryRows};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
@@ -156,13 +156,12 @@ impl RayPredictor {
         [c.ff_hidden, c.input_mlp_hidden, c.heads * c.dim_head, c.query_dim()].into_iter().max().unwrap_or(1)
     }
 
-    /// The queries of rows `start..start + rays.rows()` (of `per_view` per target view) after the input MLP:
-    /// input_mlp(cat(posenc(camera position), posenc(ray))).
-    pub fn queries(&self, g: &mut Graph, camera_pos: Tensor, per_view: usize, start: usize, rays: Tensor) -> Tensor {
+    /// The queries of `q` after the input MLP: input_mlp(cat(posenc(camera position), posenc(ray))).
+    pub fn queries(&self, g: &mut Graph, q: QueryRows) -> Tensor {
         let pos = self.pos_enc.width();
-        let query = g.transient("decoder_att.query", rays.rows(), pos + self.ray_enc.width());
-        self.pos_enc.forward_into(g, camera_pos, per_view, start, query, 0);
-        self.ray_enc.forward_into(g, rays, 1, 0, query, pos);
+        let query = g.transient("decoder_att.query", q.rows(), pos + self.ray_enc.width());
+        self.pos_enc.forward_into(g, q.camera_pos, q.per_view, q.start, query, 0);
+        self.ray_enc.forward_into(g, q.rays, 1, 0, query, pos);
         let hidden = self.input_mlp_0.forward(g, query, Activation::Relu);
         self.input_mlp_2.forward(g, hidden, Activation::None)
     }
@@ -184,21 +183,10 @@ impl SrtDecoder {
         })
     }
 
-    /// The decoder on query rows `start..start + rays.rows()` (of `per_view` per target view) into `out`:
-    /// the ray predictor's queries, cross-attention, out MLP.
-    #[allow(clippy::too_many_arguments)]
-    fn forward(
-        &self,
-        g: &mut Graph,
-        camera_pos: Tensor,
-        per_view: usize,
-        start: usize,
-        rays: Tensor,
-        kv: &[Tensor],
-        out: Tensor,
-    ) {
+    /// The decoder on query rows `q` into `out`: the ray predictor's queries, cross-attention, out MLP.
+    fn forward(&self, g: &mut Graph, q: QueryRows, kv: &[Tensor], out: Tensor) {
         let rp = &self.ray_predictor;
-        let x = rp.queries(g, camera_pos, per_view, start, rays);
+        let x = rp.queries(g, q);
         rp.transformer.forward_cross(g, x, kv);
         let (last, hidden_layers) = self.out_mlp.split_last().expect("out_mlp has five layers");
         let h = hidden_layers.iter().fold(x, |h, lin| lin.forward(g, h, Activation::LeakyRelu(OUT_MLP_SLOPE)));
@@ -257,13 +245,12 @@ impl LightField for Srt {
         grid: TargetGrid,
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
-        let (camera_pos, rays, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
+        let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let kv: Vec<Tensor> =
             scene.iter().enumerate().map(|(l, t)| g.external(&format!("decoder.layers.{l}.kv"), t)).collect();
         let features = g.image("decoder_features", patches, self.config.decoder.out_dims);
         in_query_chunks(g, patches.pixels(), self.decoder.widest, |g, start, rows| {
-            let (rays, out) = (rays.slice(start, rows), features.slice(start, rows));
-            self.decoder.forward(g, camera_pos, patches.h * patches.w, start, rays, &kv, out)
+            self.decoder.forward(g, queries.slice(start, rows), &kv, features.slice(start, rows))
         });
         let image = match &self.ray_patch {
             Some(rp) => rp.forward(g, features, (grid.height, grid.width)),
