@@ -309,6 +309,8 @@ def main(argv=None):
         if step % args.checkpoint_every == 0 or step == args.steps:
             checkpoint()
 
+    # The curve of the steps the model has seen (a run resumed to a checkpoint's own step rewrites it to that).
+    write_curve(args.out / "curve.csv", curve)
     validated = [row for row in curve if row["val_psnr"] is not None]
     record = {
         "generator": command, "k": args.k, "preset": args.preset, "steps": step, "batch_size": args.batch,
