@@ -81,6 +81,9 @@ def main(argv=None):
             for s, scene in enumerate(args.scene):
                 tensors = load_file(scene)
                 targets = tensors["target_images"]
+                if rows and targets.shape[1:] != rows[0]["truth"].shape[:2] + (3,):
+                    raise ValueError(f"{scene}: target views {targets.shape[1:3]}, but the first --scene's are "
+                                     f"{rows[0]['truth'].shape[:2]} (one picture needs one size)")
                 input_view = np.round(tensors["input_images"][0] * 255).astype(np.uint8)
                 renders = []
                 for m, (_, path) in enumerate(models):

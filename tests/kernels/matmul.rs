@@ -174,7 +174,8 @@ fn linear_f16_weights() {
 }
 
 /// Shapes on and just past the edges of the tiles: `Rows`' 256x8 workgroup tile and 4x8 invocation block,
-/// `Lanes`' 8x24 workgroup tile and 32-column steps along K (8 texels).
+/// `Lanes`' 8x24 workgroup tile and 32-column steps along K (8 texels), `Tiled`'s 64x64 workgroup tile and
+/// 32-float steps along K.
 #[test]
 fn linear_tile_edges() {
     let mut rng = Rng::new(3);
@@ -191,6 +192,10 @@ fn linear_tile_edges() {
         (7, 31, 23),
         (16, 64, 48),
         (17, 65, 49),
+        (64, 32, 64),
+        (65, 33, 65),
+        (63, 31, 63),
+        (128, 96, 128),
     ];
     for (i, &(m, k, n)) in shapes.iter().enumerate() {
         let case =
