@@ -12,13 +12,17 @@ this script writes them out. Change ROWS / GROUPS here, run it, and commit both 
 import sys
 from pathlib import Path
 
-# Rows of x per workgroup and 8-column groups of w per invocation: 8 x 3 measured fastest on Mesa 25.0.7
-# (300x1536x1536 on 2 AVX2 threads: 8x1 16, 8x2 21, 8x3 23, 8x4 16, 16x2 18 GMAC/s).
+# Rows of x per workgroup and 8-column groups of w per invocation: 8 x 4 measured fastest on Mesa 25.0.7
+# (300x1536x1536 on 2 Zen 4 threads, GMAC/s: 8x3 23.6, 8x4 25.0, 8x5 23.7-25.2, 8x6 22.5, 12x3 23.0-24.5,
+# 16x2 23.5, 16x3 23.8, 24x2 20.9, 4x8 17.5). More rows per load of w would mean fewer loads per
+# multiply-add, but the unrolled block outgrows the core's 32 KiB instruction cache past about 8 x 5.
 ROWS = 8
-GROUPS = 3
+GROUPS = 4
 # Row tiles per band of the group order (see the kernel): 8 (64 rows) took the 4800-row encoder layers with
-# 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w (5-7 MB) no longer fits in cache.
+# 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w (5-7 MB) no longer fits in cache. A power of two, so
+# that the kernel finds its tile without a division (llvmpipe divides lane by lane).
 BAND = 8
+assert BAND & (BAND - 1) == 0
 LANES = 8  # the subgroup: lavapipe's SIMD width with AVX2, checked by the wrapper
 
 SHADER = Path(__file__).resolve().parent.parent / "shaders" / "matmul_lanes.wgsl"
@@ -38,7 +42,10 @@ HEADER = f"""\
 // and each lane loads one texel of x per row for the whole subgroup, which subgroupBroadcast hands to every
 // lane: one load of x serves {LANES * GROUPS} columns, one load of w {ROWS} rows. The 8 steps of a block are summed
 // before they are added to the accumulators: llvmpipe stores a loop-carried variable under the execution
-// mask on every assignment, so fewer assignments are faster.
+// mask on every assignment, so fewer assignments are faster. The block loads everything first (each
+// texture load is a call, around which LLVM spills every live vector register) and then runs row by row,
+// one step at a time, so that a row's broadcast step and its {GROUPS} partial sums stay in registers (summing a
+// row's 8 steps as a tree kept 8 steps of operands alive and spilled them: 10% slower).
 //
 // Workgroup: one subgroup of {LANES} lanes computing {ROWS} rows (output pixels) x {LANES * GROUPS} columns (output
 // channels) of out; lane l owns columns 8g + l of its {GROUPS} column groups g. Each row walks the K x K taps of
@@ -83,16 +90,33 @@ struct Params {{
 @group(0) @binding(3) var x: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(4) var w: texture_storage_2d<rgba32float, read>;
 
-// Where output pixel q's window starts: (the row of x of its image's first pixel, top row, left column) in
-// the effective image.
-fn window_corner(q: u32) -> vec3<i32> {{
-    // One output row (a linear layer): no divisions, which llvmpipe runs lane by lane (a uniform branch).
+// Output pixel q as (image, row, column). llvmpipe divides lane by lane, so the kernel divides once, for
+// its first row, and steps to the next rows with `next_pixel`.
+fn pixel_of(q: u32) -> vec3<u32> {{
+    // One output row (a linear layer): no division at all (a uniform branch).
     if (p.m == p.wo) {{
-        return vec3<i32>(0, -i32(p.pad), i32(q * p.stride) - i32(p.pad));
+        return vec3<u32>(0u, 0u, q);
     }}
     let r = q / p.wo;
-    return vec3<i32>(i32((r / p.ho) * p.h), i32((r % p.ho) * p.stride) - i32(p.pad),
-                     i32((q % p.wo) * p.stride) - i32(p.pad));
+    return vec3<u32>(r / p.ho, r % p.ho, q % p.wo);
+}}
+
+// The output pixel after `px` in row-major order.
+fn next_pixel(px: vec3<u32>) -> vec3<u32> {{
+    var n = px + vec3<u32>(0u, 0u, 1u);
+    if (n.z == p.wo) {{
+        n = vec3<u32>(n.x, n.y + 1u, 0u);
+    }}
+    if (n.y == p.ho) {{
+        n = vec3<u32>(n.x + 1u, 0u, n.z);
+    }}
+    return n;
+}}
+
+// Where the window of output pixel `px` starts: (the row of x of its image's first pixel, top row, left
+// column) in the effective image.
+fn window_corner(px: vec3<u32>) -> vec3<i32> {{
+    return vec3<i32>(i32(px.x * p.h), i32(px.y * p.stride) - i32(p.pad), i32(px.z * p.stride) - i32(p.pad));
 }}
 
 // The texel of x where tap (ky, kx) of the window at `corner` starts, plus `lane`.
@@ -106,17 +130,22 @@ fn tap_texel(corner: vec3<i32>, ky: u32, kx: u32, lane: u32) -> u32 {{
     return row * p.k4p + lane;
 }}
 
-// Bias, then the shared epilogue (activation.wgsl: residual, activation, zeroed padding column, accumulate),
-// and the store: one element of out.
-fn finish(row: u32, col: u32, acc: f32) {{
+// The bias of column col: 0 past the output's channels or without a bias. Loaded once per column, before
+// the stores (LLVM would load it again after every store to out, which it cannot tell apart from bias).
+fn bias_of(col: u32) -> f32 {{
+    if (p.has_bias != 0u && col < p.n) {{
+        return bias[col];
+    }}
+    return 0.0;
+}}
+
+// The shared epilogue (activation.wgsl: residual, activation, zeroed padding column, accumulate) and the
+// store: one element of out, where v is the sum plus the bias.
+fn finish(row: u32, col: u32, v: f32) {{
     if (row >= p.m || col >= p.ldo) {{
         return;
     }}
     let at = row * p.ldo + col;
-    var v = acc;
-    if (p.has_bias != 0u && col < p.n) {{
-        v += bias[col];
-    }}
     var prior = 0.0;
     if (p.mode != 0u) {{
         prior = out[at];
@@ -130,28 +159,26 @@ def kernel():
     r, g = range(ROWS), range(GROUPS)
     s = [f"""
 @compute @workgroup_size({LANES})
-fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-        @builtin(subgroup_invocation_id) lane: u32) {{
-    let group = wid.x + wid.y * nwg.x;
-    let col_groups = (p.n + 7u) / 8u;
-    let tiles = (col_groups + {GROUPS - 1}u) / {GROUPS}u;
-    // Bands of {BAND} row tiles: within a band the groups go row tile fastest, so consecutive groups reuse one
-    // tile of w from cache, and the band's rows of x stay in cache while its tiles of w stream past.
-    let row_tiles = (p.m + {ROWS - 1}u) / {ROWS}u;
-    let band = group / (tiles * {BAND}u);
-    let band_rows = min({BAND}u, row_tiles - min(band * {BAND}u, row_tiles));
-    let in_band = group - band * tiles * {BAND}u;
-    if (band_rows == 0u || in_band >= tiles * band_rows) {{
+fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) lane: u32) {{
+    // wid.y is a band of {BAND} row tiles, which wid.x walks row tile fastest (the wrapper dispatches
+    // tiles x {BAND} by bands): consecutive workgroups reuse one tile of w from cache, and the band's rows of x
+    // stay in cache while its tiles of w stream past. Workgroups past the last row tile have nothing to do.
+    let row0 = (wid.y * {BAND}u + wid.x % {BAND}u) * {ROWS}u;
+    if (row0 >= p.m) {{
         return;
     }}
-    let tile = in_band / band_rows;
-    let row0 = (band * {BAND}u + in_band % band_rows) * {ROWS}u;
+    let tile = wid.x / {BAND}u;
+    let col_groups = (p.n + 7u) / 8u;
     // Rows past the end of out and groups past the end of w are clamped; their results are not stored.
-    let last_row = p.m - 1u;"""]
-    s += [f"    let c{i} = window_corner(min(row0 + {i}u, last_row));" for i in r]
+    let last_row = p.m - 1u;
+    let px0 = pixel_of(row0);"""]
+    for i in r:
+        if i:
+            s.append(f"    let px{i} = select(px{i - 1}, next_pixel(px{i - 1}), row0 + {i}u <= last_row);")
+        s.append(f"    let c{i} = window_corner(px{i});")
     s += [f"    let g{j} = min(tile * {GROUPS}u + {j}u, col_groups - 1u);" for j in g]
     s += [f"    let w{j} = g{j} * p.k * p.k * p.k4p * 8u + lane;" for j in g]
-    s += [f"    var acc{i}_{j} = 0.0;" for i in r for j in g]
+    s.append(f"    var acc: array<array<f32, {GROUPS}>, {ROWS}>;")
     s += ["    // The texel of this tap in each column of w.",
           "    var tap = 0u;",
           "    for (var ky = 0u; ky < p.k; ky++) {",
@@ -161,21 +188,29 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
           "                // Texel kb + lane of each row's pixel: lane l holds step l of this block.",
           "                let wb = tap + kb;"]
     s += [f"                let xl{i} = textureLoad(x, texel(x{i} + kb));" for i in r]
-    for step in range(LANES):
-        s += [f"                // Step {step}: lane {step}'s texels of x, every lane's texel of w."]
-        s += [f"                let xs{i}_{step} = subgroupBroadcast(xl{i}, {step}u);" for i in r]
-        s += [f"                let ws{j}_{step} = textureLoad(w, texel(w{j} + (wb + {step}u) * 8u));" for j in g]
+    s += ["                // Every lane's texels of w for the block's 8 steps."]
+    s += [f"                let ws{j}_{t} = textureLoad(w, texel(w{j} + (wb + {t}u) * 8u));"
+          for t in range(LANES) for j in g]
     for i in r:
-        for j in g:
-            d = [f"dot(xs{i}_{t}, ws{j}_{t})" for t in range(LANES)]
-            s.append(f"                acc{i}_{j} += ((({d[0]} + {d[1]}) + ({d[2]} + {d[3]}))")
-            s.append(f"                    + (({d[4]} + {d[5]}) + ({d[6]} + {d[7]})));")
+        s.append(f"                // Row {i}: step t is lane t's texel of x, handed to every lane.")
+        for t in range(LANES):
+            s.append(f"                let xs{i}_{t} = subgroupBroadcast(xl{i}, {t}u);")
+            for j in g:
+                prior = f"s{i}_{j}_{t - 1} + " if t else ""
+                s.append(f"                let s{i}_{j}_{t} = {prior}dot(xs{i}_{t}, ws{j}_{t});")
+        s += [f"                acc[{i}][{j}] += s{i}_{j}_{LANES - 1};" for j in g]
     s += ["            }",
           "            tap += p.k4p;",
           "        }",
           "    }"]
-    s += [f"    if (tile * {GROUPS}u + {j}u < col_groups) {{" + "".join(
-        f"\n        finish(row0 + {i}u, g{j} * 8u + lane, acc{i}_{j});" for i in r) + "\n    }" for j in g]
+    s += [f"    let b{j} = bias_of(g{j} * 8u + lane);" for j in g]
+    s += ["    // A loop whose bound is not a constant, so that it is not unrolled: 32 inlined epilogues made each",
+          "    // workgroup run through ~100 KiB of code, three times the instruction cache.",
+          f"    for (var i = 0u; i < min({ROWS}u, p.m - row0); i++) {{",
+          "        let a = acc[i];"]
+    s += [f"        if (tile * {GROUPS}u + {j}u < col_groups) {{\n            finish(row0 + i, g{j} * 8u + lane, a[{j}] + b{j});\n        }}"
+          for j in g]
+    s.append("    }")
     s.append("}")
     return "\n".join(s) + "\n"
 

@@ -18,7 +18,7 @@ use crate::kernels::pack::Packing;
 use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
-const MAX_GROUPS_PER_DIM: u32 = 65535;
+pub(crate) const MAX_GROUPS_PER_DIM: u32 = 65535;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TensorId(usize);

@@ -7,7 +7,7 @@
 use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::pack::{self, Packing};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
-use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View};
+use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
 /// Which kernel linear layers and convolutions run on.
@@ -73,11 +73,12 @@ impl MatmulKernel {
     }
 }
 
-/// Lanes of `matmul_lanes`' workgroup (one subgroup), and its rows and 8-column groups per workgroup
-/// (`tools/gen_matmul_lanes.py`).
+/// Lanes of `matmul_lanes`' workgroup (one subgroup), its rows and columns (8-column groups) per workgroup,
+/// and the row tiles of its bands (`ROWS`, `GROUPS`, `BAND` in `tools/gen_matmul_lanes.py`).
 const LANES: u32 = 8;
 const LANES_ROWS: usize = 8;
-pub(crate) const LANES_COLS: usize = 8 * 3;
+pub(crate) const LANES_COLS: usize = 8 * 4;
+const LANES_BAND: usize = 8;
 
 /// Rows and columns of `out` one workgroup of `linear` computes: 64 invocations x 4 rows (`WG * ROWS` in
 /// the shader) by an 8-column tile of w; of `linear_tiled`, its `TILE` x `TILE`.
@@ -247,7 +248,18 @@ params! {
 pub(crate) fn lanes_fit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
     let w_packing = Packing::conv_weight(args.window.kernel * args.window.kernel);
     let w_texels = w_packing.texels(args.cout, plan.cols(args.weight));
+    let (ho, wo) = conv_output_size(args.h, args.w, args.window, args.upsample_input).unwrap_or((0, 0));
     Packing::IMAGE.texels(args.x.rows, args.cin).max(w_texels) <= plan.kernels.max_texels
+        && lanes_workgroups(args.n * ho * wo, args.cout).is_some()
+}
+
+/// `matmul_lanes`' grid for an `m` x `n` out: x walks the column tiles, `LANES_BAND` row tiles each, y the
+/// bands (the shader finds its tile from them without a division). None past the per-dimension limit.
+fn lanes_workgroups(m: usize, n: usize) -> Option<[u32; 3]> {
+    let x = n.div_ceil(LANES_COLS) * LANES_BAND;
+    let y = m.div_ceil(LANES_ROWS).div_ceil(LANES_BAND);
+    let fits = |groups: usize| (1..=MAX_GROUPS_PER_DIM as usize).contains(&groups);
+    (fits(x) && fits(y)).then_some([x as u32, y as u32, 1])
 }
 
 /// A convolution, or a linear layer as a 1×1 convolution over a 1 × M image, on `matmul_lanes`: x packed
@@ -290,7 +302,7 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
         up: u32::from(upsample_input),
         zero_row: x.rows as u32,
     };
-    let groups = npix.div_ceil(LANES_ROWS) * cout.div_ceil(LANES_COLS);
+    let workgroups = lanes_workgroups(npix, cout).expect("the grid fits (checked by lanes_fit)");
     let out_access = if mode.reads_out() { Access::ReadWrite } else { Access::Write };
     plan.push(Op {
         label: label.to_string(),
@@ -299,7 +311,7 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
         params: params.words(),
         bindings: vec![(plan.all(bias.unwrap_or(weight)), Access::Read), (out, out_access)],
         textures: vec![(TextureRef::Scratch(0), Access::Read), (w_texture, Access::Read)],
-        workgroups: grid(groups),
+        workgroups,
         multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
     });
 }
