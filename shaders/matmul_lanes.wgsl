@@ -18,8 +18,9 @@
 // row's 8 steps as a tree kept 8 steps of operands alive and spilled them: 10% slower).
 //
 // Workgroup: one subgroup of 8 lanes computing 8 rows (output pixels) x 32 columns (output
-// channels) of out; lane l owns columns 8g + l of its 4 column groups g. Each row walks the K x K taps of
-// its window; a tap outside the (zero-padded) image reads the texture's zero row instead.
+// channels) of out; lane l owns columns 4l..4l+3 of the tile, group g of the packed w (whose tiles of 32 rows
+// are transposed) holding column 4l + g. Each row walks the K x K taps of its window; a tap outside the
+// (zero-padded) image reads the texture's zero row instead.
 
 struct Params {
     // out is [m, n]: m = n_images * ho * wo output pixels, n output channels.
@@ -54,7 +55,8 @@ struct Params {
 @group(0) @binding(0) var<uniform> p: Params;
 // [1, n]; when there is no bias the wrapper binds another buffer here and has_bias is 0.
 @group(0) @binding(1) var<storage, read> bias: array<f32>;
-@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+// ld(n) is a multiple of 4, so a lane's 4 columns of a row are one vec4.
+@group(0) @binding(2) var<storage, read_write> out: array<vec4<f32>>;
 // x [rows, cin] in the row layout and w [n, k*k*cin] in the 8-lane layout of texels.wgsl, one run of k4p
 // texels per tap.
 @group(0) @binding(3) var x: texture_storage_2d<rgba32float, read>;
@@ -109,18 +111,19 @@ fn bias_of(col: u32) -> f32 {
     return 0.0;
 }
 
-// The shared epilogue (activation.wgsl: residual, activation, zeroed padding column, accumulate) and the
-// store: one element of out, where v is the sum plus the bias.
-fn finish(row: u32, col: u32, v: f32) {
-    if (row >= p.m || col >= p.ldo) {
+// The shared epilogue (activation.wgsl: residual, activation, zeroed padding columns, accumulate) and the
+// store: columns col..col+3 of a row of out, where v is the sum plus the bias.
+fn finish(row: u32, col: u32, v: vec4<f32>) {
+    if (col >= p.ldo) {
         return;
     }
-    let at = row * p.ldo + col;
-    var prior = 0.0;
+    let at = (row * p.ldo + col) / 4u;
+    var prior = vec4<f32>(0.0);
     if (p.mode != 0u) {
         prior = out[at];
     }
-    out[at] = epilogue(vec4<f32>(v), vec4<f32>(prior), p.mode, p.act, p.slope, vec4<bool>(col < p.n)).x;
+    let real = vec4<u32>(col) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(p.n);
+    out[at] = epilogue(v, prior, p.mode, p.act, p.slope, real);
 }
 
 @compute @workgroup_size(8)
@@ -133,8 +136,7 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
         return;
     }
     let tile = wid.x / 8u;
-    let col_groups = (p.n + 7u) / 8u;
-    // Rows past the end of out and groups past the end of w are clamped; their results are not stored.
+    // Rows past the end of out are clamped; their results are not stored.
     let last_row = p.m - 1u;
     let px0 = pixel_of(row0);
     let c0 = window_corner(px0);
@@ -152,14 +154,10 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
     let c6 = window_corner(px6);
     let px7 = select(px6, next_pixel(px6), row0 + 7u <= last_row);
     let c7 = window_corner(px7);
-    let g0 = min(tile * 4u + 0u, col_groups - 1u);
-    let g1 = min(tile * 4u + 1u, col_groups - 1u);
-    let g2 = min(tile * 4u + 2u, col_groups - 1u);
-    let g3 = min(tile * 4u + 3u, col_groups - 1u);
-    let w0 = g0 * p.k * p.k * p.k4p * 8u + lane;
-    let w1 = g1 * p.k * p.k * p.k4p * 8u + lane;
-    let w2 = g2 * p.k * p.k * p.k4p * 8u + lane;
-    let w3 = g3 * p.k * p.k * p.k4p * 8u + lane;
+    let w0 = (tile * 4u + 0u) * p.k * p.k * p.k4p * 8u + lane;
+    let w1 = (tile * 4u + 1u) * p.k * p.k * p.k4p * 8u + lane;
+    let w2 = (tile * 4u + 2u) * p.k * p.k * p.k4p * 8u + lane;
+    let w3 = (tile * 4u + 3u) * p.k * p.k * p.k4p * 8u + lane;
     var acc: array<array<f32, 4>, 8>;
     // The texel of this tap in each column of w.
     var tap = 0u;
@@ -581,25 +579,12 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
             tap += p.k4p;
         }
     }
-    let b0 = bias_of(g0 * 8u + lane);
-    let b1 = bias_of(g1 * 8u + lane);
-    let b2 = bias_of(g2 * 8u + lane);
-    let b3 = bias_of(g3 * 8u + lane);
-    // A loop whose bound is not a constant, so that it is not unrolled: 32 inlined epilogues made each
-    // workgroup run through ~100 KiB of code, three times the instruction cache.
+    let col = (tile * 8u + lane) * 4u;
+    let b = vec4<f32>(bias_of(col + 0u), bias_of(col + 1u), bias_of(col + 2u), bias_of(col + 3u));
+    // A loop whose bound is not a constant, so that it is not unrolled: inlined epilogues for every row
+    // made each workgroup run through ~100 KiB of code, three times the instruction cache.
     for (var i = 0u; i < min(8u, p.m - row0); i++) {
         let a = acc[i];
-        if (tile * 4u + 0u < col_groups) {
-            finish(row0 + i, g0 * 8u + lane, a[0] + b0);
-        }
-        if (tile * 4u + 1u < col_groups) {
-            finish(row0 + i, g1 * 8u + lane, a[1] + b1);
-        }
-        if (tile * 4u + 2u < col_groups) {
-            finish(row0 + i, g2 * 8u + lane, a[2] + b2);
-        }
-        if (tile * 4u + 3u < col_groups) {
-            finish(row0 + i, g3 * 8u + lane, a[3] + b3);
-        }
+        finish(row0 + i, col, vec4<f32>(a[0], a[1], a[2], a[3]) + b);
     }
 }

@@ -30,7 +30,10 @@ fn pack(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     let step = t / p.lanes;
-    let row = (step / p.k4p) * p.lanes + t % p.lanes;
+    var row = (step / p.k4p) * p.lanes + t % p.lanes;
+    if (p.lanes == 8u) {
+        row = tile_row(row);
+    }
     let c4 = step % p.k4p;
     let segment = c4 / p.seg4p;
     let in_segment = c4 % p.seg4p;

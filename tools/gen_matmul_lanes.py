@@ -18,6 +18,9 @@ from pathlib import Path
 # multiply-add, but the unrolled block outgrows the core's 32 KiB instruction cache past about 8 x 5.
 ROWS = 8
 GROUPS = 4
+# A lane's column groups are 4 consecutive columns of out (the 8-lane packing transposes tiles of 32 rows of
+# w, texels.wgsl), which it stores as one vec4: a scattered store is a bounds-checked scalar store per lane.
+assert GROUPS == 4
 # Row tiles per band of the group order (see the kernel): 8 (64 rows) took the 4800-row encoder layers with
 # 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w (5-7 MB) no longer fits in cache. A power of two, so
 # that the kernel finds its tile without a division (llvmpipe divides lane by lane).
@@ -48,8 +51,9 @@ HEADER = f"""\
 // row's 8 steps as a tree kept 8 steps of operands alive and spilled them: 10% slower).
 //
 // Workgroup: one subgroup of {LANES} lanes computing {ROWS} rows (output pixels) x {LANES * GROUPS} columns (output
-// channels) of out; lane l owns columns 8g + l of its {GROUPS} column groups g. Each row walks the K x K taps of
-// its window; a tap outside the (zero-padded) image reads the texture's zero row instead.
+// channels) of out; lane l owns columns 4l..4l+3 of the tile, group g of the packed w (whose tiles of 32 rows
+// are transposed) holding column 4l + g. Each row walks the K x K taps of its window; a tap outside the
+// (zero-padded) image reads the texture's zero row instead.
 
 struct Params {{
     // out is [m, n]: m = n_images * ho * wo output pixels, n output channels.
@@ -84,7 +88,8 @@ struct Params {{
 @group(0) @binding(0) var<uniform> p: Params;
 // [1, n]; when there is no bias the wrapper binds another buffer here and has_bias is 0.
 @group(0) @binding(1) var<storage, read> bias: array<f32>;
-@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+// ld(n) is a multiple of 4, so a lane's 4 columns of a row are one vec4.
+@group(0) @binding(2) var<storage, read_write> out: array<vec4<f32>>;
 // x [rows, cin] in the row layout and w [n, k*k*cin] in the 8-lane layout of texels.wgsl, one run of k4p
 // texels per tap.
 @group(0) @binding(3) var x: texture_storage_2d<rgba32float, read>;
@@ -139,18 +144,19 @@ fn bias_of(col: u32) -> f32 {{
     return 0.0;
 }}
 
-// The shared epilogue (activation.wgsl: residual, activation, zeroed padding column, accumulate) and the
-// store: one element of out, where v is the sum plus the bias.
-fn finish(row: u32, col: u32, v: f32) {{
-    if (row >= p.m || col >= p.ldo) {{
+// The shared epilogue (activation.wgsl: residual, activation, zeroed padding columns, accumulate) and the
+// store: columns col..col+3 of a row of out, where v is the sum plus the bias.
+fn finish(row: u32, col: u32, v: vec4<f32>) {{
+    if (col >= p.ldo) {{
         return;
     }}
-    let at = row * p.ldo + col;
-    var prior = 0.0;
+    let at = (row * p.ldo + col) / 4u;
+    var prior = vec4<f32>(0.0);
     if (p.mode != 0u) {{
         prior = out[at];
     }}
-    out[at] = epilogue(vec4<f32>(v), vec4<f32>(prior), p.mode, p.act, p.slope, vec4<bool>(col < p.n)).x;
+    let real = vec4<u32>(col) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(p.n);
+    out[at] = epilogue(v, prior, p.mode, p.act, p.slope, real);
 }}
 """
 
@@ -168,16 +174,14 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
         return;
     }}
     let tile = wid.x / {BAND}u;
-    let col_groups = (p.n + 7u) / 8u;
-    // Rows past the end of out and groups past the end of w are clamped; their results are not stored.
+    // Rows past the end of out are clamped; their results are not stored.
     let last_row = p.m - 1u;
     let px0 = pixel_of(row0);"""]
     for i in r:
         if i:
             s.append(f"    let px{i} = select(px{i - 1}, next_pixel(px{i - 1}), row0 + {i}u <= last_row);")
         s.append(f"    let c{i} = window_corner(px{i});")
-    s += [f"    let g{j} = min(tile * {GROUPS}u + {j}u, col_groups - 1u);" for j in g]
-    s += [f"    let w{j} = g{j} * p.k * p.k * p.k4p * 8u + lane;" for j in g]
+    s += [f"    let w{j} = (tile * {GROUPS}u + {j}u) * p.k * p.k * p.k4p * 8u + lane;" for j in g]
     s.append(f"    var acc: array<array<f32, {GROUPS}>, {ROWS}>;")
     s += ["    // The texel of this tap in each column of w.",
           "    var tap = 0u;",
@@ -203,14 +207,14 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
           "            tap += p.k4p;",
           "        }",
           "    }"]
-    s += [f"    let b{j} = bias_of(g{j} * 8u + lane);" for j in g]
-    s += ["    // A loop whose bound is not a constant, so that it is not unrolled: 32 inlined epilogues made each",
-          "    // workgroup run through ~100 KiB of code, three times the instruction cache.",
+    s += [f"    let col = (tile * 8u + lane) * 4u;",
+          "    let b = vec4<f32>(" + ", ".join(f"bias_of(col + {j}u)" for j in g) + ");",
+          "    // A loop whose bound is not a constant, so that it is not unrolled: inlined epilogues for every row",
+          "    // made each workgroup run through ~100 KiB of code, three times the instruction cache.",
           f"    for (var i = 0u; i < min({ROWS}u, p.m - row0); i++) {{",
-          "        let a = acc[i];"]
-    s += [f"        if (tile * {GROUPS}u + {j}u < col_groups) {{\n            finish(row0 + i, g{j} * 8u + lane, a[{j}] + b{j});\n        }}"
-          for j in g]
-    s.append("    }")
+          "        let a = acc[i];",
+          "        finish(row0 + i, col, vec4<f32>(" + ", ".join(f"a[{j}]" for j in g) + ") + b);",
+          "    }"]
     s.append("}")
     return "\n".join(s) + "\n"
 

@@ -14,7 +14,8 @@ pub const TEXTURE_WIDTH: usize = 4096;
 pub enum Layout {
     /// Row after row: the activations x of a matmul.
     Rows,
-    /// Groups of 8 rows interleaved texel by texel: the weights w, read by 8 lanes at once.
+    /// Groups of 8 rows interleaved texel by texel, in tiles of 32 rows transposed (`shaders/texels.wgsl`): the
+    /// weights w, read by 8 lanes at once, each lane storing 4 consecutive columns of out.
     Lanes8,
 }
 
@@ -23,6 +24,14 @@ impl Layout {
         match self {
             Layout::Rows => 1,
             Layout::Lanes8 => 8,
+        }
+    }
+
+    /// Rows the packed matrix is rounded up to a multiple of.
+    fn tile_rows(self) -> usize {
+        match self {
+            Layout::Rows => 1,
+            Layout::Lanes8 => 32,
         }
     }
 }
@@ -73,10 +82,10 @@ impl Packing {
         self.segments * self.texels_per_segment(cols)
     }
 
-    /// Texels of a packed `[rows, cols]` matrix: its rows and zero rows, rounded up to whole groups of lanes.
+    /// Texels of a packed `[rows, cols]` matrix: its rows and zero rows, rounded up to whole tiles.
     pub fn texels(self, rows: usize, cols: usize) -> usize {
-        let lanes = self.layout.lanes();
-        (rows + self.zero_rows).div_ceil(lanes) * lanes * self.texels_per_row(cols)
+        let tile = self.layout.tile_rows();
+        (rows + self.zero_rows).div_ceil(tile) * tile * self.texels_per_row(cols)
     }
 }
 
