@@ -3,7 +3,8 @@
 
 The kernel's inner block is 8 steps along K x ROWS rows x GROUPS column groups of dot products, each step
 with a subgroup broadcast whose lane must be a literal: WGSL has no loops that unroll at compile time, so
-this script writes them out. Change ROWS / GROUPS here, run it, and commit both files;
+this script writes them out. Change ROWS or BAND here (GROUPS is 4: a lane's vec4 of out; the wrapper's
+LANES_ROWS and LANES_BAND in kernels/matmul.rs must follow), run it, and commit both files;
 `cargo test --test kernels shaders` fails when the shader and this script disagree (`--check`).
 
     python3 tools/gen_matmul_lanes.py          # rewrite the shader
