@@ -68,8 +68,8 @@ params! {
 }
 
 /// Whether the plan's kernel is `matmul_lanes` and this convolution suits it: its operands fit in textures
-/// and at least a third of the kernel's work is useful. It computes whole tiles of 24 output channels and
-/// pads each tap's input channels to whole blocks of 8 texels (32 channels); `conv.wgsl` runs 3-8x slower
+/// and at least a third of the kernel's work is useful. It computes whole tiles of `LANES_COLS` (32) output
+/// channels and pads each tap's input channels to whole blocks of 8 texels (32 channels); `conv.wgsl` runs 3-8x slower
 /// on llvmpipe, so the Ray-Patch decoder's 3-channel RGB convs and ResNet's 3-channel stem stay there.
 fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
     // A tap's input channels as vec4s, and as the texels matmul_lanes reads for them.

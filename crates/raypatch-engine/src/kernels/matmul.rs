@@ -2,7 +2,7 @@
 //! kernels that compute the same sums ([`MatmulKernel`]): `shaders/matmul.wgsl`'s `linear` (register tiles,
 //! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), and `shaders/matmul_lanes.wgsl` (for
 //! CPU adapters: textures and subgroup broadcasts), an implicit GEMM that runs convolutions too
-//! ([`gemm_lanes`], called by `kernels::conv` as well).
+//! (`gemm_lanes`, called by `kernels::conv` as well).
 
 use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::pack::{self, Packing};
@@ -21,8 +21,9 @@ pub enum MatmulKernel {
     Tiled,
     /// `matmul_lanes.gemm`: invocations along N, operands packed into textures, rows of x handed between
     /// lanes by subgroup broadcasts. For CPU adapters (llvmpipe), where it is ~4x faster; needs subgroups of
-    /// exactly 8 lanes. Linear layers with f16 weights, operands too large for a texture, and convolutions
-    /// with few output channels or few input channels per tap ([`lanes_fit`]) use `Rows` (and `conv.wgsl`).
+    /// exactly 8 lanes. Linear layers with f16 weights, operands too large for its textures or grid
+    /// (`lanes_fit`), and convolutions with few output channels or few input channels per tap
+    /// (`kernels::conv`) use `Rows` (and `conv.wgsl`).
     Lanes,
 }
 

@@ -49,11 +49,7 @@ pub struct Packing {
 }
 
 impl Packing {
-    /// The activations of a linear layer: row after row.
-    pub const ROWS: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 0 };
-    /// The weights of a linear layer: 8 rows interleaved.
-    pub const LANES8: Packing = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
-    /// A convolution's input image: one pixel per row, then a zero pixel.
+    /// A convolution's input image (a linear layer's x: a 1 x M image): one pixel per row, then a zero pixel.
     pub const IMAGE: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 1 };
 
     /// A convolution weight with `taps` taps per row, 8 rows interleaved.
