@@ -22,11 +22,11 @@ GROUPS = 4
 # A lane's column groups are 4 consecutive columns of out (the 8-lane packing transposes tiles of 32 rows of
 # w, texels.wgsl), which it stores as one vec4: a scattered store is a bounds-checked scalar store per lane.
 assert GROUPS == 4
-# Row tiles per band of the group order (see the kernel): 8 (64 rows) took the 4800-row encoder layers with
-# 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w (5-7 MB) no longer fits in cache. A power of two, so
-# that the kernel finds its tile without a division (llvmpipe divides lane by lane).
+# Row tiles one workgroup walks (a band): its tile of w comes from memory once for BAND row tiles. Bands of
+# 8 (64 rows) took the 4800-row encoder layers with 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w
+# (5-7 MB) no longer fits in cache; walking the band inside one workgroup (one loop, entered once) took the
+# short-K layers 300x32x1536 from 5.1 to 2.5 ms and 300x180x1536 from 10.4 to 8.3 ms on one thread.
 BAND = 8
-assert BAND & (BAND - 1) == 0
 LANES = 8  # the subgroup: lavapipe's SIMD width with AVX2, checked by the wrapper
 
 SHADER = Path(__file__).resolve().parent.parent / "shaders" / "matmul_lanes.wgsl"
@@ -51,10 +51,11 @@ HEADER = f"""\
 // one step at a time, so that a row's broadcast step and its {GROUPS} partial sums stay in registers (summing a
 // row's 8 steps as a tree kept 8 steps of operands alive and spilled them: 10% slower).
 //
-// Workgroup: one subgroup of {LANES} lanes computing {ROWS} rows (output pixels) x {LANES * GROUPS} columns (output
-// channels) of out; lane l owns columns 4l..4l+3 of the tile, group g of the packed w (whose tiles of 32 rows
-// are transposed) holding column 4l + g. Each row walks the K x K taps of its window; a tap outside the
-// (zero-padded) image reads the texture's zero row instead.
+// Workgroup: one subgroup of {LANES} lanes computing a band of {BAND} row tiles of {ROWS} rows (output pixels) x
+// {LANES * GROUPS} columns (output channels) of out, one row tile after the other; lane l owns columns 4l..4l+3 of
+// the tile, group g of the packed w (whose tiles of 32 rows are transposed) holding column 4l + g. Each row
+// walks the K x K taps of its window; a tap outside the (zero-padded) image reads the texture's zero row
+// instead.
 
 struct Params {{
     // out is [m, n]: m = n_images * ho * wo output pixels, n output channels.
@@ -167,56 +168,85 @@ def kernel():
     s = [f"""
 @compute @workgroup_size({LANES})
 fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) lane: u32) {{
-    // wid.y is a band of {BAND} row tiles, which wid.x walks row tile fastest (the wrapper dispatches
-    // tiles x {BAND} by bands): consecutive workgroups reuse one tile of w from cache, and the band's rows of x
-    // stay in cache while its tiles of w stream past. Workgroups past the last row tile have nothing to do.
-    let row0 = (wid.y * {BAND}u + wid.x % {BAND}u) * {ROWS}u;
+    // This workgroup's column tile (wid.x) for a band of {BAND} row tiles (wid.y), walked one after the other
+    // in a single loop: its tile of w stays in cache for the band, the band's rows of x for the
+    // workgroups after it (consecutive workgroups take consecutive column tiles).
+    var row0 = wid.y * {BAND * ROWS}u;
     if (row0 >= p.m) {{
         return;
     }}
-    let tile = wid.x / {BAND}u;
-    // Rows past the end of out are clamped; their results are not stored.
-    let last_row = p.m - 1u;
-    let px0 = pixel_of(row0);"""]
-    for i in r:
-        if i:
-            s.append(f"    let px{i} = select(px{i - 1}, next_pixel(px{i - 1}), row0 + {i}u <= last_row);")
-        s.append(f"    let c{i} = window_corner(px{i});")
+    let band_end = min(row0 + {BAND * ROWS}u, p.m);
+    let tile = wid.x;"""]
     s += [f"    let w{j} = (tile * {GROUPS}u + {j}u) * p.k * p.k * p.k4p * 8u + lane;" for j in g]
-    s.append(f"    var acc: array<array<f32, {GROUPS}>, {ROWS}>;")
-    s += ["    // The texel of this tap in each column of w.",
-          "    var tap = 0u;",
-          "    for (var ky = 0u; ky < p.k; ky++) {",
-          "        for (var kx = 0u; kx < p.k; kx++) {"]
-    s += [f"            let x{i} = tap_texel(c{i}, ky, kx, lane);" for i in r]
-    s += ["            for (var kb = 0u; kb < p.k4p; kb += 8u) {",
-          "                // Texel kb + lane of each row's pixel: lane l holds step l of this block.",
-          "                let wb = tap + kb;"]
-    s += [f"                let xl{i} = textureLoad(x, texel(x{i} + kb));" for i in r]
-    s += ["                // Every lane's texels of w for the block's 8 steps."]
-    s += [f"                let ws{j}_{t} = textureLoad(w, texel(w{j} + (wb + {t}u) * 8u));"
-          for t in range(LANES) for j in g]
-    for i in r:
-        s.append(f"                // Row {i}: step t is lane t's texel of x, handed to every lane.")
-        for t in range(LANES):
-            s.append(f"                let xs{i}_{t} = subgroupBroadcast(xl{i}, {t}u);")
-            for j in g:
-                prior = f"s{i}_{j}_{t - 1} + " if t else ""
-                s.append(f"                let s{i}_{j}_{t} = {prior}dot(xs{i}_{t}, ws{j}_{t});")
-        s += [f"                acc[{i}][{j}] += s{i}_{j}_{LANES - 1};" for j in g]
-    s += ["            }",
-          "            tap += p.k4p;",
-          "        }",
-          "    }"]
     s += [f"    let col = (tile * 8u + lane) * 4u;",
           "    let b = vec4<f32>(" + ", ".join(f"bias_of(col + {j}u)" for j in g) + ");",
-          "    // A loop whose bound is not a constant, so that it is not unrolled: inlined epilogues for every row",
-          "    // made each workgroup run through ~100 KiB of code, three times the instruction cache.",
-          f"    for (var i = 0u; i < min({ROWS}u, p.m - row0); i++) {{",
-          "        let a = acc[i];",
-          "        finish(row0 + i, col, vec4<f32>(" + ", ".join(f"a[{j}]" for j in g) + ") + b);",
-          "    }"]
-    s.append("}")
+          "    // The window corner of each row of the row tile (rows past the end of out are clamped; their",
+          "    // results are not stored), and the texel of each row at the current tap.",
+          "    var px = pixel_of(row0);"]
+    for i in r:
+        if i:
+            s.append(f"    px = select(px, next_pixel(px), row0 + {i}u < p.m);")
+        s.append(f"    var c{i} = window_corner(px);")
+    s += [f"    var x{i} = tap_texel(c{i}, 0u, 0u, lane);" for i in r]
+    s += ["    // Row i's sums for the lane's 4 columns: one variable per row, as an array indexed by the store loop's",
+          "    // counter would be read lane by lane.",
+          ] + [f"    var acc{i} = vec4<f32>(0.0);" for i in r] + [
+          "    // One loop over (row tile, tap, block of 8 texels), so that the block's code is entered once per",
+          "    // workgroup: on llvmpipe (Zen 4) entering it costs about as much as three passes through it, why",
+          "    // not found (300x32x1536, one block per row tile, one thread: 5.1 ms with the loop entered per",
+          "    // row tile and per tap, 2.5 ms with this one).",
+          "    let tap_blocks = p.k4p / 8u;",
+          f"    let n_blocks = (band_end - row0 + {ROWS - 1}u) / {ROWS}u * p.k * p.k * tap_blocks;",
+          "    var kb = 0u;",
+          "    var ky = 0u;",
+          "    var kx = 0u;",
+          "    // The texel of this tap in each column of w.",
+          "    var tap = 0u;",
+          "    for (var block = 0u; block < n_blocks; block++) {",
+          "        // Texel kb + lane of each row's pixel: lane l holds step l of this block."]
+    s += [f"        let xl{i} = textureLoad(x, texel(x{i} + kb));" for i in r]
+    s += ["        // Every lane's texels of w for the block's 8 steps.",
+          "        let wb = tap + kb;"]
+    s += [f"        let ws{j}_{t} = textureLoad(w, texel(w{j} + (wb + {t}u) * 8u));"
+          for t in range(LANES) for j in g]
+    for i in r:
+        s.append(f"        // Row {i}: step t is lane t's texel of x, handed to every lane.")
+        for t in range(LANES):
+            s.append(f"        let xs{i}_{t} = subgroupBroadcast(xl{i}, {t}u);")
+            for j in g:
+                prior = f"s{i}_{j}_{t - 1} + " if t else ""
+                s.append(f"        let s{i}_{j}_{t} = {prior}dot(xs{i}_{t}, ws{j}_{t});")
+        s.append(f"        acc{i} += vec4<f32>(" + ", ".join(f"s{i}_{j}_{LANES - 1}" for j in g) + ");")
+    s += ["        kb += 8u;",
+          "        if (kb < p.k4p) {",
+          "            continue;",
+          "        }",
+          "        // The next tap.",
+          "        kb = 0u;",
+          "        tap += p.k4p;",
+          "        kx += 1u;",
+          "        if (kx == p.k) {",
+          "            kx = 0u;",
+          "            ky += 1u;",
+          "        }",
+          "        if (ky == p.k) {",
+          "            // The row tile is done: its stores, in a loop whose bound is not a constant so that it is",
+          "            // not unrolled (inlined epilogues for every row tripled the code). Each turn stores acc0 and",
+          "            // moves the rows after it up by one.",
+          f"            for (var i = 0u; i < min({ROWS}u, p.m - row0); i++) {{",
+          "                finish(row0 + i, col, acc0 + b);"]
+    s += [f"                acc{i} = acc{i + 1};" for i in range(ROWS - 1)]
+    s += [f"                acc{ROWS - 1} = vec4<f32>(0.0);",
+          "            }",
+          "            ky = 0u;",
+          "            tap = 0u;",
+          f"            row0 += {ROWS}u;"]
+    for i in r:
+        s.append(f"            px = select(px, next_pixel(px), row0 + {i}u < p.m);")
+        s.append(f"            c{i} = window_corner(px);")
+    s.append("        }")
+    s += [f"        x{i} = tap_texel(c{i}, ky, kx, lane);" for i in r]
+    s += ["    }", "}"]
     return "\n".join(s) + "\n"
 
 

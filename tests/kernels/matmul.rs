@@ -174,8 +174,8 @@ fn linear_f16_weights() {
 }
 
 /// Shapes on and just past the edges of the tiles: `Rows`' 256x8 workgroup tile and 4x8 invocation block,
-/// `Lanes`' 8x24 workgroup tile and 32-column steps along K (8 texels), `Tiled`'s 64x64 workgroup tile and
-/// 32-float steps along K.
+/// `Lanes`' 8x32 row tile, its bands of 64 rows (one workgroup each) and 32-float steps along K (8 texels),
+/// `Tiled`'s 64x64 workgroup tile and 32-float steps along K.
 #[test]
 fn linear_tile_edges() {
     let mut rng = Rng::new(3);
@@ -196,6 +196,9 @@ fn linear_tile_edges() {
         (65, 33, 65),
         (63, 31, 63),
         (128, 96, 128),
+        (8, 32, 32),
+        (72, 8, 33),
+        (136, 40, 31),
     ];
     for (i, &(m, k, n)) in shapes.iter().enumerate() {
         let case =

@@ -74,8 +74,8 @@ impl MatmulKernel {
     }
 }
 
-/// Lanes of `matmul_lanes`' workgroup (one subgroup), its rows and columns (8-column groups) per workgroup,
-/// and the row tiles of its bands (`ROWS`, `GROUPS`, `BAND` in `tools/gen_matmul_lanes.py`).
+/// Lanes of `matmul_lanes`' workgroup (one subgroup), its rows and columns (8-column groups) per row tile,
+/// and the row tiles of the band one workgroup walks (`ROWS`, `GROUPS`, `BAND` in `tools/gen_matmul_lanes.py`).
 const LANES: u32 = 8;
 const LANES_ROWS: usize = 8;
 pub(crate) const LANES_COLS: usize = 8 * 4;
@@ -254,10 +254,10 @@ pub(crate) fn lanes_fit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
         && lanes_workgroups(args.n * ho * wo, args.cout).is_some()
 }
 
-/// `matmul_lanes`' grid for an `m` x `n` out: x walks the column tiles, `LANES_BAND` row tiles each, y the
-/// bands (the shader finds its tile from them without a division). None past the per-dimension limit.
+/// `matmul_lanes`' grid for an `m` x `n` out: x walks the column tiles, y the bands of `LANES_BAND` row
+/// tiles. None past the per-dimension limit.
 fn lanes_workgroups(m: usize, n: usize) -> Option<[u32; 3]> {
-    let x = n.div_ceil(LANES_COLS) * LANES_BAND;
+    let x = n.div_ceil(LANES_COLS);
     let y = m.div_ceil(LANES_ROWS).div_ceil(LANES_BAND);
     let fits = |groups: usize| (1..=MAX_GROUPS_PER_DIM as usize).contains(&groups);
     (fits(x) && fits(y)).then_some([x as u32, y as u32, 1])
