@@ -62,9 +62,13 @@ struct Params {{
     // out is [m, n]: m = n_images * ho * wo output pixels, n output channels.
     m: u32,
     n: u32,
-    // Texels per tap: per pixel row of the x texture and per tap of a w column, ceil(cin / 4) rounded up
-    // to 8 (a linear layer: ceil(K / 4) rounded up to 8).
+    // Texels per tap: per pixel of x and per tap of a w column, ceil(cin / 4) rounded up to 8 (a linear
+    // layer: ceil(K / 4) rounded up to 8).
     k4p: u32,
+    // Texels per row of the x texture (k4p, or more when x holds several batches side by side) and per
+    // packed row of w (k * k * k4p, or more).
+    x_ld: u32,
+    w_ld: u32,
     // ld(n): floats per row of out.
     ldo: u32,
     // 0 none, 1 relu, 2 leaky relu (slope), 3 gelu (erf form).
@@ -86,6 +90,13 @@ struct Params {{
     up: u32,
     // The row of the x texture past the image rows, all zeros: what taps in the padding read.
     zero_row: u32,
+    // A batch of GEMMs (attention's heads): batch z (workgroup z) reads x from texel z * x_batch on, w from
+    // texel z * w_batch on, and writes out from vec4 z * out_batch4 on, columns below store_cols (ldo, or
+    // n when batches sit side by side in a row of out).
+    x_batch: u32,
+    w_batch: u32,
+    out_batch4: u32,
+    store_cols: u32,
 }}
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -127,15 +138,16 @@ fn window_corner(px: vec3<u32>) -> vec3<i32> {{
     return vec3<i32>(i32(px.x * p.h), i32(px.y * p.stride) - i32(p.pad), i32(px.z * p.stride) - i32(p.pad));
 }}
 
-// The texel of x where tap (ky, kx) of the window at `corner` starts, plus `lane`.
-fn tap_texel(corner: vec3<i32>, ky: u32, kx: u32, lane: u32) -> u32 {{
+// The texel of x where tap (ky, kx) of the window at `corner` starts, plus `first` (the batch's first texel
+// plus the lane).
+fn tap_texel(corner: vec3<i32>, ky: u32, kx: u32, first: u32) -> u32 {{
     let iy = corner.y + i32(ky);
     let ix = corner.z + i32(kx);
     var row = p.zero_row;
     if (iy >= 0 && iy < i32(p.h << p.up) && ix >= 0 && ix < i32(p.w << p.up)) {{
         row = (u32(corner.x) + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up);
     }}
-    return row * p.k4p + lane;
+    return row * p.x_ld + first;
 }}
 
 // The bias of column col: 0 past the output's channels or without a bias. Loaded once per column, before
@@ -148,12 +160,12 @@ fn bias_of(col: u32) -> f32 {{
 }}
 
 // The shared epilogue (activation.wgsl: residual, activation, zeroed padding columns, accumulate) and the
-// store: columns col..col+3 of a row of out, where v is the sum plus the bias.
-fn finish(row: u32, col: u32, v: vec4<f32>) {{
-    if (col >= p.ldo) {{
+// store: columns col..col+3 of a row of the batch's out (from vec4 `base`), where v is the sum plus the bias.
+fn finish(base: u32, row: u32, col: u32, v: vec4<f32>) {{
+    if (col >= p.store_cols) {{
         return;
     }}
-    let at = (row * p.ldo + col) / 4u;
+    let at = base + (row * p.ldo + col) / 4u;
     var prior = vec4<f32>(0.0);
     if (p.mode != 0u) {{
         prior = out[at];
@@ -169,16 +181,18 @@ def kernel():
     s = [f"""
 @compute @workgroup_size({LANES})
 fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) lane: u32) {{
-    // This workgroup's column tile (wid.x) for a band of {BAND} row tiles (wid.y), walked one after the other
-    // in a single loop: its tile of w stays in cache for the band, the band's rows of x for the
-    // workgroups after it (consecutive workgroups take consecutive column tiles).
+    // This workgroup's column tile (wid.x) for a band of {BAND} row tiles (wid.y) of batch wid.z, walked one
+    // after the other in a single loop: its tile of w stays in cache for the band, the band's rows of x for
+    // the workgroups after it (consecutive workgroups take consecutive column tiles).
     var row0 = wid.y * {BAND * ROWS}u;
     if (row0 >= p.m) {{
         return;
     }}
     let band_end = min(row0 + {BAND * ROWS}u, p.m);
-    let tile = wid.x;"""]
-    s += [f"    let w{j} = (tile * {GROUPS}u + {j}u) * p.k * p.k * p.k4p * 8u + lane;" for j in g]
+    let tile = wid.x;
+    let x_first = wid.z * p.x_batch + lane;
+    let out_base = wid.z * p.out_batch4;"""]
+    s += [f"    let w{j} = (tile * {GROUPS}u + {j}u) * p.w_ld * 8u + wid.z * p.w_batch + lane;" for j in g]
     s += [f"    let col = (tile * 8u + lane) * 4u;",
           "    let b = vec4<f32>(" + ", ".join(f"bias_of(col + {j}u)" for j in g) + ");",
           "    // The window corner of each row of the row tile (rows past the end of out are clamped; their",
@@ -188,7 +202,7 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
         if i:
             s.append(f"    px = select(px, next_pixel(px), row0 + {i}u < p.m);")
         s.append(f"    var c{i} = window_corner(px);")
-    s += [f"    var x{i} = tap_texel(c{i}, 0u, 0u, lane);" for i in r]
+    s += [f"    var x{i} = tap_texel(c{i}, 0u, 0u, x_first);" for i in r]
     s += ["    // Row i's sums for the lane's 4 columns: one variable per row, as an array indexed by the store loop's",
           "    // counter would be read lane by lane.",
           ] + [f"    var acc{i} = vec4<f32>(0.0);" for i in r] + [
@@ -235,7 +249,7 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
           "            // not unrolled (inlined epilogues for every row tripled the code). Each turn stores acc0 and",
           "            // moves the rows after it up by one.",
           f"            for (var i = 0u; i < min({ROWS}u, p.m - row0); i++) {{",
-          "                finish(row0 + i, col, acc0 + b);"]
+          "                finish(out_base, row0 + i, col, acc0 + b);"]
     s += [f"                acc{i} = acc{i + 1};" for i in range(ROWS - 1)]
     s += [f"                acc{ROWS - 1} = vec4<f32>(0.0);",
           "            }",
@@ -246,7 +260,7 @@ fn gemm(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_invocation_id) 
         s.append(f"            px = select(px, next_pixel(px), row0 + {i}u < p.m);")
         s.append(f"            c{i} = window_corner(px);")
     s.append("        }")
-    s += [f"        x{i} = tap_texel(c{i}, ky, kx, lane);" for i in r]
+    s += [f"        x{i} = tap_texel(c{i}, ky, kx, x_first);" for i in r]
     s += ["    }", "}"]
     return "\n".join(s) + "\n"
 

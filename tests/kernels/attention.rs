@@ -1,11 +1,13 @@
-//! Fused attention against the float64 reference: self-attention from one fused qkv tensor, cross-attention
-//! onto a cached kv tensor, separate q/k/v at odd columns, row-range views, and the numerically hard cases
-//! (logits of ±1e4, one dominant key, flat rows, 16384 keys).
+//! Attention against the float64 reference, on the fused kernel and (where the adapter runs it) on
+//! `matmul_lanes`: self-attention from one fused qkv tensor, cross-attention onto a cached kv tensor,
+//! separate q/k/v at odd columns, row-range views, and the numerically hard cases (logits of ±1e4, one
+//! dominant key, flat rows, 16384 keys).
 //!
 //! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
-use raypatch_engine::kernels::attention::{attention, AttentionArgs};
-use raypatch_engine::plan::PlanBuilder;
+use raypatch_engine::kernels::attention::{attention, AttentionArgs, LANES_SCORES_BYTES};
+use raypatch_engine::kernels::matmul::MatmulKernel;
+use raypatch_engine::plan::{KernelChoice, PlanBuilder};
 use raypatch_engine::reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
@@ -58,9 +60,16 @@ impl Case {
         )
     }
 
-    /// Runs the kernel, checks that it zeroed the output row padding and left the rows around the view
-    /// alone, and returns the view's rows (unpadded) and the bytes the plan allocated.
-    fn run_gpu(&self) -> (Vec<f32>, u64) {
+    /// Whether the case runs on `matmul_lanes` when the plan's matmul kernel is `Lanes`: heads a multiple of
+    /// 32 wide, columns starting at multiples of 4.
+    fn fits_lanes(&self) -> bool {
+        self.dim_head.is_multiple_of(32) && [self.q, self.k, self.v].iter().all(|s| s.col.is_multiple_of(4))
+    }
+
+    /// Runs attention with linear layers on `kernel`, checks that it zeroed the output row padding and left
+    /// the rows around the view alone and that it ran on `matmul_lanes` where it should, and returns the
+    /// view's rows (unpadded) and the bytes the plan allocated.
+    fn run_gpu(&self, kernel: MatmulKernel) -> (Vec<f32>, u64) {
         let gpu = gpu();
         let inner = self.heads * self.dim_head;
         let ld = padded_cols(inner);
@@ -69,6 +78,7 @@ impl Case {
         let out_tensor = GpuTensor { rows: out_rows, cols: inner, ..padded_out.clone() };
 
         let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
         let ids: Vec<_> = self
             .tensors
             .iter()
@@ -97,6 +107,8 @@ impl Case {
             scale: self.scale,
         };
         attention(&mut plan, "attn", args);
+        let on_lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
+        assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
         let plan = run(plan);
 
         let padded = gpu.read(&padded_out).unwrap();
@@ -183,27 +195,36 @@ impl Case {
         bounds
     }
 
-    /// Checks the kernel against the reference within (TOL_V + extra[i*heads + h])·max |v| per (query, head).
+    /// Checks attention on every kernel against the reference within (TOL_V + extra[i*heads + h])·max |v|
+    /// per (query, head).
     fn check_within(&self, extra: &[f64]) {
-        let (got, _) = self.run_gpu();
         let want = self.reference();
         let v_max = self.v_max();
         let dh = self.dim_head;
-        for (n, (&g, &w)) in got.iter().zip(&want).enumerate() {
-            let (i, h) = (n / (self.heads * dh), n % (self.heads * dh) / dh);
-            let tol = (TOL_V + extra[i * self.heads + h]) * v_max;
-            assert!(
-                (g as f64 - w).abs() <= tol,
-                "{}: out[{i}, head {h}, {}] = {g:e}, reference {w:e}, tolerance {tol:e}",
-                self.describe(),
-                n % dh
-            );
+        for kernel in attention_kernels() {
+            let (got, _) = self.run_gpu(kernel);
+            for (n, (&g, &w)) in got.iter().zip(&want).enumerate() {
+                let (i, h) = (n / (self.heads * dh), n % (self.heads * dh) / dh);
+                let tol = (TOL_V + extra[i * self.heads + h]) * v_max;
+                assert!(
+                    (g as f64 - w).abs() <= tol,
+                    "{kernel:?}: {}: out[{i}, head {h}, {}] = {g:e}, reference {w:e}, tolerance {tol:e}",
+                    self.describe(),
+                    n % dh
+                );
+            }
         }
     }
 
     fn check(&self) {
         self.check_within(&vec![0.0; self.nq * self.heads]);
     }
+}
+
+/// The matmul kernels attention runs differently on: `Rows` (the fused kernel, as on every adapter but
+/// CPU ones) and `Lanes` where the adapter has it.
+fn attention_kernels() -> Vec<MatmulKernel> {
+    matmul_kernels().into_iter().filter(|&k| k != MatmulKernel::Tiled).collect()
 }
 
 /// How q, k and v are laid out.
@@ -218,10 +239,12 @@ enum Layout {
 }
 
 /// A random case: every view starts at row 0, 64 or 128 of a taller tensor; columns start at random
-/// (unaligned) offsets; q, k and v are uniform in [-2, 2] (logits of a few units with scale dh^-0.5), the
+/// offsets, unaligned unless heads are a multiple of 32 wide (then multiples of 4, so that the case runs on
+/// `matmul_lanes` too); q, k and v are uniform in [-2, 2] (logits of a few units with scale dh^-0.5), the
 /// columns no head uses are NaN.
 fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usize, dim_head: usize) -> Case {
     let inner = heads * dim_head;
+    let step = if dim_head.is_multiple_of(32) { 4 } else { 1 };
     let mut tensors = Vec::new();
     // A tensor whose view has `rows` rows and `cols` used columns, with 0-2 rows and columns more.
     let mut add = |rng: &mut Rng, rows: usize, cols: usize| -> Src {
@@ -236,19 +259,19 @@ fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usiz
     };
     let (q, k, v) = match layout {
         Layout::FusedQkv => {
-            let c0 = rng.range(0, 3);
+            let c0 = step * rng.range(0, 3);
             let src = add(rng, nq, c0 + 3 * inner);
             (Src { col: c0, ..src }, Src { col: c0 + inner, ..src }, Src { col: c0 + 2 * inner, ..src })
         }
         Layout::CachedKv => {
-            let c0 = rng.range(0, 3);
+            let c0 = step * rng.range(0, 3);
             let q = add(rng, nq, c0 + inner);
             let kv = add(rng, nkv, 2 * inner);
             (Src { col: c0, ..q }, kv, Src { col: inner, ..kv })
         }
         Layout::Separate => {
             let mut one = |rng: &mut Rng, rows: usize| {
-                let c0 = rng.range(0, 5);
+                let c0 = step * rng.range(0, 5);
                 Src { col: c0, ..add(rng, rows, c0 + inner) }
             };
             (one(rng, nq), one(rng, nkv), one(rng, nkv))
@@ -273,8 +296,8 @@ fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usiz
 fn attention_random_shapes() {
     let mut rng = Rng::new(0xA77E);
     let layouts = [Layout::FusedQkv, Layout::CachedKv, Layout::Separate];
-    let dim_heads = [1, 3, 5, 8, 15, 16, 64, 128];
-    for (n, &dim_head) in dim_heads.iter().cycle().take(24).enumerate() {
+    let dim_heads = [1, 3, 5, 8, 15, 16, 32, 64, 128];
+    for (n, &dim_head) in dim_heads.iter().cycle().take(27).enumerate() {
         let layout = layouts[n % 3];
         let heads = rng.range(1, 6);
         // At most ~2e7 multiply-adds per case, so the file stays fast on lavapipe.
@@ -353,14 +376,29 @@ fn attention_dominant_key_and_flat_rows() {
     same_k.check();
 }
 
-/// 16384 keys for a few queries; the plan allocates nothing that grows with nq·nkv (only its params block:
-/// the tensors are external).
+/// 16384 keys for a few queries; the fused kernel's plan allocates nothing that grows with nq·nkv (only its
+/// params block: the tensors are external).
 #[test]
 fn attention_long_kv() {
     let mut rng = Rng::new(0x4000);
     let case = random_case(&mut rng, Layout::CachedKv, 5, 16384, 2, 64);
-    let (_, peak_bytes) = case.run_gpu();
+    let (_, peak_bytes) = case.run_gpu(MatmulKernel::Rows);
     assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
+    case.check();
+}
+
+/// On `matmul_lanes` the scores of 300 queries x 8192 keys x 4 heads (38 MiB) exceed what one pass holds:
+/// the queries go in three passes (128 + 128 + 44 rows). The plan holds one pass's scores and their packed
+/// softmax, the keys and values packed (4 MiB each) and the queries packed.
+#[test]
+fn attention_lanes_query_passes() {
+    let mut rng = Rng::new(0x4002);
+    let case = random_case(&mut rng, Layout::CachedKv, 300, 8192, 4, 32);
+    if attention_kernels().contains(&MatmulKernel::Lanes) {
+        let (_, peak_bytes) = case.run_gpu(MatmulKernel::Lanes);
+        let bound = 2 * LANES_SCORES_BYTES as u64 + (9 << 20);
+        assert!(peak_bytes <= bound, "attention plan allocated {peak_bytes} bytes, more than {bound}");
+    }
     case.check();
 }
 

@@ -1,7 +1,12 @@
-//! Fused multi-head attention (self and cross) with an online softmax: one dispatch, no score matrix.
+//! Multi-head attention (self and cross): on most adapters one fused dispatch with an online softmax and no
+//! score matrix (`shaders/attention.wgsl`); where linear layers run on `matmul_lanes` (CPU adapters), the
+//! scores of every head as one batched GEMM on it, their softmax, and the weighted sum of values as another.
 
 use super::ATTENTION;
-use crate::plan::{grid, Access, Op, PlanBuilder, View};
+use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch, MatmulKernel};
+use crate::kernels::pack::{pack_softmax_rows, pack_source, Layout, Packing, Source};
+use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
+use crate::tensor::padded_cols;
 
 /// Query rows per workgroup (`WG * QUERIES` in `shaders/attention.wgsl`); a workgroup serves one head.
 const ROWS_PER_GROUP: usize = 64 * 8;
@@ -54,9 +59,11 @@ pub struct AttentionArgs {
 /// - `out`: `[nq, heads*dh]` view, written whole (zero row padding);
 /// - `scale` is usually `dim_head^-0.5`.
 ///
-/// Columns need not be multiples of 4. The softmax is computed online (running max and sum per query and
-/// head, max-subtracted, so logits of any magnitude are safe); memory use does not depend on `nq * nkv`.
-/// Records `2·nq·nkv·dim_head·heads` multiply-adds (the scores and the weighted sum of values).
+/// Columns need not be multiples of 4. The fused kernel computes the softmax online (running max and sum per
+/// query and head, max-subtracted, so logits of any magnitude are safe) and its memory use does not depend on
+/// `nq * nkv`. On `MatmulKernel::Lanes` ([`attention_on_lanes`]) the scores of up to `LANES_SCORES_BYTES` at
+/// a time are materialised and their softmax max-subtracted too. Records `2·nq·nkv·dim_head·heads`
+/// multiply-adds (the scores and the weighted sum of values).
 pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
     if plan.failed() {
@@ -78,6 +85,9 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         );
     }
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
+    if attention_on_lanes(plan, label, args) {
+        return;
+    }
 
     let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
     let params = AttentionParams {
@@ -104,4 +114,95 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
         multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
     });
+}
+
+/// Bytes of scores [`attention_on_lanes`] materialises at a time: queries go in passes of whole 64-row blocks
+/// (at least one) whose `heads · rows · nkv` scores fit. Their softmax, packed, takes as much again.
+pub const LANES_SCORES_BYTES: usize = 16 << 20;
+
+/// Attention on `matmul_lanes` (what llvmpipe runs ~4x faster than the fused kernel's buffer loads): per pass
+/// of query rows, the scores `q kᵀ` of all heads as one batched GEMM, `softmax(scale · scores)` packed as the
+/// next GEMM's x, and `weights · v` as another batched GEMM writing each head's columns of `out`. The keys
+/// and the transposed values are packed once for all passes. Returns false, recording nothing, where it does
+/// not apply: another matmul kernel, heads not a multiple of 32 wide (a head's values must start a 32-column
+/// tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its textures.
+fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) -> bool {
+    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
+    let (nq, nkv, inner) = (q.rows, k.rows, heads * dim_head);
+    if plan.kernels.matmul != MatmulKernel::Lanes
+        || !dim_head.is_multiple_of(32)
+        || ![q_col, k_col, v_col].iter().all(|c| c.is_multiple_of(4))
+    {
+        return false;
+    }
+    // Queries and keys cut into one run per head; the values transposed, a head's dim_head rows of w each.
+    let by_head = Packing { layout: Layout::Rows, segments: heads, zero_rows: 0 };
+    let keys = Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 };
+    let values = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
+    let scores_ld = padded_cols(nkv);
+    let rows = (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).clamp(64, nq.next_multiple_of(64)).min(nq);
+    let head_texels = by_head.texels_per_segment(inner);
+    let weight_texels = Packing::ROWS.texels_per_row(nkv);
+    let scores_batch = |rows: usize| LanesBatch {
+        m: rows,
+        n: nkv,
+        k: dim_head,
+        x_ld: by_head.texels_per_row(inner),
+        x_batch: head_texels,
+        w_ld: keys.texels_per_row(inner),
+        w_batch: head_texels * 8,
+        out_batch: rows * scores_ld,
+        store_cols: scores_ld,
+        batches: heads,
+    };
+    let values_batch = |rows: usize| LanesBatch {
+        m: rows,
+        n: dim_head,
+        k: nkv,
+        x_ld: weight_texels,
+        x_batch: rows * weight_texels,
+        w_ld: weight_texels,
+        // Head h's values are rows h·dim_head.. of the transposed values: groups of 8 rows of w_ld texels.
+        w_batch: dim_head * weight_texels,
+        out_batch: dim_head,
+        store_cols: dim_head,
+        batches: heads,
+    };
+    let texels = [
+        by_head.texels(rows, inner),
+        keys.texels(nkv, inner),
+        Packing::ROWS.texels(heads * rows, nkv),
+        values.texels(inner, nkv),
+    ];
+    if texels.iter().any(|&t| t > plan.kernels.max_texels)
+        || !lanes_batch_fits(&scores_batch(rows))
+        || !lanes_batch_fits(&values_batch(rows))
+    {
+        return false;
+    }
+
+    // Scratch textures: 0 the queries, then the weights (as every matmul_lanes x); 1 the keys, 2 the values.
+    plan.scratch_texels(0, texels[0].max(texels[2]));
+    plan.scratch_texels(1, texels[1]);
+    plan.scratch_texels(2, texels[3]);
+    let key_source = Source { view: k, col: k_col, cols: inner, transposed: false };
+    pack_source(plan, &format!("{label}.pack_k"), key_source, TextureRef::Scratch(1), keys);
+    let value_source = Source { view: v, col: v_col, cols: inner, transposed: true };
+    pack_source(plan, &format!("{label}.pack_v"), value_source, TextureRef::Scratch(2), values);
+    let scores = plan.transient(&format!("{label}.scores"), heads * rows, nkv);
+    for first in (0..nq).step_by(rows) {
+        let n = rows.min(nq - first);
+        let q_rows = plan.rows_of(q.id, q.row_start + first, n);
+        let out_rows = plan.rows_of(out.id, out.row_start + first, n);
+        let scores = plan.rows_of(scores, 0, heads * n);
+        let query_source = Source { view: q_rows, col: q_col, cols: inner, transposed: false };
+        pack_source(plan, &format!("{label}.pack_q"), query_source, TextureRef::Scratch(0), by_head);
+        let operands = [TextureRef::Scratch(0), TextureRef::Scratch(1)];
+        gemm_lanes_batched(plan, &format!("{label}.scores"), scores_batch(n), operands, scores, q_rows);
+        let weights = Source::all(plan, scores);
+        pack_softmax_rows(plan, &format!("{label}.softmax"), weights, TextureRef::Scratch(0), scale);
+        let operands = [TextureRef::Scratch(0), TextureRef::Scratch(2)];
+        gemm_lanes_batched(plan, &format!("{label}.values"), values_batch(n), operands, out_rows, q_rows);
+    }
+    true
 }

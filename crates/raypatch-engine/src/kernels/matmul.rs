@@ -2,7 +2,8 @@
 //! kernels that compute the same sums ([`MatmulKernel`]): `shaders/matmul.wgsl`'s `linear` (register tiles,
 //! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), and `shaders/matmul_lanes.wgsl` (for
 //! CPU adapters: textures and subgroup broadcasts), an implicit GEMM that runs convolutions too
-//! (`gemm_lanes`, called by `kernels::conv` as well).
+//! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
+//! heads, `kernels::attention`).
 
 use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::pack::{self, Packing};
@@ -219,8 +220,11 @@ params! {
         /// out is [m, n]: output pixels (rows) by channels.
         m: u32,
         n: u32,
-        /// Texels per tap: per row of the x texture, per tap of a column of the w texture.
+        /// Texels per tap: per pixel of x, per tap of a column of w.
         k4p: u32,
+        /// Texels per row of the x texture and per packed row of w.
+        x_ld: u32,
+        w_ld: u32,
         /// ld(n): floats per row of out.
         ldo: u32,
         act: u32,
@@ -241,6 +245,11 @@ params! {
         up: u32,
         /// The zero row of the x texture.
         zero_row: u32,
+        /// Where batch z's x and w start (texels) and its out (vec4s), and the columns of a row it stores.
+        x_batch: u32,
+        w_batch: u32,
+        out_batch4: u32,
+        store_cols: u32,
     }
 }
 
@@ -251,16 +260,16 @@ pub(crate) fn lanes_fit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
     let w_texels = w_packing.texels(args.cout, plan.cols(args.weight));
     let (ho, wo) = conv_output_size(args.h, args.w, args.window, args.upsample_input).unwrap_or((0, 0));
     Packing::IMAGE.texels(args.x.rows, args.cin).max(w_texels) <= plan.kernels.max_texels
-        && lanes_workgroups(args.n * ho * wo, args.cout).is_some()
+        && lanes_workgroups(args.n * ho * wo, args.cout, 1).is_some()
 }
 
-/// `matmul_lanes`' grid for an `m` x `n` out: x walks the column tiles, y the bands of `LANES_BAND` row
-/// tiles. None past the per-dimension limit.
-fn lanes_workgroups(m: usize, n: usize) -> Option<[u32; 3]> {
+/// `matmul_lanes`' grid for `batches` GEMMs with an `m` x `n` out: x walks the column tiles, y the bands of
+/// `LANES_BAND` row tiles, z the batches. None past the per-dimension limit.
+pub(crate) fn lanes_workgroups(m: usize, n: usize, batches: usize) -> Option<[u32; 3]> {
     let x = n.div_ceil(LANES_COLS);
     let y = m.div_ceil(LANES_ROWS).div_ceil(LANES_BAND);
     let fits = |groups: usize| (1..=MAX_GROUPS_PER_DIM as usize).contains(&groups);
-    (fits(x) && fits(y)).then_some([x as u32, y as u32, 1])
+    (fits(x) && fits(y) && fits(batches)).then_some([x as u32, y as u32, batches as u32])
 }
 
 /// A convolution, or a linear layer as a 1×1 convolution over a 1 × M image, on `matmul_lanes`: x packed
@@ -284,11 +293,15 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
     };
     let npix = n * ho * wo;
     let (act, slope) = act.params();
+    let k4p = Packing::IMAGE.texels_per_row(cin);
+    let ldo = padded_cols(cout) as u32;
     let params = MatmulLanesParams {
         m: npix as u32,
         n: cout as u32,
-        k4p: Packing::IMAGE.texels_per_row(cin) as u32,
-        ldo: padded_cols(cout) as u32,
+        k4p: k4p as u32,
+        x_ld: k4p as u32,
+        w_ld: (taps * k4p) as u32,
+        ldo,
         act,
         slope,
         has_bias: bias.is_some() as u32,
@@ -302,17 +315,105 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
         pad: padding as u32,
         up: u32::from(upsample_input),
         zero_row: x.rows as u32,
+        x_batch: 0,
+        w_batch: 0,
+        out_batch4: 0,
+        store_cols: ldo,
     };
-    let workgroups = lanes_workgroups(npix, cout).expect("the grid fits (checked by lanes_fit)");
     let out_access = if mode.reads_out() { Access::ReadWrite } else { Access::Write };
+    let bias = plan.all(bias.unwrap_or(weight));
+    let multiply_adds = (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64);
+    push_gemm(plan, label, params, 1, [bias, out], out_access, [TextureRef::Scratch(0), w_texture], multiply_adds);
+}
+
+/// `batches` linear GEMMs on packed operands, `out_z = x_z · w_zᵀ` (no bias, no activation) for batch z
+/// (`MatmulLanesParams::x_batch` ..): attention's heads ([`crate::kernels::attention`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LanesBatch {
+    /// Each out is `[m, n]`, a sum over `k` (x's and w's rows are packed in runs of `k` columns).
+    pub m: usize,
+    pub n: usize,
+    pub k: usize,
+    /// Texels per row of x and per packed row of w; where batch z starts in each (texels).
+    pub x_ld: usize,
+    pub x_batch: usize,
+    pub w_ld: usize,
+    pub w_batch: usize,
+    /// Where batch z's out starts (floats, a multiple of 4), and the columns of its rows it writes.
+    pub out_batch: usize,
+    pub store_cols: usize,
+    pub batches: usize,
+}
+
+/// Whether [`gemm_lanes_batched`]'s grid fits.
+pub(crate) fn lanes_batch_fits(batch: &LanesBatch) -> bool {
+    lanes_workgroups(batch.m, batch.n, batch.batches).is_some()
+}
+
+/// Runs a [`LanesBatch`] on `matmul_lanes`: x in the row layout, w in the 8-lane layout (`kernels::pack`),
+/// out written where the batches store (padding columns of their rows included). `unread` is bound where
+/// the bias would be (none is read): any tensor the op does not write.
+pub(crate) fn gemm_lanes_batched(
+    plan: &mut PlanBuilder,
+    label: &str,
+    batch: LanesBatch,
+    [x, w]: [TextureRef; 2],
+    out: View,
+    unread: View,
+) {
+    assert!(batch.out_batch.is_multiple_of(4), "{label}: batches of out must start at whole vec4s");
+    let word = |v: usize| u32::try_from(v).expect("matmul_lanes param exceeds u32");
+    let params = MatmulLanesParams {
+        m: word(batch.m),
+        n: word(batch.n),
+        k4p: word(Packing::ROWS.texels_per_row(batch.k)),
+        x_ld: word(batch.x_ld),
+        w_ld: word(batch.w_ld),
+        ldo: word(plan.ld(out.id)),
+        act: 0,
+        slope: 0.0,
+        has_bias: 0,
+        mode: ConvMode::Overwrite.code(),
+        h: 1,
+        w: word(batch.m),
+        ho: 1,
+        wo: word(batch.m),
+        k: 1,
+        stride: 1,
+        pad: 0,
+        up: 0,
+        zero_row: word(batch.m),
+        x_batch: word(batch.x_batch),
+        w_batch: word(batch.w_batch),
+        out_batch4: word(batch.out_batch / 4),
+        store_cols: word(batch.store_cols),
+    };
+    let multiply_adds = (batch.batches * batch.m * batch.n * batch.k) as u64;
+    push_gemm(plan, label, params, batch.batches, [unread, out], Access::Write, [x, w], multiply_adds);
+}
+
+/// Records one `matmul_lanes.gemm` dispatch: bindings bias and out, textures x and w.
+#[allow(clippy::too_many_arguments)]
+fn push_gemm(
+    plan: &mut PlanBuilder,
+    label: &str,
+    params: MatmulLanesParams,
+    batches: usize,
+    [bias, out]: [View; 2],
+    out_access: Access,
+    [x, w]: [TextureRef; 2],
+    multiply_adds: u64,
+) {
+    let workgroups =
+        lanes_workgroups(params.m as usize, params.n as usize, batches).expect("the grid fits (checked by the caller)");
     plan.push(Op {
         label: label.to_string(),
         shader: &MATMUL_LANES,
         entry: "gemm",
         params: params.words(),
-        bindings: vec![(plan.all(bias.unwrap_or(weight)), Access::Read), (out, out_access)],
-        textures: vec![(TextureRef::Scratch(0), Access::Read), (w_texture, Access::Read)],
+        bindings: vec![(bias, Access::Read), (out, out_access)],
+        textures: vec![(x, Access::Read), (w, Access::Read)],
         workgroups,
-        multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
+        multiply_adds,
     });
 }

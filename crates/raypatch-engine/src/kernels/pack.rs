@@ -52,6 +52,9 @@ impl Packing {
     /// A convolution's input image (a linear layer's x: a 1 x M image): one pixel per row, then a zero pixel.
     pub const IMAGE: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 1 };
 
+    /// A matrix in the row layout, nothing after it.
+    pub const ROWS: Packing = Packing { layout: Layout::Rows, segments: 1, zero_rows: 0 };
+
     /// A convolution weight with `taps` taps per row, 8 rows interleaved.
     pub const fn conv_weight(taps: usize) -> Packing {
         Packing { layout: Layout::Lanes8, segments: taps, zero_rows: 0 }
@@ -93,6 +96,7 @@ pub fn texture_size(texels: usize) -> (u32, u32) {
 params! {
     /// The uniform of `shaders/pack.wgsl`.
     PackParams {
+        /// Rows of the packed matrix.
         rows: u32,
         /// vec4s per row of the source buffer.
         ld4: u32,
@@ -102,33 +106,100 @@ params! {
         lanes: u32,
         /// Texels written.
         texels: u32,
-        /// Source vec4s per segment, and packed texels per segment.
+        /// vec4s of the matrix per segment, and packed texels per segment.
         seg4: u32,
         seg4p: u32,
+        /// The matrix's first column in the source, whether it is the transpose, and its columns.
+        col: u32,
+        transposed: u32,
+        cols: u32,
+        /// `pack_softmax_rows`' logit scale.
+        scale: f32,
+    }
+}
+
+/// What to pack: columns `col .. col + cols` of a view's rows, or their transpose (row `r` of the packed
+/// matrix is column `col + r` of the view).
+#[derive(Clone, Copy, Debug)]
+pub struct Source {
+    pub view: View,
+    pub col: usize,
+    pub cols: usize,
+    pub transposed: bool,
+}
+
+impl Source {
+    /// The whole view.
+    pub fn all(plan: &PlanBuilder, view: View) -> Source {
+        Source { view, col: 0, cols: plan.cols(view.id), transposed: false }
+    }
+
+    /// Rows and columns of the matrix packed.
+    pub fn shape(&self) -> (usize, usize) {
+        if self.transposed {
+            (self.cols, self.view.rows)
+        } else {
+            (self.view.rows, self.cols)
+        }
     }
 }
 
 /// Packs the f32 view `src` into texture `dst` as `packing` says, padding texels and zero rows zeroed.
 pub fn pack(plan: &mut PlanBuilder, label: &str, src: View, dst: TextureRef, packing: Packing) {
-    let cols = plan.cols(src.id);
-    let texels = packing.texels(src.rows, cols);
-    let params = PackParams {
-        rows: src.rows as u32,
-        ld4: (padded_cols(cols) / 4) as u32,
-        k4p: packing.texels_per_row(cols) as u32,
-        lanes: packing.layout.lanes() as u32,
-        texels: texels as u32,
-        seg4: packing.segment_vec4s(cols) as u32,
-        seg4p: packing.texels_per_segment(cols) as u32,
-    };
+    let src = Source::all(plan, src);
+    pack_source(plan, label, src, dst, packing);
+}
+
+/// [`pack`] for part of a view, or its transpose. The columns start at a multiple of 4 unless transposed.
+pub fn pack_source(plan: &mut PlanBuilder, label: &str, src: Source, dst: TextureRef, packing: Packing) {
+    let (rows, cols) = src.shape();
+    assert!(src.transposed || src.col.is_multiple_of(4), "{label}: packed columns start at {}", src.col);
+    assert!(src.col + src.cols <= plan.cols(src.view.id), "{label}: columns past the source's");
+    let params = params_for(plan, src, packing, 1.0);
     plan.push(Op {
         label: label.to_string(),
         shader: &PACK,
         entry: "pack",
         params: params.words(),
-        bindings: vec![(src, Access::Read)],
+        bindings: vec![(src.view, Access::Read)],
         textures: vec![(dst, Access::Write)],
-        workgroups: grid(texels.div_ceil(64)),
+        workgroups: grid(packing.texels(rows, cols).div_ceil(64)),
         multiply_adds: 0,
     });
+}
+
+/// Packs softmax(scale · row) of every row of columns `col .. col + cols` of `src` into `dst` in the row
+/// layout (`Packing::rows()`): attention's weights from its scores, as PyTorch's `(s * scale).softmax(-1)`
+/// computes them (max-subtracted). Records no multiply-adds.
+pub fn pack_softmax_rows(plan: &mut PlanBuilder, label: &str, src: Source, dst: TextureRef, scale: f32) {
+    assert!(!src.transposed && src.col.is_multiple_of(4), "{label}: softmax of a transposed or unaligned source");
+    let params = params_for(plan, src, Packing::ROWS, scale);
+    plan.push(Op {
+        label: label.to_string(),
+        shader: &PACK,
+        entry: "pack_softmax_rows",
+        params: params.words(),
+        bindings: vec![(src.view, Access::Read)],
+        textures: vec![(dst, Access::Write)],
+        workgroups: grid(src.view.rows.div_ceil(64)),
+        multiply_adds: 0,
+    });
+}
+
+fn params_for(plan: &PlanBuilder, src: Source, packing: Packing, scale: f32) -> PackParams {
+    let (rows, cols) = src.shape();
+    let word = |v: usize| u32::try_from(v).expect("pack param exceeds u32");
+    PackParams {
+        rows: word(rows),
+        ld4: word(plan.ld(src.view.id) / 4),
+        k4p: word(packing.texels_per_row(cols)),
+        lanes: word(packing.layout.lanes()),
+        texels: word(packing.texels(rows, cols)),
+        seg4: word(packing.segment_vec4s(cols)),
+        seg4p: word(packing.texels_per_segment(cols)),
+        col: word(src.col),
+        transposed: u32::from(src.transposed),
+        cols: word(cols),
+        scale,
+    }
 }
