@@ -3,7 +3,7 @@
 // for): what matmul_lanes reads. A row may be cut into segments (a convolution weight's taps, attention's
 // heads), each padded to whole blocks of 8 texels. The matrix is columns col.. of the source's rows, or the
 // transpose of those (attention's values, which matmul_lanes reads as w).
-// - pack: one invocation per texel;
+// - pack: a workgroup per 8 packed rows;
 // - pack_softmax_rows: softmax(scale · row) of each row into the row layout, one invocation per row
 //   (attention's weights, from its scores).
 
@@ -40,35 +40,46 @@ fn source(r: u32, c: u32) -> f32 {
     return src[r * p.ld4 + c / 4u][c % 4u];
 }
 
+// One workgroup per 8 packed rows, walking them 8 texels at a time (a block: seg4p is a multiple of 8, so a
+// block lies in one segment). Everything but the lane's row and step is uniform, which llvmpipe computes once
+// for all lanes (a division that differs between lanes costs a scalar division per lane), and few large
+// workgroups beat many small ones there (each costs about a microsecond to start).
 @compute @workgroup_size(64)
 fn pack(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let t = (wid.x + wid.y * nwg.x) * 64u + lid;
-    if (t >= p.texels) {
+    let row_group = wid.x + wid.y * nwg.x;
+    let lane = lid % 8u;
+    let packed_row = row_group * 8u + lane;
+    var row = packed_row;
+    var first = packed_row * p.k4p + lid / 8u;
+    var step = 1u;
+    if (p.lanes == 8u) {
+        row = tile_row(packed_row);
+        first = row_group * p.k4p * 8u + lid;
+        step = 8u;
+    }
+    if (first >= p.texels) {
         return;
     }
-    let step = t / p.lanes;
-    var row = (step / p.k4p) * p.lanes + t % p.lanes;
-    if (p.lanes == 8u) {
-        row = tile_row(row);
-    }
-    let c4 = step % p.k4p;
-    let segment = c4 / p.seg4p;
-    let in_segment = c4 % p.seg4p;
-    var v = vec4<f32>(0.0);
-    if (row < p.rows && in_segment < p.seg4) {
-        let at = segment * p.seg4 + in_segment;
-        if (p.transposed == 0u) {
-            v = src[row * p.ld4 + p.col / 4u + at];
-        } else {
-            for (var i = 0u; i < 4u; i++) {
-                if (4u * at + i < p.cols) {
-                    v[i] = source(4u * at + i, p.col + row);
+    for (var block = 0u; block < p.k4p / 8u; block++) {
+        let c4 = block * 8u + lid / 8u;
+        let segment = block * 8u / p.seg4p;
+        let in_segment = c4 - segment * p.seg4p;
+        var v = vec4<f32>(0.0);
+        if (row < p.rows && in_segment < p.seg4) {
+            let at = segment * p.seg4 + in_segment;
+            if (p.transposed == 0u) {
+                v = src[row * p.ld4 + p.col / 4u + at];
+            } else {
+                for (var i = 0u; i < 4u; i++) {
+                    if (4u * at + i < p.cols) {
+                        v[i] = source(4u * at + i, p.col + row);
+                    }
                 }
             }
         }
+        textureStore(dst, texel(first + block * 8u * step), v);
     }
-    textureStore(dst, texel(t), v);
 }
 
 // Row r's logits at vec4 c4 (columns past cols: -inf stands in, weight 0).

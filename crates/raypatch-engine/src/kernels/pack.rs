@@ -163,7 +163,7 @@ pub fn pack_source(plan: &mut PlanBuilder, label: &str, src: Source, dst: Textur
         params: params.words(),
         bindings: vec![(src.view, Access::Read)],
         textures: vec![(dst, Access::Write)],
-        workgroups: grid(packing.texels(rows, cols).div_ceil(64)),
+        workgroups: grid(pack_workgroups(packing, rows, cols)),
         multiply_adds: 0,
     });
 }
@@ -184,6 +184,11 @@ pub fn pack_softmax_rows(plan: &mut PlanBuilder, label: &str, src: Source, dst: 
         workgroups: grid(src.view.rows.div_ceil(64)),
         multiply_adds: 0,
     });
+}
+
+/// `pack`'s workgroups: one per 8 packed rows (zero rows included).
+fn pack_workgroups(packing: Packing, rows: usize, cols: usize) -> usize {
+    (packing.texels(rows, cols) / packing.texels_per_row(cols)).div_ceil(8)
 }
 
 fn params_for(plan: &PlanBuilder, src: Source, packing: Packing, scale: f32) -> PackParams {
