@@ -124,12 +124,13 @@ pub const LANES_SCORES_BYTES: usize = 16 << 20;
 /// of query rows, the scores `q kᵀ` of all heads as one batched GEMM, `softmax(scale · scores)` packed as the
 /// next GEMM's x, and `weights · v` as another batched GEMM writing each head's columns of `out`. The keys
 /// and the transposed values are packed once for all passes. Returns false, recording nothing, where it does
-/// not apply: another matmul kernel, heads not a multiple of 32 wide (a head's values must start a 32-column
+/// not apply: another matmul kernel, no queries, heads not a multiple of 32 wide (a head's values must start a 32-column
 /// tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its textures.
 fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) -> bool {
     let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
     let (nq, nkv, inner) = (q.rows, k.rows, heads * dim_head);
     if plan.kernels.matmul != MatmulKernel::Lanes
+        || nq == 0
         || !dim_head.is_multiple_of(32)
         || ![q_col, k_col, v_col].iter().all(|c| c.is_multiple_of(4))
     {
@@ -140,7 +141,7 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
     let keys = Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 };
     let values = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
     let scores_ld = padded_cols(nkv);
-    let rows = (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).clamp(64, nq.next_multiple_of(64)).min(nq);
+    let rows = (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).max(64).min(nq);
     let head_texels = by_head.texels_per_segment(inner);
     let weight_texels = Packing::ROWS.texels_per_row(nkv);
     let scores_batch = |rows: usize| LanesBatch {
