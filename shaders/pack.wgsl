@@ -1,6 +1,6 @@
 // Packs a [rows, cols] matrix into a texture in the layout of texels.wgsl (row or 8-lane), zero-filling the
-// padding texels and the rows past the matrix's (up to a whole group of lanes, and any zero rows asked
-// for): what matmul_lanes reads. A row may be cut into segments (a convolution weight's taps, attention's
+// padding texels and the rows past the matrix's (up to a whole tile of 32 rows in the 8-lane layout, and any
+// zero rows asked for): what matmul_lanes reads. A row may be cut into segments (a convolution weight's taps, attention's
 // heads), each padded to whole blocks of 8 texels. The matrix is columns col.. of the source's rows, or the
 // transpose of those (attention's values, which matmul_lanes reads as w).
 // - pack: a workgroup per 8 packed rows;

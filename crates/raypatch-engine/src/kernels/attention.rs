@@ -61,7 +61,7 @@ pub struct AttentionArgs {
 ///
 /// Columns need not be multiples of 4. The fused kernel computes the softmax online (running max and sum per
 /// query and head, max-subtracted, so logits of any magnitude are safe) and its memory use does not depend on
-/// `nq * nkv`. On `MatmulKernel::Lanes` ([`attention_on_lanes`]) the scores of up to `LANES_SCORES_BYTES` at
+/// `nq * nkv`. On `MatmulKernel::Lanes` (`attention_on_lanes`) the scores of up to [`LANES_SCORES_BYTES`] at
 /// a time are materialised and their softmax max-subtracted too. Records `2·nq·nkv·dim_head·heads`
 /// multiply-adds (the scores and the weighted sum of values).
 pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
@@ -124,8 +124,9 @@ pub const LANES_SCORES_BYTES: usize = 16 << 20;
 /// of query rows, the scores `q kᵀ` of all heads as one batched GEMM, `softmax(scale · scores)` packed as the
 /// next GEMM's x, and `weights · v` as another batched GEMM writing each head's columns of `out`. The keys
 /// and the transposed values are packed once for all passes. Returns false, recording nothing, where it does
-/// not apply: another matmul kernel, no queries, heads not a multiple of 32 wide (a head's values must start a 32-column
-/// tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its textures.
+/// not apply: another matmul kernel, no queries, heads not a multiple of 32 wide (a head's values must start
+/// a 32-column tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its
+/// textures.
 fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) -> bool {
     let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
     let (nq, nkv, inner) = (q.rows, k.rows, heads * dim_head);

@@ -152,7 +152,6 @@ pub fn pack(plan: &mut PlanBuilder, label: &str, src: View, dst: TextureRef, pac
 
 /// [`pack`] for part of a view, or its transpose. The columns start at a multiple of 4 unless transposed.
 pub fn pack_source(plan: &mut PlanBuilder, label: &str, src: Source, dst: TextureRef, packing: Packing) {
-    let (rows, cols) = src.shape();
     assert!(src.transposed || src.col.is_multiple_of(4), "{label}: packed columns start at {}", src.col);
     assert!(src.col + src.cols <= plan.cols(src.view.id), "{label}: columns past the source's");
     let params = params_for(plan, src, packing, 1.0);
@@ -163,13 +162,14 @@ pub fn pack_source(plan: &mut PlanBuilder, label: &str, src: Source, dst: Textur
         params: params.words(),
         bindings: vec![(src.view, Access::Read)],
         textures: vec![(dst, Access::Write)],
-        workgroups: grid(pack_workgroups(packing, rows, cols)),
+        // One workgroup per 8 packed rows (zero rows included).
+        workgroups: grid((params.texels / params.k4p).div_ceil(8) as usize),
         multiply_adds: 0,
     });
 }
 
 /// Packs softmax(scale · row) of every row of columns `col .. col + cols` of `src` into `dst` in the row
-/// layout (`Packing::rows()`): attention's weights from its scores, as PyTorch's `(s * scale).softmax(-1)`
+/// layout ([`Packing::ROWS`]): attention's weights from its scores, as PyTorch's `(s * scale).softmax(-1)`
 /// computes them (max-subtracted). Records no multiply-adds.
 pub fn pack_softmax_rows(plan: &mut PlanBuilder, label: &str, src: Source, dst: TextureRef, scale: f32) {
     assert!(!src.transposed && src.col.is_multiple_of(4), "{label}: softmax of a transposed or unaligned source");
@@ -184,11 +184,6 @@ pub fn pack_softmax_rows(plan: &mut PlanBuilder, label: &str, src: Source, dst: 
         workgroups: grid(src.view.rows.div_ceil(64)),
         multiply_adds: 0,
     });
-}
-
-/// `pack`'s workgroups: one per 8 packed rows (zero rows included).
-fn pack_workgroups(packing: Packing, rows: usize, cols: usize) -> usize {
-    (packing.texels(rows, cols) / packing.texels_per_row(cols)).div_ceil(8)
 }
 
 fn params_for(plan: &PlanBuilder, src: Source, packing: Packing, scale: f32) -> PackParams {
