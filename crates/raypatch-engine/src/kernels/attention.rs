@@ -116,7 +116,7 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     });
 }
 
-/// Bytes of scores [`attention_on_lanes`] materialises at a time: queries go in passes of whole 64-row blocks
+/// Bytes of scores `attention_on_lanes` materialises at a time: queries go in passes of whole 64-row blocks
 /// (at least one) whose `heads · rows · nkv` scores fit. Their softmax, packed, takes as much again.
 pub const LANES_SCORES_BYTES: usize = 16 << 20;
 
