@@ -1,11 +1,11 @@
-"""Times PyTorch's linear layer (torch.nn.functional.linear with bias, float32, CPU) on the shapes raypatch-bench
---gemm measures, for the GMAC/s table of docs/PERFORMANCE.md:
+"""Times PyTorch's linear layer (torch.nn.functional.linear with bias, float32, on the CPU or, on a CUDA GPU,
+cuBLAS without TF32) on the shapes raypatch-bench --gemm measures, for the GMAC/s table of docs/PERFORMANCE.md:
 
-    python3 tools/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N]
+    python3 tools/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N] [--device cuda]
 
-Prints one JSON object: the torch version, its thread count, and per shape (M x K x N: x [M, K], weight [N, K])
-the median, min and max wall time in ms over the runs after one warm-up. Exit code 3 when PyTorch cannot be
-imported, 2 on a bad shape.
+Prints one JSON object: the torch version, its thread count, the device, and per shape (M x K x N: x [M, K],
+weight [N, K]) the median, min and max wall time in ms over the runs after one warm-up, each run waited for.
+Exit code 3 when PyTorch cannot be imported or has no such device, 2 on a bad shape.
 """
 
 import argparse
@@ -20,7 +20,7 @@ except ImportError as error:
     sys.exit(3)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pytorch import summary, timed  # noqa: E402
+from bench_pytorch import device_name, device_of, summary, timed  # noqa: E402
 
 
 def shape(text):
@@ -37,17 +37,20 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--shape", type=shape, action="append", required=True)
     parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be at least 1")
+    device = device_of(args.device)
     torch.manual_seed(0)
     results = []
     for m, k, n in args.shape:
-        x, w, b = torch.randn(m, k), torch.randn(n, k), torch.randn(n)
+        x, w, b = (torch.randn(*shape).to(device) for shape in ((m, k), (n, k), (n,)))
         with torch.no_grad():
-            _, times = timed(lambda: torch.nn.functional.linear(x, w, b), args.repeats)
+            _, times = timed(lambda: torch.nn.functional.linear(x, w, b), args.repeats, device)
         results.append({"m": m, "k": k, "n": n, **summary(times)})
-    print(json.dumps({"torch": torch.__version__, "threads": torch.get_num_threads(), "shapes": results}))
+    print(json.dumps({"torch": torch.__version__, "threads": torch.get_num_threads(), "device": device_name(device),
+                      "shapes": results}))
 
 
 if __name__ == "__main__":

@@ -2,14 +2,17 @@
 raypatch-bench, which runs it on the same weights and inputs as the engine in the same run:
 
     python3 tools/bench_pytorch.py --model M.safetensors --scene S.safetensors [--repeats N] [--threads T]
-                                   [--out-rgb O.safetensors]
+                                   [--device cpu|cuda] [--compile] [--out-rgb O.safetensors]
 
-Prints one JSON object: the torch version, its thread count, and the wall times in ms (median, min, max over the
-runs after one warm-up) of encoding the input views and of rendering the target views, as the official model
-computes them in float32 on the CPU. The model is SRT / RP-SRT or OSRT / RP-OSRT, by the config's `base`
+Prints one JSON object: the torch version, its thread count, the device, and the wall times in ms (median, min,
+max over the runs after one warm-up) of encoding the input views and of rendering the target views, as the
+official model computes them in float32 (eager), on the CPU or on a CUDA GPU (synchronised before each time is
+read; TF32 off, so that the products are float32 as on the CPU). With --compile the same is timed again with
+encode and render_views under torch.compile (the first, compiling, call is the warm-up), or why it failed. The
+model is SRT / RP-SRT, OSRT / RP-OSRT or DeFiNe / RP-DeFiNe, by the config's `base`
 (raypatch_reference.build_model); OSRT's render_views computes its segmentation beside rgb, as the official
-OSRT.decoder does, and it is timed with it. With --out-rgb it also writes the rendered `rgb` [T, Ht, Wt, 3]. Exit code 3
-when PyTorch cannot be imported, 2 on a bad input.
+OSRT.decoder does, and it is timed with it. With --out-rgb it also writes the (eager) rendered `rgb` [T, Ht, Wt, 3].
+Exit code 3 when PyTorch cannot be imported or has no such device, 2 on a bad input.
 """
 
 import argparse
@@ -57,15 +60,39 @@ def target_size(scene, metadata):
     return tuple(scene["target_rays"].shape[1:3])
 
 
-def timed(function, repeats):
-    """(result, [wall ms per run]) after one warm-up run."""
+def synchronize(device):
+    """Waits for the device's queued work (CUDA runs asynchronously)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def timed(function, repeats, device=torch.device("cpu")):
+    """(result, [wall ms per run]) after one warm-up run, each run waited for on `device`."""
     function()
+    synchronize(device)
     times, result = [], None
     for _ in range(repeats):
         start = time.perf_counter()
         result = function()
+        synchronize(device)
         times.append((time.perf_counter() - start) * 1e3)
     return result, times
+
+
+def device_of(name):
+    """The torch device for --device, or exit code 3 when this PyTorch has none such."""
+    if name == "cuda" and not torch.cuda.is_available():
+        print("PyTorch has no CUDA device here", file=sys.stderr)
+        sys.exit(3)
+    if name == "cuda":
+        # float32 products as on the CPU: no TF32 (PyTorch's default for matmul, set here for convolutions too).
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.allow_tf32 = False
+    return torch.device(name)
+
+
+def device_name(device):
+    return torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
 
 
 def summary(times):
@@ -78,12 +105,15 @@ def main(argv=None):
     parser.add_argument("--scene", required=True, type=Path)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--compile", action="store_true", help="also time encode and render under torch.compile")
     parser.add_argument("--out-rgb", type=Path, default=None)
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
+    device = device_of(args.device)
     try:
-        model = load_model(args.model)
+        model = load_model(args.model).to(device)
         scene, metadata = read(args.scene)
         size = target_size(scene, metadata)
     except (OSError, ValueError, KeyError) as error:
@@ -91,19 +121,30 @@ def main(argv=None):
         return 2
 
     def batch(name):
-        return scene[name][None]
+        return scene[name][None].to(device)
 
-    with torch.no_grad():
-        z, encode_times = timed(lambda: model.encode(batch("input_images").permute(0, 1, 4, 2, 3),
-                                                     batch("input_camera_pos"), batch("input_rays")), args.repeats)
-        # SRT returns (rgb, logdepth), OSRT (rgb, logdepth, segmentation).
-        views, render_times = timed(lambda: model.render_views(z, batch("target_camera_pos"), batch("target_rays"),
-                                                               size), args.repeats)
-        rgb = views[0]
+    def time_model(encode, render_views):
+        """(rgb, encode times, render times) of one way of running the model."""
+        with torch.no_grad():
+            z, encode_times = timed(lambda: encode(batch("input_images").permute(0, 1, 4, 2, 3),
+                                                   batch("input_camera_pos"), batch("input_rays")), args.repeats, device)
+            # SRT returns (rgb, logdepth), OSRT (rgb, logdepth, segmentation).
+            views, render_times = timed(lambda: render_views(z, batch("target_camera_pos"), batch("target_rays"),
+                                                             size), args.repeats, device)
+        return views[0], summary(encode_times), summary(render_times)
+
+    rgb, encode, render = time_model(model.encode, model.render_views)
+    result = {"torch_version": torch.__version__, "threads": torch.get_num_threads(), "device": device_name(device),
+              "encode": encode, "render": render}
+    if args.compile:
+        try:
+            _, encode, render = time_model(torch.compile(model.encode), torch.compile(model.render_views))
+            result["compiled"] = {"encode": encode, "render": render}
+        except Exception as error:  # noqa: BLE001 -- any failure of the compiler is reported, not fatal
+            result["compile_error"] = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
     if args.out_rgb is not None:
-        save_safetensors(args.out_rgb, {"rgb": rgb[0]}, {"format": "raypatch-bench-pytorch/1"})
-    print(json.dumps({"torch_version": torch.__version__, "threads": torch.get_num_threads(),
-                      "encode": summary(encode_times), "render": summary(render_times)}))
+        save_safetensors(args.out_rgb, {"rgb": rgb[0].cpu()}, {"format": "raypatch-bench-pytorch/1"})
+    print(json.dumps(result))
     return 0
 
 

@@ -1,9 +1,11 @@
 //! `raypatch-bench --gemm`: the linear layers that dominate the official RP-SRT's render and encode, alone,
 //! on every matmul kernel the adapter runs, next to PyTorch's `F.linear` on the same shapes and machine
-//! (`tools/bench_gemm_pytorch.py`): GMAC/s per shape, in gemm.json and gemm.md.
+//! (`tools/bench_gemm_pytorch.py`; on the CPU, or cuBLAS on a CUDA GPU): GMAC/s per shape, in gemm.json and
+//! gemm.md.
 
 use std::path::Path;
 use std::process::Command;
+
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
@@ -15,6 +17,7 @@ use raypatch_engine::Gpu;
 use serde::{Deserialize, Serialize};
 
 use crate::measure::{repeat, Repeats, Sample, Stats};
+use crate::pytorch::{source_file, Torch};
 use crate::report::write_file;
 
 /// (M, K, N, where): x `[M, K]`, weight `[N, K]`; the official srt_MDBN_32 / rpsrt_MDBN_8_32 at 120x160.
@@ -74,10 +77,10 @@ struct TorchGemm {
     shapes: Vec<Stats>,
 }
 
-fn pytorch(runs: usize) -> Result<Vec<Stats>> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/bench_gemm_pytorch.py");
+fn pytorch(torch: &Torch, runs: usize) -> Result<Vec<Stats>> {
     let mut command = Command::new("python3");
-    command.arg(script).args(["--repeats", &runs.to_string()]);
+    command.arg(source_file("tools/bench_gemm_pytorch.py"));
+    command.args(["--repeats", &runs.to_string(), "--device", torch.device.name()]);
     for (m, k, n, _) in SHAPES {
         command.args(["--shape", &format!("{m}x{k}x{n}")]);
     }
@@ -92,12 +95,12 @@ fn pytorch(runs: usize) -> Result<Vec<Stats>> {
 
 /// Measures every shape on every kernel `gpu` runs, or on `only` (and PyTorch when `torch`), writes gemm.json
 /// and gemm.md into `out`, and returns the Markdown table.
-pub fn run(gpu: &Gpu, only: Option<MatmulKernel>, torch: bool, runs: usize, out: &Path) -> Result<String> {
+pub fn run(gpu: &Gpu, only: Option<MatmulKernel>, torch: Option<&Torch>, runs: usize, out: &Path) -> Result<String> {
     let kernels: Vec<MatmulKernel> = MatmulKernel::ALL
         .into_iter()
         .filter(|&k| only.is_none_or(|o| o == k) && k.supported(&gpu.info, gpu.features).is_ok())
         .collect();
-    let torch_times = if torch { Some(pytorch(runs)?) } else { None };
+    let torch_times = torch.map(|t| pytorch(t, runs)).transpose()?;
     let mut records = Vec::new();
     for (i, (m, k, n, place)) in SHAPES.into_iter().enumerate() {
         let mut engine = Vec::new();
@@ -109,7 +112,11 @@ pub fn run(gpu: &Gpu, only: Option<MatmulKernel>, torch: bool, runs: usize, out:
         let pytorch = torch_times.as_ref().map(|t| t[i]);
         records.push(GemmRecord { m, k, n, place: place.to_string(), engine, pytorch });
     }
-    let mut table = String::from("| M x K x N | where |");
+    let mut table = format!(
+        "Adapter: {}. PyTorch: {}.\n\n| M x K x N | where |",
+        gpu.describe(),
+        torch.map_or("not timed".to_string(), Torch::describe)
+    );
     for kernel in &kernels {
         table += &format!(" {kernel:?} GMAC/s |");
     }

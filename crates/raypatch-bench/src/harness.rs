@@ -41,8 +41,15 @@ pub struct Options {
     /// would record, and the rate measured at the previous size) to take longer than this (default 120 s,
     /// quick 1.5 s).
     pub max_render_seconds: Option<f64>,
+    /// Compute the float64 CPU references of encodes and renders of at most this many billion multiply-adds
+    /// (default 60, quick 2): they take minutes beyond that.
+    pub max_reference_gmac: Option<f64>,
     /// Time PyTorch on the same inputs when it is installed.
     pub pytorch: bool,
+    /// Where PyTorch runs (`None`: on the CUDA GPU when the engine runs on a GPU and PyTorch has one).
+    pub pytorch_device: Option<pytorch::Device>,
+    /// Time PyTorch under torch.compile too.
+    pub pytorch_compile: bool,
     /// Model files to measure too (e.g. trained models), with `scene` (or a synthetic scene).
     pub models: Vec<PathBuf>,
     pub scene: Option<PathBuf>,
@@ -74,7 +81,7 @@ struct Bench {
     /// Reference encodes and renders are computed when their multiply-adds (counted from the engine's ops)
     /// are at most this (the f64 CPU reference is slow).
     reference_macs: u64,
-    torch: std::result::Result<String, String>,
+    torch: std::result::Result<pytorch::Torch, String>,
     scratch: PathBuf,
     quick: bool,
     only: Vec<(String, usize)>,
@@ -139,7 +146,8 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
         report::write_csv(&out.join("results.csv"), &results.results)?;
         report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
     }
-    let tables = report::markdown(&results.results, &results.kernels) + &paper::markdown(&results.paper_comparison);
+    let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
+        + &paper::markdown(&results.paper_comparison);
     report::write_file(&out.join("tables.md"), tables.as_bytes())?;
     plots::draw_all(&results.results, out)?;
     println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
@@ -182,7 +190,14 @@ pub fn run(options: &Options) -> Result<()> {
         machine: measure::machine(),
         matmul_kernel: format!("{:?}", gpu.kernels.matmul),
     };
-    let torch = if options.pytorch { pytorch::probe() } else { Err("--no-pytorch".to_string()) };
+    let torch = match options.pytorch.then(pytorch::probe) {
+        None => Err("--no-pytorch".to_string()),
+        Some(Err(why)) => Err(why),
+        Some(Ok(installed)) => {
+            let on_gpu = gpu.info.device_type != wgpu::DeviceType::Cpu;
+            Ok(pytorch::Torch::choose(installed, options.pytorch_device, on_gpu, options.pytorch_compile)?)
+        }
+    };
     let runs = options.repeats.unwrap_or(if options.quick { 3 } else { 5 });
     let bench = Bench {
         gpu,
@@ -193,7 +208,7 @@ pub fn run(options: &Options) -> Result<()> {
         } else {
             120.0
         })),
-        reference_macs: if options.quick { 2_000_000_000 } else { 60_000_000_000 },
+        reference_macs: (options.max_reference_gmac.unwrap_or(if options.quick { 2.0 } else { 60.0 }) * 1e9) as u64,
         torch,
         scratch,
         quick: options.quick,
@@ -210,9 +225,7 @@ pub fn run(options: &Options) -> Result<()> {
     );
     println!("machine: {}; timing: {timing}; matmul kernel: {}", bench.env.machine, bench.env.matmul_kernel);
     match &bench.torch {
-        Ok(version) => {
-            println!("PyTorch {version}: timing tools/raypatch_reference.py on the same inputs")
-        }
+        Ok(torch) => println!("PyTorch: timing tools/raypatch_reference.py on the same inputs, {}", torch.describe()),
         Err(why) => println!("PyTorch not timed: {why}"),
     }
 
@@ -225,22 +238,22 @@ pub fn run(options: &Options) -> Result<()> {
     bench.sweep(&mut records, &mut kernels)?;
     bench.model_files(options, &mut records)?;
     let comparison = paper::compare(&records);
-
-    let tables = report::markdown(&records, &kernels) + &paper::markdown(&comparison);
-    println!("\n{tables}");
     let results = Results {
         command: options.command.clone(),
         date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
         environment: bench.env.clone(),
         timing: timing.to_string(),
         pytorch: match &bench.torch {
-            Ok(v) => format!("torch {v}"),
+            Ok(torch) => torch.describe(),
             Err(why) => format!("not timed: {why}"),
         },
         results: records,
         kernels,
         paper_comparison: comparison,
     };
+    let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
+        + &paper::markdown(&results.paper_comparison);
+    println!("\n{tables}");
     let json = serde_json::to_string_pretty(&results)?;
     report::write_file(&options.out.join("results.json"), json.as_bytes())?;
     report::write_csv(&options.out.join("results.csv"), &results.results)?;
@@ -446,7 +459,7 @@ impl Bench {
     }
 
     fn time_pytorch(&self, s: &Subject, targets: &TargetViews, rgb: &[f32], record: &mut Record) -> Result<()> {
-        let (Ok(_), Some(file)) = (&self.torch, s.file) else {
+        let (Ok(torch), Some(file)) = (&self.torch, s.file) else {
             return Ok(());
         };
         // Model-file subjects are named by their path: keep the scratch file name flat.
@@ -457,20 +470,35 @@ impl Bench {
         }
         let scene_path = self.scratch.join(format!("scene-{}.safetensors", record.target_size));
         report::write_file(&scene_path, &scene_file(s.inputs, targets)?)?;
-        let repeats = if self.quick { 1 } else { 3 };
-        let run = pytorch::run(&model_path, &scene_path, repeats)?;
+        // A GPU renders in milliseconds: more runs there for a stable median.
+        let repeats = match (self.quick, torch.device) {
+            (true, _) => 1,
+            (false, pytorch::Device::Cpu) => 3,
+            (false, pytorch::Device::Cuda) => 20,
+        };
+        let run = pytorch::run(torch, &model_path, &scene_path, repeats)?;
         record.max_err_pytorch = Some(max_abs_f32(rgb, &run.rgb));
-        record.pytorch_over_ours = record.render_wall_ms.map(|ours| run.render.median_ms / ours.median_ms);
-        record.note = format!("{} PyTorch on {} CPU threads", record.note, run.threads).trim().to_string();
-        record.pytorch_encode_ms = Some(run.encode);
-        record.pytorch_render_ms = Some(run.render);
+        record.pytorch_over_ours = record.render_wall_ms.map(|ours| run.eager.render.median_ms / ours.median_ms);
+        let on = match torch.device {
+            pytorch::Device::Cpu => format!("{} CPU threads", run.threads),
+            pytorch::Device::Cuda => torch.device_name.clone(),
+        };
+        record.note = format!("{} PyTorch on {on}", record.note).trim().to_string();
+        (record.pytorch_encode_ms, record.pytorch_render_ms) = (Some(run.eager.encode), Some(run.eager.render));
+        match run.compiled {
+            Ok(compiled) => {
+                record.pytorch_compiled_encode_ms = compiled.map(|c| c.encode);
+                record.pytorch_compiled_render_ms = compiled.map(|c| c.render);
+            }
+            Err(why) => record.note += &format!("; torch.compile failed: {why}"),
+        }
         Ok(())
     }
 
     /// Every golden case: errors against PyTorch's float32 output and both float64 references, PSNR where the
     /// scene has ground truth.
     fn golden(&self, records: &mut Vec<Record>) -> Result<()> {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/golden");
+        let dir = pytorch::source_file("assets/golden");
         let mut cases: Vec<PathBuf> = std::fs::read_dir(&dir)
             .with_context(|| format!("{}: the golden cases are missing", dir.display()))?
             .map(|e| e.map(|e| e.path()))

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
+use raypatch_bench::pytorch::{self, Device, Torch};
 use raypatch_engine::{AdapterChoice, Gpu, GpuOptions, MatmulKernel};
 
 #[derive(Parser)]
@@ -26,6 +27,11 @@ struct Args {
     /// Skip sizes whose render is predicted to take longer than this many seconds (default 120, quick 1.5).
     #[arg(long)]
     max_render_seconds: Option<f64>,
+    /// Compare with the float64 CPU reference only encodes and renders of at most this many billion
+    /// multiply-adds (default 60, quick 2; the reference runs in float64 on the CPU, which takes minutes at
+    /// the default).
+    #[arg(long, value_name = "GMAC")]
+    max_reference_gmac: Option<f64>,
     /// The kernel of the linear layers (default: the adapter's fastest).
     #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
         .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
@@ -33,6 +39,14 @@ struct Args {
     /// Do not time PyTorch even if it is installed.
     #[arg(long)]
     no_pytorch: bool,
+    /// Where PyTorch runs (default: on the CUDA GPU when the engine's adapter is a GPU and PyTorch has CUDA,
+    /// else on the CPU).
+    #[arg(long, value_name = "DEVICE", value_parser = PossibleValuesParser::new(Device::NAMES)
+        .map(|name: String| Device::from_name(&name).unwrap_or(Device::Cpu)))]
+    pytorch_device: Option<Device>,
+    /// Time PyTorch under torch.compile too (beside eager), where it compiles.
+    #[arg(long)]
+    pytorch_compile: bool,
     /// A model file to measure too (repeatable), e.g. a trained model.
     #[arg(long = "model")]
     models: Vec<PathBuf>,
@@ -61,6 +75,10 @@ fn main() -> ExitCode {
         eprintln!("raypatch-bench: --repeats must be at least 1");
         return ExitCode::from(2);
     }
+    if args.max_reference_gmac.is_some_and(|g| g.is_nan() || g < 0.0) {
+        eprintln!("raypatch-bench: --max-reference-gmac must be a number of at least 0");
+        return ExitCode::from(2);
+    }
     if !args.replot.is_empty() {
         return match raypatch_bench::replot(&args.replot, &args.out) {
             Ok(()) => ExitCode::SUCCESS,
@@ -86,7 +104,10 @@ fn main() -> ExitCode {
         matmul: args.matmul_kernel,
         repeats: args.repeats,
         max_render_seconds: args.max_render_seconds,
+        max_reference_gmac: args.max_reference_gmac,
         pytorch: !args.no_pytorch,
+        pytorch_device: args.pytorch_device,
+        pytorch_compile: args.pytorch_compile,
         models: args.models,
         scene: args.scene,
         only: args.only,
@@ -107,8 +128,13 @@ fn gemm(args: &Args) -> anyhow::Result<()> {
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
     println!("raypatch-bench --gemm on {}", gpu.describe());
-    let torch = !args.no_pytorch && raypatch_bench::pytorch::probe().is_ok();
-    let table = raypatch_bench::gemm::run(&gpu, args.matmul_kernel, torch, args.repeats.unwrap_or(10), &args.out)?;
+    let on_gpu = gpu.info.device_type != wgpu::DeviceType::Cpu;
+    let torch = match pytorch::probe() {
+        Ok(installed) if !args.no_pytorch => Some(Torch::choose(installed, args.pytorch_device, on_gpu, false)?),
+        _ => None,
+    };
+    let table =
+        raypatch_bench::gemm::run(&gpu, args.matmul_kernel, torch.as_ref(), args.repeats.unwrap_or(10), &args.out)?;
     println!("\n{table}");
     Ok(())
 }

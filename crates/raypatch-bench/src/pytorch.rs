@@ -1,4 +1,5 @@
-//! The PyTorch reference timed on the same weights and inputs, through `tools/bench_pytorch.py`.
+//! The PyTorch reference timed on the same weights and inputs, through `tools/bench_pytorch.py`: on the CPU,
+//! or on a CUDA GPU when the engine runs on a GPU too (eager float32, and `torch.compile` when asked).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -8,22 +9,116 @@ use serde::Deserialize;
 
 use crate::measure::Stats;
 
-/// The script, found from the source tree (the harness runs from a checkout).
-pub fn script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/bench_pytorch.py")
+/// Where PyTorch runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Device {
+    Cpu,
+    Cuda,
 }
 
-/// The torch version when `python3` can import torch and safetensors, else why not.
-pub fn probe() -> std::result::Result<String, String> {
-    let out = Command::new("python3")
-        .args(["-c", "import torch, safetensors; print(torch.__version__)"])
-        .output()
-        .map_err(|e| format!("python3 cannot be run: {e}"))?;
-    if out.status.success() {
-        Ok(String::from_utf8_lossy(&out.stdout).trim().to_string())
+impl Device {
+    pub const NAMES: [&'static str; 2] = ["cpu", "cuda"];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Device::Cpu => "cpu",
+            Device::Cuda => "cuda",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Device> {
+        match name {
+            "cpu" => Some(Device::Cpu),
+            "cuda" => Some(Device::Cuda),
+            _ => None,
+        }
+    }
+}
+
+/// A file of the source tree: where the harness was built, or, for a binary carried to another machine and
+/// run from a checkout there, relative to the current folder.
+pub fn source_file(relative: &str) -> PathBuf {
+    let built = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(relative);
+    if built.exists() {
+        built
     } else {
+        PathBuf::from(relative)
+    }
+}
+
+/// PyTorch as this machine has it.
+#[derive(Clone, Debug)]
+pub struct Installed {
+    pub version: String,
+    /// The name of CUDA device 0, when PyTorch has one.
+    pub cuda: Option<String>,
+}
+
+/// What `python3` can import, or why PyTorch cannot be timed.
+pub fn probe() -> std::result::Result<Installed, String> {
+    let script = "import torch, safetensors\nprint(torch.__version__)\n\
+                  print(torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')";
+    let out =
+        Command::new("python3").args(["-c", script]).output().map_err(|e| format!("python3 cannot be run: {e}"))?;
+    if !out.status.success() {
         let err = String::from_utf8_lossy(&out.stderr);
-        Err(format!("PyTorch cannot be imported ({})", err.lines().last().unwrap_or("").trim()))
+        return Err(format!("PyTorch cannot be imported ({})", err.lines().last().unwrap_or("").trim()));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut lines = text.lines().map(str::trim);
+    let version = lines.next().unwrap_or("").to_string();
+    let cuda = lines.next().filter(|name| !name.is_empty()).map(str::to_string);
+    Ok(Installed { version, cuda })
+}
+
+/// PyTorch as the harness times it.
+#[derive(Clone, Debug)]
+pub struct Torch {
+    pub version: String,
+    pub device: Device,
+    /// "cpu", or the GPU's name.
+    pub device_name: String,
+    /// Time `torch.compile` too.
+    pub compile: bool,
+}
+
+impl Torch {
+    /// PyTorch on `device`, or where the engine runs (`None`): on the CUDA GPU when the engine's adapter is
+    /// a GPU and PyTorch has one, else on the CPU. An explicit `cuda` that PyTorch lacks is an error.
+    pub fn choose(installed: Installed, device: Option<Device>, engine_on_gpu: bool, compile: bool) -> Result<Torch> {
+        let device = match (device, &installed.cuda) {
+            (Some(Device::Cuda), None) => {
+                bail!("--pytorch-device cuda: PyTorch {} has no CUDA device here", installed.version)
+            }
+            (Some(device), _) => device,
+            (None, Some(_)) if engine_on_gpu => Device::Cuda,
+            (None, _) => Device::Cpu,
+        };
+        let device_name = match device {
+            Device::Cuda => installed.cuda.unwrap_or_default(),
+            Device::Cpu => "cpu".to_string(),
+        };
+        Ok(Torch { version: installed.version, device, device_name, compile })
+    }
+
+    /// One line for the tables and results.json, e.g. `torch 2.5.1 on cuda (NVIDIA H100 80GB HBM3), eager and
+    /// torch.compile`.
+    pub fn describe(&self) -> String {
+        let on = match self.device {
+            Device::Cpu => "the CPU".to_string(),
+            Device::Cuda => format!("cuda ({})", self.device_name),
+        };
+        let how = if self.compile { "eager and torch.compile" } else { "eager" };
+        format!("torch {} on {on}, float32, {how}", self.version)
+    }
+
+    /// The script's arguments for the device and compilation.
+    fn args(&self) -> Vec<&'static str> {
+        let mut args = vec!["--device", self.device.name()];
+        if self.compile {
+            args.push("--compile");
+        }
+        args
     }
 }
 
@@ -42,27 +137,50 @@ impl From<TimesJson> for Stats {
 }
 
 #[derive(Debug, Deserialize)]
-struct RunJson {
-    threads: usize,
+struct PhasesJson {
     encode: TimesJson,
     render: TimesJson,
+}
+
+#[derive(Debug, Deserialize)]
+struct RunJson {
+    threads: usize,
+    #[serde(flatten)]
+    eager: PhasesJson,
+    compiled: Option<PhasesJson>,
+    compile_error: Option<String>,
+}
+
+/// Encode and render times of one way of running the model.
+#[derive(Clone, Copy, Debug)]
+pub struct Phases {
+    pub encode: Stats,
+    pub render: Stats,
+}
+
+impl From<PhasesJson> for Phases {
+    fn from(p: PhasesJson) -> Phases {
+        Phases { encode: p.encode.into(), render: p.render.into() }
+    }
 }
 
 /// PyTorch's times and output on one model and scene.
 pub struct TorchRun {
     pub threads: usize,
-    pub encode: Stats,
-    pub render: Stats,
-    /// `[T, Ht, Wt, 3]`.
+    pub eager: Phases,
+    /// Under torch.compile, when asked for and it ran; else why not (when asked for).
+    pub compiled: std::result::Result<Option<Phases>, String>,
+    /// `[T, Ht, Wt, 3]`, eager.
     pub rgb: Vec<f32>,
 }
 
 /// Runs the script on files `model` and `scene`, writing its rgb next to them.
-pub fn run(model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
+pub fn run(torch: &Torch, model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
     let rgb_path = scene.with_extension("pytorch-rgb.safetensors");
     let out = Command::new("python3")
-        .arg(script())
+        .arg(source_file("tools/bench_pytorch.py"))
         .args(["--model".as_ref(), model.as_os_str(), "--scene".as_ref(), scene.as_os_str()])
+        .args(torch.args())
         .args(["--repeats", &repeats.to_string(), "--out-rgb"])
         .arg(&rgb_path)
         .output()
@@ -73,5 +191,55 @@ pub fn run(model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
     let json: RunJson = serde_json::from_slice(&out.stdout).context("tools/bench_pytorch.py printed no result")?;
     let rgb = raypatch_model::TensorFile::open(&rgb_path)?.f32("rgb")?.data;
     std::fs::remove_file(&rgb_path).ok();
-    Ok(TorchRun { threads: json.threads, encode: json.encode.into(), render: json.render.into(), rgb })
+    let compiled = match (json.compiled, json.compile_error) {
+        (_, Some(why)) => Err(why),
+        (compiled, None) => Ok(compiled.map(Phases::from)),
+    };
+    Ok(TorchRun { threads: json.threads, eager: json.eager.into(), compiled, rgb })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn installed(cuda: Option<&str>) -> Installed {
+        Installed { version: "2.5.1".into(), cuda: cuda.map(str::to_string) }
+    }
+
+    #[test]
+    fn device_follows_the_engine_unless_named() {
+        let h100 = Some("NVIDIA H100");
+        let on = |cuda, device, gpu| Torch::choose(installed(cuda), device, gpu, false).map(|t| t.device).ok();
+        assert_eq!(on(h100, None, true), Some(Device::Cuda));
+        assert_eq!(on(h100, None, false), Some(Device::Cpu));
+        assert_eq!(on(None, None, true), Some(Device::Cpu));
+        assert_eq!(on(h100, Some(Device::Cpu), true), Some(Device::Cpu));
+        assert_eq!(on(h100, Some(Device::Cuda), false), Some(Device::Cuda));
+        let err = Torch::choose(installed(None), Some(Device::Cuda), true, false).unwrap_err().to_string();
+        assert!(err.contains("--pytorch-device cuda") && err.contains("no CUDA device"), "{err}");
+    }
+
+    #[test]
+    fn description_names_the_device_and_compilation() {
+        let torch = Torch::choose(installed(Some("NVIDIA H100")), None, true, true).unwrap();
+        assert_eq!(torch.describe(), "torch 2.5.1 on cuda (NVIDIA H100), float32, eager and torch.compile");
+        assert_eq!(torch.args(), ["--device", "cuda", "--compile"]);
+        let cpu = Torch::choose(installed(None), None, true, false).unwrap();
+        assert_eq!(cpu.describe(), "torch 2.5.1 on the CPU, float32, eager");
+    }
+
+    #[test]
+    fn script_output_with_and_without_compilation() {
+        let times = r#"{"median_ms": 2.0, "min_ms": 1.0, "max_ms": 3.0, "runs": 3}"#;
+        let eager = format!(r#""threads": 2, "device": "cpu", "encode": {times}, "render": {times}"#);
+        let plain: RunJson = serde_json::from_str(&format!("{{{eager}}}")).unwrap();
+        assert!(plain.compiled.is_none() && plain.compile_error.is_none());
+        assert_eq!(plain.eager.render.median_ms, 2.0);
+        let compiled: RunJson =
+            serde_json::from_str(&format!(r#"{{{eager}, "compiled": {{"encode": {times}, "render": {times}}}}}"#))
+                .unwrap();
+        assert_eq!(compiled.compiled.unwrap().encode.runs, 3);
+        let failed: RunJson = serde_json::from_str(&format!(r#"{{{eager}, "compile_error": "no compiler"}}"#)).unwrap();
+        assert_eq!(failed.compile_error.as_deref(), Some("no compiler"));
+    }
 }

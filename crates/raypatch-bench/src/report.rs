@@ -91,6 +91,9 @@ pub struct Record {
     pub psnr_db: Option<f64>,
     pub pytorch_encode_ms: Option<Stats>,
     pub pytorch_render_ms: Option<Stats>,
+    /// The same under torch.compile (`--pytorch-compile`).
+    pub pytorch_compiled_encode_ms: Option<Stats>,
+    pub pytorch_compiled_render_ms: Option<Stats>,
     /// PyTorch's median render wall time over ours.
     pub pytorch_over_ours: Option<f64>,
     pub note: String,
@@ -192,13 +195,21 @@ pub fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or_else(|| "-".to_string(), |v| format!("{v:.digits$}"))
 }
 
-/// PyTorch's time over ours for the render and the encode (higher is better for us), where PyTorch ran.
+/// PyTorch's time over ours for the render and the encode (higher is better for us), where PyTorch ran, and
+/// under torch.compile where that ran too.
 fn speed_ratios(r: &Record) -> String {
-    let encode = r.pytorch_encode_ms.zip(r.encode_ms).map(|(theirs, ours)| theirs.median_ms / ours.median_ms);
-    match (r.pytorch_over_ours, encode) {
+    let over = |theirs: Option<Stats>, ours: Option<Stats>| theirs.zip(ours).map(|(t, o)| t.median_ms / o.median_ms);
+    let encode = over(r.pytorch_encode_ms, r.encode_ms);
+    let mut text = match (r.pytorch_over_ours, encode) {
         (None, None) => "-".into(),
         (render, encode) => format!("{}, {}", opt(render, 2), opt(encode, 2)),
+    };
+    let compiled =
+        (over(r.pytorch_compiled_render_ms, r.render_wall_ms), over(r.pytorch_compiled_encode_ms, r.encode_ms));
+    if compiled != (None, None) {
+        text += &format!("; compiled {}, {}", opt(compiled.0, 2), opt(compiled.1, 2));
     }
+    text
 }
 
 pub fn sci(v: Option<f64>) -> String {
@@ -220,13 +231,13 @@ pub fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
 
 /// The results as Markdown tables (printed, and written to `tables.md` for docs/PERFORMANCE.md; the harness
 /// appends the comparison with the paper after them).
-pub fn markdown(records: &[Record], kernels: &[KernelTime]) -> String {
+pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> String {
     let mut out = String::new();
     if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
         out += &format!(
-        "Adapter: {} ({}, {}). Machine: {}. Matmul kernel: {}.\n\n",
-        env.adapter, env.backend, env.driver, env.machine, env.matmul_kernel
-    );
+            "Adapter: {} ({}, {}). Machine: {}. Matmul kernel: {}. PyTorch: {pytorch}.\n\n",
+            env.adapter, env.backend, env.driver, env.machine, env.matmul_kernel
+        );
     }
     let timing = records.first().map_or("", |r| r.timing.as_str());
     out += &format!("### Sweep (random weights; render time: {timing}, median [min–max] ms)\n\n");

@@ -9,12 +9,12 @@ use raypatch_engine::{EngineError, LoadOptions, Model, WeightStorage};
 use raypatch_model::TargetViews;
 
 use super::{
-    decoder_name, model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
-    SMALL_WIDTH,
+    decoder_name, model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
+    QUICK_SIZES, SEED, SMALL_WIDTH,
 };
-use crate::flops;
 use crate::report::{KernelTime, Record};
 use crate::synthetic;
+use crate::{flops, pytorch};
 
 /// The group of the official OSRT runs: `osrt_MDBN_64` (k = 1) and `rposrt_MDBN_8_64` (k = 8).
 pub(crate) const OSRT: &str = "official-osrt";
@@ -46,8 +46,10 @@ impl Bench {
             (&FULL_SIZES, PATCH_SIZES.iter().map(|&k| (k, &FULL_SIZES[..])).collect())
         };
         let spec = |name, k, config, sizes| Spec { name, k, config, inputs: (1, INPUT_SIZE), sizes };
-        let mut specs: Vec<Spec> =
-            PATCH_SIZES.iter().map(|&k| spec("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes)).collect();
+        let mut specs: Vec<Spec> = PATCH_SIZES
+            .iter()
+            .map(|&k| spec("small", k, synthetic::small_config(k, SMALL_WIDTH), small_sizes))
+            .collect();
         for (k, sizes) in official {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
             specs.push(spec("official", k, config, sizes));
@@ -177,6 +179,11 @@ impl Bench {
     }
 
     fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
+        let on_cuda = self.torch.as_ref().is_ok_and(|t| t.device == pytorch::Device::Cuda);
+        if on_cuda && !self.quick {
+            // On a GPU PyTorch is fast, but torch.compile compiles each size: every model at 120x160 and 480x640.
+            return size == (120, 160) || size == (480, 640);
+        }
         match (self.quick, name) {
             (true, _) => k == 4 && size == (60, 80) && name == "small",
             (false, "small") => size == (120, 160) && (k == 1 || k == 4),
