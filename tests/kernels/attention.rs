@@ -50,6 +50,8 @@ struct Case {
     scale: f32,
     /// First row of the output view inside a taller output tensor.
     out_row: usize,
+    /// A tensor bound as a constant (a scene's cached kv, `PlanBuilder::constant`): its packings are kept.
+    constant: Option<usize>,
 }
 
 impl Case {
@@ -86,7 +88,11 @@ impl Case {
             .map(|(t, h)| {
                 let name = format!("in{t}");
                 let tensor = gpu.upload(&name, h.rows, h.cols, &h.data).unwrap();
-                plan.external(&name, &tensor)
+                if self.constant == Some(t) {
+                    plan.constant(&name, &tensor)
+                } else {
+                    plan.external(&name, &tensor)
+                }
             })
             .collect();
         let out_id = plan.external("out", &out_tensor);
@@ -110,6 +116,10 @@ impl Case {
         let on_lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
         let plan = run(plan);
+        // A constant kv tensor bound whole has its keys and values packed outside the plan, once.
+        let kept = self.constant.is_some_and(|t| self.k.tensor == t && self.v.tensor == t && self.kv_whole());
+        let kv_packs = plan.op_labels().filter(|l| l.ends_with(".pack_k") || l.ends_with(".pack_v")).count();
+        assert_eq!(kv_packs, if on_lanes && !kept { 2 } else { 0 }, "{kernel:?}: {}", self.describe());
 
         let padded = gpu.read(&padded_out).unwrap();
         let mut result = Vec::with_capacity(self.nq * inner);
@@ -122,6 +132,11 @@ impl Case {
             }
         }
         (result, plan.peak_bytes())
+    }
+
+    /// Whether the keys and values are all the rows of their tensors.
+    fn kv_whole(&self) -> bool {
+        [self.k, self.v].iter().all(|s| s.row == 0 && self.tensors[s.tensor].rows == self.nkv)
     }
 
     /// The view's rows of a tensor as f64, with the tensor's column count.
@@ -289,7 +304,8 @@ fn random_case(rng: &mut Rng, layout: Layout, nq: usize, nkv: usize, heads: usiz
         }
     }
     let out_row = 64 * rng.range(0, 1);
-    Case { tensors, q, k, v, nq, nkv, heads, dim_head, scale: (dim_head as f32).powf(-0.5), out_row }
+    let scale = (dim_head as f32).powf(-0.5);
+    Case { tensors, q, k, v, nq, nkv, heads, dim_head, scale, out_row, constant: None }
 }
 
 #[test]
@@ -429,4 +445,60 @@ fn attention_rejects_wrong_output_width() {
     let (q, k, v) = (qkv, qkv, qkv);
     let args = AttentionArgs { q, q_col: 0, k, k_col: 16, v, v_col: 32, out, heads: 2, dim_head: 8, scale: 0.35 };
     attention(&mut plan, "attn", args);
+}
+
+/// Cross-attention onto a scene's cached kv tensor bound as a constant (`PlanBuilder::constant`, as renders
+/// bind a scene's keys and values): on `matmul_lanes` its keys and (transposed) values are packed outside
+/// the plan and kept with the tensor, so a second plan on the same tensor packs nothing and makes no texture
+/// for them; the results are the reference's. A view of part of a constant tensor is packed per plan.
+#[test]
+fn attention_kept_scene_keys_values() {
+    let mut rng = Rng::new(0x5CE2);
+    let mut case = random_case(&mut rng, Layout::CachedKv, 70, 45, 2, 64);
+    let kv = case.k.tensor;
+    let h = &case.tensors[kv];
+    let start = case.k.row * h.cols;
+    case.tensors[kv] = Host { rows: 45, cols: h.cols, data: h.data[start..start + 45 * h.cols].to_vec() };
+    (case.k.row, case.v.row) = (0, 0);
+    case.constant = Some(kv);
+    assert!(case.kv_whole());
+    case.check();
+
+    // Two plans on one constant kv tensor: the first makes scratch texture 0 and the two kept packings, the
+    // second only its scratch texture, and both give the same output.
+    if attention_kernels().contains(&MatmulKernel::Lanes) {
+        let gpu = gpu();
+        let host = &case.tensors[kv];
+        let kv_tensor = gpu.upload("kv", host.rows, host.cols, &host.data).unwrap();
+        let q_host = &case.tensors[case.q.tensor];
+        let q_tensor = gpu.upload("q", q_host.rows, q_host.cols, &q_host.data).unwrap();
+        let inner = case.heads * case.dim_head;
+        let render = || {
+            let out_tensor = gpu.upload("out", case.nq, inner, &vec![0.0; case.nq * inner]).unwrap();
+            let mut plan = PlanBuilder::new();
+            plan.kernels = KernelChoice { matmul: MatmulKernel::Lanes, ..gpu.kernels };
+            let (q, kv, out) =
+                (plan.external("q", &q_tensor), plan.constant("kv", &kv_tensor), plan.external("out", &out_tensor));
+            let args = AttentionArgs {
+                q: plan.rows_of(q, case.q.row, case.nq),
+                q_col: case.q.col,
+                k: plan.all(kv),
+                k_col: 0,
+                v: plan.all(kv),
+                v_col: inner,
+                out: plan.all(out),
+                heads: case.heads,
+                dim_head: case.dim_head,
+                scale: case.scale,
+            };
+            attention(&mut plan, "attn", args);
+            let before = gpu.counters().textures_created;
+            run(plan);
+            (gpu.counters().textures_created - before, gpu.read(&out_tensor).unwrap())
+        };
+        let (first_textures, first) = render();
+        let (second_textures, second) = render();
+        assert_eq!((first_textures, second_textures), (3, 1), "textures made by the first and second plan");
+        assert_eq!(first, second);
+    }
 }

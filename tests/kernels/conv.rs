@@ -106,7 +106,7 @@ impl Case {
         let xv = xp.view(&mut plan, "x");
         let ov = op.view(&mut plan, "out");
         // A model weight, as the models bind it (matmul_lanes keeps its packing).
-        let wid = plan.weight("w", &wt);
+        let wid = plan.constant("w", &wt);
         let bid = bt.as_ref().map(|b| plan.external("b", b));
         let (weight, bias, upsample_input) = (wid, bid, upsample);
         let args = Conv2dArgs { x: xv, n, h, w, cin, weight, bias, out: ov, cout, window, upsample_input, act, mode };

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use crate::error::{EngineError, Result};
 use crate::kernels::matmul::MatmulKernel;
-use crate::kernels::pack::{self, Packing};
+use crate::kernels::pack::{self, KeptPacking};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir};
 use crate::plan::{texture_bytes, KernelChoice, PlanBuilder, TextureRef};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
@@ -103,8 +103,9 @@ pub struct Gpu {
     pipelines: Mutex<HashMap<(&'static str, &'static str), Arc<wgpu::ComputePipeline>>>,
     /// The driver's cache of compiled pipelines, kept on disk between runs (written when dropped).
     pub(crate) pipeline_cache: DiskCache,
-    /// Weights packed into textures for `matmul_lanes`, per weight buffer (dropped with the weight).
-    packed: Mutex<Vec<PackedWeight>>,
+    /// Constant tensors (weights, scenes' keys and values) packed into textures for `matmul_lanes`, per
+    /// tensor buffer (dropped after it).
+    kept_packings: Mutex<Vec<KeptTexture>>,
     pub counters: GpuCounters,
     pub(crate) timestamps: Mutex<Timestamps>,
 }
@@ -116,10 +117,10 @@ pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
     .union(wgpu::Features::SHADER_F16)
     .union(wgpu::Features::SUBGROUP);
 
-/// A weight's packed texture, kept while the weight's buffer lives.
-struct PackedWeight {
+/// A constant tensor's packed texture, kept while the tensor's buffer lives.
+struct KeptTexture {
     buffer: Weak<wgpu::Buffer>,
-    packing: Packing,
+    packing: KeptPacking,
     texture: Arc<wgpu::Texture>,
 }
 
@@ -295,7 +296,7 @@ impl Gpu {
             kernels: KernelChoice { matmul, max_texels },
             pipelines: Mutex::new(HashMap::new()),
             pipeline_cache,
-            packed: Mutex::new(Vec::new()),
+            kept_packings: Mutex::new(Vec::new()),
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
         })
@@ -422,23 +423,25 @@ impl Gpu {
         Ok(texture)
     }
 
-    /// An f32 weight packed into a texture as `packing` says (`matmul_lanes` reads it), packed on the GPU the
-    /// first time a plan binds it and kept while the weight's buffer lives.
-    pub(crate) fn packed_weight(&self, name: &str, weight: &GpuTensor, packing: Packing) -> Result<Arc<wgpu::Texture>> {
-        let mut packed = self.packed.lock().expect("packed weights poisoned");
-        packed.retain(|p| p.buffer.strong_count() > 0);
-        let buffer = Arc::downgrade(&weight.buffer);
-        if let Some(p) = packed.iter().find(|p| p.buffer.ptr_eq(&buffer) && p.packing == packing) {
+    /// An f32 constant tensor (a weight, a scene's keys or values) packed into a texture as `kept` says
+    /// (`matmul_lanes` reads it), on the GPU the first time a plan binds it, and kept while the tensor's
+    /// buffer lives (a texture outliving its buffer is dropped at the next call).
+    pub(crate) fn kept_packing(&self, name: &str, tensor: &GpuTensor, kept: KeptPacking) -> Result<Arc<wgpu::Texture>> {
+        let mut packings = self.kept_packings.lock().expect("kept packings poisoned");
+        packings.retain(|p| p.buffer.strong_count() > 0);
+        let buffer = Arc::downgrade(&tensor.buffer);
+        if let Some(p) = packings.iter().find(|p| p.buffer.ptr_eq(&buffer) && p.packing == kept) {
             return Ok(p.texture.clone());
         }
-        let texels = packing.texels(weight.rows, weight.cols);
-        let texture = Arc::new(self.create_texture(&format!("{name} (packed)"), texels)?);
         let mut plan = PlanBuilder::new();
-        let src = plan.external(name, weight);
-        let src = plan.all(src);
-        pack::pack(&mut plan, &format!("pack {name}"), src, TextureRef::External(texture.clone()), packing);
+        let src = plan.external(name, tensor);
+        let src = kept.source(plan.all(src));
+        let (rows, cols) = src.shape();
+        let texture = Arc::new(self.create_texture(&format!("{name} (packed)"), kept.packing.texels(rows, cols))?);
+        let dst = TextureRef::External(texture.clone());
+        pack::pack_source(&mut plan, &format!("pack {name}"), src, dst, kept.packing);
         plan.build(self)?.execute(self);
-        packed.push(PackedWeight { buffer, packing, texture: texture.clone() });
+        packings.push(KeptTexture { buffer, packing: kept, texture: texture.clone() });
         Ok(texture)
     }
 

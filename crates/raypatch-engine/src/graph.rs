@@ -87,13 +87,7 @@ impl<'w> Graph<'w> {
     pub fn new(gpu: &Gpu, weights: &'w [GpuTensor]) -> Self {
         let mut b = PlanBuilder::new();
         b.kernels = gpu.kernels;
-        Graph {
-            b,
-            weights,
-            max_buffer_bytes: gpu.max_buffer_bytes,
-            suffix: String::new(),
-            host_inputs: Vec::new(),
-        }
+        Graph { b, weights, max_buffer_bytes: gpu.max_buffer_bytes, suffix: String::new(), host_inputs: Vec::new() }
     }
 
     /// The label of an op or tensor of module `path` in the current chunk.
@@ -138,14 +132,14 @@ impl<'w> Graph<'w> {
         Self::tensor(id, rows, cols, None)
     }
 
-    /// A tensor that lives outside the plan (a scene's cached tensors).
-    pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> Tensor {
-        let id = self.b.external(name, tensor);
+    /// A scene's cached tensor, which renders read and never write (its packings are kept with it).
+    pub fn scene_tensor(&mut self, name: &str, tensor: &GpuTensor) -> Tensor {
+        let id = self.b.constant(name, tensor);
         Self::tensor(id, tensor.rows, tensor.cols, None)
     }
 
     /// A module's weight, bound into the plan.
     pub fn param(&mut self, path: &str, p: Param) -> TensorId {
-        self.b.weight(path, &self.weights[p.index()])
+        self.b.constant(path, &self.weights[p.index()])
     }
 }

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use crate::error::{EngineError, Result};
 use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
 use crate::kernels::matmul::MatmulKernel;
-use crate::kernels::pack::Packing;
+use crate::kernels::pack::KeptPacking;
 use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
@@ -47,8 +47,9 @@ pub enum TextureRef {
     /// serves every op of the plan: an op packs into it right before the op that reads it, and ops run in
     /// order.
     Scratch(usize),
-    /// A packing of a model weight ([`PlanBuilder::weight`]), made once and kept by the [`Gpu`].
-    PackedWeight(TensorId, Packing),
+    /// A packing of a constant tensor ([`PlanBuilder::constant`]), made the first time a plan binds it and
+    /// kept by the [`Gpu`] while the tensor lives.
+    Kept(TensorId, KeptPacking),
     /// A texture owned elsewhere.
     External(Arc<wgpu::Texture>),
 }
@@ -89,10 +90,11 @@ enum Storage {
     Input,
     /// Read by the host after execution; has its own buffer.
     Output,
-    /// Owned elsewhere (scene caches).
+    /// Owned elsewhere.
     External(GpuTensor),
-    /// A model weight: owned elsewhere and never written, so packings of it can be kept.
-    Weight(GpuTensor),
+    /// Owned elsewhere and never written while it lives (a model weight, a scene's cached tensor), so
+    /// packings of it can be kept.
+    Constant(GpuTensor),
 }
 
 #[derive(Clone, Debug)]
@@ -154,12 +156,13 @@ impl PlanBuilder {
     pub fn external(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
         self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::External(tensor.clone()))
     }
-    /// A model weight: an external tensor that nothing ever writes.
-    pub fn weight(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
-        self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::Weight(tensor.clone()))
+    /// An external tensor that nothing writes while it lives: a model weight, or a scene's cached tensor
+    /// (keys and values). Its packings ([`TextureRef::Kept`]) are made once and kept with it.
+    pub fn constant(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
+        self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::Constant(tensor.clone()))
     }
-    pub fn is_weight(&self, id: TensorId) -> bool {
-        matches!(self.tensors[id.0].storage, Storage::Weight(_))
+    pub fn is_constant(&self, id: TensorId) -> bool {
+        matches!(self.tensors[id.0].storage, Storage::Constant(_))
     }
 
     pub fn rows(&self, id: TensorId) -> usize {
@@ -298,7 +301,7 @@ impl PlanBuilder {
                     peak_bytes += info.bytes();
                     Arc::new(gpu.create_buffer(&info.name, info.bytes(), storage_usage()))
                 }
-                Storage::External(tensor) | Storage::Weight(tensor) => tensor.buffer.clone(),
+                Storage::External(tensor) | Storage::Constant(tensor) => tensor.buffer.clone(),
             });
         }
 
@@ -319,7 +322,7 @@ impl PlanBuilder {
         }
         gpu.queue.write_buffer(&uniforms, 0, &staged);
 
-        // Textures: the scratch ones, and the packed weights (made on first use, kept by the Gpu).
+        // Textures: the scratch ones, and the kept packings of constants (made on first use, kept by the Gpu).
         let scratch = scratch_texels
             .iter()
             .enumerate()
@@ -333,9 +336,9 @@ impl PlanBuilder {
             for (texture, _) in &op.textures {
                 let texture = match texture {
                     TextureRef::Scratch(slot) => scratch[*slot].clone(),
-                    TextureRef::PackedWeight(id, packing) => match &tensors[id.0].storage {
-                        Storage::Weight(tensor) => gpu.packed_weight(&tensors[id.0].name, tensor, *packing)?,
-                        _ => panic!("op {}: only model weights have kept packings", op.label),
+                    TextureRef::Kept(id, kept) => match &tensors[id.0].storage {
+                        Storage::Constant(tensor) => gpu.kept_packing(&tensors[id.0].name, tensor, *kept)?,
+                        _ => panic!("op {}: only constant tensors have kept packings", op.label),
                     },
                     TextureRef::External(texture) => texture.clone(),
                 };

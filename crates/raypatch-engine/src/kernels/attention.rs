@@ -4,7 +4,7 @@
 
 use super::ATTENTION;
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch, MatmulKernel};
-use crate::kernels::pack::{pack_softmax_rows, pack_source, Layout, Packing, Source};
+use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
 use crate::tensor::padded_cols;
 
@@ -123,7 +123,8 @@ pub const LANES_SCORES_BYTES: usize = 16 << 20;
 /// Attention on `matmul_lanes` (what llvmpipe runs ~4x faster than the fused kernel's buffer loads): per pass
 /// of query rows, the scores `q kᵀ` of all heads as one batched GEMM, `softmax(scale · scores)` packed as the
 /// next GEMM's x, and `weights · v` as another batched GEMM writing each head's columns of `out`. The keys
-/// and the transposed values are packed once for all passes. Returns false, recording nothing, where it does
+/// and the transposed values are packed once for all passes, and once for all plans where they are constants
+/// (a scene's, in cross-attention: [`crate::kernels::pack::packed`]). Returns false, recording nothing, where it does
 /// not apply: another matmul kernel, no queries, heads not a multiple of 32 wide (a head's values must start
 /// a 32-column tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its
 /// textures.
@@ -139,8 +140,8 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
     }
     // Queries and keys cut into one run per head; the values transposed, a head's dim_head rows of w each.
     let by_head = Packing { layout: Layout::Rows, segments: heads, zero_rows: 0 };
-    let keys = Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 };
-    let values = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
+    let key_packing = Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 };
+    let value_packing = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
     let scores_ld = padded_cols(nkv);
     let rows = (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).max(64).min(nq);
     let head_texels = by_head.texels_per_segment(inner);
@@ -151,7 +152,7 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
         k: dim_head,
         x_ld: by_head.texels_per_row(inner),
         x_batch: head_texels,
-        w_ld: keys.texels_per_row(inner),
+        w_ld: key_packing.texels_per_row(inner),
         w_batch: head_texels * 8,
         out_batch: rows * scores_ld,
         store_cols: scores_ld,
@@ -172,9 +173,9 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
     };
     let texels = [
         by_head.texels(rows, inner),
-        keys.texels(nkv, inner),
+        key_packing.texels(nkv, inner),
         Packing::ROWS.texels(heads * rows, nkv),
-        values.texels(inner, nkv),
+        value_packing.texels(inner, nkv),
     ];
     if texels.iter().any(|&t| t > plan.kernels.max_texels)
         || !lanes_batch_fits(&scores_batch(rows))
@@ -183,14 +184,13 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
         return false;
     }
 
-    // Scratch textures: 0 the queries, then the weights (as every matmul_lanes x); 1 the keys, 2 the values.
+    // Scratch texture 0: the queries, then the weights (as every matmul_lanes x). The keys and the values: a
+    // scene's (cross-attention), packed once per scene and kept; others into scratch textures 1 and 2.
     plan.scratch_texels(0, texels[0].max(texels[2]));
-    plan.scratch_texels(1, texels[1]);
-    plan.scratch_texels(2, texels[3]);
     let key_source = Source { view: k, col: k_col, cols: inner, transposed: false };
-    pack_source(plan, &format!("{label}.pack_k"), key_source, TextureRef::Scratch(1), keys);
+    let keys = packed(plan, &format!("{label}.pack_k"), key_source, 1, key_packing);
     let value_source = Source { view: v, col: v_col, cols: inner, transposed: true };
-    pack_source(plan, &format!("{label}.pack_v"), value_source, TextureRef::Scratch(2), values);
+    let values = packed(plan, &format!("{label}.pack_v"), value_source, 2, value_packing);
     let scores = plan.transient(&format!("{label}.scores"), heads * rows, nkv);
     for first in (0..nq).step_by(rows) {
         let n = rows.min(nq - first);
@@ -199,11 +199,11 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
         let scores = plan.rows_of(scores, 0, heads * n);
         let query_source = Source { view: q_rows, col: q_col, cols: inner, transposed: false };
         pack_source(plan, &format!("{label}.pack_q"), query_source, TextureRef::Scratch(0), by_head);
-        let operands = [TextureRef::Scratch(0), TextureRef::Scratch(1)];
+        let operands = [TextureRef::Scratch(0), keys.clone()];
         gemm_lanes_batched(plan, &format!("{label}.scores"), scores_batch(n), operands, scores, q_rows);
         let weights = Source::all(plan, scores);
         pack_softmax_rows(plan, &format!("{label}.softmax"), weights, TextureRef::Scratch(0), scale);
-        let operands = [TextureRef::Scratch(0), TextureRef::Scratch(2)];
+        let operands = [TextureRef::Scratch(0), values.clone()];
         gemm_lanes_batched(plan, &format!("{label}.values"), values_batch(n), operands, out_rows, q_rows);
     }
     true

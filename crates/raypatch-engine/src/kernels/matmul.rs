@@ -6,7 +6,7 @@
 //! heads, `kernels::attention`).
 
 use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
-use crate::kernels::pack::{self, Packing};
+use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
@@ -273,9 +273,9 @@ pub(crate) fn lanes_workgroups(m: usize, n: usize, batches: usize) -> Option<[u3
 }
 
 /// A convolution, or a linear layer as a 1×1 convolution over a 1 × M image, on `matmul_lanes`: x packed
-/// into the plan's scratch texture 0 (one pixel per row, then a zero pixel) right before; a model weight's
-/// packing (8 rows interleaved, each tap's channels padded to whole blocks) made once, any other w
-/// (attention keys, values) packed into scratch texture 1. Check [`lanes_fit`] first.
+/// into the plan's scratch texture 0 (one pixel per row, then a zero pixel) right before; w (8 rows
+/// interleaved, each tap's channels padded to whole blocks) packed once and kept where it is a constant (a
+/// model weight), else into scratch texture 1. Check [`lanes_fit`] first.
 pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let Conv2dArgs { x, n, h, w, cin, weight, bias, out, cout, window, upsample_input, act, mode } = args;
     let Window { kernel, stride, padding } = window;
@@ -283,14 +283,8 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
     let taps = kernel * kernel;
     plan.scratch_texels(0, Packing::IMAGE.texels(x.rows, cin));
     pack::pack(plan, &format!("{label}.pack_x"), x, TextureRef::Scratch(0), Packing::IMAGE);
-    let w_packing = Packing::conv_weight(taps);
-    let w_texture = if plan.is_weight(weight) {
-        TextureRef::PackedWeight(weight, w_packing)
-    } else {
-        plan.scratch_texels(1, w_packing.texels(cout, plan.cols(weight)));
-        pack::pack(plan, &format!("{label}.pack_w"), plan.all(weight), TextureRef::Scratch(1), w_packing);
-        TextureRef::Scratch(1)
-    };
+    let w_source = Source::all(plan, plan.all(weight));
+    let w_texture = pack::packed(plan, &format!("{label}.pack_w"), w_source, 1, Packing::conv_weight(taps));
     let npix = n * ho * wo;
     let (act, slope) = act.params();
     let k4p = Packing::IMAGE.texels_per_row(cin);

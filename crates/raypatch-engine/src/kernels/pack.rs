@@ -144,6 +144,38 @@ impl Source {
     }
 }
 
+/// A packing of a constant tensor's rows ([`PlanBuilder::constant`]) that the [`crate::Gpu`] keeps with the
+/// tensor: columns `col .. col + cols`, or their transpose, packed as `packing` says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KeptPacking {
+    pub col: usize,
+    pub cols: usize,
+    pub transposed: bool,
+    pub packing: Packing,
+}
+
+impl KeptPacking {
+    /// What it packs of `view` (the whole tensor).
+    pub fn source(self, view: View) -> Source {
+        Source { view, col: self.col, cols: self.cols, transposed: self.transposed }
+    }
+}
+
+/// `src` packed as `packing` says for the ops after this one: where it is a whole constant tensor (a model
+/// weight, a scene's keys and values), the packing kept with it, made once; else packed into the plan's
+/// scratch texture `slot` right here.
+pub fn packed(plan: &mut PlanBuilder, label: &str, src: Source, slot: usize, packing: Packing) -> TextureRef {
+    let view = src.view;
+    if plan.is_constant(view.id) && view.row_start == 0 && view.rows == plan.rows(view.id) {
+        let kept = KeptPacking { col: src.col, cols: src.cols, transposed: src.transposed, packing };
+        return TextureRef::Kept(view.id, kept);
+    }
+    let (rows, cols) = src.shape();
+    plan.scratch_texels(slot, packing.texels(rows, cols));
+    pack_source(plan, label, src, TextureRef::Scratch(slot), packing);
+    TextureRef::Scratch(slot)
+}
+
 /// Packs the f32 view `src` into texture `dst` as `packing` says, padding texels and zero rows zeroed.
 pub fn pack(plan: &mut PlanBuilder, label: &str, src: View, dst: TextureRef, packing: Packing) {
     let src = Source::all(plan, src);

@@ -289,8 +289,8 @@ impl LightField for Define {
                 continue;
             }
             let kv = KeysValues {
-                keys: g.external(&format!("decoder_{}.keys", head.name), &scene[2 * h]),
-                values: g.external(&format!("decoder_{}.values", head.name), &scene[2 * h + 1]),
+                keys: g.scene_tensor(&format!("decoder_{}.keys", head.name), &scene[2 * h]),
+                values: g.scene_tensor(&format!("decoder_{}.values", head.name), &scene[2 * h + 1]),
             };
             let dims = head.decoder.final_layer.out_dim;
             let features = g.image(&format!("decoder_{}.features", head.name), patches, dims);

@@ -254,11 +254,10 @@ impl LightField for Osrt {
     ) -> Vec<(Output, Tensor)> {
         let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let layers = scene.len() - 2;
-        let external = |g: &mut Graph, name: &str, t: &GpuTensor| g.external(name, t);
         let scene = SceneTensors {
-            kv: (0..layers).map(|l| external(g, &format!("decoder.layers.{l}.kv"), &scene[l])).collect(),
-            mixing_keys: external(g, "decoder.mixing_block.keys", &scene[layers]),
-            slots: external(g, "latent", &scene[layers + 1]),
+            kv: (0..layers).map(|l| g.scene_tensor(&format!("decoder.layers.{l}.kv"), &scene[l])).collect(),
+            mixing_keys: g.scene_tensor("decoder.mixing_block.keys", &scene[layers]),
+            slots: g.scene_tensor("latent", &scene[layers + 1]),
         };
         let slots = self.decoder.num_slots;
         let (want_image, want_segmentation) = (wants_image(outputs), outputs.contains(Output::Segmentation));

@@ -247,7 +247,7 @@ impl LightField for Srt {
     ) -> Vec<(Output, Tensor)> {
         let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let kv: Vec<Tensor> =
-            scene.iter().enumerate().map(|(l, t)| g.external(&format!("decoder.layers.{l}.kv"), t)).collect();
+            scene.iter().enumerate().map(|(l, t)| g.scene_tensor(&format!("decoder.layers.{l}.kv"), t)).collect();
         let features = g.image("decoder_features", patches, self.config.decoder.out_dims);
         in_query_chunks(g, patches.pixels(), self.decoder.widest, |g, start, rows| {
             self.decoder.forward(g, queries.slice(start, rows), &kv, features.slice(start, rows))
