@@ -13,7 +13,8 @@
 #     bash tools/gpu_bench.sh OUT_DIR [STEP ...]
 #
 # STEPs (default: all, in this order), each command under its own time limit; never run on a GPU yet, so where a
-# machine allows 10 minutes per command, give it one step or two at a time (`info gemm`, `rpsrt`, `srt families`):
+# machine allows 10 minutes per command, run `info gemm`, `rpsrt`, `srt` and `families` as four commands (each
+# stays under 9 minutes by those limits):
 #     info      the GPU, its driver, the adapters the engine sees, PyTorch's CUDA device, and the bundled
 #               model's first and repeated renders (render-frame --timings: pipeline compilation, cold and
 #               cached, and the render's median)
@@ -88,17 +89,17 @@ measure() {
     for s in "${steps[@]}"; do
         case $s in
             info)
-                run info 60 nvidia-smi
-                run info 60 python3 -c "import torch; print('torch', torch.__version__, 'cuda:', \
+                run info 30 nvidia-smi
+                run info 30 python3 -c "import torch; print('torch', torch.__version__, 'cuda:', \
 torch.cuda.is_available() and torch.cuda.get_device_name(0))"
-                run info 60 "$bin/render-frame" --list-adapters
+                run info 30 "$bin/render-frame" --list-adapters
                 # The pipeline cache starts empty on a fresh machine: the first render compiles, the second reads it.
                 export RAYPATCH_CACHE_DIR=$work/pipeline-cache
-                run info 120 "$bin/render-frame" --timings --out "$work/info-render.png"
-                run info 120 "$bin/render-frame" --timings --repeat 200 --out "$work/info-render.png"
+                run info 90 "$bin/render-frame" --timings --out "$work/info-render.png"
+                run info 90 "$bin/render-frame" --timings --repeat 200 --out "$work/info-render.png"
                 unset RAYPATCH_CACHE_DIR
                 ;;
-            gemm) run gemm 300 "$bin/raypatch-bench" --gemm --repeats 50 --out "$work/gemm" ;;
+            gemm) run gemm 270 "$bin/raypatch-bench" --gemm --repeats 50 --out "$work/gemm" ;;
             rpsrt) sweep rpsrt 540 25 --only official:8 ;;
             srt) sweep srt 400 0 --only official:1 ;;
             families) sweep families 540 25 --only official-osrt:8 --only official-define:16 ;;
