@@ -5,7 +5,6 @@
 
 use std::path::Path;
 use std::process::Command;
-
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};

@@ -129,10 +129,9 @@ fn gemm(args: &Args) -> anyhow::Result<()> {
     let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
     println!("raypatch-bench --gemm on {}", gpu.describe());
     let on_gpu = gpu.info.device_type != wgpu::DeviceType::Cpu;
-    let torch = match pytorch::probe() {
-        Ok(installed) if !args.no_pytorch => Some(Torch::choose(installed, args.pytorch_device, on_gpu, false)?),
-        _ => None,
-    };
+    // Probed only when wanted: importing torch takes seconds.
+    let installed = if args.no_pytorch { None } else { pytorch::probe().ok() };
+    let torch = installed.map(|i| Torch::choose(i, args.pytorch_device, on_gpu, false)).transpose()?;
     let table =
         raypatch_bench::gemm::run(&gpu, args.matmul_kernel, torch.as_ref(), args.repeats.unwrap_or(10), &args.out)?;
     println!("\n{table}");
