@@ -12,6 +12,13 @@ pub use raypatch_model::RayKind;
 /// significant digits pass, a scaled or sheared matrix does not.
 pub const ROTATION_TOLERANCE: f64 = 1e-4;
 
+/// Largest angle between a pixel centre's ray and the optical axis of a pinhole camera (degrees): a field of
+/// view of up to 179.8°.
+pub const MAX_RAY_ANGLE_DEGREES: f64 = 89.9;
+/// Smallest field of view of a pinhole camera (degrees, between the outermost pixel centres, each way): below
+/// it neighbouring pixels' float32 rays coincide.
+pub const MIN_FIELD_OF_VIEW_DEGREES: f64 = 1e-3;
+
 /// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
 pub const MSN_FOCAL_LENGTH: f64 = 0.035;
 /// Sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
@@ -60,14 +67,38 @@ impl Intrinsics {
         Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
     }
 
+    /// Checks that these intrinsics make rays a model can use: finite values, positive focal lengths, every
+    /// ray through the image within [`MAX_RAY_ANGLE_DEGREES`] of the optical axis (a focal length too short for
+    /// the image, or a principal point far outside it, sends every ray along the image plane), and an image
+    /// spanning at least [`MIN_FIELD_OF_VIEW_DEGREES`] each way (a focal length too long makes every ray the
+    /// same).
     fn check(&self) -> Result<()> {
         crate::image::check_image_size(self.width, self.height).map_err(Error::Camera)?;
+        let shown = format!("intrinsics fx={:?} fy={:?} cx={:?} cy={:?}", self.fx, self.fy, self.cx, self.cy);
         let values = [self.fx, self.fy, self.cx, self.cy];
         if values.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(Error::Camera(format!(
-                "intrinsics fx={} fy={} cx={} cy={}: expected finite values and positive focal lengths",
-                self.fx, self.fy, self.cx, self.cy
-            )));
+            return Err(Error::Camera(format!("{shown}: expected finite values and positive focal lengths")));
+        }
+        // Tangents of the angles from the optical axis of the image's edges, each way.
+        let edges = |focal: f64, centre: f64, pixels: usize| [-centre / focal, (pixels as f64 - centre) / focal];
+        let (w, h) = (self.width, self.height);
+        for (axis, [first, last]) in [("x", edges(self.fx, self.cx, w)), ("y", edges(self.fy, self.cy, h))] {
+            let widest = first.abs().max(last.abs()).atan().to_degrees();
+            if !(widest <= MAX_RAY_ANGLE_DEGREES) {
+                return Err(Error::Camera(format!(
+                    "{shown} on a {w}x{h} image: rays reach {widest:.4}° from the optical axis along {axis} (at most \
+                     {MAX_RAY_ANGLE_DEGREES}°: the focal length is too short for the image, or the principal point \
+                     too far from it)"
+                )));
+            }
+            let field = (last.atan() - first.atan()).to_degrees();
+            if !(field >= MIN_FIELD_OF_VIEW_DEGREES) {
+                return Err(Error::Camera(format!(
+                    "{shown} on a {w}x{h} image: the image spans {field:.3e}° along {axis} (at least \
+                     {MIN_FIELD_OF_VIEW_DEGREES}°: the focal length is too long for the image, every ray would be the \
+                     same)"
+                )));
+            }
         }
         Ok(())
     }

@@ -365,15 +365,21 @@ fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std:
             }
         }
     }
-    let focal_from_angle = |angle: f64, size: usize| 0.5 * size as f64 / (0.5 * angle).tan();
+    let focal_from_angle = |key: &str, angle: f64, size: usize| {
+        if angle > 0.0 && angle < std::f64::consts::PI {
+            Ok(0.5 * size as f64 / (0.5 * angle).tan())
+        } else {
+            Err(format!("`{key}` is {angle}, expected a field of view in radians between 0 and π"))
+        }
+    };
     let fx = match (get("fl_x")?, get("camera_angle_x")?) {
         (Some(f), _) => f,
-        (None, Some(angle)) => focal_from_angle(angle, width),
+        (None, Some(angle)) => focal_from_angle("camera_angle_x", angle, width)?,
         (None, None) => return Err("no intrinsics: expected `camera_angle_x` or `fl_x`".into()),
     };
     let fy = match (get("fl_y")?, get("camera_angle_y")?) {
         (Some(f), _) => f,
-        (None, Some(angle)) => focal_from_angle(angle, height),
+        (None, Some(angle)) => focal_from_angle("camera_angle_y", angle, height)?,
         (None, None) => fx,
     };
     let cx = get("cx")?.unwrap_or(width as f64 / 2.0);

@@ -42,7 +42,8 @@ mod output;
 mod render;
 
 pub use camera::{
-    Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
+    Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES,
+    MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
 };
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};

@@ -1,6 +1,7 @@
 //! Output files, written so that nothing is lost: every output is checked before any is written, all are
-//! written to temporaries in their own folders, and only when every write succeeded are they renamed into
-//! place. A path that exists must be a regular file: a symlink, FIFO, device or folder there is refused,
+//! written to temporaries in their own folders, and only when every write succeeded are they moved into
+//! place, all or none: an existing file is first moved aside, and when any move fails every move done is
+//! undone. A path that exists must be a regular file: a symlink, FIFO, device or folder there is refused,
 //! never replaced. Temporaries are unique per process; ones left by a killed run are removed later.
 
 use std::io::Write;
@@ -11,15 +12,25 @@ use raypatch_model::files::file_kind;
 
 use crate::error::{Error, Result};
 
-/// Marks our temporaries: `.NAME.raypatch-PID-N.tmp`.
+/// Marks our temporaries, `.NAME.raypatch-PID-N.tmp`, and the files moved aside while outputs are moved into
+/// place, `.NAME.raypatch-PID-N.bak`.
 const TEMP_MARK: &str = ".raypatch-";
+
+/// The longest file name most file systems take (bytes).
+const MAX_NAME_BYTES: usize = 255;
 
 /// Checks that `path` can take an output: its folder exists, and if something is at `path` it is a regular
 /// file (not followed if it is a symlink).
 pub fn check_output_path(path: &Path) -> Result<()> {
     let refuse = |reason: String| Error::io(path, "cannot write", std::io::Error::other(reason));
-    if path.file_name().is_none() {
+    let Some(name) = path.file_name() else {
         return Err(refuse("expected a file name".into()));
+    };
+    if name.len() > MAX_NAME_BYTES {
+        return Err(refuse(format!(
+            "the name is {} bytes, more than the {MAX_NAME_BYTES} a file name may have",
+            name.len()
+        )));
     }
     if let Ok(meta) = std::fs::symlink_metadata(path) {
         if !meta.is_file() {
@@ -40,9 +51,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Writes every file or none: checks all paths ([`check_output_path`]), writes each to a temporary, and
-/// renames them into place only when all were written. On an error the temporaries are removed and no
-/// existing file has been touched (short of a rename failing after the checks, which a folder that accepted
-/// the temporary does not do).
+/// moves them into place only when all were written ([`move_all_into_place`]). On an error the temporaries
+/// are removed and every existing file is as it was.
 pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
     for (path, _) in files {
         check_output_path(path)?;
@@ -63,19 +73,74 @@ pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
         }
         result.map_err(|e| Error::io(path, "cannot write", e))
     });
-    let renamed = written.and_then(|()| {
-        for ((path, _), tmp) in files.iter().zip(&temporaries) {
-            check_output_path(path)?;
-            std::fs::rename(tmp, path).map_err(|e| Error::io(path, "cannot write", e))?;
-        }
-        Ok(())
-    });
-    if renamed.is_err() {
+    let moves: Vec<(&Path, &Path)> =
+        temporaries.iter().map(PathBuf::as_path).zip(files.iter().map(|(p, _)| *p)).collect();
+    let placed = written.and_then(|()| move_all_into_place(&moves));
+    if placed.is_err() {
         for tmp in &temporaries {
             let _ = std::fs::remove_file(tmp);
         }
     }
-    renamed
+    placed
+}
+
+/// One step of [`move_all_into_place`], to undo if a later one fails.
+enum Moved<'a> {
+    /// An existing file was moved aside to `backup`.
+    Aside { dest: &'a Path, backup: PathBuf },
+    /// A temporary was renamed to `dest`.
+    Placed { dest: &'a Path },
+}
+
+/// Renames each `(temporary, destination)`, all or none. A destination that exists is first moved aside
+/// (a rename within its folder), so that when a later rename fails (a sticky folder where another user owns
+/// the file, a destination swapped for a folder) every output placed is removed and every file moved aside
+/// is put back.
+fn move_all_into_place(moves: &[(&Path, &Path)]) -> Result<()> {
+    let mut done: Vec<Moved> = Vec::with_capacity(2 * moves.len());
+    let mut result = Ok(());
+    for &(tmp, dest) in moves {
+        let step = (|| {
+            check_output_path(dest)?;
+            let cannot = |e| Error::io(dest, "cannot write", e);
+            if file_exists(dest) {
+                let backup = sibling(dest, "bak");
+                std::fs::rename(dest, &backup).map_err(cannot)?;
+                done.push(Moved::Aside { dest, backup });
+            }
+            std::fs::rename(tmp, dest).map_err(cannot)?;
+            done.push(Moved::Placed { dest });
+            Ok(())
+        })();
+        if let Err(e) = step {
+            result = Err(e);
+            break;
+        }
+    }
+    let mut kept_aside = Vec::new();
+    for step in done.iter().rev() {
+        match (step, &result) {
+            (Moved::Placed { dest }, Err(_)) => {
+                let _ = std::fs::remove_file(dest);
+            }
+            (Moved::Aside { dest, backup }, Err(_)) => {
+                if std::fs::rename(backup, dest).is_err() {
+                    kept_aside.push(format!("{} is kept as {}", dest.display(), backup.display()));
+                }
+            }
+            (Moved::Aside { backup, .. }, Ok(())) => {
+                let _ = std::fs::remove_file(backup);
+            }
+            (Moved::Placed { .. }, Ok(())) => {}
+        }
+    }
+    match result {
+        Err(Error::Io { path, action, source }) if !kept_aside.is_empty() => {
+            let source = std::io::Error::new(source.kind(), format!("{source}; {}", kept_aside.join(", ")));
+            Err(Error::Io { path, action, source })
+        }
+        other => other,
+    }
 }
 
 fn file_exists(path: &Path) -> bool {
@@ -88,10 +153,21 @@ pub fn folder_of(path: &Path) -> &Path {
 }
 
 fn temporary_for(path: &Path) -> PathBuf {
+    sibling(path, "tmp")
+}
+
+/// A unique name in `path`'s folder, `.NAME.raypatch-PID-N.EXT`, with NAME shortened so that the whole stays
+/// within [`MAX_NAME_BYTES`] (any name an output may have gets a temporary).
+fn sibling(path: &Path, ext: &str) -> PathBuf {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    path.with_file_name(format!(".{name}{TEMP_MARK}{}-{n}.tmp", std::process::id()))
+    let tail = format!("{TEMP_MARK}{}-{n}.{ext}", std::process::id());
+    let mut keep = name.len().min(MAX_NAME_BYTES - 1 - tail.len());
+    while !name.is_char_boundary(keep) {
+        keep -= 1;
+    }
+    path.with_file_name(format!(".{}{tail}", &name[..keep]))
 }
 
 /// The process id in one of our temporaries' names.
@@ -155,6 +231,65 @@ mod tests {
         assert_eq!(std::fs::read(&keep).unwrap(), b"new");
         let left: Vec<_> = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.file_name()).collect();
         assert!(left.iter().all(|n| !n.to_string_lossy().ends_with(".tmp")), "{left:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A later move that fails (its temporary gone, its destination turned into a folder) undoes the earlier
+    /// ones: the file moved aside is back, the new output removed, nothing of ours left.
+    #[test]
+    fn a_failed_move_puts_back_what_was_replaced() {
+        let dir = temp_dir("undo");
+        let (keep, fresh, other) = (dir.join("keep.png"), dir.join("fresh.png"), dir.join("other.png"));
+        std::fs::write(&keep, b"work").unwrap();
+        std::fs::write(&other, b"other").unwrap();
+        let blocked = dir.join("blocked");
+        std::fs::create_dir(&blocked).unwrap();
+        for (last_tmp, last_dest) in [(dir.join(".gone.tmp"), other.as_path()), (dir.join(".b.tmp"), blocked.as_path())]
+        {
+            let (t1, t2) = (dir.join(".t1.tmp"), dir.join(".t2.tmp"));
+            std::fs::write(&t1, b"new").unwrap();
+            std::fs::write(&t2, b"new").unwrap();
+            if last_dest == blocked.as_path() {
+                std::fs::write(&last_tmp, b"new").unwrap();
+            }
+            let moves = [(t1.as_path(), keep.as_path()), (t2.as_path(), fresh.as_path()), (&last_tmp, last_dest)];
+            let err = move_all_into_place(&moves).unwrap_err().to_string();
+            assert!(err.contains(&last_dest.display().to_string()), "{err}");
+            assert_eq!(std::fs::read(&keep).unwrap(), b"work");
+            assert_eq!(std::fs::read(&other).unwrap(), b"other");
+            assert!(!fresh.exists());
+            let ours: Vec<_> = std::fs::read_dir(&dir)
+                .unwrap()
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.contains(TEMP_MARK))
+                .collect();
+            assert!(ours.is_empty(), "{ours:?}");
+            for t in [&t1, &t2, &last_tmp] {
+                let _ = std::fs::remove_file(t);
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Every name an output may have gets a temporary (the temporary's name is shortened to fit), and a name
+    /// no file system takes is refused before anything is written.
+    #[test]
+    fn long_names_are_written_or_refused_before_writing() {
+        let dir = temp_dir("long");
+        for len in [200, 232, 250, 255] {
+            let name = format!("{}.png", "é".repeat((len - 4) / 2)) + &"x".repeat((len - 4) % 2);
+            assert!(name.len() == len || name.len() == len - 1, "{}", name.len());
+            let path = dir.join(&name);
+            write_atomic(&path, b"png").unwrap_or_else(|e| panic!("{len}: {e}"));
+            assert_eq!(std::fs::read(&path).unwrap(), b"png");
+            write_atomic(&path, b"again").unwrap();
+            assert_eq!(std::fs::read(&path).unwrap(), b"again");
+        }
+        let err = write_atomic(&dir.join("x".repeat(256)), b"png").unwrap_err().to_string();
+        assert!(err.contains("256 bytes, more than the 255"), "{err}");
+        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.file_name()).collect();
+        assert_eq!(left.len(), 4, "{left:?}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -75,7 +75,9 @@ fn map_columns_random_shapes_and_views() {
             }
             // DeFiNe's depth in [0.1, 10]: the sigmoid's error times 9.9, then one rounding of the product
             // and the sum (a few ulp of 10).
-            Map::SigmoidAffine { scale, .. } => assert_close(&what, &got, &want, SIGMOID_TOL * scale as f64 + 4e-6, 0.0),
+            Map::SigmoidAffine { scale, .. } => {
+                assert_close(&what, &got, &want, SIGMOID_TOL * scale as f64 + 4e-6, 0.0)
+            }
             // Its log: the depth's relative error (at least 0.1, so ~4e-5 relative) plus log's own few ulp.
             Map::LogSigmoidAffine { .. } => assert_close(&what, &got, &want, 5e-5, 0.0),
         }

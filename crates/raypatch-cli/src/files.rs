@@ -15,16 +15,25 @@ pub struct OutputFiles {
     new_folders: Vec<(&'static str, PathBuf)>,
 }
 
-/// Whether a PNG destination is a folder: a name without extension, or an existing folder (else a `.png`
-/// file).
+/// Whether a PNG destination is a folder: an existing folder, or a name without extension that does not exist
+/// (else a `.png` file). Anything else that exists there (a file without the extension, a device such as
+/// /dev/null, a FIFO) is an error saying what it is.
 pub fn is_folder(flag: &str, dest: &Path) -> Result<bool> {
-    match dest.extension() {
-        Some(e) if e.eq_ignore_ascii_case("png") => Ok(false),
-        Some(_) if !dest.is_dir() => bail!(
-            "{flag} {}: expected a .png file, or a folder (a name without extension, or an existing folder)",
-            dest.display()
-        ),
-        _ => Ok(true),
+    let expected = "expected a .png file, or a folder (a name without extension, or an existing folder)";
+    let png = dest.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if png {
+        return Ok(false);
+    }
+    match std::fs::metadata(dest) {
+        Ok(meta) if meta.is_dir() => Ok(true),
+        Ok(meta) if meta.is_file() => {
+            bail!("{flag} {}: is an existing file without the .png extension; {expected}", dest.display())
+        }
+        Ok(meta) => {
+            bail!("{flag} {}: is {}; {expected}", dest.display(), raypatch::raypatch_model::files::file_kind(&meta))
+        }
+        Err(_) if dest.extension().is_none() => Ok(true),
+        Err(_) => bail!("{flag} {}: {expected}", dest.display()),
     }
 }
 

@@ -1,7 +1,8 @@
-//! render-frame against hostile inputs, one test per class (issue 9): files outside a scene folder, inputs
-//! that are not regular files, outputs that would lose or replace something, sizes and counts that would
-//! overflow or exhaust memory, and finite but meaningless values. Each gives one line, exit code 2, no
-//! panic, and leaves every file as it was.
+//! render-frame against hostile inputs, one test per class (issues 9 and 27): files outside a scene folder,
+//! inputs that are not regular files, outputs that would lose or replace something (also when a rename fails
+//! half-way), sizes and counts that would overflow or exhaust memory (also files far larger than what they
+//! hold), finite but meaningless values (also degenerate cameras), and messages about output names. Each gives
+//! one line, exit code 2, no panic, and leaves every file as it was.
 
 mod common;
 
@@ -149,10 +150,18 @@ fn sizes_and_counts_are_bounded_before_anything_is_allocated() {
     fails(d, &["--scene", &scene], &["too many input views, or too large", "more than the"]);
 
     let model = golden("rpsrt_k4", "model.safetensors");
-    for key in ["encoder_kwargs.num_att_blocks", "decoder_kwargs.num_att_blocks", "encoder_kwargs.num_conv_blocks"] {
+    let osrt = golden("osrt", "model.safetensors");
+    for (model, key) in [
+        (&model, "encoder_kwargs.num_att_blocks"),
+        (&model, "decoder_kwargs.num_att_blocks"),
+        (&model, "encoder_kwargs.num_conv_blocks"),
+        (&model, "rp_kwargs.h_in"),
+        (&osrt, "encoder_kwargs.slot_iters"),
+        (&osrt, "decoder_kwargs.render_mlp_hidden"),
+    ] {
         let (section, name) = key.split_once('.').unwrap();
         let path =
-            with_config(d, &model, "counts.safetensors", |c| c[section][name] = serde_json::json!(1_000_000_000u64));
+            with_config(d, model, "counts.safetensors", |c| c[section][name] = serde_json::json!(1_000_000_000u64));
         fails(d, &["--model", "counts.safetensors"], &[key, "1000000000"]);
         std::fs::remove_file(path).unwrap();
     }
@@ -231,4 +240,205 @@ fn messages_say_what_a_path_should_have_been() {
     let r = run(d, &["--list-adapters"]);
     assert_eq!(r.code, 0);
     assert!(r.stdout.lines().next().is_some_and(|l| l.ends_with("[default]")), "{}", r.stdout);
+}
+
+/// The most memory the render-frame runs of this process have used so far (their peak resident set).
+#[cfg(unix)]
+fn children_peak_bytes() -> u64 {
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) }, 0);
+    usage.ru_maxrss as u64 * 1024
+}
+
+/// A copy of a safetensors file with one more F32 tensor of `len` values, stored sparse (its bytes are never
+/// written, the file is only extended): a valid file far larger than what it holds.
+fn with_sparse_tensor(dir: &Path, source: &str, name: &str, key: &str, shape: &[u64]) -> String {
+    let bytes = std::fs::read(source).unwrap();
+    let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + header_len]).unwrap();
+    let data = &bytes[8 + header_len..];
+    let extra: u64 = 4 * shape.iter().product::<u64>();
+    let end = data.len() as u64 + extra;
+    header[key] = serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [data.len(), end]});
+    let mut text = header.to_string();
+    text.push_str(&" ".repeat((8 - text.len() % 8) % 8));
+    let path = dir.join(name);
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(text.as_bytes());
+    out.extend_from_slice(data);
+    std::fs::write(&path, &out).unwrap();
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(out.len() as u64 + extra).unwrap();
+    path.display().to_string()
+}
+
+#[cfg(unix)]
+#[test]
+fn files_larger_than_what_they_hold_are_never_read_whole() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let model = golden("rpsrt_k4", "model.safetensors");
+    let scene = golden("rpsrt_k4", "scene.safetensors");
+    // 10 GiB in a tensor no model has, in a weight of the wrong shape, and in a scene's images.
+    let junk = with_sparse_tensor(d, &model, "junk.safetensors", "junk", &[10 << 28]);
+    fails(d, &["--model", &junk, "--scene", &scene], &["junk.safetensors", "unexpected tensor `junk`"]);
+    let key = "decoder_rp.conv_decoder.conv_0.bias";
+    let mut wrong = read_f32_tensors(&model);
+    wrong.0.remove(key);
+    write_tensors(&d.join("cut.safetensors"), &wrong.0, &wrong.1);
+    let huge =
+        with_sparse_tensor(d, &d.join("cut.safetensors").display().to_string(), "w.safetensors", key, &[10 << 28]);
+    std::fs::remove_file(d.join("cut.safetensors")).unwrap();
+    fails(d, &["--model", &huge, "--scene", &scene], &["w.safetensors", key, "[2684354560]"]);
+    let mut images = read_f32_tensors(&scene);
+    images.0.remove("input_images");
+    write_tensors(&d.join("cut.safetensors"), &images.0, &images.1);
+    let big = with_sparse_tensor(
+        d,
+        &d.join("cut.safetensors").display().to_string(),
+        "s.safetensors",
+        "input_images",
+        &[1, 16384, 65536, 3],
+    );
+    std::fs::remove_file(d.join("cut.safetensors")).unwrap();
+    fails(d, &["--model", &model, "--scene", &big], &["s.safetensors", "input_images", "bytes, more than"]);
+    let peak = children_peak_bytes();
+    assert!(peak < 2 << 30, "a render-frame run peaked at {peak} bytes");
+}
+
+/// render-frame with the pipeline cache in `cache`, killed after a minute (a FIFO that blocked would hang it).
+#[cfg(unix)]
+fn run_with_cache(dir: &Path, cache: &Path) -> Run {
+    use std::process::Stdio;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_render-frame"))
+        .current_dir(dir)
+        .env("RAYPATCH_CACHE_DIR", cache)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed().as_secs() > 120 {
+            child.kill().unwrap();
+            panic!("render-frame hung with the pipeline cache in {}", cache.display());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().unwrap();
+    Run {
+        code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn the_pipeline_cache_is_read_like_every_other_input() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let cache = d.join("cache");
+    let first = run_with_cache(d, &cache);
+    assert_eq!(first.code, 0, "{}", first.stderr);
+    let Some(entry) = std::fs::read_dir(&cache).ok().and_then(|mut e| e.next()) else {
+        eprintln!("this adapter keeps no pipeline cache: nothing to check");
+        return;
+    };
+    let file = entry.unwrap().path();
+    std::fs::remove_file(&file).unwrap();
+    let c = std::ffi::CString::new(file.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let r = run_with_cache(d, &cache);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stderr.contains("a FIFO, not a regular file: not used"), "{}", r.stderr);
+    std::fs::remove_file(&file).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &file).unwrap();
+    let r = run_with_cache(d, &cache);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stderr.contains("a device, not a regular file: not used"), "{}", r.stderr);
+    assert!(std::fs::symlink_metadata(&file).unwrap().file_type().is_symlink(), "the link was replaced");
+}
+
+#[test]
+fn degenerate_cameras_are_refused_naming_the_file_and_frame() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let folder = frames_folder(d, 3);
+    let scene = folder.display().to_string();
+    // Per-frame intrinsics override the folder's camera_angle_x.
+    for (keys, named, reason) in [
+        (serde_json::json!({"fl_x": 1e-200}), "fx=1e-200", "from the optical axis"),
+        (serde_json::json!({"fl_x": 1e-310}), "fx=1e-310", "from the optical axis"),
+        (serde_json::json!({"fl_x": 1e200}), "fx=1e200", "the image spans"),
+        (serde_json::json!({"fl_x": 35.0, "cx": 1e300}), "cx=1e300", "from the optical axis"),
+        (serde_json::json!({"fl_x": 35.0, "cy": -1e9}), "cy=-1000000000.0", "from the optical axis"),
+        (serde_json::json!({"camera_angle_x": std::f64::consts::PI}), "camera_angle_x", "between 0 and π"),
+        (serde_json::json!({"camera_angle_x": 0.0}), "camera_angle_x", "between 0 and π"),
+    ] {
+        let original = std::fs::read(folder.join("transforms.json")).unwrap();
+        json_edit(&folder, |j| {
+            for (key, value) in keys.as_object().unwrap() {
+                j["frames"][2][key] = value.clone();
+            }
+        });
+        fails(d, &["--scene", &scene], &["transforms.json", "frame 2", named, reason]);
+        std::fs::write(folder.join("transforms.json"), original).unwrap();
+    }
+    let pose = r#"{"transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]], "fl_x": 1e-200}"#;
+    std::fs::write(d.join("pose.json"), pose).unwrap();
+    fails(d, &["--pose", "pose.json"], &["pose.json", "from the optical axis"]);
+}
+
+#[test]
+fn output_names_get_the_message_they_need() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    fails(d, &["--out", "/dev/null"], &["--out /dev/null", "is a device", "expected a .png file, or a folder"]);
+    std::fs::write(d.join("notes"), b"mine").unwrap();
+    fails(d, &["--out", "notes"], &["--out notes", "an existing file without the .png extension"]);
+    assert_eq!(std::fs::read(d.join("notes")).unwrap(), b"mine");
+    // The longest names a file system takes are written (their temporaries' names are shortened).
+    for len in [232, 255] {
+        let name = format!("{}.png", "n".repeat(len - 4));
+        let r = run(d, &["--out", &name]);
+        assert_eq!(r.code, 0, "{len}: {}", r.stderr);
+        assert!(png_size(&d.join(&name)).0 > 0);
+    }
+    fails(d, &["--out", &format!("{}.png", "n".repeat(252))], &["256 bytes, more than the 255"]);
+}
+
+/// A later output's rename fails (a sticky shared folder where that file belongs to another user): the run
+/// exits 2 and the earlier output's file is as it was. Needs root, to run render-frame as another user.
+#[cfg(unix)]
+#[test]
+fn a_rename_that_fails_half_way_loses_nothing() {
+    use std::os::unix::fs::{chown, PermissionsExt};
+    if unsafe { libc::geteuid() } != 0 || !Path::new("/usr/bin/setpriv").exists() {
+        eprintln!("skipped: needs root and setpriv to run render-frame as another user");
+        return;
+    }
+    let dir = TempDir::new().unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let shared = dir.path().join("shared");
+    std::fs::create_dir(&shared).unwrap();
+    std::fs::set_permissions(&shared, std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let (mine, theirs) = (shared.join("mine.png"), shared.join("theirs.safetensors"));
+    std::fs::write(&mine, b"work").unwrap();
+    chown(&mine, Some(65534), Some(65534)).unwrap();
+    std::fs::write(&theirs, b"theirs").unwrap();
+    std::fs::set_permissions(&theirs, std::fs::Permissions::from_mode(0o666)).unwrap();
+    let out = std::process::Command::new("/usr/bin/setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", env!("CARGO_BIN_EXE_render-frame")])
+        .args(["--out", "mine.png", "--out-raw", "theirs.safetensors"])
+        .current_dir(&shared)
+        .env("RAYPATCH_CACHE_DIR", "off")
+        .env("MESA_SHADER_CACHE_DISABLE", "true")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("theirs.safetensors") && stderr.lines().count() == 1, "{stderr}");
+    assert_eq!(std::fs::read(&mine).unwrap(), b"work");
+    assert_eq!(std::fs::read(&theirs).unwrap(), b"theirs");
+    assert_eq!(files(&shared), ["mine.png", "theirs.safetensors"]);
 }

@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
 
+use raypatch_model::files::ReadError;
+
 use crate::gpu::Gpu;
 
 /// The environment variable naming the cache folder; the value `off` turns the cache off.
@@ -22,6 +24,8 @@ pub const CACHE_DIR_ENV: &str = "RAYPATCH_CACHE_DIR";
 
 /// The first bytes of every `wgpu::PipelineCache::get_data` (wgpu-core's header magic).
 const WGPU_MAGIC: &[u8; 8] = b"WGPUPLCH";
+/// The largest cache file read: far above what the engine's few dozen pipelines take.
+const MAX_CACHE_BYTES: u64 = 256 << 20;
 
 /// Where [`Gpu`] keeps compiled pipelines between runs ([`GpuOptions::pipeline_cache`]).
 ///
@@ -151,13 +155,20 @@ impl DiskCache {
             Ok(path) => path,
             Err(why) => return DiskCache { state: Err(why) },
         };
-        let data = match std::fs::read(&path) {
+        // Read like every other input (a FIFO or device there must not hang or flood the run); a path that
+        // is not a regular file, or is too large to be a cache, is left alone: neither read nor replaced.
+        let data = match raypatch_model::files::read_regular(&path, MAX_CACHE_BYTES) {
             Ok(data) if data.starts_with(WGPU_MAGIC) => Some(data),
             Ok(_) => {
                 warn(&format!("{} is not a wgpu pipeline cache: starting empty, to replace it", path.display()));
                 None
             }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e @ (ReadError::NotRegular(_) | ReadError::TooLarge { .. })) => {
+                let why = format!("{} {e}: not used", path.display());
+                warn(&why);
+                return DiskCache { state: Err(why) };
+            }
             Err(e) => {
                 warn(&format!("cannot read {}: {e}; starting empty", path.display()));
                 None

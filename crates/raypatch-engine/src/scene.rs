@@ -85,7 +85,18 @@ impl Model {
 
     /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
     pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
-        let (family, weights) = models::build(loaded)?;
+        // The weights are read onto the host before they go to the GPU: refuse a file whose tensors could not
+        // be held there before reading any of them (a tensor larger than a GPU buffer is refused as it is met).
+        if let Some(available) = host_memory_available() {
+            if loaded.data_bytes() > available {
+                return Err(EngineError::TooLarge {
+                    what: format!("{}: the model's tensors", loaded.path),
+                    bytes: loaded.data_bytes(),
+                    max: available,
+                });
+            }
+        }
+        let (family, weights) = models::build(loaded, gpu.max_buffer_bytes)?;
         let weights = weights.upload(&gpu, options)?;
         Ok(Model {
             gpu,
@@ -475,4 +486,19 @@ impl EncodedScene<'_> {
 struct Recorded {
     builder: PlanBuilder,
     io: RenderIo,
+}
+
+/// The host memory available to this process now, where the system says: Linux's `MemAvailable`, less where
+/// the process's cgroup (v2) allows less.
+fn host_memory_available() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let system = line.split_whitespace().nth(1)?.parse::<u64>().ok()?.checked_mul(1024)?;
+    let cgroup = || -> Option<u64> {
+        let read = |name: &str| std::fs::read_to_string(format!("/sys/fs/cgroup/{name}")).ok();
+        let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max" (no limit) does not parse
+        let current: u64 = read("memory.current")?.trim().parse().ok()?;
+        Some(max.saturating_sub(current))
+    };
+    Some(cgroup().map_or(system, |c| c.min(system)))
 }

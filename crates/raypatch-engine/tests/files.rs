@@ -38,7 +38,8 @@ fn model_error(edit: impl FnOnce(&mut Tensors, &mut HashMap<String, String>)) ->
     let (mut tensors, mut metadata) = unpack(&golden("model.safetensors"));
     edit(&mut tensors, &mut metadata);
     let file = TensorFile::parse("edited.safetensors", &pack(&tensors, &metadata)).unwrap();
-    let built = model_from_file(file).map_err(EngineError::from).and_then(|loaded| models::build(&loaded).map(drop));
+    let built =
+        model_from_file(file).map_err(EngineError::from).and_then(|loaded| models::build(&loaded, u64::MAX).map(drop));
     built.unwrap_err().to_string()
 }
 
@@ -59,7 +60,7 @@ fn assert_mentions(err: &str, parts: &[&str]) {
 fn golden_model_loads() {
     let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
     let model = load_model(&path).unwrap();
-    models::build(&model).unwrap();
+    models::build(&model, u64::MAX).unwrap();
     assert_eq!(model.config.patch_size(), 1);
     assert!(model.parameter_count() > 0);
 }

@@ -1,5 +1,6 @@
-//! The one checked way in for untrusted files: every model, scene, frame image and pose is read through
-//! [`read_regular`], and every file a scene folder names is resolved through [`resolve_inside`].
+//! The one checked way in for untrusted files: every model, scene, frame image, pose and cache is opened
+//! through [`open_regular`] (whole small files read by [`read_regular`], tensor files one tensor at a time),
+//! and every file a scene folder names is resolved through [`resolve_inside`].
 //!
 //! - Only regular files are read. A FIFO, socket or device is refused before it is opened for reading (a
 //!   FIFO would block forever, `/dev/zero` never ends); the open itself does not block, and the opened
@@ -68,8 +69,8 @@ pub fn file_kind(meta: &std::fs::Metadata) -> &'static str {
     "not a regular file"
 }
 
-/// Reads a whole regular file (symlinks followed) of at most `max_bytes`.
-pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ReadError> {
+/// Opens a regular file (symlinks followed) for reading, without blocking: the file and its length.
+pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64), ReadError> {
     let meta = std::fs::metadata(path).map_err(ReadError::Io)?;
     if !meta.is_file() {
         return Err(ReadError::NotRegular(file_kind(&meta)));
@@ -87,7 +88,12 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ReadError> {
     if !meta.is_file() {
         return Err(ReadError::NotRegular(file_kind(&meta)));
     }
-    let len = meta.len();
+    Ok((file, meta.len()))
+}
+
+/// Reads a whole regular file (symlinks followed) of at most `max_bytes`.
+pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ReadError> {
+    let (file, len) = open_regular(path)?;
     if len > max_bytes {
         return Err(ReadError::TooLarge { bytes: len, max: max_bytes });
     }

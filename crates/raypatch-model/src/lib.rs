@@ -9,11 +9,11 @@ pub mod scene;
 pub mod tensor_file;
 pub mod weights;
 
+pub use config::RayKind;
 pub use config::{
     DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, ModelConfig, Octaves,
     OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig, SlotMixerConfig, SrtConfig,
 };
-pub use config::RayKind;
 pub use error::ModelError;
 pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use tensor_file::{HostTensor, TensorFile};

@@ -397,8 +397,23 @@ impl InputViews {
                 return err(key, format!("{len} values, expected {what} = {want} for {n} views of {w}x{h}"));
             }
         }
+        for (key, values) in
+            [("input_images", &self.images), ("input_camera_pos", &self.camera_pos), ("input_rays", &self.rays)]
+        {
+            if let Some(reason) = non_finite(values, values.len() / n) {
+                return err(key, reason);
+            }
+        }
         Ok(())
     }
+}
+
+/// Where `values` (`per_view` a view) first hold NaN or infinity, as "view V: value I is X": no such value may
+/// reach a kernel (a GPU's sin or cos of NaN need not be NaN, so the outputs would not always show it).
+fn non_finite(values: &[f32], per_view: usize) -> Option<String> {
+    let i = values.iter().position(|v| !v.is_finite())?;
+    let (view, at) = (i / per_view.max(1), i % per_view.max(1));
+    Some(format!("view {view}: value {at} is {}; every value must be finite", values[i]))
 }
 
 impl TargetViews {
@@ -414,6 +429,21 @@ impl TargetViews {
         let (rh, rw) = (self.rays_height, self.rays_width);
         let (height, width) = self.declared_size.unwrap_or((rh, rw));
         let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
+        let per_view = rh * rw * 3;
+        if self.count == 0 || self.camera_pos.len() != self.count * 3 || self.rays.len() != self.count * per_view {
+            return Err(err(format!(
+                "{} camera positions and {} ray values for {} views of {rw}x{rh} rays",
+                self.camera_pos.len() / 3,
+                self.rays.len(),
+                self.count
+            )));
+        }
+        if let Some(reason) = non_finite(&self.camera_pos, 3) {
+            return Err(ModelError::Value { path: path.into(), key: "target_camera_pos".into(), reason });
+        }
+        if let Some(reason) = non_finite(&self.rays, per_view) {
+            return Err(err(reason));
+        }
         if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
             return Err(err(format!(
                 "target size {width}x{height} (width x height) is not divisible by the model's patch size k={k}"

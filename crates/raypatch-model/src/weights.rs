@@ -23,10 +23,20 @@ pub struct LoadedModel {
 }
 
 impl LoadedModel {
-    /// The F32 weight `key` of shape `shape`: an error naming the file and the tensor when it is missing,
-    /// has another shape or dtype, or holds NaN or infinity.
+    /// The F32 weight `key` of shape `shape`, read now: an error naming the file and the tensor when it is
+    /// missing, has another shape or dtype, or holds NaN or infinity.
     pub fn weight(&self, key: &str, shape: &[usize]) -> Result<HostTensor, ModelError> {
         self.file.f32_shaped(key, shape)
+    }
+
+    /// The shape and bytes of the tensor `key`, if the file has it (nothing is read).
+    pub fn tensor_size(&self, key: &str) -> Option<(&[usize], u64)> {
+        Some((self.file.shape(key)?, self.file.tensor_bytes(key)?))
+    }
+
+    /// Bytes of all the file's tensors: what reading the whole model takes on the host.
+    pub fn data_bytes(&self) -> u64 {
+        self.file.data_bytes()
     }
 
     /// Checks that every tensor of the file but BatchNorm's `num_batches_tracked` is in `fetched`.

@@ -63,9 +63,9 @@ pub struct Encoded {
 }
 
 /// The module tree of a model file, with its weights on the host (checked against the file: every tensor
-/// fetched, of its shape, nothing left over).
-pub fn build(loaded: &LoadedModel) -> Result<(Box<dyn LightField>, WeightSet)> {
-    build_from(&loaded.config, Source::File(loaded))
+/// fetched, of its shape and at most `max_tensor_bytes`, nothing left over).
+pub fn build(loaded: &LoadedModel, max_tensor_bytes: u64) -> Result<(Box<dyn LightField>, WeightSet)> {
+    build_from(&loaded.config, Source::File { model: loaded, max_tensor_bytes })
 }
 
 /// Every tensor of the official state_dict for `config` (without `num_batches_tracked`), in order.

@@ -17,8 +17,9 @@ use crate::tensor::GpuTensor;
 
 /// Where a module tree's weights come from.
 pub enum Source<'a> {
-    /// A model file: each fetch is checked against the file.
-    File(&'a LoadedModel),
+    /// A model file: each fetch is checked against the file, and no tensor of more than `max_tensor_bytes`
+    /// (the largest GPU buffer) is read.
+    File { model: &'a LoadedModel, max_tensor_bytes: u64 },
     /// No file: each fetch is recorded and returns zeros (to list the tensors a config implies).
     Declare,
 }
@@ -104,7 +105,7 @@ pub struct Vars<'s, 'a> {
 /// checks that the tree fetched every tensor of the file.
 pub fn build<T>(source: Source<'_>, build: impl FnOnce(&Vars) -> Result<T>) -> Result<(T, WeightSet)> {
     let file = match source {
-        Source::File(f) => Some(f),
+        Source::File { model, .. } => Some(model),
         Source::Declare => None,
     };
     let store = RefCell::new(Store { source, set: WeightSet::default() });
@@ -135,7 +136,16 @@ impl Vars<'_, '_> {
         let key = self.pp(name).path;
         let mut store = self.store.borrow_mut();
         let tensor = match store.source {
-            Source::File(file) => file.weight(&key, shape)?,
+            Source::File { model, max_tensor_bytes } => {
+                // A weight larger than one GPU buffer can never be bound: refuse it before reading it.
+                if let Some((found, bytes)) = model.tensor_size(&key) {
+                    if found == shape && bytes > max_tensor_bytes {
+                        let what = format!("{}: tensor `{key}`", model.path);
+                        return Err(EngineError::TooLarge { what, bytes, max: max_tensor_bytes });
+                    }
+                }
+                model.weight(&key, shape)?
+            }
             Source::Declare => HostTensor { shape: shape.to_vec(), data: vec![0.0; shape.iter().product()] },
         };
         store.set.declared.push((key, shape.to_vec()));

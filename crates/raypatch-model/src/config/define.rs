@@ -9,7 +9,7 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Octaves, RayPatchConfig, Section};
+use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, RayPatchConfig, Section};
 use crate::error::ModelError;
 
 /// The official depth range: logdepth = log(sigmoid(x)·(d_max − d_min) + d_min).
@@ -32,7 +32,7 @@ impl RayFeatures {
     fn from_section(s: &Section) -> Result<Self, ModelError> {
         let linspace = |name: &str, count: usize| -> Result<Octaves, ModelError> {
             Ok(Octaves {
-                count: s.usize(&format!("{name}_octaves"), count)?,
+                count: s.usize(&format!("{name}_octaves"), count, Count::Octaves)?,
                 start: s.f64(&format!("{name}_start_octave"), 1.0)?,
                 end: Some(s.f64(&format!("{name}_end_octave"), 30.0)?),
             })
@@ -122,15 +122,17 @@ impl DefineConfig {
         let enc = Section::new(path, raw, "encoder_kwargs")?;
         let encoder = DefineEncoderConfig {
             rays: RayFeatures::from_section(&enc)?,
-            resnet_width: enc.usize("resnet_width", 64)?,
-            num_latents: enc.usize("num_latents", 2048)?,
-            latent_dim: enc.usize("latent_dim", 512)?,
-            num_att_blocks: enc.usize("num_att_blocks", 8)?,
-            heads: enc.usize("heads", 8)?,
+            resnet_width: enc.usize("resnet_width", 64, Count::Width)?,
+            num_latents: enc.usize("num_latents", 2048, Count::Width)?,
+            latent_dim: enc.usize("latent_dim", 512, Count::Width)?,
+            num_att_blocks: enc.usize("num_att_blocks", 8, Count::Layers)?,
+            heads: enc.usize("heads", 8, Count::Width)?,
         };
         let dec = Section::new(path, raw, "decoder_kwargs")?;
-        let decoder =
-            DefineDecoderConfig { rays: RayFeatures::from_section(&dec)?, latent_dim: dec.usize("latent_dim", 512)? };
+        let decoder = DefineDecoderConfig {
+            rays: RayFeatures::from_section(&dec)?,
+            latent_dim: dec.usize("latent_dim", 512, Count::Width)?,
+        };
         let config = DefineConfig { encoder, decoder, ray_patch };
         config.validate(path)?;
         Ok(config)

@@ -56,6 +56,38 @@ impl Octaves {
 pub const MAX_CONV_BLOCKS: usize = 14;
 /// Widest layer accepted: a square weight of this width alone would be 4 TiB.
 pub const MAX_WIDTH: usize = 1 << 20;
+/// Most layers of one kind (blocks, halvings): also checked against the tensors in the file.
+pub const MAX_LAYERS: usize = 1024;
+/// Most iterations of a loop over the same weights (slot attention's `slot_iters`): nothing in the file
+/// bounds these, and each one adds its ops to the encoder plan.
+pub const MAX_ITERATIONS: usize = 100;
+/// Most Fourier octaves of one encoding.
+pub const MAX_OCTAVES: usize = 32;
+/// Longest image or patch-grid side a config may name (the API's largest image side).
+pub const MAX_SIDE: usize = 16384;
+
+/// What an integer config value counts, and so the most accepted. Every integer key is read with one
+/// ([`Section::usize`]), so that no config value can make the engine build or run without bound.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Count {
+    Width,
+    Layers,
+    Iterations,
+    Octaves,
+    Side,
+}
+
+impl Count {
+    fn max(self) -> (usize, &'static str) {
+        match self {
+            Count::Width => (MAX_WIDTH, "a width"),
+            Count::Layers => (MAX_LAYERS, "a layer count"),
+            Count::Iterations => (MAX_ITERATIONS, "an iteration count"),
+            Count::Octaves => (MAX_OCTAVES, "an octave count"),
+            Count::Side => (MAX_SIDE, "an image side"),
+        }
+    }
+}
 
 /// A model's config: its family's resolved config, and the config as stored in the file.
 #[derive(Clone, Debug, PartialEq)]
@@ -234,13 +266,20 @@ impl<'a> Section<'a> {
         self.value.and_then(|v| v.get(key)).filter(|v| !v.is_null())
     }
 
-    pub(crate) fn usize(&self, key: &str, default: usize) -> Result<usize, ModelError> {
-        match self.get(key) {
-            None => Ok(default),
-            Some(v) => v.as_u64().map(|x| x as usize).ok_or_else(|| {
-                config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {v}", self.name))
-            }),
+    /// The integer `key` (or `default`), at most what `count` allows.
+    pub(crate) fn usize(&self, key: &str, default: usize, count: Count) -> Result<usize, ModelError> {
+        let Some(v) = self.get(key) else { return Ok(default) };
+        let value = v.as_u64().ok_or_else(|| {
+            config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {v}", self.name))
+        })?;
+        let (max, what) = count.max();
+        if value > max as u64 {
+            return Err(config_err(
+                self.path,
+                format!("`{}.{key}` is {value}; at most {max} is supported ({what})", self.name),
+            ));
         }
+        Ok(value as usize)
     }
 
     pub(crate) fn f64(&self, key: &str, default: f64) -> Result<f64, ModelError> {
@@ -284,7 +323,7 @@ impl<'a> Section<'a> {
         start: f64,
     ) -> Result<Octaves, ModelError> {
         Ok(Octaves {
-            count: self.usize(count_key, count)?,
+            count: self.usize(count_key, count, Count::Octaves)?,
             start: self.f64(start_key, start)?,
             end: self.opt_f64(end_key)?,
         })
@@ -314,8 +353,11 @@ pub(crate) fn check_widths(path: &str, widths: &[(&str, usize)]) -> Result<(), M
 /// Checks Fourier encodings: at most 32 octaves, multipliers in float32's normal range.
 pub(crate) fn check_octaves(path: &str, encodings: &[(&str, &Octaves)]) -> Result<(), ModelError> {
     for (key, octaves) in encodings {
-        if octaves.count > 32 {
-            return Err(config_err(path, format!("`{key}` is {}; at most 32 octaves are supported", octaves.count)));
+        if octaves.count > MAX_OCTAVES {
+            return Err(config_err(
+                path,
+                format!("`{key}` is {}; at most {MAX_OCTAVES} octaves are supported", octaves.count),
+            ));
         }
         if let Some(m) = octaves.multipliers_out_of_f32_range() {
             return Err(config_err(

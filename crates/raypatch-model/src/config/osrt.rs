@@ -9,7 +9,7 @@
 use serde_json::Value;
 
 use super::srt::{check_image_channels, layer_counts};
-use super::{check_positive, check_widths, config_err, Octaves, Section};
+use super::{check_positive, check_widths, config_err, Count, Octaves, Section};
 use super::{EncoderConfig, RayPatchConfig, RayPredictorConfig};
 use crate::error::ModelError;
 
@@ -73,10 +73,10 @@ impl OsrtConfig {
             ));
         }
         let slot_attention = SlotAttentionConfig {
-            num_slots: enc.usize("num_slots", 6)?,
-            slot_dim: enc.usize("slot_dim", 1536)?,
-            hidden: enc.usize("slot_hidden", 3072)?,
-            iters: enc.usize("slot_iters", 1)?,
+            num_slots: enc.usize("num_slots", 6, Count::Width)?,
+            slot_dim: enc.usize("slot_dim", 1536, Count::Width)?,
+            hidden: enc.usize("slot_hidden", 3072, Count::Width)?,
+            iters: enc.usize("slot_iters", 1, Count::Iterations)?,
         };
 
         let dec = Section::new(path, raw, "decoder_kwargs")?;
@@ -85,9 +85,9 @@ impl OsrtConfig {
         let ray_octaves = Octaves { count: 15, start: 0.0, end: None };
         let decoder = SlotMixerConfig {
             allocation: RayPredictorConfig::from_section(&dec, 1536, pos_octaves, ray_octaves)?,
-            att_dim: dec.usize("att_dim", 1536)?,
+            att_dim: dec.usize("att_dim", 1536, Count::Width)?,
             layer_norm: dec.bool("layer_norm", false)?,
-            render_hidden: dec.usize("render_mlp_hidden", 1536)?,
+            render_hidden: dec.usize("render_mlp_hidden", 1536, Count::Width)?,
             // The official OSRT overrides the decoder's out_dims: 3, or the conv features for Ray-Patch.
             out_dims: ray_patch.as_ref().map_or(3, |rp| rp.conv_features),
         };

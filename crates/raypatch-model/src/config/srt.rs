@@ -3,7 +3,7 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Octaves, Section, MAX_CONV_BLOCKS};
+use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, Section, MAX_CONV_BLOCKS};
 use crate::error::ModelError;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -78,18 +78,18 @@ impl EncoderConfig {
         if enc.bool("max_pooling", false)? {
             return Err(config_err(path, "`encoder_kwargs.max_pooling: true` is not supported".into()));
         }
-        let num_octaves = enc.usize("num_octaves", 15)?;
-        let latent_dim = enc.usize("latent_dim", 768)?;
+        let num_octaves = enc.usize("num_octaves", 15, Count::Octaves)?;
+        let latent_dim = enc.usize("latent_dim", 768, Count::Width)?;
         let encoder = EncoderConfig {
-            num_conv_blocks: enc.usize("num_conv_blocks", default_blocks.0)?,
-            num_att_blocks: enc.usize("num_att_blocks", default_blocks.1)?,
+            num_conv_blocks: enc.usize("num_conv_blocks", default_blocks.0, Count::Layers)?,
+            num_att_blocks: enc.usize("num_att_blocks", default_blocks.1, Count::Layers)?,
             pos_octaves: Octaves { count: num_octaves, start: enc.f64("pos_start_octave", 0.0)?, end: None },
             ray_octaves: Octaves { count: num_octaves, start: 0.0, end: None },
             batch_norm: enc.batch_norm()?,
-            conv_hidden: enc.usize("conv_hidden", 96)?,
-            token_dim: enc.usize("token_dim", 768)?,
-            heads: enc.usize("heads", 12)?,
-            dim_head: enc.usize("dim_head", 64)?,
+            conv_hidden: enc.usize("conv_hidden", 96, Count::Width)?,
+            token_dim: enc.usize("token_dim", 768, Count::Width)?,
+            heads: enc.usize("heads", 12, Count::Width)?,
+            dim_head: enc.usize("dim_head", 64, Count::Width)?,
             ff_hidden: 2 * latent_dim,
         };
         encoder.validate(path)?;
@@ -154,16 +154,16 @@ impl RayPatchConfig {
     pub(crate) fn from_section(path: &str, raw: &Value) -> Result<Self, ModelError> {
         let rp = Section::new(path, raw, "rp_kwargs")?;
         let resize_out = match (rp.get("h_out"), rp.get("w_out")) {
-            (Some(_), Some(_)) => Some((rp.usize("h_out", 0)?, rp.usize("w_out", 0)?)),
+            (Some(_), Some(_)) => Some((rp.usize("h_out", 0, Count::Side)?, rp.usize("w_out", 0, Count::Side)?)),
             _ => None,
         };
         let config = RayPatchConfig {
-            upsample: rp.usize("upsample", 3)?,
-            conv_features: rp.usize("conv_features", 128)?,
+            upsample: rp.usize("upsample", 3, Count::Layers)?,
+            conv_features: rp.usize("conv_features", 128, Count::Width)?,
             batch_norm: rp.batch_norm()?,
-            out_dims: rp.usize("out_dims", 3)?,
+            out_dims: rp.usize("out_dims", 3, Count::Width)?,
             resize_out,
-            grid_in: (rp.usize("h_in", 16)?, rp.usize("w_in", 16)?),
+            grid_in: (rp.usize("h_in", 16, Count::Side)?, rp.usize("w_in", 16, Count::Side)?),
         };
         check_widths(path, &[("rp_kwargs.conv_features", config.conv_features)])?;
         if config.upsample == 0 || config.upsample > 6 {
@@ -197,17 +197,17 @@ impl RayPredictorConfig {
         pos_octaves: Octaves,
         ray_octaves: Octaves,
     ) -> Result<Self, ModelError> {
-        let kv_dim = dec.usize("latent_dim", kv_default)?;
-        let heads = dec.usize("heads", 12)?;
+        let kv_dim = dec.usize("latent_dim", kv_default, Count::Width)?;
+        let heads = dec.usize("heads", 12, Count::Width)?;
         Ok(RayPredictorConfig {
-            num_att_blocks: dec.usize("num_att_blocks", 2)?,
+            num_att_blocks: dec.usize("num_att_blocks", 2, Count::Layers)?,
             pos_octaves,
             ray_octaves,
             kv_dim,
             heads,
             dim_head: kv_dim.checked_div(heads).unwrap_or(0),
             ff_hidden: 2 * kv_dim,
-            input_mlp_hidden: dec.usize("input_mlp_hidden", 360)?,
+            input_mlp_hidden: dec.usize("input_mlp_hidden", 360, Count::Width)?,
         })
     }
 
@@ -287,11 +287,11 @@ impl SrtConfig {
         let ray_octaves = dec.octaves("ray_octaves", "ray_start_octave", "ray_end_octave", 15, 0.0)?;
         let decoder = DecoderConfig {
             ray_predictor: RayPredictorConfig::from_section(&dec, 768, pos_octaves, ray_octaves)?,
-            out_mlp_hidden: dec.usize("out_mlp_hidden", 1536)?,
+            out_mlp_hidden: dec.usize("out_mlp_hidden", 1536, Count::Width)?,
             // The official SRT model overrides the decoder's out_dims with the conv features for Ray-Patch.
             out_dims: match &ray_patch {
                 Some(rp) => rp.conv_features,
-                None => dec.usize("out_dims", 3)?,
+                None => dec.usize("out_dims", 3, Count::Width)?,
             },
         };
 
