@@ -18,6 +18,9 @@ pub const MAX_RAY_ANGLE_DEGREES: f64 = 89.9;
 /// Smallest field of view of a pinhole camera (degrees, between the outermost pixel centres, each way): below
 /// it neighbouring pixels' float32 rays coincide.
 pub const MIN_FIELD_OF_VIEW_DEGREES: f64 = 1e-3;
+/// The same least spread for rays given as such: the largest distance between two of a grid's rays, relative
+/// to their length (1e-3° in radians).
+const MIN_RAY_SPREAD: f32 = (MIN_FIELD_OF_VIEW_DEGREES * std::f64::consts::PI / 180.0) as f32;
 
 /// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
 pub const MSN_FOCAL_LENGTH: f64 = 0.035;
@@ -275,6 +278,16 @@ impl Camera {
             return Err(Error::Camera(format!(
                 "ray {i} is {}: expected a finite, non-zero direction",
                 grid.directions[i]
+            )));
+        }
+        // Rays that all coincide see one point: every pixel would get the same colour.
+        let first = grid.directions[0];
+        let spread = grid.directions.iter().map(|d| (*d - first).length()).fold(0.0f32, f32::max);
+        if grid.directions.len() > 1 && spread < MIN_RAY_SPREAD * first.length() {
+            return Err(Error::Camera(format!(
+                "the {}x{} rays are degenerate: all within {spread:e} of ray 0 {first} (they must spread at least \
+                 {MIN_RAY_SPREAD:e} of its length apart, the field of view of {MIN_FIELD_OF_VIEW_DEGREES}°)",
+                grid.width, grid.height
             )));
         }
         let (width, height) = (grid.width.saturating_mul(k), grid.height.saturating_mul(k));

@@ -91,13 +91,24 @@ impl SceneData {
             height: gh,
             directions: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3].chunks_exact(3).map(Vec3::from_slice).collect(),
         };
+        // A camera's error names the file, the tensor of its rays and the view.
+        let in_file = |key: &str, what: &str, i: usize| {
+            let path = file.path.clone();
+            let key = key.to_string();
+            let what = format!("{what} {i}");
+            move |e: Error| match e {
+                Error::Camera(reason) => {
+                    Error::Model(raypatch_model::ModelError::Value { path, key, reason: format!("{what}: {reason}") })
+                }
+                other => other,
+            }
+        };
         let inputs = (0..n)
             .map(|i| {
                 let pixels = file.inputs.images[i * h * w * 3..(i + 1) * h * w * 3].to_vec();
-                Ok(InputView {
-                    image: Image::new(w, h, pixels)?,
-                    camera: Camera::from_rays(position(&file.inputs.camera_pos, i), grid(&file.inputs.rays, i, h, w))?,
-                })
+                let camera = Camera::from_rays(position(&file.inputs.camera_pos, i), grid(&file.inputs.rays, i, h, w))
+                    .map_err(in_file("input_rays", "input view", i))?;
+                Ok(InputView { image: Image::new(w, h, pixels)?, camera })
             })
             .collect::<Result<Vec<_>>>()?;
         let t = &file.targets;
@@ -120,7 +131,8 @@ impl SceneData {
         };
         let targets = (0..t.count)
             .map(|i| {
-                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)?;
+                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)
+                    .map_err(in_file("target_rays", "target view", i))?;
                 let image = t
                     .images
                     .as_ref()

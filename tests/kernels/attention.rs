@@ -1,11 +1,11 @@
-//! Attention against the float64 reference, on the fused kernel and (where the adapter runs it) on
-//! `matmul_lanes`: self-attention from one fused qkv tensor, cross-attention onto a cached kv tensor,
+//! Attention against the float64 reference, on the fused kernel, on flash attention (GPUs' `Tiled`, keys split
+//! or not) and (where the adapter runs it) on `matmul_lanes`: self-attention from one fused qkv tensor, cross-attention onto a cached kv tensor,
 //! separate q/k/v at odd columns, row-range views, and the numerically hard cases (logits of ±1e4, one
 //! dominant key, flat rows, 16384 keys).
 //!
 //! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
-use raypatch_engine::kernels::attention::{attention, AttentionArgs, LANES_SCORES_BYTES};
+use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
 use raypatch_engine::kernels::matmul::MatmulKernel;
 use raypatch_engine::plan::{KernelChoice, PlanBuilder};
 use raypatch_engine::reference;
@@ -115,6 +115,8 @@ impl Case {
         attention(&mut plan, "attn", args);
         let on_lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
+        let on_flash = plan.op_kernels().any(|k| k.starts_with("attention_flash"));
+        assert_eq!(on_flash, kernel == MatmulKernel::Tiled, "{kernel:?}: {}", self.describe());
         let plan = run(plan);
         // A constant kv tensor bound whole has its keys and values packed outside the plan, once.
         let kept = self.constant.is_some_and(|t| self.k.tensor == t && self.v.tensor == t && self.kv_whole());
@@ -236,10 +238,10 @@ impl Case {
     }
 }
 
-/// The matmul kernels attention runs differently on: `Rows` (the fused kernel, as on every adapter but
-/// CPU ones) and `Lanes` where the adapter has it.
+/// The matmul kernels attention runs differently on: `Rows` (the fused kernel), `Tiled` (flash attention,
+/// as on GPUs) and `Lanes` where the adapter has it.
 fn attention_kernels() -> Vec<MatmulKernel> {
-    matmul_kernels().into_iter().filter(|&k| k != MatmulKernel::Tiled).collect()
+    matmul_kernels()
 }
 
 /// How q, k and v are laid out.
@@ -401,6 +403,40 @@ fn attention_long_kv() {
     let (_, peak_bytes) = case.run_gpu(MatmulKernel::Rows);
     assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
     case.check();
+}
+
+/// Flash attention (`Tiled`, as on GPUs) splits the keys among workgroups when query tiles x heads are too
+/// few to fill a GPU, down to one key tile a split, and merges the splits; with enough query tiles it runs
+/// one dispatch. Both match the reference, including splits whose last tile is partly past the keys.
+#[test]
+fn flash_attention_splits_keys_when_queries_are_few() {
+    // RP-SRT k=8 at 120x160: 300 queries (5 tiles), 12 heads of 64 (32-key tiles), 300 keys: 10 splits of 32.
+    assert_eq!(flash_splits(5, 12, 300, 32), (32, 10));
+    // A full-resolution SRT render: 19200 queries, 300 tiles a head, one split.
+    assert_eq!(flash_splits(300, 12, 300, 32), (300usize.div_ceil(32) * 32, 1));
+    // Few keys: never more splits than key tiles.
+    assert_eq!(flash_splits(1, 1, 5, 64), (64, 1));
+    let mut rng = Rng::new(0xF1A5);
+    for (nq, nkv, heads, dim_head, splits) in
+        [(300, 300, 12, 64, true), (77, 1000, 3, 20, true), (4096, 40, 16, 8, false)]
+    {
+        let case = random_case(&mut rng, Layout::CachedKv, nq, nkv, heads, dim_head);
+        let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu().kernels };
+        let q = plan.transient("q", nq, heads * dim_head);
+        let kv = plan.transient("kv", nkv, 2 * heads * dim_head);
+        let out = plan.transient("out", nq, heads * dim_head);
+        let (q, kv, out) = (plan.all(q), plan.all(kv), plan.all(out));
+        let scale = 0.125;
+        let inner = heads * dim_head;
+        attention(
+            &mut plan,
+            "attn",
+            AttentionArgs { q, q_col: 0, k: kv, k_col: 0, v: kv, v_col: inner, out, heads, dim_head, scale },
+        );
+        assert_eq!(plan.op_labels().any(|l| l == "attn.combine"), splits, "{nq}x{nkv}, {heads} heads");
+        case.check();
+    }
 }
 
 /// On `matmul_lanes` the scores of 300 queries x 8192 keys x 4 heads (38 MiB) exceed what one pass holds:

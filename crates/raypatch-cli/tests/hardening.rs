@@ -242,6 +242,10 @@ fn messages_say_what_a_path_should_have_been() {
     assert!(r.stdout.lines().next().is_some_and(|l| l.ends_with("[default]")), "{}", r.stdout);
 }
 
+fn bytemuck_floats(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
 /// The most memory the render-frame runs of this process have used so far (their peak resident set).
 #[cfg(unix)]
 fn children_peak_bytes() -> u64 {
@@ -384,6 +388,15 @@ fn degenerate_cameras_are_refused_naming_the_file_and_frame() {
         fails(d, &["--scene", &scene], &["transforms.json", "frame 2", named, reason]);
         std::fs::write(folder.join("transforms.json"), original).unwrap();
     }
+    // Rays given as such (a scene file) that all point the same way.
+    let scene = golden("rpsrt_k4", "scene.safetensors");
+    let model = golden("rpsrt_k4", "model.safetensors");
+    let same = edited(d, &scene, "same.safetensors", |t| {
+        for ray in t.get_mut("target_rays").unwrap().2.chunks_exact_mut(12) {
+            ray.copy_from_slice(bytemuck_floats(&[0.0, 0.0, 1.0]).as_slice());
+        }
+    });
+    fails(d, &["--model", &model, "--scene", &same], &["same.safetensors", "target view 0", "degenerate"]);
     let pose = r#"{"transform_matrix": [[1,0,0,0],[0,0,-1,-6],[0,1,0,1],[0,0,0,1]], "fl_x": 1e-200}"#;
     std::fs::write(d.join("pose.json"), pose).unwrap();
     fails(d, &["--pose", "pose.json"], &["pose.json", "from the optical axis"]);

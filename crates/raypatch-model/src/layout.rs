@@ -7,9 +7,9 @@ use std::collections::HashMap;
 use safetensors::Dtype;
 use serde_json::Value;
 
-/// The largest header accepted (the safetensors crate's own limit): a bound on what a bad header length
-/// makes the reader allocate before anything is checked.
-pub const MAX_HEADER_BYTES: u64 = 100_000_000;
+/// The largest header accepted: far above an official model's (~50 KB for ~400 tensors), a bound on what a
+/// bad header makes the reader allocate and parse before anything is checked.
+pub const MAX_HEADER_BYTES: u64 = 16 << 20;
 
 /// One tensor of a file: its dtype, shape, and byte range in the data section.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,8 +1,10 @@
-//! Multi-head attention (self and cross): on most adapters one fused dispatch with an online softmax and no
-//! score matrix (`shaders/attention.wgsl`); where linear layers run on `matmul_lanes` (CPU adapters), the
-//! scores of every head as one batched GEMM on it, their softmax, and the weighted sum of values as another.
+//! Multi-head attention (self and cross), following the adapter's matmul kernel: on GPUs (`Tiled`) flash
+//! attention (`shaders/attention_flash.wgsl`: a workgroup per query tile and head, keys split across
+//! workgroups when those are too few); where linear layers run on `matmul_lanes` (CPU adapters), the scores
+//! of every head as one batched GEMM on it, their softmax, and the weighted sum of values as another; else
+//! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
-use super::ATTENTION;
+use super::{ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch, MatmulKernel};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
@@ -88,6 +90,10 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     if attention_on_lanes(plan, label, args) {
         return;
     }
+    if plan.kernels.matmul == MatmulKernel::Tiled && q.rows > 0 {
+        flash_attention(plan, label, args);
+        return;
+    }
 
     let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
     let params = AttentionParams {
@@ -113,6 +119,116 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         textures: Vec::new(),
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
         multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
+    });
+}
+
+params! {
+    /// The uniform of `shaders/attention_flash.wgsl`.
+    FlashParams {
+        nq: u32,
+        nkv: u32,
+        heads: u32,
+        dim_head: u32,
+        q_ld: u32,
+        q_col: u32,
+        k_ld: u32,
+        k_col: u32,
+        v_ld: u32,
+        v_col: u32,
+        out_ld: u32,
+        scale: f32,
+        split_keys: u32,
+        splits: u32,
+        query_tiles: u32,
+        partial_ld: u32,
+    }
+}
+
+/// Query rows per workgroup of `attention_flash.wgsl` (one per invocation).
+const FLASH_ROWS: usize = 64;
+/// vec4s of keys (and of values) per tile in `attention_flash.wgsl`'s workgroup memory.
+const FLASH_TILE_VEC4S: usize = 512;
+/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors, each running several 64-invocation
+/// workgroups at once): when query tiles x heads are fewer, the keys are split across workgroups, down to one
+/// key tile per split.
+const FLASH_TARGET_GROUPS: usize = 1024;
+
+/// How `attention_flash.wgsl` splits the keys of `nkv` among workgroups of a head's `query_tiles` tiles:
+/// `(keys per split, splits)`, the keys per split a whole number of tiles of `tile_keys`.
+pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usize) -> (usize, usize) {
+    let wanted = FLASH_TARGET_GROUPS.div_ceil(query_tiles * heads).clamp(1, nkv.div_ceil(tile_keys));
+    let split_keys = nkv.div_ceil(wanted).div_ceil(tile_keys) * tile_keys;
+    (split_keys, nkv.div_ceil(split_keys))
+}
+
+/// Flash attention on GPUs (`shaders/attention_flash.wgsl`): one dispatch, or with the keys split, one
+/// dispatch writing each split's partial output and one merging them.
+fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
+    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
+    // The variant whose registers hold a head (vec4s per head: 8, 16 or 32).
+    let (chunks, shader) = [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)]
+        .into_iter()
+        .find(|(chunks, _)| 4 * chunks >= dim_head)
+        .expect("dim_head is at most MAX_DIM_HEAD = 128");
+    let query_tiles = q.rows.div_ceil(FLASH_ROWS);
+    let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, FLASH_TILE_VEC4S / chunks);
+    let partial_cols = heads * (dim_head + 2);
+    let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
+    let params = FlashParams {
+        nq: word(q.rows),
+        nkv: word(k.rows),
+        heads: word(heads),
+        dim_head: word(dim_head),
+        q_ld: word(plan.ld(q.id)),
+        q_col: word(q_col),
+        k_ld: word(plan.ld(k.id)),
+        k_col: word(k_col),
+        v_ld: word(plan.ld(v.id)),
+        v_col: word(v_col),
+        out_ld: word(plan.ld(out.id)),
+        scale,
+        split_keys: word(split_keys),
+        splits: word(splits),
+        query_tiles: word(query_tiles),
+        partial_ld: word(padded_cols(partial_cols)),
+    };
+    let multiply_adds = 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64);
+    let groups = grid(query_tiles * heads * splits);
+    let inputs = [(q, Access::Read), (k, Access::Read), (v, Access::Read)];
+    if splits == 1 {
+        plan.push(Op {
+            label: label.to_string(),
+            shader,
+            entry: "flash",
+            params: params.words(),
+            bindings: [&inputs[..], &[(out, Access::Write)]].concat(),
+            textures: Vec::new(),
+            workgroups: groups,
+            multiply_adds,
+        });
+        return;
+    }
+    let partials = plan.transient(&format!("{label}.partials"), splits * q.rows, partial_cols);
+    let partials = plan.all(partials);
+    plan.push(Op {
+        label: format!("{label}.split"),
+        shader,
+        entry: "flash_split",
+        params: params.words(),
+        bindings: [&inputs[..], &[(partials, Access::Write)]].concat(),
+        textures: Vec::new(),
+        workgroups: groups,
+        multiply_adds,
+    });
+    plan.push(Op {
+        label: format!("{label}.combine"),
+        shader,
+        entry: "combine",
+        params: params.words(),
+        bindings: vec![(partials, Access::Read), (out, Access::Write)],
+        textures: Vec::new(),
+        workgroups: grid((q.rows * heads).div_ceil(FLASH_ROWS)),
+        multiply_adds: 0,
     });
 }
 

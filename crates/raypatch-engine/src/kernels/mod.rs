@@ -149,7 +149,7 @@ macro_rules! shader {
 /// - under `shaders`, `NAME = "file" ["prelude", ...] [needs FEATURES] => Params`: `shaders/file.wgsl` after
 ///   the preludes, needing optional wgpu features;
 /// - under `variants`, `NAME = BASE { name, prefix, replace, features } => Params`: BASE's source
-///   compiled with a prefix and text replacements, for optional features.
+///   compiled with a prefix and text replacements, for optional features or fixed sizes.
 macro_rules! shaders {
     (
         shaders {
@@ -178,7 +178,7 @@ macro_rules! shaders {
         /// Every shader, for validation tests and pipeline warm-up.
         pub static ALL_SHADERS: [&Shader; SHADER_COUNT] = [$(&$name),*];
 
-        /// Variants of the shaders above that need optional features.
+        /// Variants of the shaders above: other features or fixed sizes.
         pub static VARIANTS: [&Shader; VARIANT_COUNT] = [$(&$vname),*];
 
         /// Every shader and variant with the Rust layout of its `Params` uniform (`tests/uniforms.rs`).
@@ -195,6 +195,8 @@ shaders! {
             => matmul::MatmulLanesParams;
         PACK = "pack" ["texels"] => pack::PackParams;
         ATTENTION = "attention" [] => attention::AttentionParams;
+        /// Attention for GPUs, heads of up to 128 floats: see `kernels::attention`.
+        ATTENTION_FLASH = "attention_flash" [] => attention::FlashParams;
         LAYERNORM = "layernorm" [] => norm::LayerNormParams;
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
@@ -215,5 +217,19 @@ shaders! {
             replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
+        /// `attention_flash` with registers for heads of up to 64 floats.
+        ATTENTION_FLASH_16 = ATTENTION_FLASH {
+            name: "attention_flash_16",
+            prefix: "",
+            replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 16u;")],
+            features: wgpu::Features::empty(),
+        } => attention::FlashParams;
+        /// `attention_flash` with registers for heads of up to 32 floats.
+        ATTENTION_FLASH_8 = ATTENTION_FLASH {
+            name: "attention_flash_8",
+            prefix: "",
+            replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 8u;")],
+            features: wgpu::Features::empty(),
+        } => attention::FlashParams;
     }
 }
