@@ -49,9 +49,10 @@ struct Params {
     mode: u32,
     // n*ho*wo.
     npix: u32,
-    // ceil(cout4 / CV): channel tiles, the fastest-varying part of the group index.
+    // Channel tiles, the fastest-varying part of the group index: ceil(cout4 / CV) for `conv2d`,
+    // ceil(cout4 / 16) for `conv_tiled`.
     cout_tiles: u32,
-    // ceil(npix / (64 * PX)): pixel tiles.
+    // Pixel tiles: ceil(npix / (64 * PX)) for `conv2d`, ceil(npix / 64) for `conv_tiled`.
     pixel_tiles: u32,
 }
 
@@ -89,9 +90,10 @@ fn weights(rows: vec4<u32>, k: u32) -> mat4x4<f32> {
     return transpose(mat4x4<f32>(w[rows.x + k], w[rows.y + k], w[rows.z + k], w[rows.w + k]));
 }
 
-// Bias, residual, activation, accumulation and the store of channel vec4 `col` of the 4 pixels pix0 + 64 i (columns of m).
-fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
-    if (col >= p.cout4) {
+// Bias, residual, activation, accumulation and the store of channel vec4 `col` of pixel `pix` (nothing past
+// the end of either).
+fn store_one(v: vec4<f32>, pix: u32, col: u32) {
+    if (col >= p.cout4 || pix >= p.npix) {
         return;
     }
     var b = vec4<f32>(0.0);
@@ -99,16 +101,18 @@ fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
         b = bias[col];
     }
     let real = vec4<u32>(4u * col) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(p.cout);
+    let o = pix * p.cout4 + col;
+    var prior = vec4<f32>(0.0);
+    if (p.mode != 0u) {
+        prior = out[o];
+    }
+    out[o] = epilogue(v + b, prior, p.mode, p.act, p.slope, real);
+}
+
+// The store of channel vec4 `col` of the 4 pixels pix0 + 64 i (columns of m).
+fn store(m: mat4x4<f32>, pix0: u32, col: u32) {
     for (var i = 0u; i < 4u; i++) {
-        let pix = pix0 + i * WG;
-        if (pix < p.npix) {
-            let o = pix * p.cout4 + col;
-            var prior = vec4<f32>(0.0);
-            if (p.mode != 0u) {
-                prior = out[o];
-            }
-            out[o] = epilogue(m[i] + b, prior, p.mode, p.act, p.slope, real);
-        }
+        store_one(m[i], pix0 + i * WG, col);
     }
 }
 
@@ -178,4 +182,112 @@ fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     store(acc.m01, pix0 + 4u * WG, col0);
     store(acc.m10, pix0, col0 + 1u);
     store(acc.m11, pix0 + 4u * WG, col0 + 1u);
+}
+
+// `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (the tiling of
+// matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16 invocations
+// computes 64 output pixels x 64 output channels, invocation (tx, ty) pixels ty + 16 i (i < 4) and the 4
+// channels of vec4 column tx. K is the weight row, taps x cin4 vec4s (tap-major, as pack_conv lays it out),
+// walked 8 vec4s at a time whatever the tap boundaries, so that few input channels (ResNet's RGB stem, one
+// vec4 a tap) waste no steps. Each step gathers 64 pixels' input vec4s (the im2col of the tile, never
+// materialised: the tap's offset, the zero padding and the 2x nearest upsampling resolved per load) and 64
+// channels' weight vec4s into workgroup memory.
+
+const TILE: u32 = 64u;
+// vec4s of K per step.
+const TILE_K4: u32 = 8u;
+var<workgroup> x_tile: array<vec4<f32>, 512>;
+var<workgroup> w_tile: array<vec4<f32>, 512>;
+
+// Where one output pixel's window starts: its image's first row in x (b*h) and its top-left tap in the
+// effective image (may be negative: padding).
+struct Window {
+    img: u32,
+    iy0: i32,
+    ix0: i32,
+}
+
+fn window_of(pix: u32) -> Window {
+    let q = min(pix, p.npix - 1u);
+    let r = q / p.wo;
+    return Window((r / p.ho) * p.h, i32((r % p.ho) * p.stride) - i32(p.pad), i32((q % p.wo) * p.stride) - i32(p.pad));
+}
+
+// Vec4 `kk` of the weight row (tap kk / cin4, channels kk % cin4) for the pixel's window; zero in the padding.
+fn gather(win: Window, kk: u32) -> vec4<f32> {
+    let tap = kk / p.cin4;
+    let iy = win.iy0 + i32(tap / p.k);
+    let ix = win.ix0 + i32(tap % p.k);
+    if (iy < 0 || iy >= i32(p.h << p.up) || ix < 0 || ix >= i32(p.w << p.up)) {
+        return vec4<f32>(0.0);
+    }
+    return x[((win.img + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4 + kk % p.cin4];
+}
+
+@compute @workgroup_size(16, 16)
+fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+              @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let group = wid.x + wid.y * nwg.x;
+    let tile = group % p.cout_tiles;
+    let pix0 = (group / p.cout_tiles) * TILE;
+    // The same for every invocation of the workgroup, so the barriers below stay in uniform control flow.
+    if (pix0 >= p.npix) {
+        return;
+    }
+    let col0 = tile * TILE;
+    let tx = lid.x;
+    let ty = lid.y;
+    // This invocation loads rows r and r + 32 of both tiles (pixels, and output channels), at vec4 kk of each
+    // step. Channels past cout reuse the last one (their results are dropped).
+    let r = li / TILE_K4;
+    let kk = li % TILE_K4;
+    let win0 = window_of(pix0 + r);
+    let win1 = window_of(pix0 + r + 32u);
+    let k4 = p.k * p.k * p.cin4;
+    let w0 = min(col0 + r, p.cout - 1u) * k4;
+    let w1 = min(col0 + r + 32u, p.cout - 1u) * k4;
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
+    for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
+        let at = k0 + kk;
+        var x0 = vec4<f32>(0.0);
+        var x1 = vec4<f32>(0.0);
+        var v0 = vec4<f32>(0.0);
+        var v1 = vec4<f32>(0.0);
+        if (at < k4) {
+            x0 = gather(win0, at);
+            x1 = gather(win1, at);
+            v0 = w[w0 + at];
+            v1 = w[w1 + at];
+        }
+        x_tile[kk * TILE + r] = x0;
+        x_tile[kk * TILE + r + 32u] = x1;
+        // Channel c at (c % 4) * 16 + c / 4, so that invocation tx's channel j sits at j * 16 + tx.
+        w_tile[kk * TILE + (r % 4u) * 16u + r / 4u] = v0;
+        w_tile[kk * TILE + ((r + 32u) % 4u) * 16u + (r + 32u) / 4u] = v1;
+        workgroupBarrier();
+        for (var step = 0u; step < TILE_K4; step++) {
+            let base = step * TILE;
+            let b0 = w_tile[base + tx];
+            let b1 = w_tile[base + 16u + tx];
+            let b2 = w_tile[base + 32u + tx];
+            let b3 = w_tile[base + 48u + tx];
+            let a0 = x_tile[base + ty];
+            let a1 = x_tile[base + 16u + ty];
+            let a2 = x_tile[base + 32u + ty];
+            let a3 = x_tile[base + 48u + ty];
+            acc0 += vec4<f32>(dot(a0, b0), dot(a0, b1), dot(a0, b2), dot(a0, b3));
+            acc1 += vec4<f32>(dot(a1, b0), dot(a1, b1), dot(a1, b2), dot(a1, b3));
+            acc2 += vec4<f32>(dot(a2, b0), dot(a2, b1), dot(a2, b2), dot(a2, b3));
+            acc3 += vec4<f32>(dot(a3, b0), dot(a3, b1), dot(a3, b2), dot(a3, b3));
+        }
+        workgroupBarrier();
+    }
+    let col = tile * 16u + tx;
+    store_one(acc0, pix0 + ty, col);
+    store_one(acc1, pix0 + ty + 16u, col);
+    store_one(acc2, pix0 + ty + 32u, col);
+    store_one(acc3, pix0 + ty + 48u, col);
 }

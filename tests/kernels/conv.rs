@@ -112,6 +112,8 @@ impl Case {
         let args = Conv2dArgs { x: xv, n, h, w, cin, weight, bias, out: ov, cout, window, upsample_input, act, mode };
         conv2d(&mut plan, "conv", args);
         let lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
+        let tiled = plan.op_kernels().any(|k| k == "conv.conv_tiled");
+        assert_eq!(tiled, kernel == MatmulKernel::Tiled, "{kernel:?} {self:?}: GPUs' implicit GEMM");
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 

@@ -1,8 +1,10 @@
 //! Square K×K convolutions on NHWC images (`shaders/conv.wgsl`), any stride and zero padding: the SRT
 //! encoder's conv blocks (3×3, stride 1 and 2), the Ray-Patch decoder's upsample-then-conv layers, and
 //! ResNet's 7×7 stem, 3×3 blocks and 1×1 downsamples, with BatchNorm folded into the weight and bias by the
-//! model loader, the activation fused, and a residual sum fused before it. On CPU adapters most run on
-//! `matmul_lanes` instead (`kernels::matmul::gemm_lanes`, an implicit GEMM), the rest on `shaders/conv.wgsl`.
+//! model loader, the activation fused, and a residual sum fused before it. On GPUs (`MatmulKernel::Tiled`)
+//! they run as an implicit GEMM in workgroup-memory tiles (`conv.wgsl`'s `conv_tiled`); on CPU adapters most
+//! run on `matmul_lanes` (`kernels::matmul::gemm_lanes`, an implicit GEMM over packed textures); the rest on
+//! `conv.wgsl`'s register-blocked `conv2d`.
 
 use crate::kernels::matmul::{gemm_lanes, lanes_fit, MatmulKernel, LANES_COLS};
 use crate::kernels::pack::Packing;
@@ -14,6 +16,9 @@ use crate::tensor::padded_cols;
 const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
+/// Output pixels and vec4s of output channels per workgroup of `conv_tiled` (`TILE` in the shader).
+const TILED_PIXELS: usize = 64;
+const TILED_COUT_VEC4S: usize = 16;
 
 /// Repacks a PyTorch conv weight [cout, cin, k, k] (row-major) into the kernel's layout, returned as a
 /// row-major [cout, k*k * padded_cols(cin)] matrix: for each output channel, the k*k taps (ky, kx row-major),
@@ -60,9 +65,9 @@ params! {
         mode: u32,
         /// n*ho*wo.
         npix: u32,
-        /// ceil(cout4 / CV): channel tiles, the fastest-varying part of the group index.
+        /// Channel tiles, the fastest-varying part of the group index (per entry point: see the shader).
         cout_tiles: u32,
-        /// ceil(npix / (64 * PX)): pixel tiles.
+        /// Pixel tiles (per entry point: see the shader).
         pixel_tiles: u32,
     }
 }
@@ -179,8 +184,12 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
         return gemm_lanes(plan, label, args);
     }
     let cout4 = padded_cols(cout) / 4;
-    let cout_tiles = cout4.div_ceil(COUT_VEC4S_PER_INVOCATION);
-    let pixel_tiles = npix.div_ceil(64 * PIXELS_PER_INVOCATION);
+    // GPUs: the implicit GEMM in workgroup-memory tiles; elsewhere the register-blocked direct kernel.
+    let (entry, cout_tiles, pixel_tiles) = if plan.kernels.matmul == MatmulKernel::Tiled {
+        ("conv_tiled", cout4.div_ceil(TILED_COUT_VEC4S), npix.div_ceil(TILED_PIXELS))
+    } else {
+        ("conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
+    };
     let (act_code, slope) = act.params();
     let params = ConvParams {
         h: h as u32,
@@ -207,7 +216,7 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     plan.push(Op {
         label: label.to_string(),
         shader: &CONV,
-        entry: "conv2d",
+        entry,
         params: params.words(),
         bindings: vec![
             (x, Access::Read),
