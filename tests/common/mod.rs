@@ -5,7 +5,7 @@ use std::sync::OnceLock;
 
 use std::ops::Range;
 
-use raypatch_engine::kernels::matmul::MatmulKernel;
+use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::plan::{Plan, PlanBuilder};
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};

@@ -5,9 +5,10 @@
 //!
 //! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
+use raypatch_engine::device::KernelChoice;
+use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
-use raypatch_engine::kernels::matmul::MatmulKernel;
-use raypatch_engine::plan::{KernelChoice, PlanBuilder};
+use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;

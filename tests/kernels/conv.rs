@@ -1,9 +1,11 @@
 //! conv2d against the float64 reference, and the placement helpers the resize and pool tests share.
 
-use raypatch_engine::kernels::conv::{conv2d, conv_output_size, pack_conv, Conv2dArgs, ConvMode};
-use raypatch_engine::kernels::matmul::MatmulKernel;
+use raypatch_engine::device::KernelChoice;
+use raypatch_engine::device::MatmulKernel;
+use raypatch_engine::kernels::conv::{conv2d, pack_conv};
+use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use raypatch_engine::kernels::{Activation, Window};
-use raypatch_engine::plan::{KernelChoice, PlanBuilder, View};
+use raypatch_engine::plan::{PlanBuilder, View};
 use raypatch_engine::reference::conv as reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;

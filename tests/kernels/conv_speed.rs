@@ -3,7 +3,8 @@
 //! pick shapes). On a shared machine wall times vary 2× with the load; the process CPU time per conv
 //! (lavapipe runs the shader on the process's threads) varies by a few percent, so compare that.
 
-use raypatch_engine::kernels::conv::{conv2d, conv_output_size, Conv2dArgs, ConvMode};
+use raypatch_engine::kernels::conv::conv2d;
+use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use raypatch_engine::kernels::{Activation, Window};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::padded_cols;

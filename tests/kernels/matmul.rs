@@ -2,9 +2,10 @@
 //! 8x24 workgroup tiles, several 32-float K steps of the 64x64 one), every activation, with and without
 //! bias, accumulate, row-range views; plus erf accuracy through GELU.
 
+use raypatch_engine::device::KernelChoice;
 use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
-use raypatch_engine::plan::{KernelChoice, PlanBuilder};
+use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::matmul as reference;
 use raypatch_engine::tensor::{padded_cols, Dtype};
 

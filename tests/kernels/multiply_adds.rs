@@ -5,7 +5,7 @@
 
 use raypatch_engine::kernels::attention::{attention, AttentionArgs};
 use raypatch_engine::kernels::concat::concat_columns;
-use raypatch_engine::kernels::conv::{conv2d, Conv2dArgs, ConvMode};
+use raypatch_engine::kernels::conv::conv2d;
 use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use raypatch_engine::kernels::gru::{gru_cell, GruArgs};
 use raypatch_engine::kernels::matmul::{linear, LinearArgs};
@@ -13,6 +13,7 @@ use raypatch_engine::kernels::mix::{mix_rows, MixArgs};
 use raypatch_engine::kernels::pool::{max_pool2d, PoolArgs};
 use raypatch_engine::kernels::softmax::{normalize_rows, softmax, Axis, SoftmaxArgs};
 use raypatch_engine::kernels::{Activation, Window};
+use raypatch_engine::kernels::{Conv2dArgs, ConvMode};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::padded_cols;
 

@@ -8,9 +8,11 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use raypatch_engine::kernels::matmul::{linear, LinearArgs, MatmulKernel};
+use raypatch_engine::device::KernelChoice;
+use raypatch_engine::device::MatmulKernel;
+use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
-use raypatch_engine::plan::{KernelChoice, PlanBuilder};
+use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::Rng;
 use raypatch_engine::Gpu;
 use serde::{Deserialize, Serialize};

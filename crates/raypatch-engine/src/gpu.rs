@@ -5,11 +5,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant};
 
+use crate::device::{KernelChoice, MatmulKernel};
 use crate::error::{EngineError, Result};
-use crate::kernels::matmul::MatmulKernel;
-use crate::kernels::pack::{self, KeptPacking};
-use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir};
-use crate::plan::{texture_bytes, KernelChoice, PlanBuilder, TextureRef};
+use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir, PipelineCacheStatus};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
 /// One WGSL file: a kernel family. Its entry points are the kernels.
@@ -105,7 +103,7 @@ pub struct Gpu {
     pub(crate) pipeline_cache: DiskCache,
     /// Constant tensors (weights, scenes' keys and values) packed into textures for `matmul_lanes`, per
     /// tensor buffer (dropped after it).
-    kept_packings: Mutex<Vec<KeptTexture>>,
+    kept_textures: Mutex<Vec<KeptEntry>>,
     pub counters: GpuCounters,
     pub(crate) timestamps: Mutex<Timestamps>,
 }
@@ -118,9 +116,10 @@ pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
     .union(wgpu::Features::SUBGROUP);
 
 /// A constant tensor's packed texture, kept while the tensor's buffer lives.
-struct KeptTexture {
+struct KeptEntry {
     buffer: Weak<wgpu::Buffer>,
-    packing: KeptPacking,
+    /// Which packing ([`crate::plan::KeptTexture::key`]).
+    key: u64,
     texture: Arc<wgpu::Texture>,
 }
 
@@ -284,7 +283,7 @@ impl Gpu {
                 kernel
             }
         };
-        let max_texels = pack::TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
+        let max_texels = TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
         let pipeline_cache = DiskCache::open(&device, cache_file);
         Ok(Gpu {
             device,
@@ -296,7 +295,7 @@ impl Gpu {
             kernels: KernelChoice { matmul, max_texels },
             pipelines: Mutex::new(HashMap::new()),
             pipeline_cache,
-            kept_packings: Mutex::new(Vec::new()),
+            kept_textures: Mutex::new(Vec::new()),
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
         })
@@ -399,9 +398,9 @@ impl Gpu {
         })
     }
 
-    /// An rgba32float storage texture of at least `texels` texels, [`pack::TEXTURE_WIDTH`] wide.
+    /// An rgba32float storage texture of at least `texels` texels, [`TEXTURE_WIDTH`] wide.
     pub(crate) fn create_texture(&self, label: &str, texels: usize) -> Result<wgpu::Texture> {
-        let (width, height) = pack::texture_size(texels);
+        let (width, height) = texture_size(texels);
         if height > self.limits.max_texture_dimension_2d {
             return Err(EngineError::Request(format!(
                 "{label}: a texture of {texels} texels needs {height} rows, more than the adapter's {}",
@@ -423,26 +422,35 @@ impl Gpu {
         Ok(texture)
     }
 
-    /// An f32 constant tensor (a weight, a scene's keys or values) packed into a texture as `kept` says
-    /// (`matmul_lanes` reads it), on the GPU the first time a plan binds it, and kept while the tensor's
-    /// buffer lives (a texture outliving its buffer is dropped at the next call).
-    pub(crate) fn kept_packing(&self, name: &str, tensor: &GpuTensor, kept: KeptPacking) -> Result<Arc<wgpu::Texture>> {
-        let mut packings = self.kept_packings.lock().expect("kept packings poisoned");
-        packings.retain(|p| p.buffer.strong_count() > 0);
+    /// The texture kept with a constant tensor (a weight, a scene's keys or values) under `key` (a packing of
+    /// it that `matmul_lanes` reads): `make` makes it the first time, and it is kept while the tensor's buffer
+    /// lives (a texture outliving its buffer is dropped at the next call).
+    pub(crate) fn kept_texture(
+        &self,
+        tensor: &GpuTensor,
+        key: u64,
+        make: impl FnOnce() -> Result<Arc<wgpu::Texture>>,
+    ) -> Result<Arc<wgpu::Texture>> {
+        let mut kept = self.kept_textures.lock().expect("kept textures poisoned");
+        kept.retain(|k| k.buffer.strong_count() > 0);
         let buffer = Arc::downgrade(&tensor.buffer);
-        if let Some(p) = packings.iter().find(|p| p.buffer.ptr_eq(&buffer) && p.packing == kept) {
-            return Ok(p.texture.clone());
+        if let Some(k) = kept.iter().find(|k| k.buffer.ptr_eq(&buffer) && k.key == key) {
+            return Ok(k.texture.clone());
         }
-        let mut plan = PlanBuilder::new();
-        let src = plan.external(name, tensor);
-        let src = kept.source(plan.all(src));
-        let (rows, cols) = src.shape();
-        let texture = Arc::new(self.create_texture(&format!("{name} (packed)"), kept.packing.texels(rows, cols))?);
-        let dst = TextureRef::External(texture.clone());
-        pack::pack_source(&mut plan, &format!("pack {name}"), src, dst, kept.packing);
-        plan.build(self)?.execute(self);
-        packings.push(KeptTexture { buffer, packing: kept, texture: texture.clone() });
+        let texture = make()?;
+        kept.push(KeptEntry { buffer, key, texture: texture.clone() });
         Ok(texture)
+    }
+
+    /// Where compiled pipelines are kept between runs, or why they are not.
+    pub fn pipeline_cache_status(&self) -> PipelineCacheStatus {
+        self.pipeline_cache.status()
+    }
+
+    /// Writes the pipeline cache to its file now if pipelines were compiled since it was last written (the
+    /// Gpu also does when dropped). Whether it wrote; `Ok(false)` without a cache.
+    pub fn save_pipeline_cache(&self) -> std::io::Result<bool> {
+        self.pipeline_cache.save()
     }
 
     /// Checks that a buffer of `bytes` can be bound as one storage buffer (see [`Gpu::max_buffer_bytes`]).
@@ -582,4 +590,17 @@ fn pad_rows(data: &[f32], rows: usize, cols: usize) -> Vec<f32> {
         padded[r * ld..r * ld + cols].copy_from_slice(&data[r * cols..(r + 1) * cols]);
     }
     padded
+}
+
+/// Bytes of an rgba32float texture.
+pub(crate) fn texture_bytes(texture: &wgpu::Texture) -> u64 {
+    texture.width() as u64 * texture.height() as u64 * 16
+}
+
+/// Texels per row of the engine's textures (`TEXTURE_WIDTH` in `shaders/texels.wgsl`).
+pub const TEXTURE_WIDTH: usize = 4096;
+
+/// Width and height of a texture holding `texels` texels.
+pub fn texture_size(texels: usize) -> (u32, u32) {
+    (TEXTURE_WIDTH as u32, texels.div_ceil(TEXTURE_WIDTH).max(1) as u32)
 }

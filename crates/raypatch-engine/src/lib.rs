@@ -5,6 +5,7 @@
 //! (view count, computed size, outputs) a render plan (`scene`, recorded through `graph` into `plan`) →
 //! kernels (`kernels`, one WGSL file each in `shaders/`) → frame (`frame`).
 
+pub mod device;
 pub mod error;
 pub mod frame;
 pub mod gpu;
@@ -18,10 +19,10 @@ pub mod reference;
 pub mod scene;
 pub mod tensor;
 
+pub use device::MatmulKernel;
 pub use error::{EngineError, Result};
 pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
-pub use kernels::matmul::MatmulKernel;
 pub use nn::{KeptF32, LoadOptions, WeightStorage};
 pub use pipeline_cache::{PipelineCacheDir, PipelineCacheStatus};
 pub use scene::{EncodedScene, Model, OpTimes};

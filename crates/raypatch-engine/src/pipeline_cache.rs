@@ -17,8 +17,6 @@ use std::sync::Mutex;
 
 use raypatch_model::files::ReadError;
 
-use crate::gpu::Gpu;
-
 /// The environment variable naming the cache folder; the value `off` turns the cache off.
 pub const CACHE_DIR_ENV: &str = "RAYPATCH_CACHE_DIR";
 
@@ -284,19 +282,6 @@ fn write_atomic(path: &Path, data: &[u8]) -> std::io::Result<()> {
         let _ = std::fs::remove_file(&temp);
     }
     result
-}
-
-impl Gpu {
-    /// Where compiled pipelines are kept between runs, or why they are not.
-    pub fn pipeline_cache_status(&self) -> PipelineCacheStatus {
-        self.pipeline_cache.status()
-    }
-
-    /// Writes the pipeline cache to its file now if pipelines were compiled since it was last written (the
-    /// Gpu also does when dropped). Whether it wrote; `Ok(false)` without a cache.
-    pub fn save_pipeline_cache(&self) -> std::io::Result<bool> {
-        self.pipeline_cache.save()
-    }
 }
 
 #[cfg(test)]

@@ -11,10 +11,9 @@
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
+use crate::device::KernelChoice;
 use crate::error::{EngineError, Result};
-use crate::gpu::{storage_usage, Gpu, Shader, TimestampMode};
-use crate::kernels::matmul::MatmulKernel;
-use crate::kernels::pack::KeptPacking;
+use crate::gpu::{storage_usage, texture_bytes, Gpu, Shader, TimestampMode};
 use crate::tensor::{Dtype, GpuTensor};
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
@@ -49,9 +48,18 @@ pub enum TextureRef {
     Scratch(usize),
     /// A packing of a constant tensor ([`PlanBuilder::constant`]), made the first time a plan binds it and
     /// kept by the [`Gpu`] while the tensor lives.
-    Kept(TensorId, KeptPacking),
+    Kept(TensorId, Arc<dyn KeptTexture>),
     /// A texture owned elsewhere.
     External(Arc<wgpu::Texture>),
+}
+
+/// How a kernel packs a constant tensor into a texture that the [`Gpu`] keeps with the tensor
+/// (`kernels::pack::KeptPacking`): the plan has it made the first time it binds it, without knowing how.
+pub trait KeptTexture: std::fmt::Debug + Send + Sync {
+    /// Tells this packing from the tensor's others.
+    fn key(&self) -> u64;
+    /// Packs `tensor` (named `name`) into a new texture.
+    fn make(&self, gpu: &Gpu, name: &str, tensor: &GpuTensor) -> Result<Arc<wgpu::Texture>>;
 }
 
 /// One kernel dispatch. Its params are bound at binding 0 as a uniform; `bindings` follow from binding 1,
@@ -337,7 +345,9 @@ impl PlanBuilder {
                 let texture = match texture {
                     TextureRef::Scratch(slot) => scratch[*slot].clone(),
                     TextureRef::Kept(id, kept) => match &tensors[id.0].storage {
-                        Storage::Constant(tensor) => gpu.kept_packing(&tensors[id.0].name, tensor, *kept)?,
+                        Storage::Constant(tensor) => {
+                            gpu.kept_texture(tensor, kept.key(), || kept.make(gpu, &tensors[id.0].name, tensor))?
+                        }
                         _ => panic!("op {}: only constant tensors have kept packings", op.label),
                     },
                     TextureRef::External(texture) => texture.clone(),
@@ -406,20 +416,6 @@ impl PlanBuilder {
         let multiply_adds = ops.iter().map(|op| op.multiply_adds).sum();
         Ok(Plan { ops: planned, buffers, infos, peak_bytes, multiply_adds, _uniforms: uniforms, _textures: textures })
     }
-}
-
-/// Bytes of an rgba32float texture.
-pub(crate) fn texture_bytes(texture: &wgpu::Texture) -> u64 {
-    texture.width() as u64 * texture.height() as u64 * 16
-}
-
-/// Kernel variants, where an op has several.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct KernelChoice {
-    pub matmul: MatmulKernel,
-    /// Texels the adapter's largest texture holds (`TEXTURE_WIDTH` x its largest 2-D dimension): ops whose
-    /// packed operands would not fit fall back to buffer kernels.
-    pub max_texels: usize,
 }
 
 struct PlannedOp {

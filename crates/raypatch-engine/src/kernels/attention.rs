@@ -5,7 +5,8 @@
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
 use super::{ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8};
-use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch, MatmulKernel};
+use crate::device::{attention_variant, AttentionVariant};
+use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
 use crate::tensor::padded_cols;
@@ -87,12 +88,14 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         );
     }
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
-    if attention_on_lanes(plan, label, args) {
-        return;
-    }
-    if plan.kernels.matmul == MatmulKernel::Tiled && q.rows > 0 {
-        flash_attention(plan, label, args);
-        return;
+    let mut lanes = None;
+    match attention_variant(&plan.kernels, q.rows, || {
+        lanes = LanesLayout::of(plan, &args);
+        lanes.is_some()
+    }) {
+        AttentionVariant::Lanes => return attention_on_lanes(plan, label, args, lanes.expect("checked")),
+        AttentionVariant::Flash => return flash_attention(plan, label, args),
+        AttentionVariant::Fused => {}
     }
 
     let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
@@ -236,73 +239,105 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
 /// (at least one) whose `heads · rows · nkv` scores fit. Their softmax, packed, takes as much again.
 pub const LANES_SCORES_BYTES: usize = 16 << 20;
 
+/// How attention is laid out on `matmul_lanes`: the packings of the queries (one run per head), the keys and
+/// the transposed values, and the query rows per pass.
+struct LanesLayout {
+    nq: usize,
+    nkv: usize,
+    heads: usize,
+    dim_head: usize,
+    by_head: Packing,
+    key_packing: Packing,
+    value_packing: Packing,
+    scores_ld: usize,
+    /// Query rows per pass: whole 64-row blocks whose scores fit [`LANES_SCORES_BYTES`].
+    rows: usize,
+}
+
+impl LanesLayout {
+    /// The layout, or None where `matmul_lanes` cannot run this attention: no queries, heads not a multiple
+    /// of 32 wide (a head's values must start a 32-column tile of `matmul_lanes`), columns not starting at
+    /// multiples of 4, or operands too large for its textures or grid.
+    fn of(plan: &PlanBuilder, args: &AttentionArgs) -> Option<LanesLayout> {
+        let AttentionArgs { q, q_col, k, k_col, v_col, heads, dim_head, .. } = *args;
+        let (nq, nkv, inner) = (q.rows, k.rows, heads * dim_head);
+        if nq == 0 || !dim_head.is_multiple_of(32) || ![q_col, k_col, v_col].iter().all(|c| c.is_multiple_of(4)) {
+            return None;
+        }
+        let scores_ld = padded_cols(nkv);
+        let layout = LanesLayout {
+            nq,
+            nkv,
+            heads,
+            dim_head,
+            // Queries and keys cut into one run per head; the values transposed, a head's dim_head rows of w each.
+            by_head: Packing { layout: Layout::Rows, segments: heads, zero_rows: 0 },
+            key_packing: Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 },
+            value_packing: Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 },
+            scores_ld,
+            rows: (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).max(64).min(nq),
+        };
+        let texels = [
+            layout.by_head.texels(layout.rows, inner),
+            layout.key_packing.texels(nkv, inner),
+            Packing::ROWS.texels(heads * layout.rows, nkv),
+            layout.value_packing.texels(inner, nkv),
+        ];
+        let fits = texels.iter().all(|&t| t <= plan.kernels.max_texels)
+            && lanes_batch_fits(&layout.scores_batch(layout.rows))
+            && lanes_batch_fits(&layout.values_batch(layout.rows));
+        fits.then_some(layout)
+    }
+
+    /// The scores `q kᵀ` of `rows` queries, a GEMM per head.
+    fn scores_batch(&self, rows: usize) -> LanesBatch {
+        let inner = self.heads * self.dim_head;
+        let head_texels = self.by_head.texels_per_segment(inner);
+        LanesBatch {
+            m: rows,
+            n: self.nkv,
+            k: self.dim_head,
+            x_ld: self.by_head.texels_per_row(inner),
+            x_batch: head_texels,
+            w_ld: self.key_packing.texels_per_row(inner),
+            w_batch: head_texels * 8,
+            out_batch: rows * self.scores_ld,
+            store_cols: self.scores_ld,
+            batches: self.heads,
+        }
+    }
+
+    /// The weighted values of `rows` queries, a GEMM per head writing its columns of out.
+    fn values_batch(&self, rows: usize) -> LanesBatch {
+        let weight_texels = Packing::ROWS.texels_per_row(self.nkv);
+        LanesBatch {
+            m: rows,
+            n: self.dim_head,
+            k: self.nkv,
+            x_ld: weight_texels,
+            x_batch: rows * weight_texels,
+            w_ld: weight_texels,
+            // Head h's values are rows h·dim_head.. of the transposed values: groups of 8 rows of w_ld texels.
+            w_batch: self.dim_head * weight_texels,
+            out_batch: self.dim_head,
+            store_cols: self.dim_head,
+            batches: self.heads,
+        }
+    }
+}
+
 /// Attention on `matmul_lanes` (what llvmpipe runs ~4x faster than the fused kernel's buffer loads): per pass
 /// of query rows, the scores `q kᵀ` of all heads as one batched GEMM, `softmax(scale · scores)` packed as the
 /// next GEMM's x, and `weights · v` as another batched GEMM writing each head's columns of `out`. The keys
 /// and the transposed values are packed once for all passes, and once for all plans where they are constants
-/// (a scene's, in cross-attention: [`crate::kernels::pack::packed`]). Returns false, recording nothing, where it does
-/// not apply: another matmul kernel, no queries, heads not a multiple of 32 wide (a head's values must start
-/// a 32-column tile of `matmul_lanes`), columns not starting at multiples of 4, or operands too large for its
-/// textures.
-fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) -> bool {
+/// (a scene's, in cross-attention: [`crate::kernels::pack::packed`]).
+fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, layout: LanesLayout) {
     let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
-    let (nq, nkv, inner) = (q.rows, k.rows, heads * dim_head);
-    if plan.kernels.matmul != MatmulKernel::Lanes
-        || nq == 0
-        || !dim_head.is_multiple_of(32)
-        || ![q_col, k_col, v_col].iter().all(|c| c.is_multiple_of(4))
-    {
-        return false;
-    }
-    // Queries and keys cut into one run per head; the values transposed, a head's dim_head rows of w each.
-    let by_head = Packing { layout: Layout::Rows, segments: heads, zero_rows: 0 };
-    let key_packing = Packing { layout: Layout::Lanes8, segments: heads, zero_rows: 0 };
-    let value_packing = Packing { layout: Layout::Lanes8, segments: 1, zero_rows: 0 };
-    let scores_ld = padded_cols(nkv);
-    let rows = (LANES_SCORES_BYTES / (heads * scores_ld * 4) / 64 * 64).max(64).min(nq);
-    let head_texels = by_head.texels_per_segment(inner);
-    let weight_texels = Packing::ROWS.texels_per_row(nkv);
-    let scores_batch = |rows: usize| LanesBatch {
-        m: rows,
-        n: nkv,
-        k: dim_head,
-        x_ld: by_head.texels_per_row(inner),
-        x_batch: head_texels,
-        w_ld: key_packing.texels_per_row(inner),
-        w_batch: head_texels * 8,
-        out_batch: rows * scores_ld,
-        store_cols: scores_ld,
-        batches: heads,
-    };
-    let values_batch = |rows: usize| LanesBatch {
-        m: rows,
-        n: dim_head,
-        k: nkv,
-        x_ld: weight_texels,
-        x_batch: rows * weight_texels,
-        w_ld: weight_texels,
-        // Head h's values are rows h·dim_head.. of the transposed values: groups of 8 rows of w_ld texels.
-        w_batch: dim_head * weight_texels,
-        out_batch: dim_head,
-        store_cols: dim_head,
-        batches: heads,
-    };
-    let texels = [
-        by_head.texels(rows, inner),
-        key_packing.texels(nkv, inner),
-        Packing::ROWS.texels(heads * rows, nkv),
-        value_packing.texels(inner, nkv),
-    ];
-    if texels.iter().any(|&t| t > plan.kernels.max_texels)
-        || !lanes_batch_fits(&scores_batch(rows))
-        || !lanes_batch_fits(&values_batch(rows))
-    {
-        return false;
-    }
-
+    let LanesLayout { nq, nkv, rows, by_head, key_packing, value_packing, .. } = layout;
+    let inner = heads * dim_head;
     // Scratch texture 0: the queries, then the weights (as every matmul_lanes x). The keys and the values: a
     // scene's (cross-attention), packed once per scene and kept; others into scratch textures 1 and 2.
-    plan.scratch_texels(0, texels[0].max(texels[2]));
+    plan.scratch_texels(0, by_head.texels(rows, inner).max(Packing::ROWS.texels(heads * rows, nkv)));
     let key_source = Source { view: k, col: k_col, cols: inner, transposed: false };
     let keys = packed(plan, &format!("{label}.pack_k"), key_source, 1, key_packing);
     let value_source = Source { view: v, col: v_col, cols: inner, transposed: true };
@@ -316,11 +351,10 @@ fn attention_on_lanes(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) 
         let query_source = Source { view: q_rows, col: q_col, cols: inner, transposed: false };
         pack_source(plan, &format!("{label}.pack_q"), query_source, TextureRef::Scratch(0), by_head);
         let operands = [TextureRef::Scratch(0), keys.clone()];
-        gemm_lanes_batched(plan, &format!("{label}.scores"), scores_batch(n), operands, scores, q_rows);
+        gemm_lanes_batched(plan, &format!("{label}.scores"), layout.scores_batch(n), operands, scores, q_rows);
         let weights = Source::all(plan, scores);
         pack_softmax_rows(plan, &format!("{label}.softmax"), weights, TextureRef::Scratch(0), scale);
         let operands = [TextureRef::Scratch(0), values.clone()];
-        gemm_lanes_batched(plan, &format!("{label}.values"), values_batch(n), operands, out_rows, q_rows);
+        gemm_lanes_batched(plan, &format!("{label}.values"), layout.values_batch(n), operands, out_rows, q_rows);
     }
-    true
 }

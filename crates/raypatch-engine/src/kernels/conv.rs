@@ -6,10 +6,11 @@
 //! run on `matmul_lanes` (`kernels::matmul::gemm_lanes`, an implicit GEMM over packed textures); the rest on
 //! `conv.wgsl`'s register-blocked `conv2d`.
 
-use crate::kernels::matmul::{gemm_lanes, lanes_fit, MatmulKernel, LANES_COLS};
+use crate::device::{conv_variant, MatmulKernel};
+use crate::kernels::matmul::{gemm_lanes, lanes_fit, LANES_COLS};
 use crate::kernels::pack::Packing;
-use crate::kernels::{Activation, Window, CONV};
-use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
+use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV};
+use crate::plan::{grid, Access, Op, PlanBuilder};
 use crate::tensor::padded_cols;
 
 /// Output pixels per invocation, 64 apart in the flattened n*ho*wo order (`PX` in the shader).
@@ -72,8 +73,8 @@ params! {
     }
 }
 
-/// Whether the plan's kernel is `matmul_lanes` and this convolution suits it: its operands fit in textures
-/// and at least a third of the kernel's work is useful. It computes whole tiles of `LANES_COLS` (32) output
+/// Whether this convolution suits `matmul_lanes`: its operands fit in textures and at least a third of the
+/// kernel's work is useful. It computes whole tiles of `LANES_COLS` (32) output
 /// channels and pads each tap's input channels to whole blocks of 8 texels (32 channels); `conv.wgsl` runs 3-8x slower
 /// on llvmpipe, so the Ray-Patch decoder's 3-channel RGB convs and ResNet's 3-channel stem stay there.
 fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
@@ -81,67 +82,7 @@ fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
     let cin4 = padded_cols(args.cin) / 4;
     let useful_cin = cin4 as f64 / Packing::IMAGE.texels_per_row(args.cin) as f64;
     let useful_cout = args.cout as f64 / (args.cout.div_ceil(LANES_COLS) * LANES_COLS) as f64;
-    plan.kernels.matmul == MatmulKernel::Lanes && useful_cin * useful_cout >= 1.0 / 3.0 && lanes_fit(plan, args)
-}
-
-/// How a convolution's result meets what `out` already holds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ConvMode {
-    /// `out = act(conv(x) + b)`.
-    Overwrite,
-    /// `out += act(conv(x) + b)` (the Ray-Patch decoder's rgb skips).
-    Accumulate,
-    /// `out = act(out + conv(x) + b)`: a residual block's sum before its activation (torchvision
-    /// `BasicBlock`: `relu(bn2(conv2(h)) + identity)`, with the identity in `out`: the downsample conv's
-    /// output, or the block's input itself when nothing reads it afterwards).
-    Residual,
-}
-
-impl ConvMode {
-    /// `mode` as the shader's `Params` holds it: 0 overwrite, 1 accumulate, 2 residual.
-    pub fn code(self) -> u32 {
-        match self {
-            ConvMode::Overwrite => 0,
-            ConvMode::Accumulate => 1,
-            ConvMode::Residual => 2,
-        }
-    }
-
-    /// Whether the kernel reads `out`.
-    pub fn reads_out(self) -> bool {
-        self != ConvMode::Overwrite
-    }
-}
-
-/// A convolution's operands and options: see [`conv2d`].
-#[derive(Clone, Copy, Debug)]
-pub struct Conv2dArgs {
-    /// `[n*h*w, cin]` NHWC view.
-    pub x: View,
-    pub n: usize,
-    pub h: usize,
-    pub w: usize,
-    pub cin: usize,
-    /// [`pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix.
-    pub weight: TensorId,
-    /// `[1, cout]` tensor.
-    pub bias: Option<TensorId>,
-    /// `[n*ho*wo, cout]` NHWC view.
-    pub out: View,
-    pub cout: usize,
-    /// Kernel size, stride (>= 1) and zero padding.
-    pub window: Window,
-    /// Upsample the input 2× (nearest) before the convolution.
-    pub upsample_input: bool,
-    pub act: Activation,
-    pub mode: ConvMode,
-}
-
-/// The output size `(ho, wo)` of a convolution with `window` over an `h × w` image (`2h × 2w` when
-/// `upsample_input`), PyTorch's `(h_eff + 2·padding − k) / stride + 1`; `None` when the window does not fit.
-pub fn conv_output_size(h: usize, w: usize, window: Window, upsample_input: bool) -> Option<(usize, usize)> {
-    let up = usize::from(upsample_input);
-    Some((window.output(h << up)?, window.output(w << up)?))
+    useful_cin * useful_cout >= 1.0 / 3.0 && lanes_fit(plan, args)
 }
 
 /// K×K convolution with zero padding and any stride, NHWC: x is [n*h*w, cin]. With `upsample_input` the
@@ -180,15 +121,13 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     assert_eq!(out.rows, npix, "{label}: out has {} rows, not n*ho*wo = {n}*{ho}*{wo}", out.rows);
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
 
-    if lanes_suit(plan, &args) {
-        return gemm_lanes(plan, label, args);
-    }
     let cout4 = padded_cols(cout) / 4;
-    // GPUs: the implicit GEMM in workgroup-memory tiles; elsewhere the register-blocked direct kernel.
-    let (entry, cout_tiles, pixel_tiles) = if plan.kernels.matmul == MatmulKernel::Tiled {
-        ("conv_tiled", cout4.div_ceil(TILED_COUT_VEC4S), npix.div_ceil(TILED_PIXELS))
-    } else {
-        ("conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
+    let (entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, || lanes_suit(plan, &args)) {
+        MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
+        MatmulKernel::Tiled => ("conv_tiled", cout4.div_ceil(TILED_COUT_VEC4S), npix.div_ceil(TILED_PIXELS)),
+        MatmulKernel::Rows => {
+            ("conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
+        }
     };
     let (act_code, slope) = act.params();
     let params = ConvParams {

@@ -5,79 +5,16 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::kernels::conv::{conv_output_size, Conv2dArgs, ConvMode};
+use crate::device::{linear_variant, MatmulKernel};
 use crate::kernels::pack::{self, Packing, Source};
+use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
-/// Which kernel linear layers and convolutions run on.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum MatmulKernel {
-    /// `matmul.linear`: 4x8 outputs per invocation from storage buffers; any adapter, f32 or f16 weights.
-    #[default]
-    Rows,
-    /// `matmul.linear_tiled`: 64x64 tiles of out per workgroup of 256 invocations, operands staged in
-    /// workgroup memory; for GPUs. Any adapter, f32 or f16 weights.
-    Tiled,
-    /// `matmul_lanes.gemm`: invocations along N, operands packed into textures, rows of x handed between
-    /// lanes by subgroup broadcasts. For CPU adapters (llvmpipe), where it is ~4x faster; needs subgroups of
-    /// exactly 8 lanes. Linear layers with f16 weights, operands too large for its textures or grid
-    /// (`lanes_fit`), and convolutions with few output channels or few input channels per tap
-    /// (`kernels::conv`) use `Rows` (and `conv.wgsl`).
-    Lanes,
-}
-
-impl MatmulKernel {
-    /// Every kernel.
-    pub const ALL: [MatmulKernel; 3] = [MatmulKernel::Rows, MatmulKernel::Tiled, MatmulKernel::Lanes];
-
-    /// The name `--matmul-kernel` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            MatmulKernel::Rows => "rows",
-            MatmulKernel::Tiled => "tiled",
-            MatmulKernel::Lanes => "lanes",
-        }
-    }
-
-    /// The kernel called `name` ([`name`](Self::name)).
-    pub fn from_name(name: &str) -> Option<MatmulKernel> {
-        MatmulKernel::ALL.into_iter().find(|k| k.name() == name)
-    }
-
-    /// The kernel for this adapter: `Lanes` on CPU adapters that can run it, `Rows` on other CPU adapters
-    /// (on llvmpipe the workgroup tiles of `Tiled` are emulated memory), `Tiled` on GPUs.
-    pub fn best_for(info: &wgpu::AdapterInfo, features: wgpu::Features) -> MatmulKernel {
-        let cpu = info.device_type == wgpu::DeviceType::Cpu;
-        if !cpu {
-            MatmulKernel::Tiled
-        } else if MatmulKernel::Lanes.supported(info, features).is_ok() {
-            MatmulKernel::Lanes
-        } else {
-            MatmulKernel::Rows
-        }
-    }
-
-    /// Whether the adapter can run this kernel, and if not why.
-    pub fn supported(self, info: &wgpu::AdapterInfo, features: wgpu::Features) -> Result<(), String> {
-        match self {
-            MatmulKernel::Rows | MatmulKernel::Tiled => Ok(()),
-            MatmulKernel::Lanes if !features.contains(wgpu::Features::SUBGROUP) => {
-                Err("the adapter has no subgroup operations".into())
-            }
-            MatmulKernel::Lanes if (info.subgroup_min_size, info.subgroup_max_size) != (LANES, LANES) => Err(format!(
-                "needs subgroups of {LANES} lanes, the adapter's are {}..{}",
-                info.subgroup_min_size, info.subgroup_max_size
-            )),
-            MatmulKernel::Lanes => Ok(()),
-        }
-    }
-}
-
-/// Lanes of `matmul_lanes`' workgroup (one subgroup), its rows and columns (8-column groups) per row tile,
-/// and the row tiles of the band one workgroup walks (`ROWS`, `GROUPS`, `BAND` in `tools/gen_matmul_lanes.py`).
-const LANES: u32 = 8;
+/// Rows and columns (8-column groups) per row tile of `matmul_lanes`' workgroup (one subgroup of
+/// [`LANES`](crate::device::LANES)), and the row tiles of the band one workgroup walks (`ROWS`, `GROUPS`,
+/// `BAND` in `tools/gen_matmul_lanes.py`).
 const LANES_ROWS: usize = 8;
 pub(crate) const LANES_COLS: usize = 8 * 4;
 const LANES_BAND: usize = 8;
@@ -167,33 +104,30 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         plan.dtype(x.id) == Dtype::F32 && bias.is_none_or(|b| plan.dtype(b) == Dtype::F32),
         "linear {label}: x and bias must be f32"
     );
-    if plan.kernels.matmul == MatmulKernel::Lanes && plan.dtype(w) == Dtype::F32 {
-        let args = Conv2dArgs {
-            x,
-            n: 1,
-            h: 1,
-            w: m,
-            cin: k,
-            weight: w,
-            bias,
-            out,
-            cout: n,
-            window: Window::new(1, 1, 0),
-            upsample_input: false,
-            act,
-            mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
-        };
-        if lanes_fit(plan, &args) {
-            return gemm_lanes(plan, label, args);
-        }
-    }
+    let as_conv = Conv2dArgs {
+        x,
+        n: 1,
+        h: 1,
+        w: m,
+        cin: k,
+        weight: w,
+        bias,
+        out,
+        cout: n,
+        window: Window::new(1, 1, 0),
+        upsample_input: false,
+        act,
+        mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
+    };
+    let variant = linear_variant(&plan.kernels, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
+    let (entry, (tile_rows, tile_cols)) = match variant {
+        MatmulKernel::Lanes => return gemm_lanes(plan, label, as_conv),
+        MatmulKernel::Tiled => ("linear_tiled", TILED_TILE),
+        MatmulKernel::Rows => ("linear", ROWS_TILE),
+    };
     let shader = match plan.dtype(w) {
         Dtype::F32 => &MATMUL,
         Dtype::F16 => &MATMUL_F16,
-    };
-    let (entry, (tile_rows, tile_cols)) = match plan.kernels.matmul {
-        MatmulKernel::Tiled => ("linear_tiled", TILED_TILE),
-        _ => ("linear", ROWS_TILE),
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     let out_access = if accumulate { Access::ReadWrite } else { Access::Write };

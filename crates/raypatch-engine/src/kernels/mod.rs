@@ -77,6 +77,7 @@ pub mod resize;
 pub mod softmax;
 
 use crate::gpu::Shader;
+use crate::plan::{TensorId, View};
 
 /// Activation fused into the end of a matmul or convolution.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,6 +127,67 @@ impl Window {
         }
         (len + 2 * self.padding).checked_sub(self.kernel).map(|r| r / self.stride + 1)
     }
+}
+
+/// How a convolution's result meets what `out` already holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConvMode {
+    /// `out = act(conv(x) + b)`.
+    Overwrite,
+    /// `out += act(conv(x) + b)` (the Ray-Patch decoder's rgb skips).
+    Accumulate,
+    /// `out = act(out + conv(x) + b)`: a residual block's sum before its activation (torchvision
+    /// `BasicBlock`: `relu(bn2(conv2(h)) + identity)`, with the identity in `out`: the downsample conv's
+    /// output, or the block's input itself when nothing reads it afterwards).
+    Residual,
+}
+
+impl ConvMode {
+    /// `mode` as the shader's `Params` holds it: 0 overwrite, 1 accumulate, 2 residual.
+    pub fn code(self) -> u32 {
+        match self {
+            ConvMode::Overwrite => 0,
+            ConvMode::Accumulate => 1,
+            ConvMode::Residual => 2,
+        }
+    }
+
+    /// Whether the kernel reads `out`.
+    pub fn reads_out(self) -> bool {
+        self != ConvMode::Overwrite
+    }
+}
+
+/// A convolution's operands and options: see [`conv::conv2d`]. `matmul_lanes`' implicit GEMM takes them too
+/// (`matmul::gemm_lanes`, also for linear layers as 1×1 convolutions over a 1 × M image).
+#[derive(Clone, Copy, Debug)]
+pub struct Conv2dArgs {
+    /// `[n*h*w, cin]` NHWC view.
+    pub x: View,
+    pub n: usize,
+    pub h: usize,
+    pub w: usize,
+    pub cin: usize,
+    /// [`conv::pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix.
+    pub weight: TensorId,
+    /// `[1, cout]` tensor.
+    pub bias: Option<TensorId>,
+    /// `[n*ho*wo, cout]` NHWC view.
+    pub out: View,
+    pub cout: usize,
+    /// Kernel size, stride (>= 1) and zero padding.
+    pub window: Window,
+    /// Upsample the input 2× (nearest) before the convolution.
+    pub upsample_input: bool,
+    pub act: Activation,
+    pub mode: ConvMode,
+}
+
+/// The output size `(ho, wo)` of a convolution with `window` over an `h × w` image (`2h × 2w` when
+/// `upsample_input`), PyTorch's `(h_eff + 2·padding − k) / stride + 1`; `None` when the window does not fit.
+pub fn conv_output_size(h: usize, w: usize, window: Window, upsample_input: bool) -> Option<(usize, usize)> {
+    let up = usize::from(upsample_input);
+    Some((window.output(h << up)?, window.output(w << up)?))
 }
 
 /// A shader from `shaders/NAME.wgsl`, optionally preceded by shared WGSL files (WGSL has no includes).

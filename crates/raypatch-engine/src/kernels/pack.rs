@@ -2,15 +2,17 @@
 //! the CPU-adapter matmul (`matmul_lanes`) reads, since llvmpipe loads a texel for 8 lanes in one call where
 //! a storage-buffer load costs a bounds-checked scalar load per lane and component.
 
-use crate::kernels::PACK;
-use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
-use crate::tensor::padded_cols;
+use std::hash::{Hash, Hasher};
+use std::sync::Arc;
 
-/// Texels per row of the texture (`TEXTURE_WIDTH` in `shaders/texels.wgsl`).
-pub const TEXTURE_WIDTH: usize = 4096;
+use crate::error::Result;
+use crate::gpu::Gpu;
+use crate::kernels::PACK;
+use crate::plan::{grid, Access, KeptTexture, Op, PlanBuilder, TextureRef, View};
+use crate::tensor::{padded_cols, GpuTensor};
 
 /// How a packed matrix orders its rows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Layout {
     /// Row after row: the activations x of a matmul.
     Rows,
@@ -37,7 +39,7 @@ impl Layout {
 }
 
 /// How a matrix lies in a texture: its row order, the runs each row is cut into, and zero rows after it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Packing {
     pub layout: Layout,
     /// Equal runs each row is cut into, each padded to whole blocks of 8 texels (matmul_lanes reads 8 at a
@@ -86,11 +88,6 @@ impl Packing {
         let tile = self.layout.tile_rows();
         (rows + self.zero_rows).div_ceil(tile) * tile * self.texels_per_row(cols)
     }
-}
-
-/// Width and height of a texture holding `texels` texels.
-pub fn texture_size(texels: usize) -> (u32, u32) {
-    (TEXTURE_WIDTH as u32, texels.div_ceil(TEXTURE_WIDTH).max(1) as u32)
 }
 
 params! {
@@ -146,7 +143,7 @@ impl Source {
 
 /// A packing of a constant tensor's rows ([`PlanBuilder::constant`]) that the [`crate::Gpu`] keeps with the
 /// tensor: columns `col .. col + cols`, or their transpose, packed as `packing` says.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct KeptPacking {
     pub col: usize,
     pub cols: usize,
@@ -161,6 +158,25 @@ impl KeptPacking {
     }
 }
 
+impl KeptTexture for KeptPacking {
+    fn key(&self) -> u64 {
+        let mut hasher = std::collections::hash_map::DefaultHasher::new();
+        self.hash(&mut hasher);
+        hasher.finish()
+    }
+
+    fn make(&self, gpu: &Gpu, name: &str, tensor: &GpuTensor) -> Result<Arc<wgpu::Texture>> {
+        let mut plan = PlanBuilder::new();
+        let src = plan.external(name, tensor);
+        let src = self.source(plan.all(src));
+        let (rows, cols) = src.shape();
+        let texture = Arc::new(gpu.create_texture(&format!("{name} (packed)"), self.packing.texels(rows, cols))?);
+        pack_source(&mut plan, &format!("pack {name}"), src, TextureRef::External(texture.clone()), self.packing);
+        plan.build(gpu)?.execute(gpu);
+        Ok(texture)
+    }
+}
+
 /// `src` packed as `packing` says for the ops after this one: where it is a whole constant tensor (a model
 /// weight, a scene's keys and values), the packing kept with it, made once; else packed into the plan's
 /// scratch texture `slot` right here.
@@ -168,7 +184,7 @@ pub fn packed(plan: &mut PlanBuilder, label: &str, src: Source, slot: usize, pac
     let view = src.view;
     if plan.is_constant(view.id) && view.row_start == 0 && view.rows == plan.rows(view.id) {
         let kept = KeptPacking { col: src.col, cols: src.cols, transposed: src.transposed, packing };
-        return TextureRef::Kept(view.id, kept);
+        return TextureRef::Kept(view.id, Arc::new(kept));
     }
     let (rows, cols) = src.shape();
     plan.scratch_texels(slot, packing.texels(rows, cols));

@@ -8,9 +8,9 @@ use raypatch_model::RayPatchConfig;
 use super::{resize_into, resized};
 use crate::error::Result;
 use crate::graph::{Graph, ImageSize, Tensor};
-use crate::kernels::conv::ConvMode;
 use crate::kernels::resize::{bilinear, nearest};
 use crate::kernels::Activation;
+use crate::kernels::ConvMode;
 use crate::nn::{Conv2d, ConvSpec, Vars};
 
 /// LeakyReLU slope of the conv decoder's feature convs.

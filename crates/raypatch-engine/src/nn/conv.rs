@@ -5,7 +5,8 @@
 use super::{Data, Layout, Param, Vars};
 use crate::error::Result;
 use crate::graph::{Graph, ImageSize, Tensor};
-use crate::kernels::conv::{conv2d, conv_output_size, Conv2dArgs, ConvMode};
+use crate::kernels::conv::conv2d;
+use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window};
 
 /// PyTorch's BatchNorm2d default.

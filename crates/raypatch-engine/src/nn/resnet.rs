@@ -6,8 +6,8 @@
 use super::{Conv2d, ConvSpec, MaxPool2d, Vars};
 use crate::error::Result;
 use crate::graph::{Graph, Tensor};
-use crate::kernels::conv::ConvMode;
 use crate::kernels::Activation;
+use crate::kernels::ConvMode;
 
 /// torchvision `BasicBlock`: relu(bn2(conv2(relu(bn1(conv1(x))))) + identity), the identity being
 /// `downsample(x)` (1×1 stride-2 conv + BN) where the block changes the width or size.

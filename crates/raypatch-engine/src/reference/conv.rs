@@ -2,7 +2,7 @@
 //! preceded by `nn.Upsample(scale_factor=2, mode='nearest')`) with a fused activation and the three ways of
 //! meeting the output ([`ConvMode`]), on NHWC images.
 
-use crate::kernels::conv::{conv_output_size, ConvMode};
+use crate::kernels::{conv_output_size, ConvMode};
 use crate::kernels::{Activation, Window};
 use crate::reference::activation;
 

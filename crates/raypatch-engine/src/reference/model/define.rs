@@ -10,8 +10,8 @@ use raypatch_model::{InputViews, ModelError};
 use super::ray_patch::{resize_bilinear, resized_rays};
 use super::{f64s, Argument, Conv, Dense, Layer, Projections, QueryRows, RayEncoder, Reader, ReferenceScene};
 use crate::graph::ChannelNorm;
-use crate::kernels::conv::ConvMode;
 use crate::kernels::pool::pool_output_size;
+use crate::kernels::ConvMode;
 use crate::kernels::{Activation, Window};
 use crate::models::define::{
     DefineEncoder as EngineDefineEncoder, Head as EngineHead, RayEncoder as EngineRayEncoder, IMAGENET,

@@ -27,9 +27,9 @@ mod srt;
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
 
 use crate::error::EngineError;
-use crate::kernels::conv::{conv_output_size, ConvMode};
 use crate::kernels::elementwise::Map;
 use crate::kernels::Activation;
+use crate::kernels::{conv_output_size, ConvMode};
 use crate::nn::{self, transformer::Projections as EngineProjections, Param, Source, WeightSet};
 
 use super::attention::attention;

@@ -5,8 +5,8 @@
 use raypatch_model::TargetViews;
 
 use super::{f64s, leaky_relu, Argument, Conv, Reader};
-use crate::kernels::conv::ConvMode;
 use crate::kernels::Activation;
+use crate::kernels::ConvMode;
 use crate::models::ray_patch::RayPatchDecoder;
 use crate::reference::resize::{bilinear, linear_source};
 

@@ -1,0 +1,125 @@
+//! Which kernel variant runs where, decided here and nowhere else. A [`Gpu`](crate::Gpu) makes its device
+//! profile ([`KernelChoice`]: the matmul kernel family for its adapter, the texture room) once; every plan
+//! copies it; each kernel wrapper works out its op's shape facts (whether the operands fit a kernel's
+//! textures and grid) and asks here for the variant: [`linear_variant`], [`conv_variant`],
+//! [`attention_variant`].
+//!
+//! The families: `Rows` (storage buffers and register tiles, any adapter), `Tiled` (workgroup-memory tiles:
+//! GPUs), `Lanes` (packed textures and 8-lane subgroup broadcasts: llvmpipe). Adding a variant is an arm here,
+//! its WGSL entry point and its wrapper's dispatch; ARCHITECTURE.md "Adding a kernel variant".
+
+/// Lanes of a subgroup `matmul_lanes` needs, exactly.
+pub const LANES: u32 = 8;
+
+/// The kernel family linear layers, convolutions and attention run on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum MatmulKernel {
+    /// Storage buffers and register tiles: `matmul.linear` (4x8 outputs per invocation), `conv.conv2d`,
+    /// the fused `attention.attention`. Any adapter, f32 or f16 weights.
+    #[default]
+    Rows,
+    /// Workgroup-memory tiles, for GPUs: `matmul.linear_tiled` (64x64 tiles of out per 256 invocations),
+    /// `conv.conv_tiled` (the same tiling as an implicit GEMM) and flash attention (`attention_flash`). Any
+    /// adapter, f32 or f16 weights.
+    Tiled,
+    /// `matmul_lanes.gemm`: invocations along N, operands packed into textures, rows of x handed between
+    /// lanes by subgroup broadcasts; attention as batched GEMMs on it. For CPU adapters (llvmpipe), where it is
+    /// ~4x faster; needs subgroups of exactly 8 lanes. Ops it does not suit (f16 weights, operands too large
+    /// for its textures or grid, convolutions with few channels, heads not a multiple of 32 wide) run as `Rows`.
+    Lanes,
+}
+
+impl MatmulKernel {
+    /// Every kernel.
+    pub const ALL: [MatmulKernel; 3] = [MatmulKernel::Rows, MatmulKernel::Tiled, MatmulKernel::Lanes];
+
+    /// The name `--matmul-kernel` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            MatmulKernel::Rows => "rows",
+            MatmulKernel::Tiled => "tiled",
+            MatmulKernel::Lanes => "lanes",
+        }
+    }
+
+    /// The kernel called `name` ([`name`](Self::name)).
+    pub fn from_name(name: &str) -> Option<MatmulKernel> {
+        MatmulKernel::ALL.into_iter().find(|k| k.name() == name)
+    }
+
+    /// The kernel for this adapter: `Lanes` on CPU adapters that can run it, `Rows` on other CPU adapters
+    /// (on llvmpipe the workgroup tiles of `Tiled` are emulated memory), `Tiled` on GPUs.
+    pub fn best_for(info: &wgpu::AdapterInfo, features: wgpu::Features) -> MatmulKernel {
+        let cpu = info.device_type == wgpu::DeviceType::Cpu;
+        if !cpu {
+            MatmulKernel::Tiled
+        } else if MatmulKernel::Lanes.supported(info, features).is_ok() {
+            MatmulKernel::Lanes
+        } else {
+            MatmulKernel::Rows
+        }
+    }
+
+    /// Whether the adapter can run this kernel, and if not why.
+    pub fn supported(self, info: &wgpu::AdapterInfo, features: wgpu::Features) -> Result<(), String> {
+        match self {
+            MatmulKernel::Rows | MatmulKernel::Tiled => Ok(()),
+            MatmulKernel::Lanes if !features.contains(wgpu::Features::SUBGROUP) => {
+                Err("the adapter has no subgroup operations".into())
+            }
+            MatmulKernel::Lanes if (info.subgroup_min_size, info.subgroup_max_size) != (LANES, LANES) => Err(format!(
+                "needs subgroups of {LANES} lanes, the adapter's are {}..{}",
+                info.subgroup_min_size, info.subgroup_max_size
+            )),
+            MatmulKernel::Lanes => Ok(()),
+        }
+    }
+}
+
+/// The device profile every plan records against.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct KernelChoice {
+    pub matmul: MatmulKernel,
+    /// Texels the adapter's largest texture holds (`TEXTURE_WIDTH` x its largest 2-D dimension): ops whose
+    /// packed operands would not fit fall back to buffer kernels.
+    pub max_texels: usize,
+}
+
+/// The variant of a linear layer: `f32_weights` (f16 weights are read from buffers only) and `lanes_fit`
+/// (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`).
+pub fn linear_variant(choice: &KernelChoice, f32_weights: bool, lanes_fit: impl FnOnce() -> bool) -> MatmulKernel {
+    match choice.matmul {
+        MatmulKernel::Lanes if f32_weights && lanes_fit() => MatmulKernel::Lanes,
+        MatmulKernel::Lanes => MatmulKernel::Rows,
+        other => other,
+    }
+}
+
+/// The variant of a convolution: `lanes_suit` says whether `matmul_lanes` fits it and enough of its work is
+/// useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the register-blocked direct
+/// kernel.
+pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
+    linear_variant(choice, true, lanes_suit)
+}
+
+/// How attention runs ([`attention_variant`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AttentionVariant {
+    /// `attention.attention`: one fused dispatch, a head's 512 queries a workgroup.
+    Fused,
+    /// `attention_flash`: a workgroup per (64 queries, head, key split).
+    Flash,
+    /// Scores, softmax and weighted values as batched `matmul_lanes` GEMMs.
+    Lanes,
+}
+
+/// The variant of an attention op with `queries` query rows: `lanes_fit` says whether its heads and operands
+/// suit `matmul_lanes` (asked only on `Lanes`).
+pub fn attention_variant(choice: &KernelChoice, queries: usize, lanes_fit: impl FnOnce() -> bool) -> AttentionVariant {
+    match choice.matmul {
+        _ if queries == 0 => AttentionVariant::Fused,
+        MatmulKernel::Tiled => AttentionVariant::Flash,
+        MatmulKernel::Lanes if lanes_fit() => AttentionVariant::Lanes,
+        _ => AttentionVariant::Fused,
+    }
+}
