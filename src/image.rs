@@ -219,7 +219,7 @@ impl Image {
                 reason: format!("{} slot weights for a {width}x{height} image of {slots} slots", weights.len()),
             });
         }
-        let data = crate::metrics::slot_ids(weights, slots)
+        let data = slot_ids(weights, slots)
             .flat_map(|slot| PALETTE[slot % PALETTE.len()].map(|c| f32::from(c) / 255.0))
             .collect();
         Image::new(width, height, data)
@@ -363,6 +363,13 @@ impl Image {
         }
         Ok(Image { width, height, data })
     }
+}
+
+/// Each pixel's most-weighted slot, from slot weights `[pixels, slots]` (the first one on ties, as `argmax`).
+pub fn slot_ids(weights: &[f32], slots: usize) -> impl Iterator<Item = usize> + '_ {
+    weights.chunks_exact(slots).map(|w| {
+        w.iter().enumerate().fold((0, f32::NEG_INFINITY), |best, (i, &v)| if v > best.1 { (i, v) } else { best }).0
+    })
 }
 
 #[cfg(test)]

@@ -47,7 +47,7 @@ pub use camera::{
 };
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
-pub use image::{check_image_size, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
+pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
 pub use raypatch_engine::{
     AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Region, RenderStats,

@@ -3,7 +3,7 @@
 //! segmentation; depth errors (Abs.Rel, Sq.Rel, RMSE) as the official test step computes them.
 
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{slot_ids, Image};
 
 /// Side of SSIM's Gaussian window.
 pub const SSIM_WINDOW: usize = 11;
@@ -128,13 +128,6 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
         }
     }
     Ok(total / (3 * width * height) as f64)
-}
-
-/// Each pixel's most-weighted slot, from slot weights `[pixels, slots]` (the first one on ties, as `argmax`).
-pub fn slot_ids(weights: &[f32], slots: usize) -> impl Iterator<Item = usize> + '_ {
-    weights.chunks_exact(slots).map(|w| {
-        w.iter().enumerate().fold((0, f32::NEG_INFINITY), |best, (i, &v)| if v > best.1 { (i, v) } else { best }).0
-    })
 }
 
 /// Foreground adjusted Rand index of a predicted segmentation against ground-truth object ids, as the

@@ -118,7 +118,7 @@ pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
 /// A constant tensor's packed texture, kept while the tensor's buffer lives.
 struct KeptEntry {
     buffer: Weak<wgpu::Buffer>,
-    /// Which packing ([`crate::plan::KeptTexture::key`]).
+    /// Which packing of the tensor (the kernel's key for it).
     key: u64,
     texture: Arc<wgpu::Texture>,
 }

@@ -4,9 +4,23 @@
 //! decoder chunk. `nn` modules and model families record through it; kernels see plain views.
 
 use crate::gpu::Gpu;
-use crate::nn::Param;
 use crate::plan::{PlanBuilder, TensorId, View};
 use crate::tensor::GpuTensor;
+
+/// A model weight as plans bind it: an index into the model's weights (`nn::WeightSet`, and once uploaded
+/// the GPU weights), handed out by the `nn` modules that fetch them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Param(usize);
+
+impl Param {
+    pub(crate) fn new(index: usize) -> Param {
+        Param(index)
+    }
+
+    pub fn index(self) -> usize {
+        self.0
+    }
+}
 
 /// `n` images of `h`×`w` pixels, NHWC: one row per pixel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -25,9 +25,7 @@ const WGPU_MAGIC: &[u8; 8] = b"WGPUPLCH";
 /// The largest cache file read: far above what the engine's few dozen pipelines take.
 const MAX_CACHE_BYTES: u64 = 256 << 20;
 
-/// Where [`Gpu`] keeps compiled pipelines between runs ([`GpuOptions::pipeline_cache`]).
-///
-/// [`GpuOptions::pipeline_cache`]: crate::gpu::GpuOptions::pipeline_cache
+/// Where the `Gpu` keeps compiled pipelines between runs (`GpuOptions::pipeline_cache`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub enum PipelineCacheDir {
     /// `$RAYPATCH_CACHE_DIR` (the value `off` turns the cache off), else `$XDG_CACHE_HOME/raypatch`, else

@@ -255,7 +255,7 @@ pub(crate) fn gemm_lanes(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) 
 }
 
 /// `batches` linear GEMMs on packed operands, `out_z = x_z · w_zᵀ` (no bias, no activation) for batch z
-/// (`MatmulLanesParams::x_batch` ..): attention's heads ([`crate::kernels::attention`]).
+/// (`MatmulLanesParams::x_batch` ..): attention's heads (`kernels::attention`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct LanesBatch {
     /// Each out is `[m, n]`, a sum over `k` (x's and w's rows are packed in runs of `k` columns).

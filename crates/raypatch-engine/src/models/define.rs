@@ -13,12 +13,13 @@ use super::ray_patch::RayPatchDecoder;
 use super::{in_query_chunks, resized, target_queries, Encoded, LightField, QueryRows};
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
+use crate::graph::Param;
 use crate::graph::{ChannelNorm, Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::copy::{copy_columns, CopyArgs};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use crate::kernels::resize::bilinear;
 use crate::kernels::Activation;
-use crate::nn::{FourierEncoding, KeysValues, Linear, Param, PerceiverDims, PerceiverLayer, ResNet18, Vars};
+use crate::nn::{FourierEncoding, KeysValues, Linear, PerceiverDims, PerceiverLayer, ResNet18, Vars};
 use crate::tensor::GpuTensor;
 
 /// The ImageNet normalisation the official ScanNet loader applies to input images (torchvision `Normalize`);

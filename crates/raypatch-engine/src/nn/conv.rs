@@ -2,8 +2,9 @@
 //! `nn.Upsample`, with an eval-mode `nn.BatchNorm2d` that follows it folded into its weight and bias once,
 //! here, when the weights are read.
 
-use super::{Data, Layout, Param, Vars};
+use super::{Data, Layout, Vars};
 use crate::error::Result;
+use crate::graph::Param;
 use crate::graph::{Graph, ImageSize, Tensor};
 use crate::kernels::conv::conv2d;
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};

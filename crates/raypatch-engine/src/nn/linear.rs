@@ -1,7 +1,8 @@
 //! `nn.Linear` (and a 1×1 `nn.Conv2d` over NHWC rows, which is the same matrix product).
 
-use super::{Param, Vars};
+use super::Vars;
 use crate::error::Result;
+use crate::graph::Param;
 use crate::graph::{Graph, Tensor};
 use crate::kernels::matmul::{linear, LinearArgs};
 use crate::kernels::Activation;

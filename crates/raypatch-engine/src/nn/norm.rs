@@ -1,7 +1,8 @@
 //! `nn.LayerNorm` (eps 1e-5, affine).
 
-use super::{Param, Vars};
+use super::Vars;
 use crate::error::Result;
+use crate::graph::Param;
 use crate::graph::{Graph, Tensor};
 use crate::kernels::norm::{layernorm, LayerNormArgs};
 

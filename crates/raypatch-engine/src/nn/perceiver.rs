@@ -16,8 +16,9 @@
 //! are materialised per query chunk (a matrix product and a row softmax) and the weighted sum of the values is
 //! a matrix product too, with the values kept transposed and without their bias (see [`Values`]).
 
-use super::{LayerNorm, Linear, Param, Vars};
+use super::{LayerNorm, Linear, Vars};
 use crate::error::Result;
+use crate::graph::Param;
 use crate::graph::{Graph, Tensor};
 use crate::kernels::attention::{attention, AttentionArgs, MAX_DIM_HEAD};
 use crate::kernels::matmul::{linear, LinearArgs};

@@ -5,8 +5,9 @@
 use raypatch_model::SlotAttentionConfig;
 
 use super::linear::product_t;
-use super::{GruCell, LayerNorm, Linear, Param, Vars};
+use super::{GruCell, LayerNorm, Linear, Vars};
 use crate::error::Result;
+use crate::graph::Param;
 use crate::graph::{Graph, Tensor};
 use crate::kernels::mix::{mix_rows, MixArgs};
 use crate::kernels::softmax::{normalize_rows, softmax, Axis, SoftmaxArgs};

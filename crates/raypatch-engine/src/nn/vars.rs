@@ -12,6 +12,7 @@ use raypatch_model::{HostTensor, LoadedModel};
 
 use crate::error::{EngineError, Result};
 use crate::gpu::Gpu;
+use crate::graph::Param;
 use crate::kernels::conv::pack_conv;
 use crate::tensor::GpuTensor;
 
@@ -22,16 +23,6 @@ pub enum Source<'a> {
     File { model: &'a LoadedModel, max_tensor_bytes: u64 },
     /// No file: each fetch is recorded and returns zeros (to list the tensors a config implies).
     Declare,
-}
-
-/// A weight of the module tree: an index into its [`WeightSet`] (and, once uploaded, into the GPU weights).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Param(usize);
-
-impl Param {
-    pub fn index(self) -> usize {
-        self.0
-    }
 }
 
 /// How a prepared weight is laid out on the GPU.
@@ -85,7 +76,7 @@ pub struct WeightSet {
 
 impl WeightSet {
     pub fn get(&self, p: Param) -> &Prepared {
-        &self.prepared[p.0]
+        &self.prepared[p.index()]
     }
 }
 
@@ -156,7 +147,7 @@ impl Vars<'_, '_> {
     pub fn prepared(&self, name: &str, layout: Layout, data: Data) -> Param {
         let mut store = self.store.borrow_mut();
         store.set.prepared.push(Prepared { name: self.pp(name).path, layout, data });
-        Param(store.set.prepared.len() - 1)
+        Param::new(store.set.prepared.len() - 1)
     }
 
     /// A linear weight `name` of shape `shape` (`[out, in]`, or `[out, in, 1, 1]` for a 1×1 conv).

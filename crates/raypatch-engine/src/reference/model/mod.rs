@@ -27,10 +27,11 @@ mod srt;
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
 
 use crate::error::EngineError;
+use crate::graph::Param;
 use crate::kernels::elementwise::Map;
 use crate::kernels::Activation;
 use crate::kernels::{conv_output_size, ConvMode};
-use crate::nn::{self, transformer::Projections as EngineProjections, Param, Source, WeightSet};
+use crate::nn::{self, transformer::Projections as EngineProjections, Source, WeightSet};
 
 use super::attention::attention;
 use super::concat::concat_columns;
