@@ -1,4 +1,4 @@
-"""Checks of the Python tools: the reference model, the cameras, the checkpoint converter.
+"""Checks of the Python tools: the reference model and the cameras (converter: test_convert_checkpoint.py).
 
     python3 tools/test_reference.py
 
@@ -12,21 +12,16 @@ PYTHONPATH=DIR); it is skipped, saying why, where they cannot be imported.
 """
 
 import ast
-import contextlib
 import copy
 import functools
 import importlib
 import inspect
-import io
 import json
 import math
 import os
-import subprocess
 import sys
-import tempfile
 import textwrap
 import types
-from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +31,12 @@ from safetensors import safe_open
 
 TOOLS = Path(__file__).resolve().parent
 sys.path.insert(0, str(TOOLS))
-import convert_checkpoint  # noqa: E402
 import make_golden  # noqa: E402
 import reference_define  # noqa: E402
 from cameras import get_camera_rays, look_at_positions  # noqa: E402
 from official_configs import (DEFINE_32_STEREO_ACC, OSRT_MDBN_64, RPDEFINE_16_32_STEREO_ACC,  # noqa: E402
                               RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32)
+from random_models import k4_config, random_define, random_model  # noqa: E402
 from raypatch_reference import (OSRT, SRT, Attention, MixingBlock, OSRTEncoder, SlotAttention,  # noqa: E402
                                 SlotMixerDecoder, adjusted_rand_index, build_model, foreground_ari)
 from reference_define import (DeFiNe, PerceiverBasicDecoder, PerceiverLayer, ResNetSkip,  # noqa: E402
@@ -75,18 +70,6 @@ class Skip(Exception):
 def check(function):
     CHECKS.append(function)
     return function
-
-
-def random_model(model_cfg, seed=0):
-    torch.manual_seed(seed)
-    model = SRT.from_config(model_cfg).eval()
-    make_golden.randomize_weights(model)
-    return model
-
-
-def k4_config(**rp_overrides):
-    rp_kwargs = dict(upsample=2, h_in=8, w_in=12, conv_features=16, norm="Batch", **rp_overrides)
-    return make_golden.small_config("featurefield", rp_kwargs=rp_kwargs, width=16)
 
 
 def scene_tensors(case_name="rpsrt_k4"):
@@ -454,17 +437,6 @@ def define_case(name):
     return case, make_golden.make_define_scene(case, np.random.default_rng(case.seed))
 
 
-def random_define(model_cfg, seed=0, scene=None, target_size=None):
-    """A DeFiNe with make_golden's random weights (and, given a scene, its BatchNorm and output calibration)."""
-    torch.manual_seed(seed)
-    model = build_model(model_cfg).eval()
-    make_golden.randomize_define_weights(model)
-    if scene is not None:
-        make_golden.calibrate_batchnorm(model, scene, target_size)
-        make_golden.calibrate_define_output(model, scene, target_size)
-    return model
-
-
 def read_key_list(path):
     """[(name, shape)] of an engine key list: `name [d0, d1]` per line."""
     return [(name, json.loads(shape)) for name, shape in
@@ -699,187 +671,6 @@ def camera_rays():
     centre = rays[height // 2 - 1:height // 2 + 1, width // 2 - 1:width // 2 + 1].mean((0, 1))
     assert np.allclose(centre / np.linalg.norm(centre), forward, atol=1e-6)
     assert rays[0, :, 2].mean() > rays[-1, :, 2].mean(), "row 0 must be the top row"
-
-
-# --- converter ----------------------------------------------------------------------------------------------
-
-
-class ConfigNode(Mapping):
-    """Stands in for omegaconf's DictConfig: a mapping that is not a dict."""
-
-    def __init__(self, items):
-        self._items = {key: ConfigNode(value) if isinstance(value, dict) else value for key, value in items.items()}
-
-    def __getitem__(self, key):
-        return self._items[key]
-
-    def __iter__(self):
-        return iter(self._items)
-
-    def __len__(self):
-        return len(self._items)
-
-
-class ConfigList(Sequence):
-    """Stands in for omegaconf's ListConfig."""
-
-    def __init__(self, items):
-        self._items = list(items)
-
-    def __getitem__(self, index):
-        return self._items[index]
-
-    def __len__(self):
-        return len(self._items)
-
-
-def fake_checkpoint(model, model_cfg, cfg_type=dict, model_section_only=False):
-    """A Lightning checkpoint as the official training writes it, with metric and loss modules in the state_dict.
-
-    The official train.py builds Model(cfg["model"]), so hyper_parameters["cfg"] is the model section itself
-    (model_section_only); the default stores a whole run config there, which the converter also takes."""
-    state_dict = dict(model.state_dict())
-    state_dict["val_metrics.psnr.total"] = torch.tensor(3.0)
-    state_dict["loss_colour.net.0.weight"] = torch.zeros(2, 2)
-    cfg = {"data": {"dataset": "msn_easy", "kwargs": {"h": 120, "w": 160}}, "model": model_cfg,
-           "training": {"batch_size": 32}}
-    return {"epoch": 3, "global_step": 1000, "state_dict": state_dict,
-            "hyper_parameters": {"cfg": cfg_type(model_cfg if model_section_only else cfg), "lr": 1e-4,
-                                 "log_id": None}}
-
-
-def run_converter(checkpoint, directory, name="run.ckpt"):
-    """Saves the checkpoint, converts it in-process; returns (exit code, stderr, output path)."""
-    in_path, out_path = Path(directory) / name, Path(directory) / (name + ".safetensors")
-    torch.save(checkpoint, in_path)
-    stderr = io.StringIO()
-    with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-        code = convert_checkpoint.main([str(in_path), str(out_path)])
-    return code, stderr.getvalue(), out_path
-
-
-@check
-def converter_roundtrip():
-    model_cfg = k4_config()
-    model = random_model(model_cfg)
-    expected = {name: tensor for name, tensor in model.state_dict().items()
-                if not name.endswith("num_batches_tracked")}
-    with tempfile.TemporaryDirectory() as directory:
-        for cfg_type in (dict, ConfigNode):
-            code, stderr, out_path = run_converter(fake_checkpoint(model, model_cfg, cfg_type), directory)
-            assert code == 0, stderr
-            with safe_open(str(out_path), "pt") as converted:
-                metadata = converted.metadata()
-                assert sorted(converted.keys()) == sorted(expected)
-                for name, tensor in expected.items():
-                    assert torch.equal(converted.get_tensor(name), tensor), name
-            assert metadata["format"] == "raypatch-model/1" and metadata["source"] == "run.ckpt"
-            assert json.loads(metadata["config"]) == model_cfg
-            assert not [p for p in Path(directory).iterdir() if p.name.endswith(".tmp")]
-    nested = ConfigNode({"a": ConfigList([1, ConfigNode({"b": None})]), "c": "text"})
-    assert convert_checkpoint.to_plain(nested) == {"a": [1, {"b": None}], "c": "text"}
-
-
-@check
-def converter_rejects_bad_tensors():
-    model_cfg = k4_config()
-    checkpoint = fake_checkpoint(random_model(model_cfg), model_cfg)
-    wrong, missing = "encoder.conv_blocks.0.layers.0.weight", "decoder_rp.conv_decoder.conv_0.bias"
-    checkpoint["state_dict"][wrong] = torch.zeros(4, 180, 3, 3)
-    del checkpoint["state_dict"][missing]
-    with tempfile.TemporaryDirectory() as directory:
-        code, stderr, out_path = run_converter(checkpoint, directory)
-        assert code == 2 and not out_path.exists(), (code, stderr)
-        lines = stderr.splitlines()
-        assert len(lines) == 2, stderr
-        assert any(wrong in line and "[4, 180, 3, 3]" in line and "[4, 183, 3, 3]" in line for line in lines), stderr
-        assert any(missing in line and "missing" in line and "[3]" in line for line in lines), stderr
-        assert all(line.startswith(f"convert_checkpoint: {Path(directory) / 'run.ckpt'}: ") for line in lines)
-
-        no_rp = fake_checkpoint(random_model(model_cfg), {k: v for k, v in model_cfg.items() if k != "rp_kwargs"})
-        code, stderr, out_path = run_converter(no_rp, directory, "no_rp.ckpt")
-        assert code == 2 and "rp_kwargs" in stderr and len(stderr.splitlines()) == 1 and not out_path.exists()
-
-
-@check
-def osrt_converter_roundtrip():
-    """Official-size RP-OSRT (rposrt_MDBN_8_64, 95 M parameters) and a small OSRT: Lightning checkpoint with the
-    official stored out_dims -> model file with the same names, shapes and values, num_batches_tracked dropped."""
-    official_cfg = copy.deepcopy(RPOSRT_MDBN_8_64)
-    official_cfg["decoder_kwargs"]["out_dims"] = 128  # what the official OSRT.__init__ stores
-    small_cfg = make_golden.small_osrt_config()
-    with tempfile.TemporaryDirectory() as directory:
-        for model_cfg in (official_cfg, small_cfg):
-            torch.manual_seed(0)
-            model = build_model(model_cfg)
-            expected = {name: tensor for name, tensor in model.state_dict().items()
-                        if not name.endswith("num_batches_tracked")}
-            assert any(name.endswith("num_batches_tracked") for name in model.state_dict())
-            code, stderr, out_path = run_converter(fake_checkpoint(model, model_cfg, ConfigNode), directory)
-            assert code == 0, stderr
-            with safe_open(str(out_path), "pt") as converted:
-                assert sorted(converted.keys()) == sorted(expected)
-                for name, tensor in expected.items():
-                    assert torch.equal(converted.get_tensor(name), tensor), name
-                assert json.loads(converted.metadata()["config"]) == model_cfg
-            out_path.unlink()
-        # A checkpoint whose tensors do not fit its config is refused.
-        checkpoint = fake_checkpoint(model, small_cfg)
-        checkpoint["state_dict"]["encoder.slot_attention.initial_slots"] = torch.zeros(6, 32)
-        del checkpoint["state_dict"]["decoder_att.mixing_block.to_k.weight"]
-        code, stderr, out_path = run_converter(checkpoint, directory, "bad.ckpt")
-        assert code == 2 and not out_path.exists() and len(stderr.splitlines()) == 2, stderr
-        assert "initial_slots" in stderr and "[6, 32]" in stderr and "[5, 32]" in stderr and "to_k" in stderr
-
-
-@check
-def define_converter_roundtrip():
-    """DeFiNe and RP-DeFiNe Lightning checkpoints (hyper_parameters["cfg"] = the model section, as the official
-    train.py stores it, or a whole run config): the encoder., decoder_att_rgb/d. and decoder_rp_rgb/d. tensors with
-    their names, shapes and values, num_batches_tracked, val_metrics.* and loss_colour.* dropped; tensors that do
-    not fit the config are refused."""
-    rp_cfg = make_golden.small_define_config("featurefield", rp_kwargs=dict(upsample=4, h_in=30, w_in=40,
-                                                                             conv_features=32, norm="Batch"))
-    with tempfile.TemporaryDirectory() as directory:
-        for model_cfg, section_only in ((make_golden.small_define_config(), True), (rp_cfg, True), (rp_cfg, False)):
-            model = random_define(model_cfg)
-            expected = {name: tensor for name, tensor in model.state_dict().items()
-                        if not name.endswith("num_batches_tracked")}
-            prefixes = {name.split(".")[0] for name in expected}
-            assert prefixes == ({"encoder", "decoder_att_rgb", "decoder_att_d"}
-                                | ({"decoder_rp_rgb", "decoder_rp_d"} if "rp_kwargs" in model_cfg else set()))
-            checkpoint = fake_checkpoint(model, model_cfg, ConfigNode, model_section_only=section_only)
-            code, stderr, out_path = run_converter(checkpoint, directory)
-            assert code == 0, stderr
-            with safe_open(str(out_path), "pt") as converted:
-                assert sorted(converted.keys()) == sorted(expected)
-                for name, tensor in expected.items():
-                    assert torch.equal(converted.get_tensor(name), tensor), name
-                assert json.loads(converted.metadata()["config"]) == model_cfg
-            out_path.unlink()
-        checkpoint = fake_checkpoint(model, rp_cfg, model_section_only=True)
-        checkpoint["state_dict"]["decoder_rp_d.conv_decoder.conv_0.weight"] = torch.zeros(3, 32, 3, 3)
-        del checkpoint["state_dict"]["encoder.transformer.embeddings.latents"]
-        code, stderr, out_path = run_converter(checkpoint, directory, "bad.ckpt")
-        assert code == 2 and not out_path.exists() and len(stderr.splitlines()) == 2, stderr
-        assert "[3, 32, 3, 3]" in stderr and "[1, 32, 3, 3]" in stderr and "embeddings.latents" in stderr, stderr
-        checkpoint["hyper_parameters"]["cfg"] = {"data": {}}
-        code, stderr, _ = run_converter(checkpoint, directory, "nocfg.ckpt")
-        assert code == 2 and "no model section" in stderr, stderr
-
-
-@check
-def converter_command_line():
-    model_cfg = make_golden.small_config("lightfield", width=16)
-    with tempfile.TemporaryDirectory() as directory:
-        in_path, out_path = Path(directory) / "lf.ckpt", Path(directory) / "lf.safetensors"
-        torch.save(fake_checkpoint(random_model(model_cfg), model_cfg), in_path)
-        result = subprocess.run([sys.executable, str(TOOLS / "convert_checkpoint.py"), str(in_path), str(out_path)],
-                                capture_output=True, text=True)
-        assert result.returncode == 0 and out_path.exists(), result.stderr
-        result = subprocess.run([sys.executable, str(TOOLS / "convert_checkpoint.py"), str(Path(directory) / "none"),
-                                 str(Path(directory) / "none.safetensors")], capture_output=True, text=True)
-        assert result.returncode == 2 and "cannot load checkpoint" in result.stderr, result.stderr
 
 
 # --- against the official code ------------------------------------------------------------------------------

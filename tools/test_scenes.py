@@ -321,8 +321,8 @@ class TrainingTests(unittest.TestCase):
                 self.assertLess(losses[-1], losses[0])
                 model, _, _ = evaluate.load_model(straight / "model.safetensors")
                 self.assertEqual(names, {n for n in model.state_dict() if not n.endswith("num_batches_tracked")})
-                for a, b in zip(torch.load(straight / "checkpoint.pt")["model"].values(),
-                                torch.load(resumed / "checkpoint.pt")["model"].values()):
+                for a, b in zip(torch.load(straight / "checkpoint.pt", weights_only=True)["model"].values(),
+                                torch.load(resumed / "checkpoint.pt", weights_only=True)["model"].values()):
                     torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
 
     def test_fitting_one_scene_learns_resumes_and_says_so(self):
@@ -342,8 +342,8 @@ class TrainingTests(unittest.TestCase):
             self.assertEqual(train.main(argv + ["--out", str(straight), "--steps", "8"]), 0)
             self.assertEqual(train.main(argv + ["--out", str(resumed), "--steps", "4"]), 0)
             self.assertEqual(train.main(argv + ["--out", str(resumed), "--steps", "8"]), 0)
-            for a, b in zip(torch.load(straight / "checkpoint.pt")["model"].values(),
-                            torch.load(resumed / "checkpoint.pt")["model"].values()):
+            for a, b in zip(torch.load(straight / "checkpoint.pt", weights_only=True)["model"].values(),
+                            torch.load(resumed / "checkpoint.pt", weights_only=True)["model"].values()):
                 torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
             rows = (straight / "curve.csv").read_text().splitlines()
             self.assertEqual(rows[0], "step,train_seconds,lr,loss,val_psnr,heldout_psnr")

@@ -233,7 +233,7 @@ def main(argv=None):
     checkpoint_path = args.out / "checkpoint.pt"
     step, train_seconds, curve = 0, 0.0, []
     if checkpoint_path.exists():
-        state = torch.load(checkpoint_path, map_location=args.device, weights_only=False)
+        state = torch.load(checkpoint_path, map_location=args.device, weights_only=True)  # plain types only
         if state["config"] != model_cfg:
             print(f"train: error: {checkpoint_path} was trained with another config; use another --out",
                   file=sys.stderr)
