@@ -59,7 +59,7 @@ pub enum Error {
     Metrics(String),
 }
 
-/// `Result` with [`Error`].
+/// `Result` with [`Error`](enum@Error).
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// File errors the engine passes through stay [`Error::Model`].

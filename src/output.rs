@@ -51,7 +51,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Writes every file or none: checks all paths ([`check_output_path`]), writes each to a temporary, and
-/// moves them into place only when all were written ([`move_all_into_place`]). On an error the temporaries
+/// moves them into place only when all were written (`move_all_into_place`). On an error the temporaries
 /// are removed and every existing file is as it was.
 pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
     for (path, _) in files {

@@ -1,10 +1,10 @@
 //! The pipeline cache on disk: compiled pipelines kept between runs, where the backend has a pipeline cache
 //! (wgpu's `PIPELINE_CACHE`: Vulkan).
 //!
-//! A [`Gpu`] opens one file in the cache folder, named by the adapter (`wgpu::util::pipeline_cache_key`:
+//! A `Gpu` opens one file in the cache folder, named by the adapter (`wgpu::util::pipeline_cache_key`:
 //! backend, vendor and device), creates its `wgpu::PipelineCache` from the file's data, compiles every
 //! pipeline through it, and writes the cache's data back when the Gpu is dropped or on
-//! [`Gpu::save_pipeline_cache`], if pipelines were compiled since. Writes are atomic (a temporary file in the
+//! `Gpu::save_pipeline_cache`, if pipelines were compiled since. Writes are atomic (a temporary file in the
 //! same folder, renamed over the old one), so concurrent runs leave one whole file. Data wgpu rejects (another
 //! driver version, another wgpu, garbage) starts the cache empty; no cache problem is fatal: IO errors are
 //! printed to stderr once per process.
@@ -68,7 +68,7 @@ impl PipelineCacheDir {
     }
 }
 
-/// What a [`Gpu`] does with compiled pipelines ([`Gpu::pipeline_cache_status`]).
+/// What a `Gpu` does with compiled pipelines (`Gpu::pipeline_cache_status`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum PipelineCacheStatus {
     /// Pipelines go through the cache in `path`; `read_bytes` were read from it when the Gpu was created and

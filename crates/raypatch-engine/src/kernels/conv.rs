@@ -58,11 +58,11 @@ params! {
         pad: u32,
         /// 1 when the input is upsampled 2× (nearest) before the convolution, else 0.
         up: u32,
-        /// Activation code and slope ([`Activation::params`]).
+        /// Activation code and slope ([`Activation::params`](crate::kernels::Activation::params)).
         act: u32,
         slope: f32,
         has_bias: u32,
-        /// [`ConvMode::code`].
+        /// [`ConvMode::code`](crate::kernels::ConvMode::code).
         mode: u32,
         /// n*ho*wo.
         npix: u32,
@@ -91,7 +91,7 @@ fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
 /// written as `mode` says: act(conv + bias), out + act(conv + bias), or act(out + conv + bias).
 ///
 /// `weight` is [`pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix, `bias` a `[1, cout]` tensor. `act`
-/// is any [`Activation`]. The padding columns of `out` are written with zeros (or stay zero when reading
+/// is any [`Activation`](crate::kernels::Activation). The padding columns of `out` are written with zeros (or stay zero when reading
 /// `out`). `out` must not overlap `x`. Records `n·ho·wo·cout·k²·cin` multiply-adds.
 pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let Conv2dArgs { x, n, h, w, cin, weight, bias, out, cout, window, upsample_input, act, mode } = args;
