@@ -32,6 +32,11 @@ struct Params {
     accumulate: u32,
     // vec4s per row of w: k4 for f32 weights; f16 rows are padded to 8 halves, so k4 or k4 + 1.
     w_ld4: u32,
+    // `linear_tiled` only: K cut into `splits` ranges of k_split4 vec4s (a multiple of TILE_K4), one per
+    // workgroup, when the output's tiles are too few to fill a GPU; m_tiles = ceil(m / TILE).
+    splits: u32,
+    k_split4: u32,
+    m_tiles: u32,
 }
 
 alias WeightVec = vec4<f32>;
@@ -141,8 +146,12 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 // In workgroup memory both tiles are K-major ([K step][row]), so the 16 invocations of a row of the
 // workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted, column c at
 // (c % 4) * 16 + c / 4, so that invocation tx's column j sits at j * 16 + tx. The two tiles take 16 KiB,
-// WebGPU's guaranteed minimum of workgroup memory. 64 x 64 tiles keep enough workgroups for a GPU's
-// cores at the engine's shapes (M = 300 rows: 5 x 24 workgroups on a 1536-column layer).
+// WebGPU's guaranteed minimum of workgroup memory.
+//
+// Split K: where out has too few tiles to fill a GPU (M = 300 rows: 5 x 24 tiles on a 1536-column layer, about
+// one 256-invocation workgroup per multiprocessor of an H100), K is cut into `splits` ranges, a workgroup per
+// (tile, range); each writes its raw sums to the partials (bound as `out`, [splits * m, n4] vec4s) and
+// `linear_reduce` adds the ranges up and finishes (bias, activation, accumulation) into out.
 
 const TILE: u32 = 64u;
 // vec4s of K per step.
@@ -156,11 +165,15 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let tiles = (p.n4 + 15u) / 16u;
     let group = wid.x + wid.y * nwg.x;
     let tile = group % tiles;
-    let row0 = (group / tiles) * TILE;
+    let rest = group / tiles;
+    let row0 = (rest % p.m_tiles) * TILE;
+    let split = rest / p.m_tiles;
     // The same for every invocation of the workgroup, so the barriers below stay in uniform control flow.
-    if (row0 >= p.m) {
+    if (split >= p.splits) {
         return;
     }
+    let k_begin = split * p.k_split4;
+    let k_end = min(p.k4, k_begin + p.k_split4);
     let col0 = tile * TILE;
     let tx = lid.x;
     let ty = lid.y;
@@ -168,15 +181,15 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     var acc1 = vec4<f32>(0.0);
     var acc2 = vec4<f32>(0.0);
     var acc3 = vec4<f32>(0.0);
-    for (var k0 = 0u; k0 < p.k4; k0 += TILE_K4) {
+    for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
         // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed),
-        // K past the end reads zeros.
+        // K past the end of the range reads zeros.
         for (var e = li; e < TILE * TILE_K4; e += 256u) {
             let r = e / TILE_K4;
             let kk = e % TILE_K4;
             var xv = vec4<f32>(0.0);
             var wv = vec4<f32>(0.0);
-            if (k0 + kk < p.k4) {
+            if (k0 + kk < k_end) {
                 xv = x[min(row0 + r, p.m - 1u) * p.k4 + k0 + kk];
                 wv = vec4<f32>(w[min(col0 + r, p.n - 1u) * p.w_ld4 + k0 + kk]);
             }
@@ -206,7 +219,30 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     for (var i = 0u; i < 4u; i++) {
         let row = row0 + ty + 16u * i;
         if (row < p.m && c4 < p.n4) {
-            store4(row, c4, block[i]);
+            if (p.splits == 1u) {
+                store4(row, c4, block[i]);
+            } else {
+                out[(split * p.m + row) * p.n4 + c4] = block[i];
+            }
         }
     }
+}
+
+// `linear_reduce`: the ranges of a split `linear_tiled` added up and finished into out, an invocation per vec4
+// of out. Bindings as for the other entry points, the partials in place of x (w is not read).
+@compute @workgroup_size(64)
+fn linear_reduce(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) lid: u32) {
+    _ = w[0];
+    let index = (wid.x + wid.y * nwg.x) * WG + lid;
+    if (index >= p.m * p.n4) {
+        return;
+    }
+    let row = index / p.n4;
+    let c4 = index % p.n4;
+    var sum = vec4<f32>(0.0);
+    for (var s = 0u; s < p.splits; s++) {
+        sum += x[(s * p.m + row) * p.n4 + c4];
+    }
+    store4(row, c4, sum);
 }

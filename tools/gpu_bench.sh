@@ -12,8 +12,8 @@
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
 #     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)
 #     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
-#     rpsrt     the official RP-SRT k=8 at every size, the per-kernel breakdown, PyTorch CUDA eager and
-#               torch.compile on the same weights and inputs
+#     rpsrt     the official RP-SRT k=8 at every size, one view and 8 and 32 at once, the per-kernel breakdown,
+#               PyTorch CUDA eager and torch.compile on the same weights and inputs
 #     srt       the official SRT (k=1) likewise
 #     families  the official RP-OSRT k=8 and RP-DeFiNe k=16 likewise
 # OUT_DIR gets two files, rewritten as each step finishes (a run cut short still returns what it did):
@@ -111,7 +111,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 done
                 ;;
             gemm) run gemm 45 "$bin/raypatch-bench" --gemm --repeats 50 --out "$work/results/gemm" ;;
-            rpsrt) sweep rpsrt 90 25 --only official:8 ;;
+            rpsrt) sweep rpsrt 90 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 60 0 --only official:1 ;;
             families) sweep families 75 25 --only official-osrt:8 --only official-define:16 ;;
         esac

@@ -3,7 +3,8 @@
 //! bias, accumulate, row-range views; plus erf accuracy through GELU.
 
 use raypatch_engine::device::KernelChoice;
-use raypatch_engine::kernels::matmul::{linear, LinearArgs};
+use raypatch_engine::device::MatmulKernel;
+use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::reference::matmul as reference;
@@ -205,6 +206,31 @@ fn linear_tile_edges() {
         let case =
             Case { m, k, n, act: ACTIVATIONS[i % 4], bias: i % 2 == 0, accumulate: i % 3 == 0, view: i % 2 == 1 };
         check(&case, &mut rng);
+    }
+}
+
+/// `Tiled` splits K among workgroups where the output has too few 64x64 tiles to fill a GPU, and adds the
+/// ranges up in a second dispatch; `linear_big_shapes` and the random shapes check the sums (6 and 12 ranges,
+/// and 2 where K reaches 256).
+#[test]
+fn linear_tiled_splits_k_when_tiles_are_few() {
+    // The official RP-SRT's 300x1536x1536 render layers: 5 x 24 tiles, K cut in 5.
+    assert_eq!(k_splits(120, 384), 5);
+    // The encoder's 4800x768x2304: 75 x 36 tiles, enough.
+    assert_eq!(k_splits(2700, 192), 1);
+    // Short K is never cut below 32 vec4s a range.
+    assert_eq!((k_splits(1, 63), k_splits(1, 64)), (1, 2));
+    let gpu = gpu();
+    for (m, k, splits) in [(300, 1536, true), (4800, 64, false)] {
+        let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu.kernels };
+        let x = plan.transient("x", m, k);
+        let w = plan.transient("w", 64, k);
+        let out = plan.transient("out", m, 64);
+        let (x, out) = (plan.all(x), plan.all(out));
+        let args = LinearArgs { x, weight: w, bias: None, out, act: Activation::None, accumulate: false };
+        linear(&mut plan, "linear", args);
+        assert_eq!(plan.op_kernels().any(|k| k.ends_with("linear_reduce")), splits, "{m}x{k}");
     }
 }
 

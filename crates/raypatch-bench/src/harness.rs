@@ -18,7 +18,6 @@ use raypatch_engine::{
 };
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, TargetViews};
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 
 use crate::flops;
 use crate::measure::{self, Repeats, Sample, Stats};
@@ -55,6 +54,9 @@ pub struct Options {
     pub scene: Option<PathBuf>,
     /// Measure only these sweep models, as (group, k), e.g. ("small", 2); no golden cases. Empty: all.
     pub only: Vec<(String, usize)>,
+    /// Also render this many target views at once at each measured sweep size, a measurement each (beside
+    /// the one view every size gets).
+    pub views: Vec<usize>,
     /// The command line, for the record.
     pub command: String,
 }
@@ -85,6 +87,8 @@ struct Bench {
     scratch: PathBuf,
     quick: bool,
     only: Vec<(String, usize)>,
+    /// Target views rendered at once too (`Options::views`).
+    views: Vec<usize>,
 }
 
 /// The results file.
@@ -102,7 +106,7 @@ struct Results {
 
 /// Writes tables.md and the plots again from results.json files (e.g. after changing how they are drawn).
 /// With several files, later files' records replace earlier ones of the same configuration (model, decoder,
-/// k, precision, target size, variant) and the others are kept: a partial run (`--only`) updates a full one.
+/// k, precision, target views and size, variant) and the others are kept: a partial run (`--only`) updates a full one.
 /// The merged results.json, results.csv and kernels.csv are written into `out` too.
 pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
     let mut merged: Option<Results> = None;
@@ -119,6 +123,7 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
                         r.decoder.clone(),
                         r.k,
                         r.precision.clone(),
+                        r.target_views,
                         r.target_size.clone(),
                         r.variant.clone(),
                     )
@@ -213,6 +218,7 @@ pub fn run(options: &Options) -> Result<()> {
         scratch,
         quick: options.quick,
         only: options.only.clone(),
+        views: options.views.clone(),
         env,
     };
     let timing = if bench.timestamps { "gpu timestamps" } else { "wall clock" };
@@ -229,7 +235,7 @@ pub fn run(options: &Options) -> Result<()> {
         Err(why) => println!("PyTorch not timed: {why}"),
     }
 
-    let started = started();
+    let started = report::started();
     let mut records = Vec::new();
     let mut kernels = Vec::new();
     if options.only.is_empty() {
@@ -454,7 +460,7 @@ impl Bench {
                 record.note = format!("{} PyTorch failed: {e:#}", record.note).trim().to_string();
             }
         }
-        print_row(&record);
+        report::print_row(&record);
         Ok(record)
     }
 
@@ -469,7 +475,7 @@ impl Bench {
             report::write_file(&model_path, file)?;
         }
         let scene_path = self.scratch.join(format!("scene-{}.safetensors", record.target_size));
-        report::write_file(&scene_path, &scene_file(s.inputs, targets)?)?;
+        report::write_file(&scene_path, &synthetic::scene_file(s.inputs, targets).map_err(anyhow::Error::msg)?)?;
         // A GPU renders in milliseconds: more runs there for a stable median.
         let repeats = match (self.quick, torch.device) {
             (true, _) => 1,
@@ -540,7 +546,7 @@ impl Bench {
                     let s = raypatch_model::load_scene(scene)?;
                     (s.inputs, s.targets)
                 }
-                None => scene(1, INPUT_SIZE, (120, 160))?,
+                None => scene(1, INPUT_SIZE, 1, (120, 160))?,
             };
             let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
             let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
@@ -562,12 +568,6 @@ impl Bench {
     }
 }
 
-/// When the run started, for the progress lines.
-fn started() -> Instant {
-    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
-    *START.get_or_init(Instant::now)
-}
-
 /// Fills the render timing fields: GPU time when there is one, else wall time.
 fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
     let render = gpu.unwrap_or(wall);
@@ -576,33 +576,20 @@ fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
     record.fps = Some(1e3 * record.target_views as f64 / render.median_ms);
 }
 
-fn print_row(r: &Record) {
-    println!(
-        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
-        started().elapsed().as_secs_f64(),
-        r.model,
-        r.decoder,
-        r.k,
-        r.precision,
-        r.target_size,
-        r.variant,
-        r.render_ms.map_or(0.0, |s| s.median_ms),
-        r.fps.unwrap_or(0.0),
-        r.encode_ms.map_or(0.0, |e| e.median_ms),
-        r.render_peak_bytes.map_or("-".into(), report::bytes),
-        report::sci(r.max_err_f64_reference),
-    );
-}
-
 fn max_abs_f32(a: &[f32], b: &[f32]) -> f64 {
     let b: Vec<f64> = b.iter().map(|&v| v as f64).collect();
     measure::max_abs_error(a, &b)
 }
 
-/// The benchmark scene: one input view of [`INPUT_SIZE`] and one target view of `target`, the same cameras
-/// and image at every target size.
-fn scene(views: usize, input: (usize, usize), target: (usize, usize)) -> Result<(InputViews, TargetViews)> {
-    synthetic::synthetic_scene(SEED, views, input, 1, target, &CameraRig::default()).map_err(anyhow::Error::msg)
+/// The benchmark scene: `views` input views of `input` and `targets` target views of `target`, the same
+/// cameras and images at every target size.
+fn scene(
+    views: usize,
+    input: (usize, usize),
+    targets: usize,
+    target: (usize, usize),
+) -> Result<(InputViews, TargetViews)> {
+    synthetic::synthetic_scene(SEED, views, input, targets, target, &CameraRig::default()).map_err(anyhow::Error::msg)
 }
 
 /// What a measured render computes: what the official model's forward returns (rgb, and DeFiNe's log-depth,
@@ -612,26 +599,4 @@ fn model_outputs(config: &ModelConfig) -> Outputs {
         Family::Define(_) => Outputs::of(&[Output::Rgb, Output::LogDepth]),
         _ => Outputs::default(),
     }
-}
-
-/// A scene file (docs/FORMATS.md) of these views, for PyTorch.
-fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>> {
-    let (n, h, w) = (inputs.count, inputs.height, inputs.width);
-    let t = targets.count;
-    let (th, tw) = (targets.rays_height, targets.rays_width);
-    let tensors = vec![
-        ("input_images".to_string(), vec![n, h, w, 3], inputs.images.clone()),
-        ("input_camera_pos".to_string(), vec![n, 3], inputs.camera_pos.clone()),
-        ("input_rays".to_string(), vec![n, h, w, 3], inputs.rays.clone()),
-        ("target_camera_pos".to_string(), vec![t, 3], targets.camera_pos.clone()),
-        ("target_rays".to_string(), vec![t, th, tw, 3], targets.rays.clone()),
-    ];
-    let metadata = json!({"format": "raypatch-scene/1"});
-    let metadata = metadata
-        .as_object()
-        .expect("object")
-        .iter()
-        .map(|(k, v)| (k.clone(), v.as_str().unwrap_or_default().to_string()))
-        .collect();
-    synthetic::serialize(&tensors, metadata).map_err(anyhow::Error::msg)
 }

@@ -59,6 +59,10 @@ struct Args {
     /// K = 16, from two 128x192 views at 480x640 and 960x1280). Skips the golden cases. Merge into a full run with --replot.
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
+    /// Also render T target views at once at each measured sweep size (comma-separated counts, 2 to 256): a
+    /// measurement per count, its frames per second counting views, PyTorch rendering as many at once
+    #[arg(long, value_name = "T,...", value_delimiter = ',', value_parser = clap::value_parser!(u16).range(2..=256))]
+    views: Vec<u16>,
     /// Measure only the hot linear layers of the official RP-SRT alone, on every matmul kernel the adapter
     /// runs (or the --matmul-kernel one) and in PyTorch: gemm.json and gemm.md in --out.
     #[arg(long)]
@@ -111,6 +115,7 @@ fn main() -> ExitCode {
         models: args.models,
         scene: args.scene,
         only: args.only,
+        views: args.views.into_iter().map(usize::from).collect(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
     };
     match raypatch_bench::run(&options) {

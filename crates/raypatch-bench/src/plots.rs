@@ -197,11 +197,11 @@ fn config_label(r: &Record) -> String {
     format!("{} {decoder} {}", r.model, r.precision)
 }
 
-/// Lines per (model, k) over the f32 sweep records (f16 scales the same way; it is in the Pareto plot),
+/// Lines per (model, k) over the f32 sweep records of one target view (f16 scales the same way; it is in the Pareto plot),
 /// x and y taken by `point`, sorted by x.
 fn by_config(records: &[Record], point: impl Fn(&Record) -> Option<(f64, f64)>) -> Vec<Series> {
     let mut series: Vec<Series> = Vec::new();
-    for r in records.iter().filter(|r| r.group == "sweep" && r.precision == "f32") {
+    for r in records.iter().filter(|r| r.group == "sweep" && r.precision == "f32" && r.target_views == 1) {
         let Some(p) = point(r) else { continue };
         let label = config_label(r);
         let next = COLORS[series.len() % COLORS.len()];
@@ -231,7 +231,7 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
     // Render time against error at one target size (the paper's 120×160), over k and precision.
     let size = "120x160";
     let mut pareto: Vec<Series> = Vec::new();
-    for r in records.iter().filter(|r| r.group == "sweep" && r.target_size == size) {
+    for r in records.iter().filter(|r| r.group == "sweep" && r.target_size == size && r.target_views == 1) {
         if let (Some(t), Some(e)) = (r.render_ms, r.max_err_f64_reference) {
             let label = format!("{} {}", r.model, r.precision);
             let tag = if r.k == 1 { format!(" {}", r.decoder) } else { format!(" k={}", r.k) };

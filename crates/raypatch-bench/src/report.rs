@@ -268,7 +268,7 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                     r.decoder.clone(),
                     r.k.to_string(),
                     r.precision.clone(),
-                    r.target_size.clone(),
+                    format!("{}x{}", r.target_views, r.target_size),
                     if r.render_ms.is_some() { stats_text(r.render_ms) } else { r.note.clone() },
                     opt(r.fps, 2),
                     opt(r.encode_ms.map(|e| e.median_ms), 1),
@@ -286,7 +286,8 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
     out += "### Ray-Patch speed-up over the per-pixel decoder (SRT or OSRT; fps ratio, same model and target size)\n\n";
     let mut rows = Vec::new();
     let mut keys: Vec<(String, String, String)> = Vec::new();
-    for r in &sweep {
+    // One target view per render (the paper's setting); renders of several views at once are in the sweep table.
+    for r in sweep.iter().filter(|r| r.target_views == 1) {
         let key = (r.model.clone(), r.precision.clone(), r.target_size.clone());
         if !keys.contains(&key) {
             keys.push(key);
@@ -296,7 +297,13 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
         let fps = |k: usize| {
             sweep
                 .iter()
-                .find(|r| r.model == model && r.precision == precision && r.target_size == size && r.k == k)
+                .find(|r| {
+                    r.target_views == 1
+                        && r.model == model
+                        && r.precision == precision
+                        && r.target_size == size
+                        && r.k == k
+                })
                 .and_then(|r| r.fps)
         };
         let Some(srt) = fps(1) else { continue };
@@ -437,4 +444,30 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
     }
 
     out
+}
+
+/// When the run started, for the progress lines.
+pub fn started() -> std::time::Instant {
+    static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    *START.get_or_init(std::time::Instant::now)
+}
+
+/// The progress line of a measured configuration.
+pub fn print_row(r: &Record) {
+    println!(
+        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>2}x{:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
+        started().elapsed().as_secs_f64(),
+        r.model,
+        r.decoder,
+        r.k,
+        r.precision,
+        r.target_views,
+        r.target_size,
+        r.variant,
+        r.render_ms.map_or(0.0, |s| s.median_ms),
+        r.fps.unwrap_or(0.0),
+        r.encode_ms.map_or(0.0, |e| e.median_ms),
+        r.render_peak_bytes.map_or("-".into(), bytes),
+        sci(r.max_err_f64_reference),
+    );
 }

@@ -316,6 +316,28 @@ pub fn synthetic_scene(
     Ok((input, target))
 }
 
+/// A scene file (docs/FORMATS.md) of these views, for PyTorch.
+pub fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>, String> {
+    let (n, h, w) = (inputs.count, inputs.height, inputs.width);
+    let t = targets.count;
+    let (th, tw) = (targets.rays_height, targets.rays_width);
+    let tensors = vec![
+        ("input_images".to_string(), vec![n, h, w, 3], inputs.images.clone()),
+        ("input_camera_pos".to_string(), vec![n, 3], inputs.camera_pos.clone()),
+        ("input_rays".to_string(), vec![n, h, w, 3], inputs.rays.clone()),
+        ("target_camera_pos".to_string(), vec![t, 3], targets.camera_pos.clone()),
+        ("target_rays".to_string(), vec![t, th, tw, 3], targets.rays.clone()),
+    ];
+    let metadata = json!({"format": "raypatch-scene/1"});
+    let metadata = metadata
+        .as_object()
+        .expect("object")
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_str().unwrap_or_default().to_string()))
+        .collect();
+    serialize(&tensors, metadata)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

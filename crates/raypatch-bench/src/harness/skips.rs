@@ -9,9 +9,10 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::{Output, Outputs, Region, Request};
 use raypatch_model::TargetViews;
 
-use super::{decoder_name, model_outputs, precision_name, print_row, set_times, Bench, Subject};
+use super::{decoder_name, model_outputs, precision_name, set_times, Bench, Subject};
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
+use crate::report::print_row;
 use crate::report::{KernelTime, Record};
 
 impl Bench {

@@ -72,7 +72,7 @@ impl Bench {
         }
         for Spec { name, k, config, inputs: (views, input_size), sizes } in specs {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
-            let (inputs, _) = scene(views, input_size, input_size)?;
+            let (inputs, _) = scene(views, input_size, 1, input_size)?;
             // Whether the float64 references are affordable is decided from the first model's encode (the
             // weight storage does not change the work), and they serve both storages.
             let mut references = None;
@@ -122,7 +122,7 @@ impl Bench {
         let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
         let mut rate: Option<f64> = None;
         for &size in sizes {
-            let (_, targets) = scene(views, input_size, size)?;
+            let (_, targets) = scene(views, input_size, 1, size)?;
             // The render's multiply-adds, counted from the ops its plan would record (nothing is built).
             let macs = s.encoded.render_multiply_adds(&targets, model_outputs(&s.loaded.config))?;
             if let Some(rate) = rate {
@@ -161,6 +161,9 @@ impl Bench {
             rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
             records.push(record);
             measured.push(size);
+            if f32_weights {
+                records.extend(self.many_views(s, (views, input_size), size, macs, rate)?);
+            }
             if f32_weights && self.breakdown_config(name, k, size) {
                 kernels.extend(self.kernel_breakdown(s, &targets)?);
             }
@@ -176,6 +179,39 @@ impl Bench {
             s.encoded.clear_render_plans();
         }
         Ok(measured)
+    }
+
+    /// Renders of `--views` target views at once at `size` (PyTorch rendering as many where it is timed at
+    /// this size), each skipped where one view's multiply-adds `macs` at `rate` predict it too slow.
+    fn many_views(
+        &self,
+        s: &Subject,
+        (views, input_size): (usize, Size),
+        size: Size,
+        macs: u64,
+        rate: Option<f64>,
+    ) -> Result<Vec<Record>> {
+        let (name, k) = (s.name.as_str(), s.loaded.config.patch_size());
+        let mut records = Vec::new();
+        for &count in &self.views {
+            let (_, targets) = scene(views, input_size, count, size)?;
+            let predicted = rate.map_or(0.0, |rate| (count as u64 * macs) as f64 / rate);
+            if predicted > self.max_render.as_secs_f64() {
+                records.push(self.skipped(s, &targets, predicted, count as u64 * macs)?);
+                continue;
+            }
+            match self.measure(s, &targets, None, self.torch_config(name, k, size)) {
+                Ok(record) => records.push(record),
+                Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
+                    let mut record = self.record(s, count, size, "");
+                    record.note = format!("does not fit: {e}");
+                    records.push(record);
+                }
+                Err(e) => return Err(e),
+            }
+            s.encoded.clear_render_plans();
+        }
+        Ok(records)
     }
 
     fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {

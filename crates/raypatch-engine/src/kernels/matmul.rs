@@ -40,6 +40,10 @@ params! {
         accumulate: u32,
         /// vec4s per row of w: k4 for f32 weights; f16 rows are padded to 8 halves, so k4 or k4 + 1.
         w_ld4: u32,
+        /// `linear_tiled`: K in `splits` ranges of `k_split4` vec4s; `m_tiles` = ceil(m / 64).
+        splits: u32,
+        k_split4: u32,
+        m_tiles: u32,
     }
 }
 
@@ -89,16 +93,20 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     }
     let (act_code, slope) = act.params();
     let n4 = padded_cols(n) / 4;
-    let params = MatmulParams {
+    let k4 = padded_cols(k) / 4;
+    let mut params = MatmulParams {
         m: m as u32,
         n: n as u32,
-        k4: (padded_cols(k) / 4) as u32,
+        k4: k4 as u32,
         n4: n4 as u32,
         act: act_code,
         slope,
         has_bias: bias.is_some() as u32,
         accumulate: accumulate as u32,
         w_ld4: (plan.ld(w) / 4) as u32,
+        splits: 1,
+        k_split4: k4 as u32,
+        m_tiles: m.div_ceil(TILED_TILE.0) as u32,
     };
     assert!(
         plan.dtype(x.id) == Dtype::F32 && bias.is_none_or(|b| plan.dtype(b) == Dtype::F32),
@@ -131,21 +139,60 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
+    let (weight, bias) = (plan.all(w), plan.all(bias.unwrap_or(w)));
+    let multiply_adds = (m as u64) * (n as u64) * (k as u64);
+    let splits = if variant == MatmulKernel::Tiled { k_splits(groups, k4) } else { 1 };
+    if splits == 1 {
+        plan.push(Op {
+            label: label.to_string(),
+            shader,
+            entry,
+            params: params.words(),
+            bindings: vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
+            textures: Vec::new(),
+            workgroups: grid(groups),
+            multiply_adds,
+        });
+        return;
+    }
+    // Split K: each range's raw sums into the partials, then one pass adding them up into out.
+    params.k_split4 = (k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4) as u32;
+    params.splits = k4.div_ceil(params.k_split4 as usize) as u32;
+    let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
+    let partials = plan.all(partials);
     plan.push(Op {
-        label: label.to_string(),
+        label: format!("{label}.split"),
         shader,
         entry,
         params: params.words(),
-        bindings: vec![
-            (x, Access::Read),
-            (plan.all(w), Access::Read),
-            (plan.all(bias.unwrap_or(w)), Access::Read),
-            (out, out_access),
-        ],
+        bindings: vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read), (partials, Access::Write)],
         textures: Vec::new(),
-        workgroups: grid(groups),
-        multiply_adds: (m as u64) * (n as u64) * (k as u64),
+        workgroups: grid(groups * params.splits as usize),
+        multiply_adds,
     });
+    plan.push(Op {
+        label: format!("{label}.reduce"),
+        shader,
+        entry: "linear_reduce",
+        params: params.words(),
+        bindings: vec![(partials, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
+        textures: Vec::new(),
+        workgroups: grid((m * n4).div_ceil(64)),
+        multiply_adds: 0,
+    });
+}
+
+/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` with fewer output
+/// tiles than this has its K split among workgroups.
+const TILED_TARGET_GROUPS: usize = 512;
+/// vec4s of K per step of `linear_tiled` (`TILE_K4`), and the fewest vec4s a K range may have (4 steps).
+const TILED_K4: usize = 8;
+const TILED_MIN_SPLIT_K4: usize = 4 * TILED_K4;
+
+/// How many ranges `linear_tiled` cuts a K of `k4` vec4s into for an output of `groups` tiles: enough for
+/// [`TILED_TARGET_GROUPS`] workgroups, each range at least [`TILED_MIN_SPLIT_K4`] long.
+pub fn k_splits(groups: usize, k4: usize) -> usize {
+    TILED_TARGET_GROUPS.div_ceil(groups).min(k4 / TILED_MIN_SPLIT_K4).max(1)
 }
 
 params! {
