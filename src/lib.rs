@@ -1,7 +1,8 @@
 //! # raypatch
 //!
-//! Novel-view rendering with Light Field Transformers (SRT, and RP-SRT with Ray-Patch querying) on
-//! hand-written WGSL compute shaders, on any GPU through wgpu, or on the CPU through Mesa lavapipe.
+//! Novel-view rendering with Light Field Transformers (SRT, OSRT and DeFiNe, and their Ray-Patch variants
+//! RP-SRT, RP-OSRT and RP-DeFiNe) on hand-written WGSL compute shaders, on any GPU through wgpu, or on the CPU
+//! through Mesa lavapipe.
 //!
 //! An [`Engine`] picks an adapter; [`Engine::load`] reads a model file; [`Model::encode`] turns posed input
 //! images into a [`Scene`] (the latent tokens and the decoder's keys and values, computed once);

@@ -3,32 +3,46 @@
 
 The kernel's inner block is 8 steps along K x ROWS rows x GROUPS column groups of dot products, each step
 with a subgroup broadcast whose lane must be a literal: WGSL has no loops that unroll at compile time, so
-this script writes them out. Change ROWS or BAND here (GROUPS is 4: a lane's vec4 of out; the wrapper's
-LANES_ROWS and LANES_BAND in kernels/matmul.rs must follow), run it, and commit both files;
-`cargo test --test kernels shaders` fails when the shader and this script disagree (`--check`).
+this script writes them out. Its sizes are the wrapper's: LANES_ROWS, LANES_COLS and LANES_BAND in
+crates/raypatch-engine/src/kernels/matmul.rs and LANES in device.rs, read from there (one place for both
+sides). Change them there, run this, and commit both files; `cargo test --test kernels shaders` fails when the
+shader and the wrapper disagree (`--check`).
 
     python3 tools/gen_matmul_lanes.py          # rewrite the shader
     python3 tools/gen_matmul_lanes.py --check  # exit 1 if the shader is not what this script writes
 """
+import re
 import sys
 from pathlib import Path
+
+ENGINE = Path(__file__).resolve().parent.parent / "crates" / "raypatch-engine" / "src"
+
+
+def rust_const(file, name):
+    """The value of `const NAME: type = <integer expression>;` in the engine's source file `file`."""
+    text = (ENGINE / file).read_text()
+    match = re.search(rf"\bconst {name}: \w+ = ([0-9 *+]+);", text)
+    if not match:
+        sys.exit(f"gen_matmul_lanes: no `const {name}` with an integer value in {ENGINE / file}")
+    return eval(match.group(1), {"__builtins__": {}})  # digits, spaces, * and + only (the pattern above)
+
 
 # Rows of x per workgroup and 8-column groups of w per invocation: 8 x 4 measured fastest on Mesa 25.0.7
 # (300x1536x1536 on 2 Zen 4 threads, GMAC/s: 8x3 23.6, 8x4 25.0, 8x5 23.7-25.2, 8x6 22.5, 12x3 23.0-24.5,
 # 16x2 23.5, 16x3 23.8, 24x2 20.9, 4x8 17.5). More rows per load of w would mean fewer loads per
 # multiply-add, but the unrolled block outgrows the core's 32 KiB instruction cache past about 8 x 5.
-ROWS = 8
-GROUPS = 4
+ROWS = rust_const("kernels/matmul.rs", "LANES_ROWS")
+LANES = rust_const("device.rs", "LANES")  # the subgroup: lavapipe's SIMD width with AVX2, checked by the wrapper
+GROUPS = rust_const("kernels/matmul.rs", "LANES_COLS") // LANES
 # A lane's column groups are 4 consecutive columns of out (the 8-lane packing transposes tiles of 32 rows of
 # w, texels.wgsl), which it stores as one vec4: a scattered store is a bounds-checked scalar store per lane.
-assert GROUPS == 4
+assert GROUPS == 4, f"LANES_COLS / LANES is {GROUPS}: a lane stores one vec4 of columns"
 # Row tiles one workgroup walks (a band): its tile of w comes from memory once for BAND row tiles. Bands of
 # 8 (64 rows) took the 4800-row encoder layers with 1536 and 2304 columns from ~9 to ~20 GMAC/s, where w
 # (5-7 MB) no longer fits in cache; walking the band inside one workgroup (one loop, entered once) took the
 # short-K layers 300x32x1536 from 5.1 to 2.5 ms and 300x180x1536 from 10.4 to 8.3 ms on one thread. Bands of 16
 # ran within 2% of bands of 8 on every --gemm shape (one thread).
-BAND = 8
-LANES = 8  # the subgroup: lavapipe's SIMD width with AVX2, checked by the wrapper
+BAND = rust_const("kernels/matmul.rs", "LANES_BAND")
 
 SHADER = Path(__file__).resolve().parent.parent / "shaders" / "matmul_lanes.wgsl"
 

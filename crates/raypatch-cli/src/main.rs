@@ -36,7 +36,7 @@ const MAX_RENDERS: usize = 100_000;
 #[command(
     name = "render-frame",
     version,
-    about = "Render novel views, depth and object masks of a scene with an SRT / RP-SRT / OSRT / RP-OSRT model on the GPU",
+    about = "Render novel views, depth and object masks of a scene with an SRT, OSRT or DeFiNe model (or its Ray-Patch variant) on the GPU",
     after_help = "With no arguments, renders target view 0 of the bundled scene with the bundled model into render.png."
 )]
 struct Args {

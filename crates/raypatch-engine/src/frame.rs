@@ -83,9 +83,6 @@ impl Outputs {
     pub fn with(self, output: Output) -> Outputs {
         Outputs(self.0 | output.bit())
     }
-    pub fn without(self, output: Output) -> Outputs {
-        Outputs(self.0 & !output.bit())
-    }
     pub fn is_empty(self) -> bool {
         self.0 == 0
     }

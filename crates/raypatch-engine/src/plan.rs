@@ -219,10 +219,6 @@ impl PlanBuilder {
         self.ops.push(op);
     }
 
-    pub fn op_count(&self) -> usize {
-        self.ops.len()
-    }
-
     /// The kernel of each op recorded so far, as `shader.entry` (what profiles name them).
     pub fn op_kernels(&self) -> impl Iterator<Item = String> + '_ {
         self.ops.iter().map(|op| format!("{}.{}", op.shader.name, op.entry))
