@@ -20,6 +20,7 @@ fn main() -> ExitCode {
         models: Vec::new(),
         scene: None,
         only: Vec::new(),
+        views: Vec::new(),
         command: "cargo bench".into(),
     };
     match raypatch_bench::run(&options) {

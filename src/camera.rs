@@ -125,7 +125,7 @@ pub struct RayGrid {
     /// Rows of rays.
     pub height: usize,
     /// `width * height` rays, row-major: unit directions, or unit-depth points (see [`RayKind`]).
-    pub directions: Vec<Vec3>,
+    pub rays: Vec<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -148,7 +148,7 @@ enum Projection {
 /// let (intrinsics, pose) = msn.as_pinhole().unwrap();
 /// let pinhole = Camera::pinhole(intrinsics, pose, CameraAxes::OpenCv)?;
 /// let explicit = Camera::from_rays(msn.position(), msn.rays())?;
-/// for (a, b) in msn.rays().directions.iter().zip(&pinhole.rays().directions) {
+/// for (a, b) in msn.rays().rays.iter().zip(&pinhole.rays().rays) {
 ///     assert!((*a - *b).abs().max_element() < 1e-6);
 /// }
 /// assert_eq!(explicit.rays(), msn.rays());
@@ -184,7 +184,7 @@ impl Camera {
         raypatch_model::TargetViews {
             count: 1,
             camera_pos: self.position().as_vec3().to_array().to_vec(),
-            rays: rays.directions.iter().flat_map(|d| d.to_array()).collect(),
+            rays: rays.rays.iter().flat_map(|d| d.to_array()).collect(),
             rays_height: rays.height,
             rays_width: rays.width,
             declared_size: Some((self.height(), self.width())),
@@ -266,24 +266,21 @@ impl Camera {
         if grid.width == 0 || grid.height == 0 || k == 0 {
             return Err(Error::Camera(format!("ray grid {}x{} (k={k}) is empty", grid.width, grid.height)));
         }
-        if Some(grid.directions.len()) != grid.width.checked_mul(grid.height) {
+        if Some(grid.rays.len()) != grid.width.checked_mul(grid.height) {
             return Err(Error::Camera(format!(
                 "ray grid has {} rays, expected width x height = {}x{}",
-                grid.directions.len(),
+                grid.rays.len(),
                 grid.width,
                 grid.height
             )));
         }
-        if let Some(i) = grid.directions.iter().position(|d| !d.is_finite() || d.length() < 1e-6) {
-            return Err(Error::Camera(format!(
-                "ray {i} is {}: expected a finite, non-zero direction",
-                grid.directions[i]
-            )));
+        if let Some(i) = grid.rays.iter().position(|d| !d.is_finite() || d.length() < 1e-6) {
+            return Err(Error::Camera(format!("ray {i} is {}: expected a finite, non-zero direction", grid.rays[i])));
         }
         // Rays that all coincide see one point: every pixel would get the same colour.
-        let first = grid.directions[0];
-        let spread = grid.directions.iter().map(|d| (*d - first).length()).fold(0.0f32, f32::max);
-        if grid.directions.len() > 1 && spread < MIN_RAY_SPREAD * first.length() {
+        let first = grid.rays[0];
+        let spread = grid.rays.iter().map(|d| (*d - first).length()).fold(0.0f32, f32::max);
+        if grid.rays.len() > 1 && spread < MIN_RAY_SPREAD * first.length() {
             return Err(Error::Camera(format!(
                 "the {}x{} rays are degenerate: all within {spread:e} of ray 0 {first} (they must spread at least \
                  {MIN_RAY_SPREAD:e} of its length apart, the field of view of {MIN_FIELD_OF_VIEW_DEGREES}°)",
@@ -353,7 +350,7 @@ impl Camera {
     /// let (directions, points) = (camera.rays(), camera.rays_of(RayKind::UnitDepthPoint));
     /// let (_, pose) = camera.as_pinhole().unwrap();
     /// let forward = pose.z_axis.truncate();
-    /// for (d, p) in directions.directions.iter().zip(&points.directions) {
+    /// for (d, p) in directions.rays.iter().zip(&points.rays) {
     ///     let offset = p.as_dvec3() - camera.position();
     ///     assert!((offset.dot(forward) - 1.0).abs() < 1e-6); // at unit depth
     ///     assert!((offset.normalize() - d.as_dvec3()).length() < 1e-6); // along the same ray
@@ -375,7 +372,7 @@ impl Camera {
                         });
                     }
                 }
-                RayGrid { width: self.width, height: self.height, directions }
+                RayGrid { width: self.width, height: self.height, rays: directions }
             }
         }
     }
@@ -399,9 +396,7 @@ impl Camera {
             return Ok(());
         };
         let position = self.position.as_vec3().to_array();
-        raypatch_model::scene::check_ray_kind(kind, position, grid.width, grid.height, |i| {
-            grid.directions[i].to_array()
-        })
+        raypatch_model::scene::check_ray_kind(kind, position, grid.width, grid.height, |i| grid.rays[i].to_array())
     }
 
     /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays));
@@ -424,7 +419,7 @@ impl Camera {
     /// let b = a.orbited(90.0);
     /// assert!((b.position() - DVec3::new(0.0, 5.0, 2.0)).length() < 1e-12);
     /// let c = Camera::msn(DVec3::new(0.0, 5.0, 2.0), 32, 32)?;
-    /// for (x, y) in b.rays().directions.iter().zip(&c.rays().directions) {
+    /// for (x, y) in b.rays().rays.iter().zip(&c.rays().rays) {
     ///     assert!((*x - *y).abs().max_element() < 1e-6);
     /// }
     /// # Ok::<(), raypatch::Error>(())
@@ -436,8 +431,8 @@ impl Camera {
                 Projection::Pinhole { intrinsics: *intrinsics, rotation: turn * *rotation }
             }
             Projection::Rays { grid, per_ray } => {
-                let directions = grid.directions.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
-                Projection::Rays { grid: RayGrid { directions, ..*grid }, per_ray: *per_ray }
+                let directions = grid.rays.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
+                Projection::Rays { grid: RayGrid { rays: directions, ..*grid }, per_ray: *per_ray }
             }
         };
         Camera { position: turn * self.position, projection, ..*self }
@@ -465,7 +460,7 @@ mod tests {
         let cv = DMat3::from_cols(turn.x_axis, -turn.y_axis, -turn.z_axis);
         let (directions, points) = (camera.rays(), camera.rays_of(RayKind::UnitDepthPoint));
         assert_eq!(directions, camera.rays_of(RayKind::UnitDirection));
-        for (i, (d, p)) in directions.directions.iter().zip(&points.directions).enumerate() {
+        for (i, (d, p)) in directions.rays.iter().zip(&points.rays).enumerate() {
             let (u, v) = ((i % 5) as f64 + 0.5, (i / 5) as f64 + 0.5);
             let local = cv * DVec3::new((u - 2.0) / 4.0, (v - 1.25) / 5.0, 1.0);
             assert!((p.as_dvec3() - (centre + local)).length() < 1e-6, "point {i}");
@@ -474,14 +469,14 @@ mod tests {
             assert!(((p.as_dvec3() - centre).dot(-turn.z_axis) - 1.0).abs() < 1e-6);
         }
         let views = camera.target_views_of(RayKind::UnitDepthPoint);
-        assert_eq!(views.rays[..3], points.directions[0].to_array());
-        assert_eq!(camera.target_views().rays[..3], directions.directions[0].to_array());
+        assert_eq!(views.rays[..3], points.rays[0].to_array());
+        assert_eq!(camera.target_views().rays[..3], directions.rays[0].to_array());
         // Given rays are used as given, whatever the kind, and orbit as points do.
         let given = Camera::from_rays(centre, points.clone()).unwrap();
         assert_eq!(given.rays_of(RayKind::UnitDirection), points);
         assert_eq!(given.check_rays(RayKind::UnitDepthPoint), Ok(()));
         let (a, b) = (given.orbited(35.0), camera.orbited(35.0).rays_of(RayKind::UnitDepthPoint));
-        for (x, y) in a.rays().directions.iter().zip(&b.directions) {
+        for (x, y) in a.rays().rays.iter().zip(&b.rays) {
             assert!((*x - *y).abs().max_element() < 1e-5);
         }
         assert_eq!(a.check_rays(RayKind::UnitDepthPoint), Ok(()));

@@ -89,7 +89,7 @@ impl SceneData {
         let grid = |rays: &[f32], i: usize, gh: usize, gw: usize| RayGrid {
             width: gw,
             height: gh,
-            directions: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3].chunks_exact(3).map(Vec3::from_slice).collect(),
+            rays: rays[i * gh * gw * 3..(i + 1) * gh * gw * 3].chunks_exact(3).map(Vec3::from_slice).collect(),
         };
         // A camera's error names the file, the tensor of its rays and the view.
         let in_file = |key: &str, what: &str, i: usize| {

@@ -331,7 +331,7 @@ fn input_views(views: &[InputView], kind: RayKind) -> Result<InputViews> {
         }
         inputs.images.extend_from_slice(image.data());
         inputs.camera_pos.extend(camera.position().as_vec3().to_array());
-        inputs.rays.extend(camera.rays_of(kind).directions.iter().flat_map(|d| d.to_array()));
+        inputs.rays.extend(camera.rays_of(kind).rays.iter().flat_map(|d| d.to_array()));
     }
     Ok(inputs)
 }

@@ -26,7 +26,7 @@ fn engine() -> Engine {
 
 fn max_ray_diff(a: &RayGrid, b: &RayGrid) -> f32 {
     assert_eq!((a.width, a.height), (b.width, b.height));
-    a.directions.iter().zip(&b.directions).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max)
+    a.rays.iter().zip(&b.rays).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max)
 }
 
 /// The official `get_camera_rays` (tools/cameras.py), written out on the sensor plane in f64.
@@ -49,7 +49,7 @@ fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
             directions.push(plane.normalize().as_vec3());
         }
     }
-    RayGrid { width, height, directions }
+    RayGrid { width, height, rays: directions }
 }
 
 #[test]
@@ -119,9 +119,9 @@ fn bad_cameras_are_errors() {
     assert!(Camera::msn(DVec3::new(0.0, 0.0, 3.0), 8, 8).unwrap_err().to_string().contains("up axis"));
     assert!(Camera::msn(DVec3::ZERO, 8, 8).is_err());
     assert!(Camera::msn(DVec3::X, 0, 8).unwrap_err().to_string().contains("empty"));
-    let grid = RayGrid { width: 2, height: 1, directions: vec![Vec3::X, Vec3::new(f32::INFINITY, 0.0, 0.0)] };
+    let grid = RayGrid { width: 2, height: 1, rays: vec![Vec3::X, Vec3::new(f32::INFINITY, 0.0, 0.0)] };
     assert!(Camera::from_rays(DVec3::X, grid).unwrap_err().to_string().contains("ray 1"));
-    let short = RayGrid { width: 2, height: 2, directions: vec![Vec3::X] };
+    let short = RayGrid { width: 2, height: 2, rays: vec![Vec3::X] };
     assert!(Camera::from_rays(DVec3::X, short).is_err());
 }
 
@@ -241,9 +241,9 @@ fn the_halo_is_needed() {
     // The region's patches alone: a camera whose rays are exactly those of the region.
     let rays = camera.rays();
     let directions = (region.y..region.y + region.height)
-        .flat_map(|y| rays.directions[y * rays.width + region.x..y * rays.width + region.x + region.width].to_vec())
+        .flat_map(|y| rays.rays[y * rays.width + region.x..y * rays.width + region.x + region.width].to_vec())
         .collect();
-    let alone = Camera::from_rays(camera.position(), RayGrid { width: 16, height: 16, directions }).unwrap();
+    let alone = Camera::from_rays(camera.position(), RayGrid { width: 16, height: 16, rays: directions }).unwrap();
     let no_halo = scene.render(&alone, &Request::default()).unwrap().rgb().unwrap();
     assert!(max_diff(no_halo.data(), full.data()) > 1e-3, "the region's patches alone already give its pixels");
 }

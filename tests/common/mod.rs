@@ -11,7 +11,7 @@ use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};
 
 #[allow(unused_imports)]
-pub use raypatch_engine::reference::Rng;
+pub use raypatch_reference::Rng;
 
 /// The adapter every test in this binary shares (a real GPU if there is one, lavapipe otherwise).
 pub fn gpu() -> &'static Gpu {

@@ -9,9 +9,9 @@ use raypatch_engine::device::KernelChoice;
 use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
+use raypatch_reference as reference;
 
 use crate::common::*;
 

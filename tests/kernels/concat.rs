@@ -2,7 +2,7 @@
 
 use raypatch_engine::kernels::concat::concat_columns;
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::concat as reference;
+use raypatch_reference::concat as reference;
 
 use crate::common::*;
 

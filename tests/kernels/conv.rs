@@ -6,9 +6,9 @@ use raypatch_engine::kernels::conv::{conv2d, pack_conv};
 use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use raypatch_engine::kernels::{Activation, Window};
 use raypatch_engine::plan::{PlanBuilder, View};
-use raypatch_engine::reference::conv as reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
+use raypatch_reference::conv as reference;
 
 use crate::common::*;
 

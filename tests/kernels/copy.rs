@@ -3,8 +3,8 @@
 
 use raypatch_engine::kernels::copy::{copy_columns, CopyArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::copy as reference;
 use raypatch_engine::tensor::padded_cols;
+use raypatch_reference::copy as reference;
 
 use crate::common::*;
 

@@ -4,7 +4,7 @@ use std::ops::Range;
 
 use raypatch_engine::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::elementwise as reference;
+use raypatch_reference::elementwise as reference;
 
 use crate::common::*;
 

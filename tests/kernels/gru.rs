@@ -2,7 +2,7 @@
 
 use raypatch_engine::kernels::gru::{gru_cell, GruArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::gru as reference;
+use raypatch_reference::gru as reference;
 
 use crate::common::*;
 

@@ -7,8 +7,8 @@ use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::matmul as reference;
 use raypatch_engine::tensor::{padded_cols, Dtype};
+use raypatch_reference::matmul as reference;
 
 use crate::common::*;
 
@@ -273,7 +273,7 @@ fn gelu_erf_accuracy() {
     // erf(a) in float64 from the reference GELU at v = a·√2.
     let erf = |a: f64| {
         let v = a * std::f64::consts::SQRT_2;
-        2.0 * raypatch_engine::reference::activation(v, Activation::Gelu) / v - 1.0
+        2.0 * raypatch_reference::activation(v, Activation::Gelu) / v - 1.0
     };
     let mut erf_err = 0.0f64;
     for (&v, &g) in v.iter().zip(&gelu) {
@@ -288,7 +288,7 @@ fn gelu_erf_accuracy() {
 
     // GELU itself, on both sides: the erf error scaled by |v|/2, plus f32 rounding of the result.
     let expected: Vec<f64> =
-        v.iter().map(|&v| raypatch_engine::reference::activation(f64::from(v), Activation::Gelu)).collect();
+        v.iter().map(|&v| raypatch_reference::activation(f64::from(v), Activation::Gelu)).collect();
     for ((&v, &g), &e) in v.iter().zip(&gelu).zip(&expected) {
         let tol = 0.5 * f64::from(v).abs() * 2e-7 + 2.0 * e.abs() * f64::from(f32::EPSILON);
         assert!((f64::from(g) - e).abs() <= tol, "gelu({v}) = {g}, expected {e}");

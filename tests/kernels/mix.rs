@@ -8,7 +8,7 @@ use std::ops::Range;
 
 use raypatch_engine::kernels::mix::{mix_rows, MixArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::mix as reference;
+use raypatch_reference::mix as reference;
 
 use crate::common::*;
 

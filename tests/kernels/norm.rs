@@ -4,8 +4,8 @@ use std::ops::Range;
 
 use raypatch_engine::kernels::norm::{layernorm, LayerNormArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::norm as reference;
 use raypatch_engine::GpuTensor;
+use raypatch_reference::norm as reference;
 
 use crate::common::*;
 

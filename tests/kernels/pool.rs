@@ -3,7 +3,7 @@
 use raypatch_engine::kernels::pool::{max_pool2d, pool_output_size, PoolArgs};
 use raypatch_engine::kernels::Window;
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::pool as reference;
+use raypatch_reference::pool as reference;
 
 use crate::common::*;
 use crate::conv::Placed;

@@ -2,9 +2,9 @@
 
 use raypatch_engine::kernels::posenc::{fourier_encode, multipliers, FourierArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::posenc as reference;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::GpuTensor;
+use raypatch_reference::posenc as reference;
 
 use crate::common::*;
 

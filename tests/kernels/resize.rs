@@ -2,7 +2,7 @@
 
 use raypatch_engine::kernels::resize::{bilinear, nearest, ResizeArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::resize as reference;
+use raypatch_reference::resize as reference;
 
 use crate::common::*;
 use crate::conv::Placed;

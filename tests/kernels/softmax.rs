@@ -7,7 +7,7 @@ use std::ops::Range;
 
 use raypatch_engine::kernels::softmax::{normalize_rows, softmax, Axis, SoftmaxArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::softmax as reference;
+use raypatch_reference::softmax as reference;
 
 use crate::common::*;
 

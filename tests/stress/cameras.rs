@@ -7,8 +7,8 @@
 //! 0.01° of ±90°) the look-at frame is nearly degenerate and the rays point nearly along ∓z.
 
 use raypatch_bench::synthetic::{synthetic_scene, CameraRig};
-use raypatch_engine::reference::model::{Argument, ReferenceModel};
 use raypatch_engine::{Output, Outputs};
+use raypatch_reference::model::{Argument, ReferenceModel};
 
 use crate::common::max_abs_diff;
 use crate::{engine_model, golden_case};

@@ -3,10 +3,10 @@
 //! into infinity) is detected at load, kept in f32 and reported, and the render stays finite and as close.
 
 use raypatch_bench::synthetic::{model_from_tensors, Tensor};
-use raypatch_engine::reference::model::{Argument, ReferenceModel};
 use raypatch_engine::{KeptF32, LoadOptions, Output, WeightStorage};
 use raypatch_engine::{Model, Outputs};
 use raypatch_model::{LoadedModel, TensorFile};
+use raypatch_reference::model::{Argument, ReferenceModel};
 
 use crate::common::max_abs_diff;
 use crate::{golden_case, gpu};

@@ -10,8 +10,8 @@
 
 use std::path::{Path, PathBuf};
 
-use raypatch_engine::reference::model::{Argument, ReferenceModel};
 use raypatch_engine::{Output, Outputs};
+use raypatch_reference::model::{Argument, ReferenceModel};
 use safetensors::{Dtype, SafeTensors};
 
 use crate::common::max_abs_diff;

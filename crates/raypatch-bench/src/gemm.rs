@@ -13,8 +13,8 @@ use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::matmul::{linear, LinearArgs};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_engine::reference::Rng;
 use raypatch_engine::Gpu;
+use raypatch_reference::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::measure::{repeat, Repeats, Sample, Stats};

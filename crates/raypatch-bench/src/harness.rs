@@ -12,11 +12,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use raypatch_engine::gpu::TimestampMode;
-use raypatch_engine::reference::model::{Argument, ReferenceModel, ReferenceScene};
 use raypatch_engine::{
     AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Request, WeightStorage,
 };
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, TargetViews};
+use raypatch_reference::model::{Argument, ReferenceModel, ReferenceScene};
 use serde::{Deserialize, Serialize};
 
 use crate::flops;

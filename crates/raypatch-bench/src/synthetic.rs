@@ -2,9 +2,9 @@
 //! random weights for any config (the official full-size ones included, as `tools/make_golden.py` makes
 //! them) and scenes seen by MSN-Easy cameras (`tools/cameras.py`).
 
-use raypatch_engine::reference::Rng;
 use raypatch_engine::EngineError;
 use raypatch_model::{InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT};
+use raypatch_reference::Rng;
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 use serde_json::{json, Value};

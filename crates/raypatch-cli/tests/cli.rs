@@ -478,7 +478,7 @@ fn rays_of_another_kind_are_refused_naming_the_tensor() {
             let centre = glam::Vec3::from_slice(&floats[3 * i..3 * i + 3]).as_dvec3();
             let camera = Camera::msn(centre, w, h).unwrap();
             let points = camera.rays_of(raypatch::RayKind::UnitDepthPoint);
-            bytes.extend(points.directions.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes));
+            bytes.extend(points.rays.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes));
         }
         t.get_mut("input_rays").unwrap().2 = bytes;
     });

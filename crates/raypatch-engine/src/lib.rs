@@ -11,21 +11,23 @@ pub mod frame;
 pub mod gpu;
 pub mod graph;
 pub mod kernels;
+pub mod model;
 pub mod models;
 pub mod nn;
 pub mod pipeline_cache;
 pub mod plan;
-pub mod reference;
 pub mod scene;
 pub mod tensor;
+pub mod weights;
 
 pub use device::MatmulKernel;
 pub use error::{EngineError, Result};
 pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
-pub use nn::{KeptF32, LoadOptions, WeightStorage};
+pub use model::Model;
 pub use pipeline_cache::{PipelineCacheDir, PipelineCacheStatus};
-pub use scene::{EncodedScene, Model, OpTimes};
+pub use scene::{EncodedScene, OpTimes};
 pub use tensor::GpuTensor;
+pub use weights::{KeptF32, LoadOptions, WeightStorage};
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
 pub use wgpu;

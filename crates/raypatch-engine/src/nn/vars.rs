@@ -3,7 +3,7 @@
 //! [`Param`] in the same call. Building a model's module tree over a [`LoadedModel`] checks the file (every
 //! tensor present, of its shape, and nothing else); over [`Source::Declare`] it lists the tensors a config
 //! implies, with no file and no GPU. The prepared host weights ([`WeightSet`]) go to the GPU once
-//! ([`WeightSet::upload`]); the float64 reference reads the same set.
+//! (`weights.rs`: `WeightSet::upload`, which decides how each is stored); the float64 reference reads the same set.
 
 use std::cell::RefCell;
 use std::collections::BTreeSet;
@@ -11,10 +11,7 @@ use std::collections::BTreeSet;
 use raypatch_model::{HostTensor, LoadedModel};
 
 use crate::error::{EngineError, Result};
-use crate::gpu::Gpu;
 use crate::graph::Param;
-use crate::kernels::conv::pack_conv;
-use crate::tensor::GpuTensor;
 
 /// Where a module tree's weights come from.
 pub enum Source<'a> {
@@ -58,7 +55,7 @@ impl Data {
             Data::F64(v) => v.clone(),
         }
     }
-    fn to_f32(&self) -> std::borrow::Cow<'_, [f32]> {
+    pub(crate) fn to_f32(&self) -> std::borrow::Cow<'_, [f32]> {
         match self {
             Data::F32(v) => v.as_slice().into(),
             Data::F64(v) => v.iter().map(|&x| x as f32).collect::<Vec<_>>().into(),
@@ -167,80 +164,5 @@ impl Vars<'_, '_> {
     pub fn row(&self, name: &str, len: usize) -> Result<Param> {
         let t = self.tensor(name, &[len])?;
         Ok(self.prepared(name, Layout::Row, Data::F32(t.data)))
-    }
-}
-
-/// How the linear layers' weights are stored on the GPU (they are most of the bytes and of the time).
-/// Everything else (convolutions, biases, norms, activations) stays f32, and all arithmetic is f32.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum WeightStorage {
-    #[default]
-    F32,
-    /// f16 (needs the adapter's `SHADER_F16`). A layer with a weight beyond f16's range (|w| > 65504,
-    /// which f16 would turn into infinity) stays f32 and is listed in [`GpuWeights::kept_f32`].
-    F16,
-}
-
-/// Options for putting a model on the GPU.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct LoadOptions {
-    pub weight_storage: WeightStorage,
-}
-
-/// A linear layer that stays f32 under [`WeightStorage::F16`], and why.
-#[derive(Clone, Debug, PartialEq)]
-pub struct KeptF32 {
-    pub tensor: String,
-    /// The largest |weight|, beyond f16's range.
-    pub max_abs: f32,
-}
-
-/// A model's weights on the GPU, indexed by [`Param`].
-pub struct GpuWeights {
-    pub tensors: Vec<GpuTensor>,
-    /// Bytes of GPU memory the weights take.
-    pub bytes: u64,
-    /// Linear layers kept in f32 under [`WeightStorage::F16`] because a weight is beyond f16's range.
-    pub kept_f32: Vec<KeptF32>,
-}
-
-impl WeightSet {
-    /// Puts every prepared weight on the GPU in the layout its kernel reads.
-    pub fn upload(&self, gpu: &Gpu, options: &LoadOptions) -> Result<GpuWeights> {
-        if options.weight_storage == WeightStorage::F16 && !gpu.features.contains(wgpu::Features::SHADER_F16) {
-            return Err(EngineError::Request(format!(
-                "f16 weights need shader-f16, which {} does not have",
-                gpu.info.name
-            )));
-        }
-        let mut weights =
-            GpuWeights { tensors: Vec::with_capacity(self.prepared.len()), bytes: 0, kept_f32: Vec::new() };
-        for p in &self.prepared {
-            let data = p.data.to_f32();
-            let tensor = match p.layout {
-                Layout::Row => gpu.upload(&p.name, 1, data.len(), &data)?,
-                Layout::Dense { rows, cols } => gpu.upload(&p.name, rows, cols, &data)?,
-                Layout::Conv { cout, cin, kernel } => {
-                    let packed = pack_conv(&data, cout, cin, kernel);
-                    gpu.upload(&p.name, cout, packed.len() / cout, &packed)?
-                }
-                Layout::Matrix { rows, cols } => {
-                    let max_abs = data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-                    match options.weight_storage {
-                        WeightStorage::F16 if half::f16::from_f32(max_abs).is_finite() => {
-                            gpu.upload_f16(&p.name, rows, cols, &data)?
-                        }
-                        WeightStorage::F16 => {
-                            weights.kept_f32.push(KeptF32 { tensor: p.name.clone(), max_abs });
-                            gpu.upload(&p.name, rows, cols, &data)?
-                        }
-                        WeightStorage::F32 => gpu.upload(&p.name, rows, cols, &data)?,
-                    }
-                }
-            };
-            weights.bytes += tensor.bytes();
-            weights.tensors.push(tensor);
-        }
-        Ok(weights)
     }
 }

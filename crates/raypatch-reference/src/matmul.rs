@@ -1,7 +1,7 @@
 //! Float64 reference of the linear layer (`kernels::matmul::linear`).
 
-use crate::kernels::Activation;
-use crate::reference::activation;
+use crate::activation;
+use raypatch_engine::kernels::Activation;
 
 /// `act(x · wᵀ + bias) (+ residual)` for x `[m, k]`, w `[n, k]` (nn.Linear layout), bias `[n]`,
 /// residual `[m, n]`; returns `[m, n]`. The activation is applied before the residual add.

@@ -1,6 +1,6 @@
 //! Float64 reference of the elementwise column map.
 
-use crate::kernels::elementwise::Map;
+use raypatch_engine::kernels::elementwise::Map;
 
 /// `out[r, j] = f(x[r, col + j])` for `j < cols_out`, on a row-major `[rows, cols_x]` matrix.
 pub fn map_columns(x: &[f64], cols_x: usize, col: usize, cols_out: usize, f: Map) -> Vec<f64> {

@@ -3,15 +3,15 @@
 
 use super::srt::RayPredictor;
 use super::{leaky_relu, Dense, Norm, QueryRows, Reader, ReferenceScene, OUT_MLP_SLOPE};
-use crate::kernels::softmax::Axis;
-use crate::kernels::Activation;
-use crate::models::osrt::{MixingBlock as EngineMixingBlock, Osrt as EngineOsrt};
-use crate::nn::SlotAttention as EngineSlotAttention;
-use crate::reference::concat::concat_columns;
-use crate::reference::gru::gru_cell;
-use crate::reference::matmul::linear;
-use crate::reference::mix::mix_rows;
-use crate::reference::softmax::{normalize_rows, softmax};
+use crate::concat::concat_columns;
+use crate::gru::gru_cell;
+use crate::matmul::linear;
+use crate::mix::mix_rows;
+use crate::softmax::{normalize_rows, softmax};
+use raypatch_engine::kernels::softmax::Axis;
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::models::osrt::{MixingBlock as EngineMixingBlock, Osrt as EngineOsrt};
+use raypatch_engine::nn::SlotAttention as EngineSlotAttention;
 
 /// Added to every slot-attention weight before the renormalisation over inputs (the official `eps`), as
 /// float64 torch has it.

@@ -16,7 +16,7 @@ pub mod posenc;
 pub mod resize;
 pub mod softmax;
 
-use crate::kernels::Activation;
+use raypatch_engine::kernels::Activation;
 
 /// The activation in float64; GELU is the exact erf form x · Φ(x) (PyTorch's default `nn.GELU`).
 pub fn activation(x: f64, act: Activation) -> f64 {

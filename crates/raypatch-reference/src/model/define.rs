@@ -9,16 +9,16 @@ use raypatch_model::{InputViews, ModelError};
 
 use super::ray_patch::{resize_bilinear, resized_rays};
 use super::{f64s, Argument, Conv, Dense, Layer, Projections, QueryRows, RayEncoder, Reader, ReferenceScene};
-use crate::graph::ChannelNorm;
-use crate::kernels::pool::pool_output_size;
-use crate::kernels::ConvMode;
-use crate::kernels::{Activation, Window};
-use crate::models::define::{
+use crate::concat::concat_columns;
+use crate::pool::max_pool2d;
+use raypatch_engine::graph::ChannelNorm;
+use raypatch_engine::kernels::pool::pool_output_size;
+use raypatch_engine::kernels::ConvMode;
+use raypatch_engine::kernels::{Activation, Window};
+use raypatch_engine::models::define::{
     DefineEncoder as EngineDefineEncoder, Head as EngineHead, RayEncoder as EngineRayEncoder, IMAGENET,
 };
-use crate::nn::{self, resnet::BasicBlock as EngineBasicBlock};
-use crate::reference::concat::concat_columns;
-use crate::reference::pool::max_pool2d;
+use raypatch_engine::nn::{self, resnet::BasicBlock as EngineBasicBlock};
 
 /// torchvision `BasicBlock`: `relu(bn2(conv2(relu(bn1(conv1(x))))) + identity)`, the identity `downsample(x)`
 /// where there is one; BatchNorms folded.

@@ -4,11 +4,11 @@
 use raypatch_model::InputViews;
 
 use super::{f64s, leaky_relu, Conv, Dense, Layer, QueryRows, RayEncoder, Reader, ReferenceScene, OUT_MLP_SLOPE};
-use crate::kernels::Activation;
-use crate::models::srt::{
+use crate::concat::concat_columns;
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::models::srt::{
     RayPredictor as EngineRayPredictor, SrtDecoder as EngineSrtDecoder, SrtEncoder as EngineSrtEncoder,
 };
-use crate::reference::concat::concat_columns;
 
 /// `SRTEncoder`: conv blocks, per-patch linear, self-attention transformer.
 pub(super) struct SrtEncoder {

@@ -2,9 +2,9 @@
 //! preceded by `nn.Upsample(scale_factor=2, mode='nearest')`) with a fused activation and the three ways of
 //! meeting the output ([`ConvMode`]), on NHWC images.
 
-use crate::kernels::{conv_output_size, ConvMode};
-use crate::kernels::{Activation, Window};
-use crate::reference::activation;
+use crate::activation;
+use raypatch_engine::kernels::{conv_output_size, ConvMode};
+use raypatch_engine::kernels::{Activation, Window};
 
 /// Convolves `x` with `weight` into `out` as `mode` says: `act(conv + bias)`, `out + act(conv + bias)`, or
 /// `act(out + conv + bias)`, zero padding `window.padding` on every side, stride `window.stride`.

@@ -1,8 +1,8 @@
 //! Float64 reference of PyTorch's `F.max_pool2d(x, kernel, stride, padding)` (dilation 1,
 //! `ceil_mode=False`) on NHWC images.
 
-use crate::kernels::pool::pool_output_size;
-use crate::kernels::Window;
+use raypatch_engine::kernels::pool::pool_output_size;
+use raypatch_engine::kernels::Window;
 
 /// Max pool of `x`, NHWC `[n*h*w, c]`, to `[n*ho*wo, c]` with `ho = (h + 2·padding − k) / stride + 1`: each
 /// output is the maximum of the input pixels its window covers (the padding is −∞).

@@ -5,10 +5,10 @@
 use raypatch_model::TargetViews;
 
 use super::{f64s, leaky_relu, Argument, Conv, Reader};
-use crate::kernels::Activation;
-use crate::kernels::ConvMode;
-use crate::models::ray_patch::RayPatchDecoder;
-use crate::reference::resize::{bilinear, linear_source};
+use crate::resize::{bilinear, linear_source};
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::kernels::ConvMode;
+use raypatch_engine::models::ray_patch::RayPatchDecoder;
 
 /// LeakyReLU slope of the conv decoder's feature convs as float64 torch has it (see `OUT_MLP_SLOPE`).
 const CONV_DECODER_SLOPE: f64 = 0.2;

@@ -26,12 +26,12 @@ mod srt;
 
 use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
 
-use crate::error::EngineError;
-use crate::graph::Param;
-use crate::kernels::elementwise::Map;
-use crate::kernels::Activation;
-use crate::kernels::{conv_output_size, ConvMode};
-use crate::nn::{self, transformer::Projections as EngineProjections, Source, WeightSet};
+use raypatch_engine::error::EngineError;
+use raypatch_engine::graph::Param;
+use raypatch_engine::kernels::elementwise::Map;
+use raypatch_engine::kernels::Activation;
+use raypatch_engine::kernels::{conv_output_size, ConvMode};
+use raypatch_engine::nn::{self, transformer::Projections as EngineProjections, Source, WeightSet};
 
 use super::attention::attention;
 use super::concat::concat_columns;
@@ -413,21 +413,21 @@ impl ReferenceModel {
         let source = Source::File { model, max_tensor_bytes: u64::MAX };
         let (encoder, decoder, heads) = match &config.family {
             Family::Srt(c) => {
-                let (m, weights) = nn::build(source, |vars| crate::models::srt::Srt::new(vars, c))?;
+                let (m, weights) = nn::build(source, |vars| raypatch_engine::models::srt::Srt::new(vars, c))?;
                 let r = Reader { weights: &weights, argument };
                 let decoder = Decoder::Srt(srt::SrtDecoder::read(&r, &m.decoder));
                 let head = Head { channels: c.image_channels(), ray_patch: r.ray_patch(&m.ray_patch) };
                 (Encoder::Srt(srt::SrtEncoder::read(&r, &m.encoder)), decoder, vec![head])
             }
             Family::Osrt(c) => {
-                let (m, weights) = nn::build(source, |vars| crate::models::osrt::Osrt::new(vars, c))?;
+                let (m, weights) = nn::build(source, |vars| raypatch_engine::models::osrt::Osrt::new(vars, c))?;
                 let r = Reader { weights: &weights, argument };
                 let decoder = Decoder::Osrt(osrt::Osrt::read(&r, &m));
                 let encoder = Encoder::Srt(srt::SrtEncoder::read(&r, &m.encoder.srt_encoder));
                 (encoder, decoder, vec![Head { channels: c.image_channels(), ray_patch: r.ray_patch(&m.ray_patch) }])
             }
             Family::Define(c) => {
-                let (m, weights) = nn::build(source, |vars| crate::models::define::Define::new(vars, c))?;
+                let (m, weights) = nn::build(source, |vars| raypatch_engine::models::define::Define::new(vars, c))?;
                 let r = Reader { weights: &weights, argument };
                 let heads = m
                     .heads

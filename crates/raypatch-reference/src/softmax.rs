@@ -1,6 +1,6 @@
 //! Float64 references of the softmax kernels.
 
-use crate::kernels::softmax::Axis;
+use raypatch_engine::kernels::softmax::Axis;
 
 /// `softmax(scale · x) + eps` along `axis` of a row-major `[rows, cols]` matrix, the maximum subtracted
 /// before exp (PyTorch's `(x * scale).softmax(dim) + eps`).

@@ -1,0 +1,93 @@
+//! The engine's [`Model`]: a family's module tree ([`LightField`]) with its weights on the GPU, loaded once.
+//! Encoding a scene with it is the scene core's (`scene.rs`).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use raypatch_model::{LoadedModel, ModelConfig};
+
+use crate::error::{EngineError, Result};
+use crate::frame::Outputs;
+use crate::gpu::Gpu;
+use crate::models::{self, LightField};
+use crate::weights::{GpuWeights, KeptF32, LoadOptions};
+
+/// A loaded model with its weights on the GPU.
+pub struct Model {
+    pub(crate) gpu: Arc<Gpu>,
+    pub config: ModelConfig,
+    pub path: String,
+    pub parameter_count: usize,
+    pub(crate) family: Box<dyn LightField>,
+    pub(crate) weights: GpuWeights,
+}
+
+impl Model {
+    pub fn load(gpu: Arc<Gpu>, path: impl AsRef<Path>) -> Result<Model> {
+        let loaded = raypatch_model::load_model(path)?;
+        Model::from_loaded(gpu, &loaded)
+    }
+
+    pub fn from_loaded(gpu: Arc<Gpu>, loaded: &LoadedModel) -> Result<Model> {
+        Model::from_loaded_with(gpu, loaded, &LoadOptions::default())
+    }
+
+    /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
+    pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
+        // The weights are read onto the host before they go to the GPU: refuse a file whose tensors could not
+        // be held there before reading any of them (a tensor larger than a GPU buffer is refused as it is met).
+        if let Some(available) = host_memory_available() {
+            if loaded.data_bytes() > available {
+                return Err(EngineError::TooLarge {
+                    what: format!("{}: the model's tensors", loaded.path),
+                    bytes: loaded.data_bytes(),
+                    max: available,
+                });
+            }
+        }
+        let (family, weights) = models::build(loaded, gpu.max_buffer_bytes)?;
+        let weights = weights.upload(&gpu, options)?;
+        Ok(Model {
+            gpu,
+            config: loaded.config.clone(),
+            path: loaded.path.clone(),
+            parameter_count: loaded.parameter_count(),
+            family,
+            weights,
+        })
+    }
+
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// The outputs this model can render.
+    pub fn outputs(&self) -> Outputs {
+        self.family.outputs()
+    }
+
+    /// Bytes of GPU memory the weights take.
+    pub fn weight_bytes(&self) -> u64 {
+        self.weights.bytes
+    }
+
+    /// Linear layers kept in f32 under f16 weight storage (a weight beyond f16's range).
+    pub fn weights_kept_f32(&self) -> &[KeptF32] {
+        &self.weights.kept_f32
+    }
+}
+
+/// The host memory available to this process now, where the system says: Linux's `MemAvailable`, less where
+/// the process's cgroup (v2) allows less.
+fn host_memory_available() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let system = line.split_whitespace().nth(1)?.parse::<u64>().ok()?.checked_mul(1024)?;
+    let cgroup = || -> Option<u64> {
+        let read = |name: &str| std::fs::read_to_string(format!("/sys/fs/cgroup/{name}")).ok();
+        let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max" (no limit) does not parse
+        let current: u64 = read("memory.current")?.trim().parse().ok()?;
+        Some(max.saturating_sub(current))
+    };
+    Some(cgroup().map_or(system, |c| c.min(system)))
+}
