@@ -19,21 +19,6 @@
 // 16-byte aligned: tensors are bound as vec4 arrays and each head chunk is realigned from two aligned vec4s
 // by the head's misalignment r (the same for every row); the second vec4 is the first of the next chunk.
 
-struct Params {
-    nq: u32,
-    nkv: u32,
-    heads: u32,
-    dim_head: u32,
-    q_ld: u32,
-    q_col: u32,
-    k_ld: u32,
-    k_col: u32,
-    v_ld: u32,
-    v_col: u32,
-    out_ld: u32,
-    scale: f32,
-}
-
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> q: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> k: array<vec4<f32>>;

@@ -19,28 +19,6 @@
 // floats past dim_head are zeros in the tiles and registers. Output rows are written whole: the last head's
 // invocation zeroes the row padding.
 
-struct Params {
-    nq: u32,
-    nkv: u32,
-    heads: u32,
-    dim_head: u32,
-    q_ld: u32,
-    q_col: u32,
-    k_ld: u32,
-    k_col: u32,
-    v_ld: u32,
-    v_col: u32,
-    out_ld: u32,
-    scale: f32,
-    // Keys per split (a multiple of TILE_KEYS) and the number of splits.
-    split_keys: u32,
-    splits: u32,
-    // ceil(nq / WG): the fastest-varying part of the group index, so that neighbouring groups share keys.
-    query_tiles: u32,
-    // Floats per row of the partials: heads * (dim_head + 2).
-    partial_ld: u32,
-}
-
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> q: array<f32>;
 @group(0) @binding(2) var<storage, read> k: array<f32>;

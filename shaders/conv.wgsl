@@ -184,20 +184,14 @@ fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     store(acc.m11, pix0 + 4u * WG, col0 + 1u);
 }
 
-// `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (the tiling of
-// matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16 invocations
+// `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (tiles.wgsl, the
+// tiling of matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16 invocations
 // computes 64 output pixels x 64 output channels, invocation (tx, ty) pixels ty + 16 i (i < 4) and the 4
 // channels of vec4 column tx. K is the weight row, taps x cin4 vec4s (tap-major, as pack_conv lays it out),
 // walked 8 vec4s at a time whatever the tap boundaries, so that few input channels (ResNet's RGB stem, one
 // vec4 a tap) waste no steps. Each step gathers 64 pixels' input vec4s (the im2col of the tile, never
 // materialised: the tap's offset, the zero padding and the 2x nearest upsampling resolved per load) and 64
 // channels' weight vec4s into workgroup memory.
-
-const TILE: u32 = 64u;
-// vec4s of K per step.
-const TILE_K4: u32 = 8u;
-var<workgroup> x_tile: array<vec4<f32>, 512>;
-var<workgroup> w_tile: array<vec4<f32>, 512>;
 
 // Where one output pixel's window starts: its image's first row in x (b*h) and its top-left tap in the
 // effective image (may be negative: padding).
@@ -246,10 +240,7 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     let k4 = p.k * p.k * p.cin4;
     let w0 = min(col0 + r, p.cout - 1u) * k4;
     let w1 = min(col0 + r + 32u, p.cout - 1u) * k4;
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
+    var acc = array<vec4<f32>, 4>();
     for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
         let at = k0 + kk;
         var x0 = vec4<f32>(0.0);
@@ -262,32 +253,14 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
             v0 = w[w0 + at];
             v1 = w[w1 + at];
         }
-        x_tile[kk * TILE + r] = x0;
-        x_tile[kk * TILE + r + 32u] = x1;
-        // Channel c at (c % 4) * 16 + c / 4, so that invocation tx's channel j sits at j * 16 + tx.
-        w_tile[kk * TILE + (r % 4u) * 16u + r / 4u] = v0;
-        w_tile[kk * TILE + ((r + 32u) % 4u) * 16u + (r + 32u) / 4u] = v1;
+        stage(kk, r, x0, v0);
+        stage(kk, r + 32u, x1, v1);
         workgroupBarrier();
-        for (var step = 0u; step < TILE_K4; step++) {
-            let base = step * TILE;
-            let b0 = w_tile[base + tx];
-            let b1 = w_tile[base + 16u + tx];
-            let b2 = w_tile[base + 32u + tx];
-            let b3 = w_tile[base + 48u + tx];
-            let a0 = x_tile[base + ty];
-            let a1 = x_tile[base + 16u + ty];
-            let a2 = x_tile[base + 32u + ty];
-            let a3 = x_tile[base + 48u + ty];
-            acc0 += vec4<f32>(dot(a0, b0), dot(a0, b1), dot(a0, b2), dot(a0, b3));
-            acc1 += vec4<f32>(dot(a1, b0), dot(a1, b1), dot(a1, b2), dot(a1, b3));
-            acc2 += vec4<f32>(dot(a2, b0), dot(a2, b1), dot(a2, b2), dot(a2, b3));
-            acc3 += vec4<f32>(dot(a3, b0), dot(a3, b1), dot(a3, b2), dot(a3, b3));
-        }
+        multiply_staged(tx, ty, &acc);
         workgroupBarrier();
     }
     let col = tile * 16u + tx;
-    store_one(acc0, pix0 + ty, col);
-    store_one(acc1, pix0 + ty + 16u, col);
-    store_one(acc2, pix0 + ty + 32u, col);
-    store_one(acc3, pix0 + ty + 48u, col);
+    for (var i = 0u; i < 4u; i++) {
+        store_one(acc[i], pix0 + ty + 16u * i, col);
+    }
 }

@@ -144,20 +144,14 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 // are one vec4, and 16 neighbouring invocations store 256 contiguous bytes.
 //
 // In workgroup memory both tiles are K-major ([K step][row]), so the 16 invocations of a row of the
-// workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted, column c at
-// (c % 4) * 16 + c / 4, so that invocation tx's column j sits at j * 16 + tx. The two tiles take 16 KiB,
-// WebGPU's guaranteed minimum of workgroup memory.
+// workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted (tiles.wgsl, the
+// tiles and their products, shared with conv.wgsl's `conv_tiled`). The two tiles take 16 KiB, WebGPU's
+// guaranteed minimum of workgroup memory.
 //
 // Split K: where out has too few tiles to fill a GPU (M = 300 rows: 5 x 24 tiles on a 1536-column layer, about
 // one 256-invocation workgroup per multiprocessor of an H100), K is cut into `splits` ranges, a workgroup per
 // (tile, range); each writes its raw sums to the partials (bound as `out`, [splits * m, n4] vec4s) and
 // `linear_reduce` adds the ranges up and finishes (bias, activation, accumulation) into out.
-
-const TILE: u32 = 64u;
-// vec4s of K per step.
-const TILE_K4: u32 = 8u;
-var<workgroup> x_tile: array<vec4<f32>, 512>;
-var<workgroup> w_tile: array<vec4<f32>, 512>;
 
 @compute @workgroup_size(16, 16)
 fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -177,10 +171,7 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let col0 = tile * TILE;
     let tx = lid.x;
     let ty = lid.y;
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
+    var acc = array<vec4<f32>, 4>();
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
         // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed),
         // K past the end of the range reads zeros.
@@ -193,36 +184,20 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
                 xv = x[min(row0 + r, p.m - 1u) * p.k4 + k0 + kk];
                 wv = vec4<f32>(w[min(col0 + r, p.n - 1u) * p.w_ld4 + k0 + kk]);
             }
-            x_tile[kk * TILE + r] = xv;
-            w_tile[kk * TILE + (r % 4u) * 16u + r / 4u] = wv;
+            stage(kk, r, xv, wv);
         }
         workgroupBarrier();
-        for (var kk = 0u; kk < TILE_K4; kk++) {
-            let at = kk * TILE;
-            let b0 = w_tile[at + tx];
-            let b1 = w_tile[at + 16u + tx];
-            let b2 = w_tile[at + 32u + tx];
-            let b3 = w_tile[at + 48u + tx];
-            let a0 = x_tile[at + ty];
-            let a1 = x_tile[at + 16u + ty];
-            let a2 = x_tile[at + 32u + ty];
-            let a3 = x_tile[at + 48u + ty];
-            acc0 += vec4<f32>(dot(a0, b0), dot(a0, b1), dot(a0, b2), dot(a0, b3));
-            acc1 += vec4<f32>(dot(a1, b0), dot(a1, b1), dot(a1, b2), dot(a1, b3));
-            acc2 += vec4<f32>(dot(a2, b0), dot(a2, b1), dot(a2, b2), dot(a2, b3));
-            acc3 += vec4<f32>(dot(a3, b0), dot(a3, b1), dot(a3, b2), dot(a3, b3));
-        }
+        multiply_staged(tx, ty, &acc);
         workgroupBarrier();
     }
     let c4 = tile * 16u + tx;
-    let block = array<vec4<f32>, 4>(acc0, acc1, acc2, acc3);
     for (var i = 0u; i < 4u; i++) {
         let row = row0 + ty + 16u * i;
         if (row < p.m && c4 < p.n4) {
             if (p.splits == 1u) {
-                store4(row, c4, block[i]);
+                store4(row, c4, acc[i]);
             } else {
-                out[(split * p.m + row) * p.n4 + c4] = block[i];
+                out[(split * p.m + row) * p.n4 + c4] = acc[i];
             }
         }
     }

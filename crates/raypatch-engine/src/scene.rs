@@ -151,7 +151,7 @@ impl EncodedScene<'_> {
     /// for this (view count, computed size, outputs) is built on first use and reused afterwards: no
     /// allocation, no pipeline compilation, one submit. Waits for the GPU.
     ///
-    /// When a buffer of the render would exceed the GPU's binding limit ([`Gpu::max_buffer_bytes`]: a
+    /// When a buffer of the render would exceed the GPU's binding limit ([`Gpu::max_buffer_bytes`](crate::gpu::Gpu::max_buffer_bytes): a
     /// Ray-Patch decoder keeps full-resolution features, 157 MB at 960x1280 for the official k=2), the
     /// region is rendered in row bands, each with the halo its pixels depend on, one plan and submit each,
     /// and stitched: the same pixels as one render.

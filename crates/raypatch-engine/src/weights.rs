@@ -32,7 +32,7 @@ pub struct KeptF32 {
     pub max_abs: f32,
 }
 
-/// A model's weights on the GPU, indexed by [`Param`].
+/// A model's weights on the GPU, indexed by [`Param`](crate::graph::Param).
 pub struct GpuWeights {
     pub tensors: Vec<GpuTensor>,
     /// Bytes of GPU memory the weights take.

@@ -18,7 +18,7 @@ const ROWS_PER_GROUP: usize = 64 * 8;
 pub const MAX_DIM_HEAD: usize = 128;
 
 params! {
-    /// The uniform of `shaders/attention.wgsl`.
+    /// The uniform of `shaders/attention.wgsl` and `shaders/attention_flash.wgsl` (`attention_params.wgsl`).
     AttentionParams {
         nq: u32,
         nkv: u32,
@@ -32,6 +32,37 @@ params! {
         v_col: u32,
         out_ld: u32,
         scale: f32,
+        /// Flash attention's work split (the fused kernel reads none of these).
+        split_keys: u32,
+        splits: u32,
+        query_tiles: u32,
+        partial_ld: u32,
+    }
+}
+
+impl AttentionParams {
+    /// The operands' layout; no key split.
+    fn of(plan: &PlanBuilder, args: &AttentionArgs) -> AttentionParams {
+        let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = *args;
+        let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
+        AttentionParams {
+            nq: word(q.rows),
+            nkv: word(k.rows),
+            heads: word(heads),
+            dim_head: word(dim_head),
+            q_ld: word(plan.ld(q.id)),
+            q_col: word(q_col),
+            k_ld: word(plan.ld(k.id)),
+            k_col: word(k_col),
+            v_ld: word(plan.ld(v.id)),
+            v_col: word(v_col),
+            out_ld: word(plan.ld(out.id)),
+            scale,
+            split_keys: word(k.rows),
+            splits: 1,
+            query_tiles: word(q.rows.div_ceil(FLASH_ROWS)),
+            partial_ld: 0,
+        }
     }
 }
 
@@ -68,7 +99,7 @@ pub struct AttentionArgs {
 /// a time are materialised and their softmax max-subtracted too. Records `2·nq·nkv·dim_head·heads`
 /// multiply-adds (the scores and the weighted sum of values).
 pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
-    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
+    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, .. } = args;
     if plan.failed() {
         return; // a tensor is too large to index: the plan will not be built
     }
@@ -98,21 +129,7 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         AttentionVariant::Fused => {}
     }
 
-    let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
-    let params = AttentionParams {
-        nq: word(q.rows),
-        nkv: word(k.rows),
-        heads: word(heads),
-        dim_head: word(dim_head),
-        q_ld: word(plan.ld(q.id)),
-        q_col: word(q_col),
-        k_ld: word(plan.ld(k.id)),
-        k_col: word(k_col),
-        v_ld: word(plan.ld(v.id)),
-        v_col: word(v_col),
-        out_ld: word(plan.ld(out.id)),
-        scale,
-    };
+    let params = AttentionParams::of(plan, &args);
     plan.push(Op {
         label: label.to_string(),
         shader: &ATTENTION,
@@ -123,28 +140,6 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
         multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
     });
-}
-
-params! {
-    /// The uniform of `shaders/attention_flash.wgsl`.
-    FlashParams {
-        nq: u32,
-        nkv: u32,
-        heads: u32,
-        dim_head: u32,
-        q_ld: u32,
-        q_col: u32,
-        k_ld: u32,
-        k_col: u32,
-        v_ld: u32,
-        v_col: u32,
-        out_ld: u32,
-        scale: f32,
-        split_keys: u32,
-        splits: u32,
-        query_tiles: u32,
-        partial_ld: u32,
-    }
 }
 
 /// Query rows per workgroup of `attention_flash.wgsl` (one per invocation).
@@ -167,7 +162,7 @@ pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usi
 /// Flash attention on GPUs (`shaders/attention_flash.wgsl`): one dispatch, or with the keys split, one
 /// dispatch writing each split's partial output and one merging them.
 fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
-    let AttentionArgs { q, q_col, k, k_col, v, v_col, out, heads, dim_head, scale } = args;
+    let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
     // The variant whose registers hold a head (vec4s per head: 8, 16 or 32).
     let (chunks, shader) = [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)]
         .into_iter()
@@ -176,24 +171,11 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     let query_tiles = q.rows.div_ceil(FLASH_ROWS);
     let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, FLASH_TILE_VEC4S / chunks);
     let partial_cols = heads * (dim_head + 2);
-    let word = |x: usize| u32::try_from(x).expect("attention param exceeds u32");
-    let params = FlashParams {
-        nq: word(q.rows),
-        nkv: word(k.rows),
-        heads: word(heads),
-        dim_head: word(dim_head),
-        q_ld: word(plan.ld(q.id)),
-        q_col: word(q_col),
-        k_ld: word(plan.ld(k.id)),
-        k_col: word(k_col),
-        v_ld: word(plan.ld(v.id)),
-        v_col: word(v_col),
-        out_ld: word(plan.ld(out.id)),
-        scale,
-        split_keys: word(split_keys),
-        splits: word(splits),
-        query_tiles: word(query_tiles),
-        partial_ld: word(padded_cols(partial_cols)),
+    let params = AttentionParams {
+        split_keys: split_keys as u32,
+        splits: splits as u32,
+        partial_ld: padded_cols(partial_cols) as u32,
+        ..AttentionParams::of(plan, &args)
     };
     let multiply_adds = 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64);
     let groups = grid(query_tiles * heads * splits);

@@ -190,7 +190,7 @@ const TILED_K4: usize = 8;
 const TILED_MIN_SPLIT_K4: usize = 4 * TILED_K4;
 
 /// How many ranges `linear_tiled` cuts a K of `k4` vec4s into for an output of `groups` tiles: enough for
-/// [`TILED_TARGET_GROUPS`] workgroups, each range at least [`TILED_MIN_SPLIT_K4`] long.
+/// `TILED_TARGET_GROUPS` (512) workgroups, each range at least `TILED_MIN_SPLIT_K4` (32 vec4s) long.
 pub fn k_splits(groups: usize, k4: usize) -> usize {
     TILED_TARGET_GROUPS.div_ceil(groups).min(k4 / TILED_MIN_SPLIT_K4).max(1)
 }

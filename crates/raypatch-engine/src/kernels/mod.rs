@@ -251,18 +251,18 @@ macro_rules! shaders {
 
 shaders! {
     shaders {
-        MATMUL = "matmul" ["activation"] => matmul::MatmulParams;
+        MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
         /// The linear layer for CPU adapters: see `tools/gen_matmul_lanes.py`.
         MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
             => matmul::MatmulLanesParams;
         PACK = "pack" ["texels"] => pack::PackParams;
-        ATTENTION = "attention" [] => attention::AttentionParams;
+        ATTENTION = "attention" ["attention_params"] => attention::AttentionParams;
         /// Attention for GPUs, heads of up to 128 floats: see `kernels::attention`.
-        ATTENTION_FLASH = "attention_flash" [] => attention::FlashParams;
+        ATTENTION_FLASH = "attention_flash" ["attention_params"] => attention::AttentionParams;
         LAYERNORM = "layernorm" [] => norm::LayerNormParams;
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
-        CONV = "conv" ["activation"] => conv::ConvParams;
+        CONV = "conv" ["activation", "tiles"] => conv::ConvParams;
         POOL = "pool" [] => pool::PoolParams;
         ELEMENTWISE = "elementwise" ["activation"] => elementwise::ElementwiseParams;
         SOFTMAX = "softmax" [] => softmax::SoftmaxParams;
@@ -285,13 +285,13 @@ shaders! {
             prefix: "",
             replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 16u;")],
             features: wgpu::Features::empty(),
-        } => attention::FlashParams;
+        } => attention::AttentionParams;
         /// `attention_flash` with registers for heads of up to 32 floats.
         ATTENTION_FLASH_8 = ATTENTION_FLASH {
             name: "attention_flash_8",
             prefix: "",
             replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 8u;")],
             features: wgpu::Features::empty(),
-        } => attention::FlashParams;
+        } => attention::AttentionParams;
     }
 }
