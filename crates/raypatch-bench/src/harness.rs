@@ -287,20 +287,6 @@ fn precision_name(storage: WeightStorage) -> &'static str {
     }
 }
 
-/// `SRT`, `RP-SRT`, `OSRT`, `RP-OSRT`, `DeFiNe` or `RP-DeFiNe`.
-fn decoder_name(config: &ModelConfig) -> String {
-    let family = match config.family {
-        Family::Srt(_) => "SRT",
-        Family::Osrt(_) => "OSRT",
-        Family::Define(_) => "DeFiNe",
-    };
-    if config.patch_size() == 1 {
-        family.to_string()
-    } else {
-        format!("RP-{family}")
-    }
-}
-
 impl Bench {
     /// A render's wall time and, with timestamps, its GPU time.
     fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, request: Request) -> Result<Sample> {
@@ -379,7 +365,7 @@ impl Bench {
         Record {
             group: s.group.to_string(),
             model: s.name.clone(),
-            decoder: decoder_name(cfg),
+            decoder: cfg.name(),
             k,
             precision: precision_name(s.storage).into(),
             variant: variant.to_string(),

@@ -368,14 +368,7 @@ fn run(args: &Args) -> Result<()> {
     let region = rendered[0].region;
     let region_text =
         args.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
-    let family = match (model.config().base(), k) {
-        ("osrt", 1) => "OSRT",
-        ("osrt", _) => "RP-OSRT",
-        ("define", 1) => "DeFiNe",
-        ("define", _) => "RP-DeFiNe",
-        (_, 1) => "SRT",
-        _ => "RP-SRT",
-    };
+    let family = model.config().name();
     println!(
         "rendered {} view(s) of {}x{}{region_text} ({}) from {} input view(s) with {} ({family}, k={k}, {:.2}M parameters) on {}",
         rendered.len(),

@@ -246,12 +246,23 @@ fn bytemuck_floats(values: &[f32]) -> Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
-/// The most memory the render-frame runs of this process have used so far (their peak resident set).
+/// Runs render-frame in `dir` and returns its exit code, its stderr and its peak resident memory in bytes
+/// (its own, from wait4: not that of other tests' runs).
 #[cfg(unix)]
-fn children_peak_bytes() -> u64 {
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) }, 0);
-    usage.ru_maxrss as u64 * 1024
+fn run_with_peak(dir: &Path, args: &[&str]) -> (i32, String, u64) {
+    use std::io::Read;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_render-frame"))
+        .args(args)
+        .current_dir(dir)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let (mut status, mut usage): (libc::c_int, libc::rusage) = (0, unsafe { std::mem::zeroed() });
+    assert_eq!(unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut usage) }, child.id() as i32);
+    (libc::WEXITSTATUS(status), stderr, usage.ru_maxrss as u64 * 1024)
 }
 
 /// A copy of a safetensors file with one more F32 tensor of `len` values, stored sparse (its bytes are never
@@ -305,8 +316,15 @@ fn files_larger_than_what_they_hold_are_never_read_whole() {
     );
     std::fs::remove_file(d.join("cut.safetensors")).unwrap();
     fails(d, &["--model", &model, "--scene", &big], &["s.safetensors", "input_images", "bytes, more than"]);
-    let peak = children_peak_bytes();
-    assert!(peak < 2 << 30, "a render-frame run peaked at {peak} bytes");
+    for args in [
+        ["--model", &junk, "--scene", &scene],
+        ["--model", &huge, "--scene", &scene],
+        ["--model", &model, "--scene", &big],
+    ] {
+        let (code, stderr, peak) = run_with_peak(d, &args);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert!(peak < 1 << 30, "{args:?}: render-frame peaked at {peak} bytes");
+    }
 }
 
 /// render-frame with the pipeline cache in `cache`, killed after a minute (a FIFO that blocked would hang it).

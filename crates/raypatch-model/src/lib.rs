@@ -11,7 +11,8 @@ pub mod weights;
 
 pub use config::RayKind;
 pub use config::{
-    DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, ModelConfig, Octaves,
+    DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, FamilyConfig, ModelConfig,
+    Octaves,
     OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig, SlotMixerConfig, SrtConfig,
 };
 pub use error::ModelError;

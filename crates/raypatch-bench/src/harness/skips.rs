@@ -9,7 +9,7 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::{Output, Outputs, Region, Request};
 use raypatch_model::TargetViews;
 
-use super::{decoder_name, model_outputs, precision_name, set_times, Bench, Subject};
+use super::{model_outputs, precision_name, set_times, Bench, Subject};
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
 use crate::report::print_row;
@@ -124,7 +124,7 @@ impl Bench {
         let config = format!(
             "{} {} k={k} {}x{} {}",
             s.name,
-            decoder_name(&s.loaded.config),
+            &s.loaded.config.name(),
             grid.height,
             grid.width,
             precision_name(s.storage)

@@ -9,7 +9,7 @@ use raypatch_engine::{EngineError, LoadOptions, Model, WeightStorage};
 use raypatch_model::TargetViews;
 
 use super::{
-    decoder_name, model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
+    model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
     QUICK_SIZES, SEED, SMALL_WIDTH,
 };
 use crate::report::{KernelTime, Record};
@@ -130,7 +130,7 @@ impl Bench {
                 if predicted > self.max_render.as_secs_f64() {
                     println!(
                         "  {name:<12} {:<7} k={k:<2} {:>9} skipped: predicted {predicted:.0} s per render",
-                        decoder_name(&s.loaded.config),
+                        &s.loaded.config.name(),
                         size_text(size)
                     );
                     records.push(self.skipped(s, &targets, predicted, macs)?);
@@ -142,7 +142,7 @@ impl Bench {
                 Ok(record) => record,
                 // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
                 Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
-                    let decoder = decoder_name(&s.loaded.config);
+                    let decoder = &s.loaded.config.name();
                     println!("  {name:<12} {decoder:<7} k={k:<2} {:>9} does not fit: {e}", size_text(size));
                     let mut record = self.record(s, targets.count, size, "");
                     record.render_gflop = flops::gflop(macs);

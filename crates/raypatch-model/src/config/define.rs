@@ -9,7 +9,7 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, RayPatchConfig, Section};
+use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, RayPatchConfig, Section, FamilyConfig, RayKind};
 use crate::error::ModelError;
 
 /// The official depth range: logdepth = log(sigmoid(x)·(d_max − d_min) + d_min).
@@ -92,6 +92,33 @@ pub struct DefineConfig {
     /// Present for `decoder: featurefield` (RP-DeFiNe): the rgb head's Ray-Patch decoder (out 3); the depth
     /// head's is the same with out 1.
     pub ray_patch: Option<RayPatchConfig>,
+}
+
+impl FamilyConfig for DefineConfig {
+    fn base(&self) -> &'static str {
+        "define"
+    }
+    fn name(&self) -> &'static str {
+        "DeFiNe"
+    }
+    fn ray_patch(&self) -> Option<&RayPatchConfig> {
+        self.ray_patch.as_ref()
+    }
+    fn has_depth(&self) -> bool {
+        true
+    }
+    fn ray_kind(&self) -> RayKind {
+        RayKind::UnitDepthPoint
+    }
+    fn position_octaves(&self) -> (&Octaves, &Octaves) {
+        (&self.encoder.rays.pos_octaves, &self.decoder.rays.pos_octaves)
+    }
+    fn layer_counts(&self) -> Vec<(&'static str, usize)> {
+        vec![
+            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
+            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
+        ]
+    }
 }
 
 impl DefineConfig {
@@ -181,14 +208,6 @@ impl DefineConfig {
             ));
         }
         Ok(())
-    }
-
-    /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
-    pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
-        vec![
-            ("encoder_kwargs.num_att_blocks", self.encoder.num_att_blocks),
-            ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
-        ]
     }
 
     /// Pixels per patch side: 1 for DeFiNe, 2^upsample for RP-DeFiNe.

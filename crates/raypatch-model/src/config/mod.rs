@@ -107,6 +107,38 @@ pub enum Family {
     Define(DefineConfig),
 }
 
+impl Family {
+    /// The family's config as what every part of raypatch asks of it.
+    pub fn describe(&self) -> &dyn FamilyConfig {
+        match self {
+            Family::Srt(c) => c,
+            Family::Osrt(c) => c,
+            Family::Define(c) => c,
+        }
+    }
+}
+
+/// What every part of raypatch asks of a model family, answered once per family by its config type (the
+/// family's file in `config/`): [`Family::describe`] is the one place that tells the families apart. The engine
+/// builds each family's modules from its config type (`raypatch_engine::models::build`), the float64 reference
+/// likewise; everything else (the CLI's labels, the bench, the checks) asks here.
+pub trait FamilyConfig {
+    /// The official `base` key's value: "srt", "osrt", "define".
+    fn base(&self) -> &'static str;
+    /// The family's name in the paper: "SRT", "OSRT", "DeFiNe" (its Ray-Patch variant is "RP-" + this).
+    fn name(&self) -> &'static str;
+    /// The Ray-Patch decoder's config, for Ray-Patch models.
+    fn ray_patch(&self) -> Option<&RayPatchConfig>;
+    /// Whether the model predicts a (log-)depth channel beside rgb.
+    fn has_depth(&self) -> bool;
+    /// What the model's rays are: unit directions or unit-depth points.
+    fn ray_kind(&self) -> RayKind;
+    /// The Fourier encodings of camera positions: of input views (encoder), of target views (decoder).
+    fn position_octaves(&self) -> (&Octaves, &Octaves);
+    /// `(config key, count)` of every layer count, each to be checked against the file's tensors.
+    fn layer_counts(&self) -> Vec<(&'static str, usize)>;
+}
+
 /// What a model's rays are: the per-pixel vectors of a scene's `input_rays` and `target_rays`, and what a
 /// camera (intrinsics K, camera-to-world rotation R with OpenCV axes, centre c) is turned into for the model.
 /// Both are taken through the pixel centres p = [u + 0.5, v + 0.5, 1] (u the column, v the row from the top),
@@ -158,12 +190,31 @@ impl ModelConfig {
         Ok(ModelConfig { family, raw })
     }
 
+    /// The family's answers ([`FamilyConfig`]).
+    pub fn describe(&self) -> &dyn FamilyConfig {
+        self.family.describe()
+    }
+
     /// The official `base` of this model.
     pub fn base(&self) -> &'static str {
-        match self.family {
-            Family::Srt(_) => "srt",
-            Family::Osrt(_) => "osrt",
-            Family::Define(_) => "define",
+        self.describe().base()
+    }
+
+    /// The model's name: the family's ("SRT", "OSRT", "DeFiNe"), "RP-" before it for Ray-Patch models.
+    pub fn name(&self) -> String {
+        let family = self.describe().name();
+        if self.ray_patch().is_some() {
+            format!("RP-{family}")
+        } else {
+            family.to_string()
+        }
+    }
+
+    /// The model's name with its patch size for Ray-Patch models: "SRT", "RP-SRT k=8".
+    pub fn label(&self) -> String {
+        match self.ray_patch() {
+            Some(rp) => format!("{} k={}", self.name(), rp.patch_size()),
+            None => self.name(),
         }
     }
 
@@ -177,20 +228,12 @@ impl ModelConfig {
 
     /// Pixels per decoder query along each axis: 1 for per-pixel decoders, k for Ray-Patch.
     pub fn patch_size(&self) -> usize {
-        match &self.family {
-            Family::Srt(c) => c.patch_size(),
-            Family::Osrt(c) => c.patch_size(),
-            Family::Define(c) => c.patch_size(),
-        }
+        self.ray_patch().map_or(1, RayPatchConfig::patch_size)
     }
 
     /// The Ray-Patch decoder's config, for Ray-Patch models.
     pub fn ray_patch(&self) -> Option<&RayPatchConfig> {
-        match &self.family {
-            Family::Srt(c) => c.ray_patch.as_ref(),
-            Family::Osrt(c) => c.ray_patch.as_ref(),
-            Family::Define(c) => c.ray_patch.as_ref(),
-        }
+        self.describe().ray_patch()
     }
 
     /// Whether the decoder resizes its output to the target size (see [`RayPatchConfig::resize_out`]).
@@ -200,39 +243,23 @@ impl ModelConfig {
 
     /// Whether the model predicts a log-depth channel beside rgb.
     pub fn has_depth(&self) -> bool {
-        match &self.family {
-            Family::Srt(c) => c.image_channels() == 4,
-            Family::Osrt(c) => c.image_channels() == 4,
-            Family::Define(_) => true,
-        }
+        self.describe().has_depth()
     }
 
     /// What this model's rays are: unit directions (SRT, OSRT) or unit-depth points (DeFiNe).
     pub fn ray_kind(&self) -> RayKind {
-        match &self.family {
-            Family::Srt(_) | Family::Osrt(_) => RayKind::UnitDirection,
-            Family::Define(_) => RayKind::UnitDepthPoint,
-        }
+        self.describe().ray_kind()
     }
 
     /// The Fourier encodings of camera positions: of input views (encoder), of target views (decoder).
     pub fn position_octaves(&self) -> (&Octaves, &Octaves) {
-        match &self.family {
-            Family::Srt(c) => (&c.encoder.pos_octaves, &c.decoder.ray_predictor.pos_octaves),
-            Family::Osrt(c) => (&c.encoder.pos_octaves, &c.decoder.allocation.pos_octaves),
-            Family::Define(c) => (&c.encoder.rays.pos_octaves, &c.decoder.rays.pos_octaves),
-        }
+        self.describe().position_octaves()
     }
 
     /// Checks the config's layer counts against a file holding `tensors` tensors, before anything as large as
     /// a count is built: each layer has at least one tensor, so a count above the file's is a lie.
     pub fn check_counts(&self, path: &str, tensors: usize) -> Result<(), ModelError> {
-        let counts = match &self.family {
-            Family::Srt(c) => c.layer_counts(),
-            Family::Osrt(c) => c.layer_counts(),
-            Family::Define(c) => c.layer_counts(),
-        };
-        for (key, count) in counts {
+        for (key, count) in self.describe().layer_counts() {
             if count > tensors {
                 return Err(config_err(
                     path,

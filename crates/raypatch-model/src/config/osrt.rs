@@ -9,7 +9,7 @@
 use serde_json::Value;
 
 use super::srt::{check_image_channels, layer_counts};
-use super::{check_positive, check_widths, config_err, Count, Octaves, Section};
+use super::{check_positive, check_widths, config_err, Count, Octaves, Section, FamilyConfig, RayKind};
 use super::{EncoderConfig, RayPatchConfig, RayPredictorConfig};
 use crate::error::ModelError;
 
@@ -48,6 +48,30 @@ pub struct OsrtConfig {
     pub decoder: SlotMixerConfig,
     /// Present for `decoder: featurefield` (RP-OSRT), absent for `lightfield` (OSRT).
     pub ray_patch: Option<RayPatchConfig>,
+}
+
+impl FamilyConfig for OsrtConfig {
+    fn base(&self) -> &'static str {
+        "osrt"
+    }
+    fn name(&self) -> &'static str {
+        "OSRT"
+    }
+    fn ray_patch(&self) -> Option<&RayPatchConfig> {
+        self.ray_patch.as_ref()
+    }
+    fn has_depth(&self) -> bool {
+        self.image_channels() == 4
+    }
+    fn ray_kind(&self) -> RayKind {
+        RayKind::UnitDirection
+    }
+    fn position_octaves(&self) -> (&Octaves, &Octaves) {
+        (&self.encoder.pos_octaves, &self.decoder.allocation.pos_octaves)
+    }
+    fn layer_counts(&self) -> Vec<(&'static str, usize)> {
+        layer_counts(&self.encoder, &self.decoder.allocation, self.ray_patch.as_ref())
+    }
 }
 
 impl OsrtConfig {
@@ -122,11 +146,6 @@ impl OsrtConfig {
             check_image_channels(path, "decoder_kwargs.out_dims", d.out_dims)?;
         }
         Ok(())
-    }
-
-    /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
-    pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
-        layer_counts(&self.encoder, &self.decoder.allocation, self.ray_patch.as_ref())
     }
 
     /// Pixels per patch side: 1 for OSRT, 2^upsample for RP-OSRT.

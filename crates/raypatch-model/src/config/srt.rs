@@ -3,7 +3,7 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, Section, MAX_CONV_BLOCKS};
+use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, Section, MAX_CONV_BLOCKS, FamilyConfig, RayKind};
 use crate::error::ModelError;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -265,6 +265,30 @@ pub(crate) fn check_image_channels(path: &str, key: &str, channels: usize) -> Re
     Ok(())
 }
 
+impl FamilyConfig for SrtConfig {
+    fn base(&self) -> &'static str {
+        "srt"
+    }
+    fn name(&self) -> &'static str {
+        "SRT"
+    }
+    fn ray_patch(&self) -> Option<&RayPatchConfig> {
+        self.ray_patch.as_ref()
+    }
+    fn has_depth(&self) -> bool {
+        self.image_channels() == 4
+    }
+    fn ray_kind(&self) -> RayKind {
+        RayKind::UnitDirection
+    }
+    fn position_octaves(&self) -> (&Octaves, &Octaves) {
+        (&self.encoder.pos_octaves, &self.decoder.ray_predictor.pos_octaves)
+    }
+    fn layer_counts(&self) -> Vec<(&'static str, usize)> {
+        layer_counts(&self.encoder, &self.decoder.ray_predictor, self.ray_patch.as_ref())
+    }
+}
+
 impl SrtConfig {
     /// Resolves the model section of an SRT run config. `path` names the file in errors.
     pub fn from_value(path: &str, raw: &Value) -> Result<SrtConfig, ModelError> {
@@ -318,11 +342,6 @@ impl SrtConfig {
             check_image_channels(path, "decoder_kwargs.out_dims", d.out_dims)?;
         }
         Ok(())
-    }
-
-    /// Layer counts by config key, for [`ModelConfig::check_counts`](super::ModelConfig::check_counts).
-    pub(crate) fn layer_counts(&self) -> Vec<(&'static str, usize)> {
-        layer_counts(&self.encoder, &self.decoder.ray_predictor, self.ray_patch.as_ref())
     }
 
     /// Pixels per patch side: 1 for SRT, 2^upsample for RP-SRT.
