@@ -80,7 +80,7 @@ impl SceneData {
     /// file in messages.
     pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<SceneData> {
         let file = raypatch_model::TensorFile::parse(name, bytes)?;
-        SceneData::from_scene_file(raypatch_model::scene::scene_from_file(&file)?)
+        SceneData::from_scene_file(raypatch_model::views::scene_from_file(&file)?)
     }
 
     fn from_scene_file(file: raypatch_model::SceneFile) -> Result<SceneData> {
@@ -295,7 +295,7 @@ fn load_depth_png(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> 
 const MAX_DEPTH_PNG_BYTES: u64 = 1 << 30;
 
 /// Most frames read from a `transforms.json`.
-pub const MAX_FRAMES: usize = 10_000;
+pub const MAX_FRAMES: usize = raypatch_model::views::MAX_VIEWS;
 /// Most pixels over all the frames of a folder (1 GiB of f32 RGB).
 pub const MAX_SCENE_PIXELS: usize = 1 << 26;
 /// Largest JSON file read (a `transforms.json` of 10 000 frames is a few MB).

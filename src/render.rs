@@ -347,7 +347,7 @@ pub struct Rendered {
     /// Where the pixels lie in the camera's image.
     pub region: Region,
     /// The requested outputs, each `[height, width, channels]` row-major over the region.
-    pub outputs: Vec<raypatch_engine::Rendered>,
+    pub outputs: Vec<raypatch_engine::OutputValues>,
 }
 
 impl Rendered {

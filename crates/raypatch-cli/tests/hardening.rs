@@ -166,6 +166,12 @@ fn sizes_and_counts_are_bounded_before_anything_is_allocated() {
         std::fs::remove_file(path).unwrap();
     }
 
+    // A scene file with more target views than any scene may have (each would be a render).
+    let many = edited(d, &golden("rpsrt_k4", "scene.safetensors"), "many.safetensors", |t| {
+        let positions: Vec<u8> = (0..10_001 * 3).flat_map(|i| (i as f32).to_le_bytes()).collect();
+        t.insert("target_camera_pos".into(), (safetensors::Dtype::F32, vec![10_001, 3], positions));
+    });
+    fails(d, &["--scene", &many], &["many.safetensors", "target_camera_pos", "10001 views", "at most 10000"]);
     fails(d, &["--region", "18446744073709551615,0,1,1"], &["region", "not inside"]);
     fails(d, &["--region", "0,0,18446744073709551615,18446744073709551615"], &["region", "not inside"]);
     fails(d, &["--repeat", "18446744073709551615"], &["--repeat", "from 0 to 100000"]);

@@ -150,9 +150,9 @@ impl From<Outputs> for Request {
     }
 }
 
-/// One rendered output: `[views, height, width, channels]`.
+/// The values of one rendered output: `[views, height, width, channels]`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Rendered {
+pub struct OutputValues {
     pub output: Output,
     pub channels: usize,
     pub values: Vec<f32>,
@@ -170,7 +170,7 @@ pub struct Frame {
     /// Where the region lies in the target image.
     pub region: Region,
     /// The requested outputs, in [`Output::ALL`] order.
-    pub outputs: Vec<Rendered>,
+    pub outputs: Vec<OutputValues>,
 }
 
 impl Frame {

@@ -6,6 +6,7 @@
 //! kernels (`kernels`, one WGSL file each in `shaders/`) → frame (`frame`).
 
 pub mod device;
+pub mod encoded;
 pub mod error;
 pub mod frame;
 pub mod gpu;
@@ -16,17 +17,16 @@ pub mod models;
 pub mod nn;
 pub mod pipeline_cache;
 pub mod plan;
-pub mod scene;
 pub mod tensor;
 pub mod weights;
 
 pub use device::MatmulKernel;
+pub use encoded::{EncodedScene, OpTimes};
 pub use error::{EngineError, Result};
-pub use frame::{Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
+pub use frame::{Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use model::Model;
 pub use pipeline_cache::{PipelineCacheDir, PipelineCacheStatus};
-pub use scene::{EncodedScene, OpTimes};
 pub use tensor::GpuTensor;
 pub use weights::{KeptF32, LoadOptions, WeightStorage};
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).

@@ -1,5 +1,5 @@
 //! The engine's [`Model`]: a family's module tree ([`LightField`]) with its weights on the GPU, loaded once.
-//! Encoding a scene with it is the scene core's (`scene.rs`).
+//! Encoding a scene with it is the scene core's (`encoded.rs`).
 
 use std::path::Path;
 use std::sync::Arc;

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use raypatch_engine::{models, EngineError};
 use raypatch_model::{
-    load_model, scene::scene_from_file, weights::model_from_file, InputViews, ModelError, TensorFile,
+    load_model, views::scene_from_file, weights::model_from_file, InputViews, ModelError, TensorFile,
 };
 use safetensors::tensor::TensorView;
 use safetensors::{Dtype, SafeTensors};

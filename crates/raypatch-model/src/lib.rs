@@ -5,17 +5,17 @@ pub mod config;
 pub mod error;
 pub mod files;
 pub mod layout;
-pub mod scene;
 pub mod tensor_file;
+pub mod views;
 pub mod weights;
 
 pub use config::RayKind;
 pub use config::{
-    DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, FamilyConfig, ModelConfig,
-    Octaves,
-    OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig, SlotMixerConfig, SrtConfig,
+    DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, FamilyConfig,
+    ModelConfig, Octaves, OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig,
+    SlotMixerConfig, SrtConfig,
 };
 pub use error::ModelError;
-pub use scene::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use tensor_file::{HostTensor, TensorFile};
+pub use views::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
 pub use weights::{load_model, LoadedModel, MODEL_FORMAT};

@@ -9,8 +9,8 @@ use raypatch_engine::{EngineError, LoadOptions, Model, WeightStorage};
 use raypatch_model::TargetViews;
 
 use super::{
-    model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
-    QUICK_SIZES, SEED, SMALL_WIDTH,
+    model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
+    SMALL_WIDTH,
 };
 use crate::report::{KernelTime, Record};
 use crate::synthetic;

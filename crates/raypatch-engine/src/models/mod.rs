@@ -1,5 +1,5 @@
 //! Model families. Each is one file that builds its module tree from `nn` modules and implements
-//! [`LightField`]: what the scene core (`scene.rs`) needs to encode a scene once and render any
+//! [`LightField`]: what the scene core (`encoded.rs`) needs to encode a scene once and render any
 //! crop of any target view. `ray_patch` is the Ray-Patch decoder every family can use.
 //!
 //! Adding a family: its config type in `raypatch-model/src/config/` (an arm of `Family`), its file here

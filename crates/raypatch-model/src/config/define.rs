@@ -9,7 +9,10 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, RayPatchConfig, Section, FamilyConfig, RayKind};
+use super::{
+    check_octaves, check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, RayPatchConfig,
+    Section,
+};
 use crate::error::ModelError;
 
 /// The official depth range: logdepth = log(sigmoid(x)·(d_max − d_min) + d_min).

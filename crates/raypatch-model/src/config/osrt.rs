@@ -9,7 +9,7 @@
 use serde_json::Value;
 
 use super::srt::{check_image_channels, layer_counts};
-use super::{check_positive, check_widths, config_err, Count, Octaves, Section, FamilyConfig, RayKind};
+use super::{check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, Section};
 use super::{EncoderConfig, RayPatchConfig, RayPredictorConfig};
 use crate::error::ModelError;
 

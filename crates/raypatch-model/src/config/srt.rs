@@ -3,7 +3,10 @@
 
 use serde_json::Value;
 
-use super::{check_octaves, check_positive, check_widths, config_err, Count, Octaves, Section, MAX_CONV_BLOCKS, FamilyConfig, RayKind};
+use super::{
+    check_octaves, check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, Section,
+    MAX_CONV_BLOCKS,
+};
 use crate::error::ModelError;
 
 #[derive(Clone, Debug, PartialEq)]

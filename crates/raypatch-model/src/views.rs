@@ -73,6 +73,21 @@ fn read(file: &TensorFile, key: &str, lead: &[Option<usize>], what: &str) -> Res
     Ok(t)
 }
 
+/// Most views, input or target, a scene may have (as a frame folder may have frames): each target view is a
+/// render, so more is a mistake or an attack that would run for days.
+pub const MAX_VIEWS: usize = 10_000;
+
+fn check_view_count(path: &str, key: &str, views: usize) -> Result<(), ModelError> {
+    if views > MAX_VIEWS {
+        return Err(ModelError::Value {
+            path: path.into(),
+            key: key.into(),
+            reason: format!("{views} views; a scene may have at most {MAX_VIEWS}"),
+        });
+    }
+    Ok(())
+}
+
 /// What a scene path must be, for messages.
 const SCENE_FILE: &str = "a scene .safetensors file (docs/FORMATS.md) or a folder with transforms.json";
 
@@ -92,6 +107,7 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
     let path = file.path.as_str();
     let images = read(file, "input_images", &[None, None, None], "[N,H,W,3]")?;
     let (n, h, w) = (images.shape[0], images.shape[1], images.shape[2]);
+    check_view_count(path, "input_images", n)?;
     if n == 0 || h == 0 || w == 0 {
         return Err(ModelError::Value {
             path: path.into(),
@@ -106,6 +122,7 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
 
     let target_pos = read(file, "target_camera_pos", &[None], "[T,3]")?;
     let t = target_pos.shape[0];
+    check_view_count(path, "target_camera_pos", t)?;
     if t == 0 {
         return Err(ModelError::Value {
             path: path.into(),

@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 use raypatch_model::{InputViews, TargetGrid, TargetViews};
 
 use crate::error::{EngineError, Result};
-use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Rendered, Request};
+use crate::frame::{Crop, Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
 use crate::graph::{Graph, HostInput, ImageSize};
 use crate::model::Model;
 use crate::plan::{Plan, PlanBuilder, TensorId};
@@ -177,7 +177,7 @@ impl EncodedScene<'_> {
                         values.extend_from_slice(&frame.outputs[i].values[v * per_view..(v + 1) * per_view]);
                     }
                 }
-                Rendered { values, ..*out }
+                OutputValues { values, ..*out }
             })
             .collect();
         Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
@@ -194,7 +194,7 @@ impl EncodedScene<'_> {
             let values = gpu.read(&tensor)?;
             plan.plan.check_finite(gpu, "render", &values)?;
             let values = crop.cut(&values, targets.count, tensor.cols);
-            outputs.push(Rendered { output, channels: tensor.cols, values });
+            outputs.push(OutputValues { output, channels: tensor.cols, values });
         }
         let region = crop.region;
         Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
