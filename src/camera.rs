@@ -377,7 +377,7 @@ impl Camera {
         }
     }
 
-    /// Checks the rays this camera was given against `kind` (see [`raypatch_model::views::check_ray_kind`]):
+    /// Checks the rays this camera was given against `kind` (see [`raypatch_model::rays::check_ray_kind`]):
     /// the reason, one line, when they are not of that kind. A pinhole camera's rays are made of the kind asked
     /// for, so they always pass.
     ///
@@ -396,7 +396,7 @@ impl Camera {
             return Ok(());
         };
         let position = self.position.as_vec3().to_array();
-        raypatch_model::views::check_ray_kind(kind, position, grid.width, grid.height, |i| grid.rays[i].to_array())
+        raypatch_model::rays::check_ray_kind(kind, position, grid.width, grid.height, |i| grid.rays[i].to_array())
     }
 
     /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays));

@@ -5,6 +5,7 @@ pub mod config;
 pub mod error;
 pub mod files;
 pub mod layout;
+pub mod rays;
 pub mod tensor_file;
 pub mod views;
 pub mod weights;
