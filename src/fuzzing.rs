@@ -15,9 +15,7 @@ pub fn safetensors_file(data: &[u8]) -> bool {
 pub fn model_file(data: &[u8]) -> bool {
     raypatch_model::TensorFile::parse("fuzz.safetensors", data)
         .and_then(raypatch_model::weights::model_from_file)
-        .is_ok_and(|loaded| {
-            raypatch_engine::models::build(&loaded, raypatch_model::tensor_file::DEFAULT_MAX_TENSOR_BYTES).is_ok()
-        })
+        .is_ok_and(|loaded| raypatch_engine::models::build(&loaded, raypatch_engine::nn::ReadLimits::NONE).is_ok())
 }
 
 /// A scene file: the layout, the scene tensors, and the cameras built from them.

@@ -375,7 +375,7 @@ mod tests {
             assert_eq!(model.config.patch_size(), k);
             assert!(bytes.len() > 4 * model.parameter_count());
             // The engine's module tree reads every tensor, of its shape, and nothing is left over.
-            raypatch_engine::models::build(&model, u64::MAX).unwrap();
+            raypatch_engine::models::build(&model, raypatch_engine::nn::ReadLimits::NONE).unwrap();
         }
         let official = ModelConfig::from_value("srt", official_srt_config()).unwrap();
         let srt = official.srt().unwrap();

@@ -6,10 +6,11 @@ use std::sync::Arc;
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
-use crate::error::{EngineError, Result};
+use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
 use crate::models::{self, LightField};
+use crate::nn::ReadLimits;
 use crate::weights::{GpuWeights, KeptF32, LoadOptions};
 
 /// A loaded model with its weights on the GPU.
@@ -34,18 +35,9 @@ impl Model {
 
     /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
     pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
-        // The weights are read onto the host before they go to the GPU: refuse a file whose tensors could not
-        // be held there before reading any of them (a tensor larger than a GPU buffer is refused as it is met).
-        if let Some(available) = host_memory_available() {
-            if loaded.data_bytes() > available {
-                return Err(EngineError::TooLarge {
-                    what: format!("{}: the model's tensors", loaded.path),
-                    bytes: loaded.data_bytes(),
-                    max: available,
-                });
-            }
-        }
-        let (family, weights) = models::build(loaded, gpu.max_buffer_bytes)?;
+        let limits =
+            ReadLimits { tensor_bytes: gpu.max_buffer_bytes, total_bytes: host_memory_available().unwrap_or(u64::MAX) };
+        let (family, weights) = models::build(loaded, limits)?;
         let weights = weights.upload(&gpu, options)?;
         Ok(Model {
             gpu,

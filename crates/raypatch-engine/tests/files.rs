@@ -38,8 +38,9 @@ fn model_error(edit: impl FnOnce(&mut Tensors, &mut HashMap<String, String>)) ->
     let (mut tensors, mut metadata) = unpack(&golden("model.safetensors"));
     edit(&mut tensors, &mut metadata);
     let file = TensorFile::parse("edited.safetensors", &pack(&tensors, &metadata)).unwrap();
-    let built =
-        model_from_file(file).map_err(EngineError::from).and_then(|loaded| models::build(&loaded, u64::MAX).map(drop));
+    let built = model_from_file(file)
+        .map_err(EngineError::from)
+        .and_then(|loaded| models::build(&loaded, raypatch_engine::nn::ReadLimits::NONE).map(drop));
     built.unwrap_err().to_string()
 }
 
@@ -60,9 +61,27 @@ fn assert_mentions(err: &str, parts: &[&str]) {
 fn golden_model_loads() {
     let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
     let model = load_model(&path).unwrap();
-    models::build(&model, u64::MAX).unwrap();
+    models::build(&model, raypatch_engine::nn::ReadLimits::NONE).unwrap();
     assert_eq!(model.config.patch_size(), 1);
     assert!(model.parameter_count() > 0);
+}
+
+/// The weights a model reads are checked before each read against one GPU buffer and, in all, against the
+/// host's free memory: the tensor that would pass either is named and nothing more is read.
+#[test]
+fn reads_stop_at_the_limits() {
+    use raypatch_engine::nn::ReadLimits;
+    let path = format!("{}/../../assets/golden/srt_k1/model.safetensors", env!("CARGO_MANIFEST_DIR"));
+    let model = load_model(&path).unwrap();
+    let total = ReadLimits { tensor_bytes: u64::MAX, total_bytes: 4096 };
+    let err = models::build(&model, total).map(drop).unwrap_err().to_string();
+    assert!(
+        err.contains("srt_k1/model.safetensors: tensor `") && err.contains("bytes of memory the host has free"),
+        "{err}"
+    );
+    let one = ReadLimits { tensor_bytes: 64, total_bytes: u64::MAX };
+    let err = models::build(&model, one).map(drop).unwrap_err().to_string();
+    assert!(err.contains("more than the 64 bytes one buffer may have"), "{err}");
 }
 
 #[test]

@@ -125,11 +125,6 @@ impl TensorFile {
         self.max_tensor_bytes = bytes;
     }
 
-    /// Bytes of all the file's tensors: what reading every one of them takes.
-    pub fn data_bytes(&self) -> u64 {
-        self.tensors.values().map(TensorEntry::bytes).sum()
-    }
-
     /// The tensor `key` and its bytes, read now: an error if it is absent or larger than the bound.
     fn read(&self, key: &str) -> Result<(&TensorEntry, Vec<u8>), ModelError> {
         let t = self.entry(key, &[])?;

@@ -34,11 +34,6 @@ impl LoadedModel {
         Some((self.file.shape(key)?, self.file.tensor_bytes(key)?))
     }
 
-    /// Bytes of all the file's tensors: what reading the whole model takes on the host.
-    pub fn data_bytes(&self) -> u64 {
-        self.file.data_bytes()
-    }
-
     /// Checks that every tensor of the file but BatchNorm's `num_batches_tracked` is in `fetched`.
     pub fn check_all_fetched(&self, fetched: &BTreeSet<String>) -> Result<(), ModelError> {
         match self.file.keys().find(|key| !fetched.contains(*key) && !key.ends_with(".num_batches_tracked")) {

@@ -19,7 +19,7 @@ use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
 use crate::kernels::resize::ResizeArgs;
-use crate::nn::{self, Source, Vars, WeightSet};
+use crate::nn::{self, ReadLimits, Source, Vars, WeightSet};
 use crate::plan::PlanBuilder;
 use crate::tensor::{padded_cols, GpuTensor};
 use ray_patch::RayPatchDecoder;
@@ -63,9 +63,9 @@ pub struct Encoded {
 }
 
 /// The module tree of a model file, with its weights on the host (checked against the file: every tensor
-/// fetched, of its shape and at most `max_tensor_bytes`, nothing left over).
-pub fn build(loaded: &LoadedModel, max_tensor_bytes: u64) -> Result<(Box<dyn LightField>, WeightSet)> {
-    build_from(&loaded.config, Source::File { model: loaded, max_tensor_bytes })
+/// fetched, of its shape and within `limits`, nothing left over).
+pub fn build(loaded: &LoadedModel, limits: ReadLimits) -> Result<(Box<dyn LightField>, WeightSet)> {
+    build_from(&loaded.config, Source::File { model: loaded, limits })
 }
 
 /// Every tensor of the official state_dict for `config` (without `num_batches_tracked`), in order.

@@ -24,4 +24,4 @@ pub use posenc::FourierEncoding;
 pub use resnet::ResNet18;
 pub use slot_attention::SlotAttention;
 pub use transformer::{Transformer, TransformerDims};
-pub use vars::{build, Data, Layout, Source, Vars, WeightSet};
+pub use vars::{build, Data, Layout, ReadLimits, Source, Vars, WeightSet};

@@ -13,11 +13,24 @@ use raypatch_model::{HostTensor, LoadedModel};
 use crate::error::{EngineError, Result};
 use crate::graph::Param;
 
+/// What a module tree may read from a model file, each checked before a tensor is read: no tensor larger than
+/// one GPU buffer (it could never be bound), and no more in all than the host can hold (the weights sit on the
+/// host before they go to the GPU). Tensors the model does not fetch are never read and do not count.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadLimits {
+    pub tensor_bytes: u64,
+    pub total_bytes: u64,
+}
+
+impl ReadLimits {
+    /// No limit (files already in memory, tests).
+    pub const NONE: ReadLimits = ReadLimits { tensor_bytes: u64::MAX, total_bytes: u64::MAX };
+}
+
 /// Where a module tree's weights come from.
 pub enum Source<'a> {
-    /// A model file: each fetch is checked against the file, and no tensor of more than `max_tensor_bytes`
-    /// (the largest GPU buffer) is read.
-    File { model: &'a LoadedModel, max_tensor_bytes: u64 },
+    /// A model file: each fetch is checked against the file and the limits.
+    File { model: &'a LoadedModel, limits: ReadLimits },
     /// No file: each fetch is recorded and returns zeros (to list the tensors a config implies).
     Declare,
 }
@@ -80,6 +93,8 @@ impl WeightSet {
 struct Store<'a> {
     source: Source<'a>,
     set: WeightSet,
+    /// Bytes read from the file so far.
+    read: u64,
 }
 
 /// A path into the module tree, over a shared store.
@@ -96,7 +111,7 @@ pub fn build<T>(source: Source<'_>, build: impl FnOnce(&Vars) -> Result<T>) -> R
         Source::File { model, .. } => Some(model),
         Source::Declare => None,
     };
-    let store = RefCell::new(Store { source, set: WeightSet::default() });
+    let store = RefCell::new(Store { source, set: WeightSet::default(), read: 0 });
     let root = Vars { store: &store, path: String::new() };
     let tree = build(&root)?;
     let set = store.into_inner().set;
@@ -124,13 +139,21 @@ impl Vars<'_, '_> {
         let key = self.pp(name).path;
         let mut store = self.store.borrow_mut();
         let tensor = match store.source {
-            Source::File { model, max_tensor_bytes } => {
-                // A weight larger than one GPU buffer can never be bound: refuse it before reading it.
-                if let Some((found, bytes)) = model.tensor_size(&key) {
-                    if found == shape && bytes > max_tensor_bytes {
+            Source::File { model, limits } => {
+                if let Some((_, bytes)) = model.tensor_size(&key).filter(|(found, _)| *found == shape) {
+                    let read = store.read;
+                    if bytes > limits.tensor_bytes {
                         let what = format!("{}: tensor `{key}`", model.path);
-                        return Err(EngineError::TooLarge { what, bytes, max: max_tensor_bytes });
+                        return Err(EngineError::TooLarge { what, bytes, max: limits.tensor_bytes });
                     }
+                    if read.saturating_add(bytes) > limits.total_bytes {
+                        return Err(EngineError::Request(format!(
+                            "{}: tensor `{key}` ({bytes} bytes) after {read} bytes of weights: more than the \
+                             {} bytes of memory the host has free",
+                            model.path, limits.total_bytes
+                        )));
+                    }
+                    store.read = read + bytes;
                 }
                 model.weight(&key, shape)?
             }

@@ -410,7 +410,7 @@ impl ReferenceModel {
     /// fold, in float64), into the reference's own float64 layers.
     pub fn new(model: &LoadedModel, argument: Argument) -> Result<ReferenceModel, EngineError> {
         let config = model.config.clone();
-        let source = Source::File { model, max_tensor_bytes: u64::MAX };
+        let source = Source::File { model, limits: raypatch_engine::nn::ReadLimits::NONE };
         let (encoder, decoder, heads) = match &config.family {
             Family::Srt(c) => {
                 let (m, weights) = nn::build(source, |vars| raypatch_engine::models::srt::Srt::new(vars, c))?;
