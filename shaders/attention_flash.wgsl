@@ -137,6 +137,18 @@ fn tile_of(wid: vec3<u32>, nwg: vec3<u32>) -> Tile {
     return Tile((g % p.query_tiles) * WG, rest % p.heads, rest / p.heads, rest < p.heads * p.splits);
 }
 
+// Writes a head's dim_head floats of `o`, times `scale`, at `at` of `out`.
+fn store_head(at: u32, o: array<vec4<f32>, CHUNKS>, scale: f32) {
+    for (var c = 0u; c < CHUNKS; c++) {
+        for (var e = 0u; e < 4u; e++) {
+            let d = 4u * c + e;
+            if (d < p.dim_head) {
+                out[at + d] = o[c][e] * scale;
+            }
+        }
+    }
+}
+
 // Zeroes the padding of output row i (by the invocation of the last head).
 fn zero_padding(i: u32, h: u32) {
     if (h + 1u == p.heads) {
@@ -158,17 +170,7 @@ fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
     if (i >= p.nq) {
         return;
     }
-    let dh = p.dim_head;
-    let at = i * p.out_ld + tile.h * dh;
-    let inv_l = 1.0 / row.l;
-    for (var c = 0u; c < CHUNKS; c++) {
-        for (var e = 0u; e < 4u; e++) {
-            let d = 4u * c + e;
-            if (d < dh) {
-                out[at + d] = row.o[c][e] * inv_l;
-            }
-        }
-    }
+    store_head(i * p.out_ld + tile.h * p.dim_head, row.o, 1.0 / row.l);
     zero_padding(i, tile.h);
 }
 
@@ -187,14 +189,7 @@ fn flash_split(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     }
     let dh = p.dim_head;
     let at = (tile.split * p.nq + i) * p.partial_ld + tile.h * (dh + 2u);
-    for (var c = 0u; c < CHUNKS; c++) {
-        for (var e = 0u; e < 4u; e++) {
-            let d = 4u * c + e;
-            if (d < dh) {
-                out[at + d] = row.o[c][e];
-            }
-        }
-    }
+    store_head(at, row.o, 1.0);
     out[at + dh] = row.m;
     out[at + dh + 1u] = row.l;
 }

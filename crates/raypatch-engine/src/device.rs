@@ -104,22 +104,32 @@ pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) ->
 
 /// How attention runs ([`attention_variant`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AttentionVariant {
+pub enum AttentionVariant<L> {
     /// `attention.attention`: one fused dispatch, a head's 512 queries a workgroup.
     Fused,
     /// `attention_flash`: a workgroup per (64 queries, head, key split).
     Flash,
-    /// Scores, softmax and weighted values as batched `matmul_lanes` GEMMs.
-    Lanes,
+    /// Scores, softmax and weighted values as batched `matmul_lanes` GEMMs, laid out as `L` says.
+    Lanes(L),
 }
 
-/// The variant of an attention op with `queries` query rows: `lanes_fit` says whether its heads and operands
-/// suit `matmul_lanes` (asked only on `Lanes`).
-pub fn attention_variant(choice: &KernelChoice, queries: usize, lanes_fit: impl FnOnce() -> bool) -> AttentionVariant {
+/// The variant of an attention op with `queries` query rows: `lanes_layout` lays it out on `matmul_lanes`,
+/// or says it does not suit it (asked only on `Lanes`).
+pub fn attention_variant<L>(
+    choice: &KernelChoice,
+    queries: usize,
+    lanes_layout: impl FnOnce() -> Option<L>,
+) -> AttentionVariant<L> {
     match choice.matmul {
         _ if queries == 0 => AttentionVariant::Fused,
         MatmulKernel::Tiled => AttentionVariant::Flash,
-        MatmulKernel::Lanes if lanes_fit() => AttentionVariant::Lanes,
-        _ => AttentionVariant::Fused,
+        MatmulKernel::Lanes => lanes_layout().map_or(AttentionVariant::Fused, AttentionVariant::Lanes),
+        MatmulKernel::Rows => AttentionVariant::Fused,
     }
+}
+
+/// Into how many parts to split each of `groups` workgroups' work (keys, or K) so that about `target`
+/// workgroups run, keeping a GPU's multiprocessors busy: at least 1, at most `most`.
+pub fn splits_to_fill(groups: usize, target: usize, most: usize) -> usize {
+    target.div_ceil(groups).min(most).max(1)
 }

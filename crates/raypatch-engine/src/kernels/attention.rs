@@ -5,7 +5,7 @@
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
 use super::{ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8};
-use crate::device::{attention_variant, AttentionVariant};
+use crate::device::{attention_variant, splits_to_fill, AttentionVariant};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
@@ -119,12 +119,8 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         );
     }
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
-    let mut lanes = None;
-    match attention_variant(&plan.kernels, q.rows, || {
-        lanes = LanesLayout::of(plan, &args);
-        lanes.is_some()
-    }) {
-        AttentionVariant::Lanes => return attention_on_lanes(plan, label, args, lanes.expect("checked")),
+    match attention_variant(&plan.kernels, q.rows, || LanesLayout::of(plan, &args)) {
+        AttentionVariant::Lanes(layout) => return attention_on_lanes(plan, label, args, layout),
         AttentionVariant::Flash => return flash_attention(plan, label, args),
         AttentionVariant::Fused => {}
     }
@@ -154,7 +150,7 @@ const FLASH_TARGET_GROUPS: usize = 1024;
 /// How `attention_flash.wgsl` splits the keys of `nkv` among workgroups of a head's `query_tiles` tiles:
 /// `(keys per split, splits)`, the keys per split a whole number of tiles of `tile_keys`.
 pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usize) -> (usize, usize) {
-    let wanted = FLASH_TARGET_GROUPS.div_ceil(query_tiles * heads).clamp(1, nkv.div_ceil(tile_keys));
+    let wanted = splits_to_fill(query_tiles * heads, FLASH_TARGET_GROUPS, nkv.div_ceil(tile_keys));
     let split_keys = nkv.div_ceil(wanted).div_ceil(tile_keys) * tile_keys;
     (split_keys, nkv.div_ceil(split_keys))
 }

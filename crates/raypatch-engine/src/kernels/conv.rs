@@ -91,8 +91,8 @@ fn lanes_suit(plan: &PlanBuilder, args: &Conv2dArgs) -> bool {
 /// written as `mode` says: act(conv + bias), out + act(conv + bias), or act(out + conv + bias).
 ///
 /// `weight` is [`pack_conv`]'s `[cout, k*k * padded_cols(cin)]` matrix, `bias` a `[1, cout]` tensor. `act`
-/// is any [`Activation`](crate::kernels::Activation). The padding columns of `out` are written with zeros (or stay zero when reading
-/// `out`). `out` must not overlap `x`. Records `n·ho·wo·cout·k²·cin` multiply-adds.
+/// is any [`Activation`](crate::kernels::Activation). The padding columns of `out` are written with zeros (or
+/// stay zero when reading `out`). `out` must not overlap `x`. Records `n·ho·wo·cout·k²·cin` multiply-adds.
 pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let Conv2dArgs { x, n, h, w, cin, weight, bias, out, cout, window, upsample_input, act, mode } = args;
     if plan.failed() {

@@ -5,7 +5,7 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{linear_variant, MatmulKernel};
+use crate::device::{linear_variant, splits_to_fill, MatmulKernel};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
@@ -192,7 +192,7 @@ const TILED_MIN_SPLIT_K4: usize = 4 * TILED_K4;
 /// How many ranges `linear_tiled` cuts a K of `k4` vec4s into for an output of `groups` tiles: enough for
 /// `TILED_TARGET_GROUPS` (512) workgroups, each range at least `TILED_MIN_SPLIT_K4` (32 vec4s) long.
 pub fn k_splits(groups: usize, k4: usize) -> usize {
-    TILED_TARGET_GROUPS.div_ceil(groups).min(k4 / TILED_MIN_SPLIT_K4).max(1)
+    splits_to_fill(groups, TILED_TARGET_GROUPS, k4 / TILED_MIN_SPLIT_K4)
 }
 
 params! {
