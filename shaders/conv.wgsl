@@ -50,9 +50,9 @@ struct Params {
     // n*ho*wo.
     npix: u32,
     // Channel tiles, the fastest-varying part of the group index: ceil(cout4 / CV) for `conv2d`,
-    // ceil(cout4 / 16) for `conv_tiled`.
+    // ceil(cout4 / (TILE / 4)) for `conv_tiled`.
     cout_tiles: u32,
-    // Pixel tiles: ceil(npix / (64 * PX)) for `conv2d`, ceil(npix / 64) for `conv_tiled`.
+    // Pixel tiles: ceil(npix / (64 * PX)) for `conv2d`, ceil(npix / TILE) for `conv_tiled`.
     pixel_tiles: u32,
 }
 
@@ -185,13 +185,14 @@ fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 }
 
 // `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (tiles.wgsl, the
-// tiling of matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16 invocations
-// computes 64 output pixels x 64 output channels, invocation (tx, ty) pixels ty + 16 i (i < 4) and the 4
-// channels of vec4 column tx. K is the weight row, taps x cin4 vec4s (tap-major, as pack_conv lays it out),
-// walked 8 vec4s at a time whatever the tap boundaries, so that few input channels (ResNet's RGB stem, one
-// vec4 a tap) waste no steps. Each step gathers 64 pixels' input vec4s (the im2col of the tile, never
-// materialised: the tap's offset, the zero padding and the 2x nearest upsampling resolved per load) and 64
-// channels' weight vec4s into workgroup memory.
+// tiling of matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16
+// invocations computes TILE output pixels x TILE output channels (64 or 128), invocation (tx, ty) pixels
+// ty + 16 i and the channels of vec4 columns tx + 16 j. K is the weight row, taps x cin4 vec4s (tap-major, as
+// pack_conv lays it out), walked TILE_K4 vec4s at a time whatever the tap boundaries, so that few input
+// channels (ResNet's RGB stem, one vec4 a tap) waste no steps. Each step gathers TILE pixels' input vec4s (the
+// im2col of the tile, never materialised: the tap's offset, the zero padding and the 2x nearest upsampling
+// resolved per load) and TILE channels' weight vec4s into workgroup memory; the next step's are loaded into
+// registers while the staged one is multiplied.
 
 // Where one output pixel's window starts: its image's first row in x (b*h) and its top-left tap in the
 // effective image (may be negative: padding).
@@ -218,6 +219,14 @@ fn gather(win: Window, kk: u32) -> vec4<f32> {
     return x[((win.img + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4 + kk % p.cin4];
 }
 
+// One step's vec4s an invocation stages: pixels r and r + STAGE_STEP, channels r and r + STAGE_STEP.
+struct Gathered {
+    x0: vec4<f32>,
+    x1: vec4<f32>,
+    w0: vec4<f32>,
+    w1: vec4<f32>,
+}
+
 @compute @workgroup_size(16, 16)
 fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
               @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -229,38 +238,35 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
         return;
     }
     let col0 = tile * TILE;
-    let tx = lid.x;
-    let ty = lid.y;
-    // This invocation loads rows r and r + 32 of both tiles (pixels, and output channels), at vec4 kk of each
-    // step. Channels past cout reuse the last one (their results are dropped).
+    // This invocation loads rows r and r + STAGE_STEP of both tiles (pixels, and output channels), at vec4 kk
+    // of each step. Channels past cout reuse the last one (their results are dropped).
     let r = li / TILE_K4;
     let kk = li % TILE_K4;
     let win0 = window_of(pix0 + r);
-    let win1 = window_of(pix0 + r + 32u);
+    let win1 = window_of(pix0 + r + STAGE_STEP);
     let k4 = p.k * p.k * p.cin4;
     let w0 = min(col0 + r, p.cout - 1u) * k4;
-    let w1 = min(col0 + r + 32u, p.cout - 1u) * k4;
-    var acc = array<vec4<f32>, 4>();
+    let w1 = min(col0 + r + STAGE_STEP, p.cout - 1u) * k4;
+    var next = Gathered(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    if (kk < k4) {
+        next = Gathered(gather(win0, kk), gather(win1, kk), w[w0 + kk], w[w1 + kk]);
+    }
+    var acc = array<vec4<f32>, BLOCK>();
     for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
-        let at = k0 + kk;
-        var x0 = vec4<f32>(0.0);
-        var x1 = vec4<f32>(0.0);
-        var v0 = vec4<f32>(0.0);
-        var v1 = vec4<f32>(0.0);
-        if (at < k4) {
-            x0 = gather(win0, at);
-            x1 = gather(win1, at);
-            v0 = w[w0 + at];
-            v1 = w[w1 + at];
-        }
-        stage(kk, r, x0, v0);
-        stage(kk, r + 32u, x1, v1);
+        stage(kk, r, next.x0, next.w0);
+        stage(kk, r + STAGE_STEP, next.x1, next.w1);
         workgroupBarrier();
-        multiply_staged(tx, ty, &acc);
+        let at = k0 + TILE_K4 + kk;
+        next = Gathered(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+        if (at < k4) {
+            next = Gathered(gather(win0, at), gather(win1, at), w[w0 + at], w[w1 + at]);
+        }
+        multiply_staged(lid.x, lid.y, &acc);
         workgroupBarrier();
     }
-    let col = tile * 16u + tx;
-    for (var i = 0u; i < 4u; i++) {
-        store_one(acc[i], pix0 + ty + 16u * i, col);
+    for (var i = 0u; i < TILE_ROWS; i++) {
+        for (var j = 0u; j < TILE_COLS4; j++) {
+            store_one(acc[i * TILE_COLS4 + j], pix0 + lid.y + 16u * i, tile * (TILE / 4u) + 16u * j + lid.x);
+        }
     }
 }

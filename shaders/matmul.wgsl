@@ -37,6 +37,11 @@ struct Params {
     splits: u32,
     k_split4: u32,
     m_tiles: u32,
+    // `linear_tiled` only: 1 when x's rows are layer-normalised as they are staged (over norm_cols columns,
+    // with eps; gamma and beta at bindings 5 and 6), else 0.
+    norm: u32,
+    norm_cols: u32,
+    eps: f32,
 }
 
 alias WeightVec = vec4<f32>;
@@ -136,27 +141,100 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     }
 }
 
-// `linear_tiled`: the classic GPU tiling. A workgroup of 16 x 16 invocations computes a 64 x 64 tile of out;
-// per step of 32 floats along K it copies 64 rows of x and 64 rows of w into workgroup memory (two vec4s
-// each per invocation, read by 8 neighbouring invocations as 128 contiguous bytes) and every invocation
-// takes a 4 x 4 block of dot products from there, so each value loaded from memory serves 64 outputs.
-// Invocation (tx, ty) owns rows ty + 16i (i < 4) and the 4 columns of vec4 column tx: its stores of a row
-// are one vec4, and 16 neighbouring invocations store 256 contiguous bytes.
+// `linear_tiled`: the classic GPU tiling. A workgroup of 16 x 16 invocations computes a TILE x TILE tile of out
+// (64 x 64, or 128 x 128 in the `_128` variants: tiles.wgsl); per step along K it copies TILE rows of x and TILE
+// rows of w into workgroup memory (two vec4s each per invocation, read by neighbouring invocations as contiguous
+// bytes) and every invocation takes a 4 x 4 (8 x 8) block of dot products from there, so each value loaded from
+// memory serves TILE outputs. Invocation (tx, ty) owns rows ty + 16 i and vec4 columns tx + 16 j: its stores of a
+// row are whole vec4s, and 16 neighbouring invocations store 256 contiguous bytes. The next step's vec4s are
+// loaded into registers while the staged step is multiplied (double buffering through registers, as
+// workgroup memory holds one step).
 //
 // In workgroup memory both tiles are K-major ([K step][row]), so the 16 invocations of a row of the
 // workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted (tiles.wgsl, the
-// tiles and their products, shared with conv.wgsl's `conv_tiled`). The two tiles take 16 KiB, WebGPU's
-// guaranteed minimum of workgroup memory.
+// tiles and their products, shared with conv.wgsl's `conv_tiled`).
 //
 // Split K: where out has too few tiles to fill a GPU (M = 300 rows: 5 x 24 tiles on a 1536-column layer, about
 // one 256-invocation workgroup per multiprocessor of an H100), K is cut into `splits` ranges, a workgroup per
 // (tile, range); each writes its raw sums to the partials (bound as `out`, [splits * m, n4] vec4s) and
 // `linear_reduce` adds the ranges up and finishes (bias, activation, accumulation) into out.
+//
+// Layer norm in the prologue (`norm` = 1): x's rows are normalised as they are staged, out = act(LN(x) · wᵀ +
+// bias) with LN's gamma and beta bound at 5 and 6, so the normalised rows are never written (the pre-norm of
+// every transformer layer). Each workgroup first takes its TILE rows' statistics over all of K, in the two
+// passes of layernorm.wgsl (deviations from the row's first element, whose mean is never rounded on its own).
+@group(0) @binding(5) var<storage, read> gamma: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> beta: array<vec4<f32>>;
+
+// What normalises one row as it is staged: its first element, the mean of the deviations from it, 1 / std.
+struct RowNorm {
+    x0: f32,
+    delta: f32,
+    rstd: f32,
+}
+
+// The TILE_K4 invocations that stage a row (consecutive li) sum `part` over it: each leaves its part in
+// x_tile[li] and adds up its row's. x_tile is free before the first step.
+fn sum_over_row(li: u32, part: vec4<f32>) -> vec4<f32> {
+    workgroupBarrier();
+    x_tile[li] = part;
+    workgroupBarrier();
+    var sum = vec4<f32>(0.0);
+    let first = li - li % TILE_K4;
+    for (var t = 0u; t < TILE_K4; t++) {
+        sum += x_tile[first + t];
+    }
+    return sum;
+}
+
+// Statistics of rows a and b (x offsets, vec4s) over the p.norm_cols columns, each of the TILE_K4 invocations
+// sharing them taking every TILE_K4-th vec4 from kk.
+fn row_norms(li: u32, kk: u32, a: u32, b: u32) -> array<RowNorm, 2> {
+    let x0 = vec2<f32>(x[a].x, x[b].x);
+    let cols = p.norm_cols;
+    let lanes = vec4<u32>(0u, 1u, 2u, 3u);
+    var s = vec4<f32>(0.0);
+    for (var k = kk; k < p.k4; k += TILE_K4) {
+        let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
+        let da = select(vec4<f32>(0.0), x[a + k] - x0.x, inside);
+        let db = select(vec4<f32>(0.0), x[b + k] - x0.y, inside);
+        s += vec4<f32>(da.x + da.y + da.z + da.w, db.x + db.y + db.z + db.w, 0.0, 0.0);
+    }
+    let delta = sum_over_row(li, s).xy / f32(cols);
+    var v = vec4<f32>(0.0);
+    for (var k = kk; k < p.k4; k += TILE_K4) {
+        let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
+        let da = select(vec4<f32>(0.0), (x[a + k] - x0.x) - delta.x, inside);
+        let db = select(vec4<f32>(0.0), (x[b + k] - x0.y) - delta.y, inside);
+        v += vec4<f32>(dot(da, da), dot(db, db), 0.0, 0.0);
+    }
+    let rstd = 1.0 / sqrt(sum_over_row(li, v).xy / f32(cols) + p.eps);
+    workgroupBarrier();
+    return array<RowNorm, 2>(RowNorm(x0.x, delta.x, rstd.x), RowNorm(x0.y, delta.y, rstd.y));
+}
+
+// Vec4 k of a row of x as staged: normalised when `p.norm` is 1 (zero in the padding columns, where gamma and
+// beta are zero).
+fn x_staged(at: u32, k: u32, n: RowNorm) -> vec4<f32> {
+    let v = x[at + k];
+    if (p.norm == 0u) {
+        return v;
+    }
+    return ((v - n.x0) - n.delta) * n.rstd * gamma[k] + beta[k];
+}
+
+// One step's vec4s an invocation stages: rows r and r + STAGE_STEP of x's tile and of w's.
+struct Staged {
+    x0: vec4<f32>,
+    x1: vec4<f32>,
+    w0: vec4<f32>,
+    w1: vec4<f32>,
+}
 
 @compute @workgroup_size(16, 16)
 fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let tiles = (p.n4 + 15u) / 16u;
+    let tiles = (p.n4 + TILE / 4u - 1u) / (TILE / 4u);
     let group = wid.x + wid.y * nwg.x;
     let tile = group % tiles;
     let rest = group / tiles;
@@ -169,35 +247,46 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let k_begin = split * p.k_split4;
     let k_end = min(p.k4, k_begin + p.k_split4);
     let col0 = tile * TILE;
-    let tx = lid.x;
-    let ty = lid.y;
-    var acc = array<vec4<f32>, 4>();
+    let r = li / TILE_K4;
+    let kk = li % TILE_K4;
+    // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed).
+    let xa = min(row0 + r, p.m - 1u) * p.k4;
+    let xb = min(row0 + r + STAGE_STEP, p.m - 1u) * p.k4;
+    let wa = min(col0 + r, p.n - 1u) * p.w_ld4;
+    let wb = min(col0 + r + STAGE_STEP, p.n - 1u) * p.w_ld4;
+    var norms = array<RowNorm, 2>(RowNorm(0.0, 0.0, 1.0), RowNorm(0.0, 0.0, 1.0));
+    if (p.norm != 0u) {
+        norms = row_norms(li, kk, xa, xb);
+    }
+    // K past the end of the range reads zeros.
+    var next = Staged(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    if (k_begin + kk < k_end) {
+        let k = k_begin + kk;
+        next = Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
+    }
+    var acc = array<vec4<f32>, BLOCK>();
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
-        // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed),
-        // K past the end of the range reads zeros.
-        for (var e = li; e < TILE * TILE_K4; e += 256u) {
-            let r = e / TILE_K4;
-            let kk = e % TILE_K4;
-            var xv = vec4<f32>(0.0);
-            var wv = vec4<f32>(0.0);
-            if (k0 + kk < k_end) {
-                xv = x[min(row0 + r, p.m - 1u) * p.k4 + k0 + kk];
-                wv = vec4<f32>(w[min(col0 + r, p.n - 1u) * p.w_ld4 + k0 + kk]);
-            }
-            stage(kk, r, xv, wv);
-        }
+        stage(kk, r, next.x0, next.w0);
+        stage(kk, r + STAGE_STEP, next.x1, next.w1);
         workgroupBarrier();
-        multiply_staged(tx, ty, &acc);
+        let k = k0 + TILE_K4 + kk;
+        next = Staged(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+        if (k < k_end) {
+            next = Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
+        }
+        multiply_staged(lid.x, lid.y, &acc);
         workgroupBarrier();
     }
-    let c4 = tile * 16u + tx;
-    for (var i = 0u; i < 4u; i++) {
-        let row = row0 + ty + 16u * i;
-        if (row < p.m && c4 < p.n4) {
-            if (p.splits == 1u) {
-                store4(row, c4, acc[i]);
-            } else {
-                out[(split * p.m + row) * p.n4 + c4] = acc[i];
+    for (var i = 0u; i < TILE_ROWS; i++) {
+        let row = row0 + lid.y + 16u * i;
+        for (var j = 0u; j < TILE_COLS4; j++) {
+            let c4 = tile * (TILE / 4u) + 16u * j + lid.x;
+            if (row < p.m && c4 < p.n4) {
+                if (p.splits == 1u) {
+                    store4(row, c4, acc[i * TILE_COLS4 + j]);
+                } else {
+                    out[(split * p.m + row) * p.n4 + c4] = acc[i * TILE_COLS4 + j];
+                }
             }
         }
     }

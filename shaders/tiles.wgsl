@@ -1,37 +1,50 @@
 // The workgroup-memory tiles of the GPU GEMMs (`MatmulKernel::Tiled`): matmul.wgsl's `linear_tiled` and
 // conv.wgsl's `conv_tiled`, which this prelude is prepended to (matmul.wgsl says why these sizes and layouts).
-// A workgroup of 16 x 16 invocations computes a TILE x TILE block of out; per step of TILE_K4 vec4s along K it
-// stages TILE rows of x (or of the gathered input pixels) and TILE rows of w here, K-major, and invocation
-// (tx, ty) takes rows ty + 16 i (i < 4) by the 4 columns of vec4 column tx from them.
+// A workgroup of 16 x 16 invocations computes a TILE x TILE block of out: invocation (tx, ty) rows ty + 16 i
+// (i < TILE_ROWS) by vec4 columns tx + 16 j (j < TILE_COLS4). Per step of TILE_K4 vec4s along K it stages TILE
+// rows of x (or of the gathered input pixels) and TILE rows of w here, K-major; invocation li stages rows
+// li / TILE_K4 and li / TILE_K4 + STAGE_STEP of both, at vec4 li % TILE_K4 of the step.
+//
+// Two sizes, the same 512 vec4s (16 KiB, WebGPU's guaranteed minimum) of workgroup memory: 64 x 64 tiles with
+// 32 floats of K a step (4 x 4 outputs per invocation), and 128 x 128 tiles with 16 floats a step (8 x 8 per
+// invocation: each value read from workgroup memory serves 8 outputs, not 4), for outputs with enough tiles to
+// fill a GPU at that size (device::gemm_tile). The `_128` variants (kernels/mod.rs) replace TILE and TILE_K4.
 
 const TILE: u32 = 64u;
 // vec4s of K per step.
 const TILE_K4: u32 = 8u;
+const TILE_ROWS: u32 = TILE / 16u;
+const TILE_COLS4: u32 = TILE / 64u;
+const STAGE_STEP: u32 = 256u / TILE_K4;
+// vec4s of out per invocation: acc[i * TILE_COLS4 + j] is row ty + 16 i, vec4 column tx + 16 j.
+const BLOCK: u32 = TILE_ROWS * TILE_COLS4;
 var<workgroup> x_tile: array<vec4<f32>, 512>;
 var<workgroup> w_tile: array<vec4<f32>, 512>;
 
-// Stages vec4 kk of row r of x's tile and of w's. w's rows are permuted, row c at (c % 4) * 16 + c / 4, so that
-// invocation tx's column j sits at j * 16 + tx and the 16 invocations of a row read 16 consecutive vec4s.
+// Stages vec4 kk of row r of x's tile and of w's. w's rows are permuted: row c (a column of out, in vec4 column
+// c4 = c / 4, lane c % 4) sits at (4 (c4 / 16) + c % 4) * 16 + c4 % 16, so that the 16 invocations of a row of the
+// workgroup (tx = c4 % 16) read 16 consecutive vec4s.
 fn stage(kk: u32, r: u32, xv: vec4<f32>, wv: vec4<f32>) {
     x_tile[kk * TILE + r] = xv;
-    w_tile[kk * TILE + (r % 4u) * 16u + r / 4u] = wv;
+    let c4 = r / 4u;
+    w_tile[kk * TILE + (4u * (c4 / 16u) + r % 4u) * 16u + c4 % 16u] = wv;
 }
 
-// One staged step's products added to invocation (tx, ty)'s block (acc[i]: row ty + 16 i).
-fn multiply_staged(tx: u32, ty: u32, acc: ptr<function, array<vec4<f32>, 4>>) {
+// One staged step's products added to invocation (tx, ty)'s block.
+fn multiply_staged(tx: u32, ty: u32, acc: ptr<function, array<vec4<f32>, BLOCK>>) {
     for (var kk = 0u; kk < TILE_K4; kk++) {
         let at = kk * TILE;
-        let b0 = w_tile[at + tx];
-        let b1 = w_tile[at + 16u + tx];
-        let b2 = w_tile[at + 32u + tx];
-        let b3 = w_tile[at + 48u + tx];
-        let a0 = x_tile[at + ty];
-        let a1 = x_tile[at + 16u + ty];
-        let a2 = x_tile[at + 32u + ty];
-        let a3 = x_tile[at + 48u + ty];
-        (*acc)[0] += vec4<f32>(dot(a0, b0), dot(a0, b1), dot(a0, b2), dot(a0, b3));
-        (*acc)[1] += vec4<f32>(dot(a1, b0), dot(a1, b1), dot(a1, b2), dot(a1, b3));
-        (*acc)[2] += vec4<f32>(dot(a2, b0), dot(a2, b1), dot(a2, b2), dot(a2, b3));
-        (*acc)[3] += vec4<f32>(dot(a3, b0), dot(a3, b1), dot(a3, b2), dot(a3, b3));
+        // b[4 j + l]: the weights of column l of this invocation's vec4 column j.
+        var b: array<vec4<f32>, 4u * TILE_COLS4>;
+        for (var j = 0u; j < 4u * TILE_COLS4; j++) {
+            b[j] = w_tile[at + j * 16u + tx];
+        }
+        for (var i = 0u; i < TILE_ROWS; i++) {
+            let a = x_tile[at + ty + 16u * i];
+            for (var j = 0u; j < TILE_COLS4; j++) {
+                (*acc)[i * TILE_COLS4 + j] += vec4<f32>(
+                    dot(a, b[4u * j]), dot(a, b[4u * j + 1u]), dot(a, b[4u * j + 2u]), dot(a, b[4u * j + 3u]));
+            }
+        }
     }
 }

@@ -1,14 +1,15 @@
-//! `linear` on every kernel against the float64 reference: random shapes (tails of the 256x8, 64x64 and
-//! 8x24 workgroup tiles, several 32-float K steps of the 64x64 one), every activation, with and without
-//! bias, accumulate, row-range views; plus erf accuracy through GELU.
+//! `linear` on every kernel against the float64 reference: random shapes (tails of the 256x8, 64x64, 128x128
+//! and 8x24 workgroup tiles, several K steps of the tiled ones), every activation, with and without bias,
+//! accumulate, row-range views, a layer norm of x's rows first; plus erf accuracy through GELU.
 
 use raypatch_engine::device::KernelChoice;
-use raypatch_engine::device::MatmulKernel;
-use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs};
+use raypatch_engine::device::{gemm_tile, GemmTile, MatmulKernel};
+use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::{padded_cols, Dtype};
 use raypatch_reference::matmul as reference;
+use raypatch_reference::norm::layernorm;
 
 use crate::common::*;
 
@@ -21,7 +22,11 @@ struct Case {
     accumulate: bool,
     /// Run on rows [64, 64 + m) of a bigger x and rows [128, 128 + m) of a bigger out.
     view: bool,
+    /// Layer-normalise x's rows first (`LinearArgs::norm`); x's rows then lie around means up to ±4.
+    norm: bool,
 }
+
+const NORM_EPS: f32 = 1e-5;
 
 /// Runs one case and checks the values, the zeroed padding of out, and that rows outside the view of
 /// out are untouched.
@@ -38,7 +43,15 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let x_rows = x_start + m + extra;
     let out_rows = out_start + m + extra;
 
-    let x_all = rng.vec_f32(x_rows * k, -1.0, 1.0);
+    let mut x_all = rng.vec_f32(x_rows * k, -1.0, 1.0);
+    if case.norm {
+        for row in x_all.chunks_exact_mut(k) {
+            let mean = rng.uniform(-4.0, 4.0) as f32;
+            row.iter_mut().for_each(|v| *v += mean);
+        }
+    }
+    let gamma = rng.vec_f32(k, 0.5, 1.5);
+    let beta = rng.vec_f32(k, -0.5, 0.5);
     let w = rng.vec_f32(n * k, -1.0, 1.0);
     let bias = case.bias.then(|| rng.vec_f32(n, -1.0, 1.0));
     let residual = case.accumulate.then(|| rng.vec_f32(m * n, -1.0, 1.0));
@@ -69,9 +82,14 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
         Dtype::F16 => w.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect(),
     };
     let bias_t = bias.as_ref().map(|b| gpu.upload("bias", 1, n, b).unwrap());
+    let gamma_t = gpu.upload("gamma", 1, k, &gamma).unwrap();
+    let beta_t = gpu.upload("beta", 1, k, &beta).unwrap();
     let out_t = gpu.upload("out", out_rows, n, &vec![0.0; out_rows * n]).unwrap();
     let out_bytes: Vec<u8> = out_init.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let x = to_f64(&x_all[x_start * k..(x_start + m) * k]);
+    let mut x = to_f64(&x_all[x_start * k..(x_start + m) * k]);
+    if case.norm {
+        x = layernorm(&x, k, &to_f64(&gamma), &to_f64(&beta), f64::from(NORM_EPS));
+    }
     let w64 = to_f64(&w);
     let bias64 = bias.as_ref().map(|b| to_f64(b));
     let residual = residual.map(|r| to_f64(&r));
@@ -89,15 +107,27 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
         let out_id = plan.external("out", &out_t);
         let x_view = plan.rows_of(x_id, x_start, m);
         let out_view = plan.rows_of(out_id, out_start, m);
-        let args =
-            LinearArgs { x: x_view, weight: w_id, bias: bias_id, out: out_view, act, accumulate: case.accumulate };
+        let norm = case.norm.then(|| RowNorm {
+            gamma: plan.external("gamma", &gamma_t),
+            beta: plan.external("beta", &beta_t),
+            eps: NORM_EPS,
+        });
+        let args = LinearArgs {
+            x: x_view,
+            weight: w_id,
+            bias: bias_id,
+            out: out_view,
+            act,
+            accumulate: case.accumulate,
+            norm,
+        };
         linear(&mut plan, "linear", args);
         run(plan);
         let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
 
         let what = format!(
-            "{kernel:?}: m={m} k={k} n={n} {act:?} bias={} accumulate={} view={}",
-            case.bias, case.accumulate, case.view
+            "{kernel:?}: m={m} k={k} n={n} {act:?} bias={} accumulate={} view={} norm={}",
+            case.bias, case.accumulate, case.view, case.norm
         );
         let mut values = Vec::with_capacity(m * n);
         for r in 0..out_rows {
@@ -122,7 +152,15 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
                 sum + bias.as_ref().map_or(0.0, |b| b[j].abs()) + residual.as_ref().map_or(0.0, |r| r[i * n + j].abs())
             })
             .fold(0.0, f64::max);
-        let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * magnitude;
+        let u = f64::from(f32::EPSILON / 2.0);
+        let mut tol = 4.0 * u * (k as f64).sqrt() * magnitude;
+        if case.norm {
+            // Each normalised value is off by at most (K/4 + 3)·u·spread/std (kernels::norm::layernorm; the
+            // spread of a uniform row is 2√3 std), and a column sums K of them times |w|.
+            let normed_err = (k as f64 / 4.0 + 3.0) * u * 2.0 * 3f64.sqrt();
+            let w_sum = (0..n).map(|j| w[j * k..(j + 1) * k].iter().map(|v| v.abs()).sum::<f64>()).fold(0.0, f64::max);
+            tol += normed_err * w_sum;
+        }
         assert_close(&what, &values, &expected, tol, 0.0);
     }
 }
@@ -146,6 +184,7 @@ fn linear_random_shapes() {
             bias: (i / 4) % 2 == 1,
             accumulate: (i / 8) % 2 == 1,
             view: rng.range(0, 1) == 1,
+            norm: i % 3 == 1,
         };
         check(&case, &mut rng);
     }
@@ -170,6 +209,7 @@ fn linear_f16_weights() {
             bias: (i / 4) % 2 == 1,
             accumulate: (i / 8) % 2 == 1,
             view: i % 3 == 0,
+            norm: false,
         };
         check_with(&case, &mut rng, Dtype::F16);
     }
@@ -203,8 +243,16 @@ fn linear_tile_edges() {
         (136, 40, 31),
     ];
     for (i, &(m, k, n)) in shapes.iter().enumerate() {
-        let case =
-            Case { m, k, n, act: ACTIVATIONS[i % 4], bias: i % 2 == 0, accumulate: i % 3 == 0, view: i % 2 == 1 };
+        let case = Case {
+            m,
+            k,
+            n,
+            act: ACTIVATIONS[i % 4],
+            bias: i % 2 == 0,
+            accumulate: i % 3 == 0,
+            view: i % 2 == 1,
+            norm: i % 4 == 3,
+        };
         check(&case, &mut rng);
     }
 }
@@ -228,18 +276,61 @@ fn linear_tiled_splits_k_when_tiles_are_few() {
         let w = plan.transient("w", 64, k);
         let out = plan.transient("out", m, 64);
         let (x, out) = (plan.all(x), plan.all(out));
-        let args = LinearArgs { x, weight: w, bias: None, out, act: Activation::None, accumulate: false };
+        let args = LinearArgs { x, weight: w, bias: None, out, act: Activation::None, accumulate: false, norm: None };
         linear(&mut plan, "linear", args);
         assert_eq!(plan.op_kernels().any(|k| k.ends_with("linear_reduce")), splits, "{m}x{k}");
     }
+}
+
+/// `Tiled` takes 128x128 tiles (8x8 outputs an invocation) where the output has enough of them to fill a GPU;
+/// `linear_big_shapes` checks two such shapes.
+#[test]
+fn linear_large_tile_where_tiles_are_many() {
+    assert_eq!(gemm_tile(2000, 1100), GemmTile::Large);
+    assert_eq!(gemm_tile(2100, 1030), GemmTile::Large);
+    assert_eq!(gemm_tile(4800, 2304), GemmTile::Large);
+    assert_eq!(gemm_tile(300, 1536), GemmTile::Small);
+    assert_eq!(gemm_tile(1000, 256), GemmTile::Small);
 }
 
 #[test]
 fn linear_big_shapes() {
     let mut rng = Rng::new(2);
     let cases = [
-        Case { m: 1000, k: 768, n: 256, act: Activation::Gelu, bias: true, accumulate: false, view: false },
-        Case { m: 777, k: 1536, n: 97, act: Activation::None, bias: true, accumulate: true, view: true },
+        Case {
+            m: 1000,
+            k: 768,
+            n: 256,
+            act: Activation::Gelu,
+            bias: true,
+            accumulate: false,
+            view: false,
+            norm: false,
+        },
+        Case { m: 777, k: 1536, n: 97, act: Activation::None, bias: true, accumulate: true, view: true, norm: false },
+        // A transformer layer's pre-norm and to_qkv at the official render's 300 rows (K split on `Tiled`).
+        Case {
+            m: 300,
+            k: 768,
+            n: 2304,
+            act: Activation::None,
+            bias: false,
+            accumulate: false,
+            view: false,
+            norm: true,
+        },
+        // Enough 128x128 tiles for `Tiled`'s large tile (`linear_large_tile_where_tiles_are_many`).
+        Case { m: 2000, k: 40, n: 1100, act: Activation::Relu, bias: true, accumulate: true, view: true, norm: true },
+        Case {
+            m: 2100,
+            k: 70,
+            n: 1030,
+            act: Activation::Gelu,
+            bias: false,
+            accumulate: false,
+            view: false,
+            norm: false,
+        },
     ];
     for case in &cases {
         check(case, &mut rng);
@@ -265,7 +356,15 @@ fn gelu_erf_accuracy() {
     let w = plan.external("w", &w_t);
     let out = plan.output("gelu", points, 1);
     let (x_view, out_view) = (plan.all(x), plan.all(out));
-    let args = LinearArgs { x: x_view, weight: w, bias: None, out: out_view, act: Activation::Gelu, accumulate: false };
+    let args = LinearArgs {
+        x: x_view,
+        weight: w,
+        bias: None,
+        out: out_view,
+        act: Activation::Gelu,
+        accumulate: false,
+        norm: None,
+    };
     linear(&mut plan, "gelu", args);
     let plan = run(plan);
     let gelu = gpu.read(&plan.tensor(out)).unwrap();

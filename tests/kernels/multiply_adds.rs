@@ -30,7 +30,7 @@ fn multiply_adds_are_counted() {
     let y = plan.transient("y", 5, 7);
     let (xv, yv) = (plan.all(x), plan.all(y));
     let act = Activation::Relu;
-    linear(&mut plan, "linear", LinearArgs { x: xv, weight, bias, out: yv, act, accumulate: false });
+    linear(&mut plan, "linear", LinearArgs { x: xv, weight, bias, out: yv, act, accumulate: false, norm: None });
     assert_eq!(plan.multiply_adds(), 105);
 
     // Conv: 2 images of 4×6 with cin = 3, stride 2 → 2×3, cout = 5: 2·2·3·5·9·3 = 1620.

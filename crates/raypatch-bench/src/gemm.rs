@@ -61,7 +61,7 @@ fn time_linear(gpu: &Gpu, kernel: MatmulKernel, (m, k, n): (usize, usize, usize)
     let out = plan.output("out", m, n);
     let (x, out) = (plan.all(x), plan.all(out));
     let act = Activation::None;
-    linear(&mut plan, "linear", LinearArgs { x, weight, bias: Some(bias), out, act, accumulate: false });
+    linear(&mut plan, "linear", LinearArgs { x, weight, bias: Some(bias), out, act, accumulate: false, norm: None });
     let plan = plan.build(gpu)?;
     let repeats = Repeats { warmup: 1, runs, budget: Duration::MAX };
     let (wall, _) = repeat(repeats, || -> Result<Sample> {

@@ -102,6 +102,40 @@ pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) ->
     linear_variant(choice, true, lanes_suit)
 }
 
+/// The tile of a `Tiled` GEMM (`shaders/tiles.wgsl`): 64 x 64 outputs per workgroup (4 x 4 per invocation,
+/// 32 floats of K a step), or 128 x 128 (8 x 8 per invocation, 16 floats a step: the `_128` shader variants).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GemmTile {
+    Small,
+    Large,
+}
+
+impl GemmTile {
+    /// Rows (and columns) of out per workgroup.
+    pub fn size(self) -> usize {
+        match self {
+            GemmTile::Small => 64,
+            GemmTile::Large => 128,
+        }
+    }
+}
+
+/// Workgroups of 128 x 128 tiles an output needs before it takes them: about one a multiprocessor of a large
+/// GPU (an H100 has 132). Fewer large tiles would leave multiprocessors idle, where small ones (with K split,
+/// for linear layers) fill them.
+pub const LARGE_TILE_MIN_GROUPS: usize = 128;
+
+/// The tile of a `Tiled` GEMM whose output is `rows` x `cols`: large where the output has enough large tiles
+/// to fill a GPU, small otherwise.
+pub fn gemm_tile(rows: usize, cols: usize) -> GemmTile {
+    let large = GemmTile::Large.size();
+    if rows.div_ceil(large) * cols.div_ceil(large) >= LARGE_TILE_MIN_GROUPS {
+        GemmTile::Large
+    } else {
+        GemmTile::Small
+    }
+}
+
 /// How attention runs ([`attention_variant`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AttentionVariant<L> {

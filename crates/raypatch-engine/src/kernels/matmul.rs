@@ -5,10 +5,11 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{linear_variant, splits_to_fill, MatmulKernel};
+use crate::device::{gemm_tile, linear_variant, splits_to_fill, GemmTile, MatmulKernel};
+use crate::kernels::norm::{layernorm, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
-use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_LANES};
+use crate::kernels::{Activation, Window, MATMUL, MATMUL_128, MATMUL_F16, MATMUL_F16_128, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
@@ -20,9 +21,8 @@ pub(crate) const LANES_COLS: usize = 8 * 4;
 const LANES_BAND: usize = 8;
 
 /// Rows and columns of `out` one workgroup of `linear` computes: 64 invocations x 4 rows (`WG * ROWS` in
-/// the shader) by an 8-column tile of w; of `linear_tiled`, its `TILE` x `TILE`.
+/// the shader) by an 8-column tile of w. `linear_tiled`'s are its [`GemmTile`]'s.
 const ROWS_TILE: (usize, usize) = (256, 8);
-const TILED_TILE: (usize, usize) = (64, 64);
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -40,10 +40,15 @@ params! {
         accumulate: u32,
         /// vec4s per row of w: k4 for f32 weights; f16 rows are padded to 8 halves, so k4 or k4 + 1.
         w_ld4: u32,
-        /// `linear_tiled`: K in `splits` ranges of `k_split4` vec4s; `m_tiles` = ceil(m / 64).
+        /// `linear_tiled`: K in `splits` ranges of `k_split4` vec4s; `m_tiles` = ceil(m / tile).
         splits: u32,
         k_split4: u32,
         m_tiles: u32,
+        /// `linear_tiled`: 1 when x's rows are layer-normalised as they are staged ([`RowNorm`]), over
+        /// `norm_cols` columns with `eps`.
+        norm: u32,
+        norm_cols: u32,
+        eps: f32,
     }
 }
 
@@ -61,6 +66,18 @@ pub struct LinearArgs {
     pub act: Activation,
     /// `out += ...` (residual add in place) instead of `out = ...`.
     pub accumulate: bool,
+    /// x's rows layer-normalised first: out = act(LN(x) · wᵀ + bias).
+    pub norm: Option<RowNorm>,
+}
+
+/// A layer norm applied to x's rows before a linear layer (`nn.LayerNorm` over the last dimension): see
+/// [`layernorm`].
+#[derive(Clone, Copy, Debug)]
+pub struct RowNorm {
+    /// `[1, K]` tensors.
+    pub gamma: TensorId,
+    pub beta: TensorId,
+    pub eps: f32,
 }
 
 /// out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when `accumulate` (residual add in place).
@@ -72,8 +89,11 @@ pub struct LinearArgs {
 /// columns of `out` are written as zeros (when accumulating they are zero already and stay zero).
 /// Records `M·N·K` multiply-adds. Runs on the plan's [`MatmulKernel`] (`plan.kernels.matmul`); `Lanes`
 /// hands f16 weights and operands too large for its textures to `Rows`.
+///
+/// With `norm`, x's rows are layer-normalised first: on `Tiled` as `linear_tiled` stages them (the normalised
+/// rows are never written), elsewhere by a [`layernorm`] into a transient that the layer then reads.
 pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
-    let LinearArgs { x, weight: w, bias, out, act, accumulate } = args;
+    let LinearArgs { x, weight: w, bias, out, act, accumulate, norm } = args;
     let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
     assert!(k > 0 && n > 0, "linear {label}: empty weight [{n}, {k}]");
     assert_eq!(plan.cols(w), k, "linear {label}: weight is [{n}, {}] but x has {k} columns", plan.cols(w));
@@ -106,7 +126,10 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         w_ld4: (plan.ld(w) / 4) as u32,
         splits: 1,
         k_split4: k4 as u32,
-        m_tiles: m.div_ceil(TILED_TILE.0) as u32,
+        m_tiles: 1,
+        norm: 0,
+        norm_cols: k as u32,
+        eps: 0.0,
     };
     assert!(
         plan.dtype(x.id) == Dtype::F32 && bias.is_none_or(|b| plan.dtype(b) == Dtype::F32),
@@ -128,27 +151,55 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
     };
     let variant = linear_variant(&plan.kernels, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
+    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, variant == MatmulKernel::Tiled) {
+        let normed = plan.transient(&format!("{label}.norm"), m, k);
+        let normed = plan.all(normed);
+        layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
+        return linear(plan, label, LinearArgs { x: normed, norm: None, ..args });
+    }
+    let tile = gemm_tile(m, padded_cols(n));
     let (entry, (tile_rows, tile_cols)) = match variant {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, as_conv),
-        MatmulKernel::Tiled => ("linear_tiled", TILED_TILE),
+        MatmulKernel::Tiled => ("linear_tiled", (tile.size(), tile.size())),
         MatmulKernel::Rows => ("linear", ROWS_TILE),
     };
-    let shader = match plan.dtype(w) {
-        Dtype::F32 => &MATMUL,
-        Dtype::F16 => &MATMUL_F16,
+    let shader = match (plan.dtype(w), variant == MatmulKernel::Tiled && tile == GemmTile::Large) {
+        (Dtype::F32, false) => &MATMUL,
+        (Dtype::F32, true) => &MATMUL_128,
+        (Dtype::F16, false) => &MATMUL_F16,
+        (Dtype::F16, true) => &MATMUL_F16_128,
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
+    params.m_tiles = m.div_ceil(tile_rows) as u32;
     let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
     let (weight, bias) = (plan.all(w), plan.all(bias.unwrap_or(w)));
+    let mut bindings = vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read)];
+    if variant == MatmulKernel::Tiled {
+        // linear_tiled's layer norm: gamma and beta at 5 and 6 (w again when there is none, unread).
+        let (gamma, beta) = match norm {
+            Some(RowNorm { gamma, beta, eps }) => {
+                assert!(
+                    [gamma, beta].iter().all(|&t| plan.rows(t) == 1 && plan.cols(t) == k),
+                    "linear {label}: the layer norm's gamma and beta must be [1, {k}]"
+                );
+                assert!(eps > 0.0 && eps.is_finite(), "linear {label}: layer norm eps {eps} must be positive");
+                (params.norm, params.eps) = (1, eps);
+                (plan.all(gamma), plan.all(beta))
+            }
+            None => (weight, weight),
+        };
+        bindings.extend([(gamma, Access::Read), (beta, Access::Read)]);
+    }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
-    let splits = if variant == MatmulKernel::Tiled { k_splits(groups, k4) } else { 1 };
+    let splits = if variant == MatmulKernel::Tiled && tile == GemmTile::Small { k_splits(groups, k4) } else { 1 };
     if splits == 1 {
+        bindings.insert(3, (out, out_access));
         plan.push(Op {
             label: label.to_string(),
             shader,
             entry,
             params: params.words(),
-            bindings: vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
+            bindings,
             textures: Vec::new(),
             workgroups: grid(groups),
             multiply_adds,
@@ -160,12 +211,13 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     params.splits = k4.div_ceil(params.k_split4 as usize) as u32;
     let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
     let partials = plan.all(partials);
+    bindings.insert(3, (partials, Access::Write));
     plan.push(Op {
         label: format!("{label}.split"),
         shader,
         entry,
         params: params.words(),
-        bindings: vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read), (partials, Access::Write)],
+        bindings,
         textures: Vec::new(),
         workgroups: grid(groups * params.splits as usize),
         multiply_adds,
@@ -182,8 +234,8 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     });
 }
 
-/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` with fewer output
-/// tiles than this has its K split among workgroups.
+/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` of small tiles
+/// with fewer output tiles than this has its K split among workgroups.
 const TILED_TARGET_GROUPS: usize = 512;
 /// vec4s of K per step of `linear_tiled` (`TILE_K4`), and the fewest vec4s a K range may have (4 steps).
 const TILED_K4: usize = 8;

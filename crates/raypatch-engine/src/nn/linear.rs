@@ -1,10 +1,10 @@
 //! `nn.Linear` (and a 1×1 `nn.Conv2d` over NHWC rows, which is the same matrix product).
 
-use super::Vars;
+use super::{LayerNorm, Vars};
 use crate::error::Result;
 use crate::graph::Param;
 use crate::graph::{Graph, Tensor};
-use crate::kernels::matmul::{linear, LinearArgs};
+use crate::kernels::matmul::{linear, LinearArgs, RowNorm};
 use crate::kernels::Activation;
 
 pub struct Linear {
@@ -51,12 +51,36 @@ impl Linear {
         out
     }
 
+    /// `act(norm(x) · Wᵀ + b)` into a new tensor: a pre-norm and this layer, fused where the kernel can
+    /// (`kernels::matmul::linear`).
+    pub fn forward_normed(&self, g: &mut Graph, norm: &LayerNorm, x: Tensor, act: Activation) -> Tensor {
+        let out = g.transient(&self.path, x.rows(), self.out_dim);
+        let label = g.label(&self.path);
+        let norm = RowNorm { gamma: g.param(&label, norm.gamma), beta: g.param(&label, norm.beta), eps: norm.eps };
+        self.record(g, &label, x, out, act, false, Some(norm));
+        out
+    }
+
     /// `out = act(x · Wᵀ + b)`, or `out += ...` when `accumulate` (a residual connection).
     pub fn forward_into(&self, g: &mut Graph, x: Tensor, out: Tensor, act: Activation, accumulate: bool) {
         let label = g.label(&self.path);
-        let weight = g.param(&label, self.weight);
-        let bias = self.bias.map(|b| g.param(&label, b));
-        linear(&mut g.b, &label, LinearArgs { x: x.view, weight, bias, out: out.view, act, accumulate });
+        self.record(g, &label, x, out, act, accumulate, None);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn record(
+        &self,
+        g: &mut Graph,
+        label: &str,
+        x: Tensor,
+        out: Tensor,
+        act: Activation,
+        accumulate: bool,
+        norm: Option<RowNorm>,
+    ) {
+        let weight = g.param(label, self.weight);
+        let bias = self.bias.map(|b| g.param(label, b));
+        linear(&mut g.b, label, LinearArgs { x: x.view, weight, bias, out: out.view, act, accumulate, norm });
     }
 }
 
@@ -65,8 +89,15 @@ impl Linear {
 pub fn product_t(g: &mut Graph, path: &str, x: Tensor, y: Tensor) -> Tensor {
     let out = g.transient(path, x.rows(), y.rows());
     let label = g.label(path);
-    let args =
-        LinearArgs { x: x.view, weight: y.id(), bias: None, out: out.view, act: Activation::None, accumulate: false };
+    let args = LinearArgs {
+        x: x.view,
+        weight: y.id(),
+        bias: None,
+        out: out.view,
+        act: Activation::None,
+        accumulate: false,
+        norm: None,
+    };
     linear(&mut g.b, &label, args);
     out
 }

@@ -14,11 +14,17 @@ pub struct LayerNorm {
     /// `[1, dim]` scale and shift.
     pub gamma: Param,
     pub beta: Param,
+    pub eps: f32,
 }
 
 impl LayerNorm {
     pub fn new(vars: &Vars, dim: usize) -> Result<LayerNorm> {
-        Ok(LayerNorm { path: vars.path().to_string(), gamma: vars.row("weight", dim)?, beta: vars.row("bias", dim)? })
+        Ok(LayerNorm {
+            path: vars.path().to_string(),
+            gamma: vars.row("weight", dim)?,
+            beta: vars.row("bias", dim)?,
+            eps: LAYER_NORM_EPS,
+        })
     }
 
     /// The normalised rows of `x`, in a new tensor.
@@ -26,7 +32,7 @@ impl LayerNorm {
         let out = g.transient(&self.path, x.rows(), x.cols);
         let label = g.label(&self.path);
         let (gamma, beta) = (g.param(&label, self.gamma), g.param(&label, self.beta));
-        layernorm(&mut g.b, &label, LayerNormArgs { x: x.view, gamma, beta, out: out.view, eps: LAYER_NORM_EPS });
+        layernorm(&mut g.b, &label, LayerNormArgs { x: x.view, gamma, beta, out: out.view, eps: self.eps });
         out
     }
 }

@@ -153,6 +153,7 @@ impl PerceiverLayer {
                     out: out.values.view,
                     act: Activation::None,
                     accumulate: false,
+                    norm: None,
                 };
                 linear(&mut g.b, &label, args);
             }
@@ -228,6 +229,7 @@ impl PerceiverLayer {
             out: out.view,
             act: Activation::None,
             accumulate: false,
+            norm: None,
         };
         linear(&mut g.b, &label, args);
         out

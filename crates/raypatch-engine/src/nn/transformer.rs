@@ -96,8 +96,7 @@ impl Transformer {
     /// Self-attention layers on the tokens `x`, in place.
     pub fn forward(&self, g: &mut Graph, x: Tensor) {
         for layer in &self.layers {
-            let normed = layer.attn_norm.forward(g, x);
-            let heads = layer.attn.attend_self(g, normed);
+            let heads = layer.attn.attend_self(g, &layer.attn_norm, x);
             layer.attn.to_out.forward_into(g, heads, x, Activation::None, true);
             layer.ff.forward_residual(g, &layer.ff_norm, x);
         }
@@ -107,8 +106,7 @@ impl Transformer {
     /// (from [`keys_values`](Self::keys_values)).
     pub fn forward_cross(&self, g: &mut Graph, x: Tensor, keys_values: &[Tensor]) {
         for (layer, &kv) in self.layers.iter().zip(keys_values) {
-            let normed = layer.attn_norm.forward(g, x);
-            let heads = layer.attn.attend_cross(g, normed, kv);
+            let heads = layer.attn.attend_cross(g, &layer.attn_norm, x, kv);
             layer.attn.to_out.forward_into(g, heads, x, Activation::None, true);
             layer.ff.forward_residual(g, &layer.ff_norm, x);
         }
@@ -138,21 +136,22 @@ impl Attention {
         (self.dim_head as f32).powf(-0.5)
     }
 
-    /// Self-attention heads `[rows, inner]` from the normed tokens.
-    fn attend_self(&self, g: &mut Graph, x: Tensor) -> Tensor {
+    /// Self-attention heads `[rows, inner]` from the tokens, normed by `norm`.
+    fn attend_self(&self, g: &mut Graph, norm: &LayerNorm, x: Tensor) -> Tensor {
         let Projections::SelfAttention { to_qkv } = &self.projections else {
             panic!("{}: a cross-attention layer used as self-attention", self.path)
         };
-        let qkv = to_qkv.forward(g, x, Activation::None);
+        let qkv = to_qkv.forward_normed(g, norm, x, Activation::None);
         self.attend(g, x.rows(), (qkv, 0), (qkv, self.inner()), (qkv, 2 * self.inner()))
     }
 
-    /// Cross-attention heads `[rows, inner]` from the normed queries and the layer's keys and values.
-    fn attend_cross(&self, g: &mut Graph, x: Tensor, kv: Tensor) -> Tensor {
+    /// Cross-attention heads `[rows, inner]` from the queries, normed by `norm`, and the layer's keys and
+    /// values.
+    fn attend_cross(&self, g: &mut Graph, norm: &LayerNorm, x: Tensor, kv: Tensor) -> Tensor {
         let Projections::Cross { to_q, .. } = &self.projections else {
             panic!("{}: a self-attention layer used as cross-attention", self.path)
         };
-        let q = to_q.forward(g, x, Activation::None);
+        let q = to_q.forward_normed(g, norm, x, Activation::None);
         self.attend(g, x.rows(), (q, 0), (kv, 0), (kv, self.inner()))
     }
 
@@ -180,8 +179,7 @@ impl Attention {
 impl FeedForward {
     /// x += FF(norm(x)).
     pub fn forward_residual(&self, g: &mut Graph, norm: &LayerNorm, x: Tensor) {
-        let normed = norm.forward(g, x);
-        let hidden = self.net_0.forward(g, normed, Activation::Gelu);
+        let hidden = self.net_0.forward_normed(g, norm, x, Activation::Gelu);
         self.net_3.forward_into(g, hidden, x, Activation::None, true);
     }
 }
