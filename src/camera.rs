@@ -87,7 +87,7 @@ impl Intrinsics {
         let (w, h) = (self.width, self.height);
         for (axis, [first, last]) in [("x", edges(self.fx, self.cx, w)), ("y", edges(self.fy, self.cy, h))] {
             let widest = first.abs().max(last.abs()).atan().to_degrees();
-            if !(widest <= MAX_RAY_ANGLE_DEGREES) {
+            if widest.is_nan() || widest > MAX_RAY_ANGLE_DEGREES {
                 return Err(Error::Camera(format!(
                     "{shown} on a {w}x{h} image: rays reach {widest:.4}° from the optical axis along {axis} (at most \
                      {MAX_RAY_ANGLE_DEGREES}°: the focal length is too short for the image, or the principal point \
@@ -95,7 +95,7 @@ impl Intrinsics {
                 )));
             }
             let field = (last.atan() - first.atan()).to_degrees();
-            if !(field >= MIN_FIELD_OF_VIEW_DEGREES) {
+            if field.is_nan() || field < MIN_FIELD_OF_VIEW_DEGREES {
                 return Err(Error::Camera(format!(
                     "{shown} on a {w}x{h} image: the image spans {field:.3e}° along {axis} (at least \
                      {MIN_FIELD_OF_VIEW_DEGREES}°: the focal length is too long for the image, every ray would be the \

@@ -255,6 +255,7 @@ fn bytemuck_floats(values: &[f32]) -> Vec<u8> {
 /// Runs render-frame in `dir` and returns its exit code, its stderr and its peak resident memory in bytes
 /// (its own, from wait4: not that of other tests' runs).
 #[cfg(unix)]
+#[allow(clippy::zombie_processes)] // reaped by wait4, which std's Child does not know of
 fn run_with_peak(dir: &Path, args: &[&str]) -> (i32, String, u64) {
     use std::io::Read;
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_render-frame"))
