@@ -1,6 +1,8 @@
 //! The executor's promises, checked with the GPU's counters on a golden Ray-Patch case: a scene is encoded
-//! once; rendering again at the same size reuses the plan (no buffer, no pipeline, one submit); transient
-//! buffers are shared; the debug mode reads back every op.
+//! once; rendering again at the same size reuses the plan (no buffer, no pipeline, one submit); encoding
+//! another scene of the same size reuses the encode plan (one submit, only the scene's own tensors
+//! allocated) and leaves earlier scenes as they were; transient buffers are shared; the debug mode reads back
+//! every op.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -35,9 +37,36 @@ fn pipelines_are_shared_between_plans() {
     let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
     model.encode(&scene.inputs).unwrap();
     let compiled = gpu.counters().pipelines_compiled;
-    // A second scene builds a new encode plan but needs no new pipeline.
+    // Another scene builds nothing: no new pipeline either.
     model.encode(&scene.inputs).unwrap();
     assert_eq!(gpu.counters().pipelines_compiled, compiled);
+}
+
+#[test]
+fn encoding_again_reuses_the_plan_and_keeps_each_scene_its_own() {
+    let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
+    let model = Model::load(gpu.clone(), case("rpsrt_k4").join("model.safetensors")).unwrap();
+    let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let first = model.encode(&scene.inputs).unwrap();
+    let first_frame = first.render(&scene.targets, Outputs::default()).unwrap();
+    // Another scene of the same size: the images turned upside down in value.
+    let mut flipped = scene.inputs.clone();
+    flipped.images.iter_mut().for_each(|v| *v = 1.0 - *v);
+    let before = gpu.counters();
+    let second = model.encode(&flipped).unwrap();
+    let after = gpu.counters();
+    assert_eq!(after.submits, before.submits + 1, "an encode is one submit");
+    assert_eq!(
+        after.buffers_created - before.buffers_created,
+        1 + second.cached.len() as u64,
+        "an encode of a size seen before creates only the scene's own tensors"
+    );
+    let second_frame = second.render(&scene.targets, Outputs::default()).unwrap();
+    assert_ne!(first_frame.get(Output::Rgb), second_frame.get(Output::Rgb), "the second scene rendered the first");
+    // The first scene still renders what it did: the second encode wrote the plan's tensors, not its own.
+    first.clear_render_plans();
+    let again = first.render(&scene.targets, Outputs::default()).unwrap();
+    assert_eq!(first_frame.get(Output::Rgb), again.get(Output::Rgb));
 }
 
 #[test]

@@ -12,8 +12,9 @@ use raypatch_model::{InputViews, TargetGrid, TargetViews};
 
 use crate::error::{EngineError, Result};
 use crate::frame::{Crop, Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
+use crate::gpu::storage_usage;
 use crate::graph::{Graph, HostInput, ImageSize};
-use crate::model::Model;
+use crate::model::{EncodePlan, Model};
 use crate::plan::{Plan, PlanBuilder, TensorId};
 use crate::tensor::GpuTensor;
 
@@ -28,7 +29,8 @@ pub struct EncodedScene<'m> {
     pub latent: GpuTensor,
     /// What every render reads, computed once (for SRT, per decoder layer `to_kv(z)`: keys, then values).
     pub cached: Vec<GpuTensor>,
-    /// Bytes the encode plan allocated (its intermediates; freed after encoding).
+    /// Bytes the encode plan allocated (its intermediates; kept by the model for the next encode of the same
+    /// input size, freed by an encode of another size).
     pub encode_peak_bytes: u64,
     /// Multiply-adds of the encode, counted from its ops.
     pub encode_multiply_adds: u64,
@@ -85,23 +87,18 @@ impl Model {
         self.family.check_inputs(inputs.height, inputs.width).map_err(EngineError::Request)?;
         let gpu = &*self.gpu;
         let size = ImageSize { n: inputs.count, h: inputs.height, w: inputs.width };
-        let mut g = Graph::new(gpu, &self.weights.tensors);
-        let encoded = self.family.encode(&mut g, size);
-        let Graph { b, host_inputs, .. } = g;
-        let multiply_adds = b.multiply_adds();
-        let plan = b.build(gpu).map_err(|e| match e {
-            EngineError::TooLarge { what, bytes, max } => EngineError::TooLarge {
-                what: format!(
-                    "encoding {} input view(s) of {}x{} (too many input views, or too large): {what}",
-                    size.n, size.w, size.h
-                ),
-                bytes,
-                max,
-            },
-            other => other,
-        })?;
-        for (id, input) in &host_inputs {
-            let tensor = plan.tensor(*id);
+        // Held until the scene's tensors are copied out: the plan's inputs and outputs are one scene's at a time.
+        let mut last = self.encode_plan.lock().expect("encode plan poisoned");
+        let plan = match last.take() {
+            Some(plan) if plan.size == size => plan,
+            _ => {
+                drop(last.take()); // the previous size's intermediates, before allocating this one's
+                self.build_encode_plan(size)?
+            }
+        };
+        let plan = last.insert(plan);
+        for (id, input) in &plan.host_inputs {
+            let tensor = plan.plan.tensor(*id);
             match input {
                 HostInput::InputImages { col, normalize } => {
                     let mut rows = vec![0.0f32; tensor.rows * tensor.cols];
@@ -120,24 +117,50 @@ impl Model {
                 other => unreachable!("an encoder reads only input views, not {other:?}"),
             }
         }
-        let times = if profile {
-            plan.profile(gpu)?
-        } else {
-            plan.execute(gpu);
-            gpu.wait()?;
-            Vec::new()
+        // The scene's own copies of what renders read: the plan's tensors serve the next encode.
+        let own = |id: TensorId| {
+            let t = plan.plan.tensor(id);
+            GpuTensor { buffer: Arc::new(gpu.create_buffer("encoded scene", t.buffer.size(), storage_usage())), ..t }
         };
-        plan.check_finite(gpu, "encode", &gpu.read(&plan.tensor(encoded.latent.id()))?)?;
+        let latent = own(plan.latent);
+        let cached: Vec<GpuTensor> = plan.cached.iter().map(|&id| own(id)).collect();
+        let copies: Vec<(TensorId, &GpuTensor)> =
+            std::iter::once((plan.latent, &latent)).chain(plan.cached.iter().copied().zip(&cached)).collect();
+        // Profiling times the ops one by one, then runs them again as one submit for the scene's values.
+        let times = if profile { plan.plan.profile(gpu)? } else { Vec::new() };
+        let latent_values = plan.plan.execute_and_read(gpu, &copies, &[plan.latent])?.remove(0);
+        plan.plan.check_finite(gpu, "encode", &latent_values)?;
         let scene = EncodedScene {
             model: self,
-            latent: plan.tensor(encoded.latent.id()),
-            cached: encoded.cached.iter().map(|t| plan.tensor(t.id())).collect(),
-            encode_peak_bytes: plan.peak_bytes(),
-            encode_multiply_adds: multiply_adds,
+            latent,
+            cached,
+            encode_peak_bytes: plan.plan.peak_bytes(),
+            encode_multiply_adds: plan.multiply_adds,
             render_plans: Mutex::new(HashMap::new()),
             too_large: Mutex::new(HashSet::new()),
         };
         Ok((scene, times))
+    }
+
+    /// Records and builds the encode plan for input views of `size`.
+    fn build_encode_plan(&self, size: ImageSize) -> Result<EncodePlan> {
+        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
+        let encoded = self.family.encode(&mut g, size);
+        let Graph { b, host_inputs, .. } = g;
+        let multiply_adds = b.multiply_adds();
+        let plan = b.build(&self.gpu).map_err(|e| match e {
+            EngineError::TooLarge { what, bytes, max } => EngineError::TooLarge {
+                what: format!(
+                    "encoding {} input view(s) of {}x{} (too many input views, or too large): {what}",
+                    size.n, size.w, size.h
+                ),
+                bytes,
+                max,
+            },
+            other => other,
+        })?;
+        let (latent, cached) = (encoded.latent.id(), encoded.cached.iter().map(|t| t.id()).collect());
+        Ok(EncodePlan { size, plan, host_inputs, latent, cached, multiply_adds })
     }
 }
 
@@ -187,14 +210,13 @@ impl EncodedScene<'_> {
     fn render_band(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> Result<Frame> {
         self.upload_targets(targets, crop, plan);
         let gpu = self.model.gpu();
-        plan.plan.execute(gpu);
+        let ids: Vec<TensorId> = plan.io.outputs.iter().map(|&(_, id)| id).collect();
+        let read = plan.plan.execute_and_read(gpu, &[], &ids)?;
         let mut outputs = Vec::with_capacity(plan.io.outputs.len());
-        for &(output, id) in &plan.io.outputs {
-            let tensor = plan.plan.tensor(id);
-            let values = gpu.read(&tensor)?;
+        for (&(output, id), values) in plan.io.outputs.iter().zip(read) {
             plan.plan.check_finite(gpu, "render", &values)?;
-            let values = crop.cut(&values, targets.count, tensor.cols);
-            outputs.push(OutputValues { output, channels: tensor.cols, values });
+            let channels = plan.plan.tensor(id).cols;
+            outputs.push(OutputValues { output, channels, values: crop.cut(&values, targets.count, channels) });
         }
         let region = crop.region;
         Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })

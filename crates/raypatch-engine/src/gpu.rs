@@ -10,6 +10,15 @@ use crate::error::{EngineError, Result};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir, PipelineCacheStatus};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
 
+/// Rows `[row_start, row_start + rows)` of a `cols`-wide f32 tensor stored in `buffer`, to read back
+/// ([`Gpu::submit_and_read`]).
+pub(crate) struct ReadPart<'a> {
+    pub buffer: &'a wgpu::Buffer,
+    pub row_start: usize,
+    pub rows: usize,
+    pub cols: usize,
+}
+
 /// One WGSL file: a kernel family. Its entry points are the kernels.
 #[derive(Debug)]
 pub struct Shader {
@@ -520,20 +529,41 @@ impl Gpu {
 
     /// Reads rows `[row_start, row_start + rows)` of a `cols`-wide tensor stored in `buffer`.
     pub fn read_rows(&self, buffer: &wgpu::Buffer, row_start: usize, rows: usize, cols: usize) -> Result<Vec<f32>> {
-        let ld = padded_cols(cols);
-        let bytes = (rows * ld * 4) as u64;
-        if bytes == 0 {
-            return Ok(Vec::new());
-        }
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let encoder = self.device.create_command_encoder(&Default::default());
+        let part = ReadPart { buffer, row_start, rows, cols };
+        Ok(self.submit_and_read(encoder, &[part])?.remove(0))
+    }
+
+    /// Appends copies of `parts` to `encoder`'s work, submits it (one submit), waits for the GPU and returns
+    /// each part as a row-major `[rows, cols]` matrix (row padding removed).
+    pub(crate) fn submit_and_read(
+        &self,
+        mut encoder: wgpu::CommandEncoder,
+        parts: &[ReadPart<'_>],
+    ) -> Result<Vec<Vec<f32>>> {
+        let bytes = |part: &ReadPart| (part.rows * padded_cols(part.cols) * 4) as u64;
+        let total: u64 = parts.iter().map(bytes).sum();
+        let staging = (total > 0).then(|| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size: total,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
         });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, (row_start * ld * 4) as u64, &staging, 0, bytes);
+        let mut at = 0;
+        for part in parts {
+            let ld = padded_cols(part.cols);
+            if let (Some(staging), n @ 1..) = (&staging, bytes(part)) {
+                encoder.copy_buffer_to_buffer(part.buffer, (part.row_start * ld * 4) as u64, staging, at, n);
+            }
+            at += bytes(part);
+        }
         self.queue.submit([encoder.finish()]);
+        self.counters.submits.fetch_add(1, Ordering::Relaxed);
+        let Some(staging) = staging else {
+            return Ok(parts.iter().map(|_| Vec::new()).collect());
+        };
         let slice = staging.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -544,10 +574,16 @@ impl Gpu {
             .map_err(|_| EngineError::Device("readback callback dropped".into()))?
             .map_err(|e| EngineError::Device(format!("mapping a readback buffer: {e}")))?;
         let mapped = slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
-        let words: &[f32] = bytemuck::cast_slice(&mapped);
-        let mut out = Vec::with_capacity(rows * cols);
-        for r in 0..rows {
-            out.extend_from_slice(&words[r * ld..r * ld + cols]);
+        let mut words: &[f32] = bytemuck::cast_slice(&mapped);
+        let mut out = Vec::with_capacity(parts.len());
+        for part in parts {
+            let ld = padded_cols(part.cols);
+            let mut values = Vec::with_capacity(part.rows * part.cols);
+            for r in 0..part.rows {
+                values.extend_from_slice(&words[r * ld..r * ld + part.cols]);
+            }
+            words = &words[part.rows * ld..];
+            out.push(values);
         }
         drop(mapped);
         staging.unmap();

@@ -2,15 +2,17 @@
 //! Encoding a scene with it is the scene core's (`encoded.rs`).
 
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
 use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
+use crate::graph::{HostInput, ImageSize};
 use crate::models::{self, LightField};
 use crate::nn::ReadLimits;
+use crate::plan::{Plan, TensorId};
 use crate::weights::{GpuWeights, KeptF32, LoadOptions};
 
 /// A loaded model with its weights on the GPU.
@@ -21,6 +23,19 @@ pub struct Model {
     pub parameter_count: usize,
     pub(crate) family: Box<dyn LightField>,
     pub(crate) weights: GpuWeights,
+    /// The plan of the last encode, reused by the next encode of the same input size (`encoded.rs`).
+    pub(crate) encode_plan: Mutex<Option<EncodePlan>>,
+}
+
+/// The encode plan a [`Model`] keeps for its last input size: an encode of that size again builds nothing.
+/// One scene's inputs and outputs at a time: encodes hold the lock until the scene has its own copies.
+pub(crate) struct EncodePlan {
+    pub size: ImageSize,
+    pub plan: Plan,
+    pub host_inputs: Vec<(TensorId, HostInput)>,
+    pub latent: TensorId,
+    pub cached: Vec<TensorId>,
+    pub multiply_adds: u64,
 }
 
 impl Model {
@@ -46,6 +61,7 @@ impl Model {
             parameter_count: loaded.parameter_count(),
             family,
             weights,
+            encode_plan: Mutex::new(None),
         })
     }
 

@@ -5,16 +5,19 @@
 //! - writes all ops' params into one uniform buffer;
 //! - fetches the cached pipelines and creates every bind group.
 //!
-//! Executing a plan records all ops into one compute pass and submits once. Nothing is allocated or
-//! compiled per execution. [`Plan::execute_debug`] instead runs op by op and reads back what each wrote.
+//! Executing a plan (`plan/execute.rs`) records all ops into one compute pass and submits once. Nothing is
+//! allocated or compiled per execution. [`Plan::execute_debug`] instead runs op by op and reads back what each
+//! wrote.
 
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 use crate::device::KernelChoice;
 use crate::error::{EngineError, Result};
-use crate::gpu::{storage_usage, texture_bytes, Gpu, Shader, TimestampMode};
+use crate::gpu::{storage_usage, texture_bytes, Gpu, Shader};
 use crate::tensor::{Dtype, GpuTensor};
+
+mod execute;
+pub use execute::OpOutput;
 
 /// Largest workgroup count per dispatch dimension that WebGPU guarantees.
 pub(crate) const MAX_GROUPS_PER_DIM: u32 = 65535;
@@ -435,15 +438,6 @@ pub struct Plan {
     _textures: Vec<Arc<wgpu::Texture>>,
 }
 
-/// What one op wrote, read back by [`Plan::execute_debug`].
-pub struct OpOutput {
-    pub op: String,
-    pub tensor: String,
-    pub rows: usize,
-    pub cols: usize,
-    pub data: Vec<f32>,
-}
-
 impl Plan {
     /// Bytes of GPU memory the plan allocated itself (pooled intermediates, inputs, outputs, params);
     /// weights and scene caches it only binds are not counted.
@@ -468,128 +462,5 @@ impl Plan {
     pub fn tensor(&self, id: TensorId) -> GpuTensor {
         let (_, rows, cols, dtype) = self.infos[id.0];
         GpuTensor { buffer: self.buffers[id.0].clone(), rows, cols, dtype }
-    }
-
-    /// Records `ops` into one compute pass and submits it, with GPU timestamps when the Gpu's
-    /// [`TimestampMode`] asks for them: at the pass's start and end, or also between every two ops.
-    fn record(&self, gpu: &Gpu, ops: &[PlannedOp]) {
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let mut timestamps = gpu.timestamps.lock().expect("timestamps poisoned");
-        let mode = timestamps.mode;
-        let queries = match mode {
-            TimestampMode::Off => 0,
-            TimestampMode::Plan => 2,
-            TimestampMode::Ops => ops.len() as u32 + 1,
-        };
-        timestamps.reserve(&gpu.device, queries);
-        {
-            let pass_writes = (mode == TimestampMode::Plan).then(|| {
-                let (query_set, _) = timestamps.slot(0);
-                wgpu::ComputePassTimestampWrites {
-                    query_set,
-                    beginning_of_pass_write_index: Some(0),
-                    end_of_pass_write_index: Some(1),
-                }
-            });
-            let mut pass =
-                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: pass_writes });
-            for (i, op) in ops.iter().enumerate() {
-                if mode == TimestampMode::Ops {
-                    let (set, index) = timestamps.slot(i as u32);
-                    pass.write_timestamp(set, index);
-                }
-                pass.set_pipeline(&op.pipeline);
-                pass.set_bind_group(0, &op.bind_group, &[]);
-                let [x, y, z] = op.workgroups;
-                pass.dispatch_workgroups(x, y, z);
-            }
-            if mode == TimestampMode::Ops {
-                let (set, index) = timestamps.slot(ops.len() as u32);
-                pass.write_timestamp(set, index);
-            }
-        }
-        if mode != TimestampMode::Off {
-            let names = match mode {
-                TimestampMode::Ops => {
-                    ops.iter().map(|o| (o.label.clone(), format!("{}.{}", o.shader, o.entry))).collect()
-                }
-                _ => Vec::new(),
-            };
-            timestamps.resolve(&mut encoder, queries, names);
-        }
-        drop(timestamps);
-        gpu.queue.submit([encoder.finish()]);
-        gpu.counters.submits.fetch_add(1, Ordering::Relaxed);
-        gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
-    }
-
-    /// Records every op into one compute pass and submits it. Returns without waiting for the GPU.
-    pub fn execute(&self, gpu: &Gpu) {
-        self.record(gpu, &self.ops);
-    }
-
-    /// Runs the ops one submit at a time, waiting for each, and returns each op's label and wall time.
-    /// Slower than [`execute`](Self::execute) (a submit and a wait per op); for finding where time goes.
-    pub fn profile(&self, gpu: &Gpu) -> Result<Vec<(String, std::time::Duration)>> {
-        let mut times = Vec::with_capacity(self.ops.len());
-        for op in &self.ops {
-            let start = std::time::Instant::now();
-            self.record(gpu, std::slice::from_ref(op));
-            gpu.wait()?;
-            times.push((op.label.clone(), start.elapsed()));
-        }
-        Ok(times)
-    }
-
-    /// Runs the ops one submit at a time and reads back every tensor each op wrote, in order.
-    pub fn execute_debug(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
-        let mut outputs = Vec::new();
-        self.run_debug(gpu, |output| {
-            outputs.push(output);
-            true
-        })?;
-        Ok(outputs)
-    }
-
-    /// Runs the ops one at a time and returns the first op output holding NaN or infinity, if any: where a
-    /// render that came out non-finite went wrong.
-    pub fn first_non_finite(&self, gpu: &Gpu) -> Result<Option<OpOutput>> {
-        let mut found = None;
-        self.run_debug(gpu, |output| {
-            if output.data.iter().all(|v| v.is_finite()) {
-                return true;
-            }
-            found = Some(output);
-            false
-        })?;
-        Ok(found)
-    }
-
-    /// Runs the ops one submit at a time, handing what each wrote to `visit` until it returns false.
-    fn run_debug(&self, gpu: &Gpu, mut visit: impl FnMut(OpOutput) -> bool) -> Result<()> {
-        for op in &self.ops {
-            self.record(gpu, std::slice::from_ref(op));
-            for view in &op.written {
-                let (name, _, cols, _) = &self.infos[view.id.0];
-                let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
-                let output =
-                    OpOutput { op: op.label.clone(), tensor: name.clone(), rows: view.rows, cols: *cols, data };
-                if !visit(output) {
-                    return Ok(());
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// Checks values read back from this plan: when any is NaN or infinity, finds the op where they first
-    /// appear and reports it (`what` names the render or encode).
-    pub fn check_finite(&self, gpu: &Gpu, what: &str, values: &[f32]) -> Result<()> {
-        if values.iter().all(|v| v.is_finite()) {
-            return Ok(());
-        }
-        let culprit = self.first_non_finite(gpu)?;
-        let (op, tensor) = culprit.map_or(("(not reproduced op by op)".into(), "?".into()), |o| (o.op, o.tensor));
-        Err(EngineError::NonFinite { what: what.to_string(), op, tensor })
     }
 }
