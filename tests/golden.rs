@@ -172,6 +172,29 @@ fn golden_cases_match_pytorch() {
 /// The official full-size RP-SRT k=4 (768 wide, 5 encoder layers) at 60×80. Generate it first with
 /// `python3 tools/make_golden.py --full-size --out target/golden-full`, then run
 /// `cargo test --release --test golden -- --ignored --nocapture`.
+/// Every registered family (`raypatch_model::FAMILY_BASES`) has golden cases, plain and Ray-Patch: a family
+/// added without them fails here.
+#[test]
+fn every_family_has_golden_cases() {
+    let mut have = Vec::new();
+    for entry in std::fs::read_dir(golden_dir()).unwrap() {
+        let model = entry.unwrap().path().join("model.safetensors");
+        if model.exists() {
+            let config = raypatch_model::load_model(&model).unwrap().config;
+            have.push((config.base(), config.patch_size() > 1));
+        }
+    }
+    for base in raypatch_model::FAMILY_BASES {
+        for ray_patch in [false, true] {
+            assert!(
+                have.contains(&(base, ray_patch)),
+                "no golden case of base {base}{}: add one to tools/make_golden.py (ARCHITECTURE.md, adding a family)",
+                if ray_patch { " with Ray-Patch" } else { "" }
+            );
+        }
+    }
+}
+
 #[test]
 #[ignore = "needs target/golden-full from tools/make_golden.py --full-size (PyTorch)"]
 fn full_size_rpsrt_k4_matches_pytorch() {

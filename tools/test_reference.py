@@ -35,7 +35,7 @@ import make_golden  # noqa: E402
 import reference_define  # noqa: E402
 from cameras import get_camera_rays, look_at_positions  # noqa: E402
 from official_configs import (DEFINE_32_STEREO_ACC, OSRT_MDBN_64, RPDEFINE_16_32_STEREO_ACC,  # noqa: E402
-                              RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32)
+                              RPOSRT_MDBN_8_64, RPSRT_MDBN_4_32, SRT_MDBN_32, official_keys)
 from random_models import k4_config, random_define, random_model  # noqa: E402
 from raypatch_reference import (OSRT, SRT, Attention, MixingBlock, OSRTEncoder, SlotAttention,  # noqa: E402
                                 SlotMixerDecoder, adjusted_rand_index, build_model, foreground_ari)
@@ -44,15 +44,12 @@ from reference_define import (DeFiNe, PerceiverBasicDecoder, PerceiverLayer, Res
 from safetensors.torch import load_file  # noqa: E402
 from torch import nn  # noqa: E402
 
-OFFICIAL_KEYS = TOOLS / "testdata" / "official_srt_keys.txt"
-OFFICIAL_OSRT_KEYS = TOOLS / "testdata" / "official_osrt_keys.txt"
 GOLDEN = TOOLS.parent / "assets" / "golden"
 OSRT_CASES = ("osrt", "osrt_iters3_ln", "rposrt_k8", "rposrt_k4_patchrays")
 DEFINE_CASES = ("define", "rpdefine_k16", "rpdefine_k16_patchrays_in60x88")
-ENGINE_KEY_LISTS = TOOLS.parent / "crates" / "raypatch-engine" / "tests" / "data"
-# The official DeFiNe configs' key lists (written from the official modules) and parameter totals.
-DEFINE_KEY_LISTS = (("official-keys-define_32_stereo_acc.txt", DEFINE_32_STEREO_ACC, 30_759_058),
-                    ("official-keys-rpdefine_16_32_stereo_acc.txt", RPDEFINE_16_32_STEREO_ACC, 31_011_690))
+# The official DeFiNe runs (key lists written from the official modules) and their parameter totals.
+DEFINE_KEY_LISTS = (("define_32_stereo_acc", DEFINE_32_STEREO_ACC, 30_759_058),
+                    ("rpdefine_16_32_stereo_acc", RPDEFINE_16_32_STEREO_ACC, 31_011_690))
 CHECKS = []
 VERBOSE = False
 
@@ -80,51 +77,36 @@ def scene_tensors(case_name="rpsrt_k4"):
 # --- reference model ----------------------------------------------------------------------------------------
 
 
-def read_official_keys(path=OFFICIAL_KEYS):
-    """{section title: [(name, shape)]} and {section title: parameter total} from a testdata copy."""
-    sections, totals, current = {}, {}, None
-    for line in path.read_text().splitlines():
-        if line.startswith("### "):
-            current = sections.setdefault(line[4:], [])
-        elif line.startswith("## "):
-            title, rest = line[3:].split(": ", 1)
-            totals[title] = int(rest.split(" tensors, ")[1].split(" params")[0].replace(",", ""))
-        elif line and not line.startswith("#"):
-            name, shape = line.split(" ", 1)
-            current.append((name, json.loads(shape)))
-    return sections, totals
-
-
-def compare_with_official_keys(path, configs):
-    sections, totals = read_official_keys(path)
-    for title, model_cfg in configs:
+def compare_with_official_keys(runs):
+    """Each (run, config, parameter total): the config's model has the official run's names, order and shapes."""
+    for run, model_cfg, total in runs:
         with torch.device("meta"):
             model = build_model(model_cfg)
         ours = [(name, list(tensor.shape)) for name, tensor in model.state_dict().items()]
-        official = sections[title]
+        official = official_keys(run)
         missing = sorted({n for n, _ in official} - {n for n, _ in ours})
         unexpected = sorted({n for n, _ in ours} - {n for n, _ in official})
-        assert not missing and not unexpected, f"{title}: missing {missing}, unexpected {unexpected}"
+        assert not missing and not unexpected, f"{run}: missing {missing}, unexpected {unexpected}"
         for (name, shape), (official_name, official_shape) in zip(ours, official):
             assert (name, shape) == (official_name, official_shape), \
-                f"{title}: {name} {shape} where the official model has {official_name} {official_shape}"
+                f"{run}: {name} {shape} where the official model has {official_name} {official_shape}"
         parameters = sum(p.numel() for p in model.parameters())
-        assert parameters == totals[title], f"{title}: {parameters} parameters, official {totals[title]}"
+        assert parameters == total, f"{run}: {parameters} parameters, official {total}"
 
 
 @check
 def official_state_dict_keys():
     """Official-size srt_MDBN_32 and rpsrt_MDBN_4_32: the same names, order and shapes as the official model."""
-    compare_with_official_keys(OFFICIAL_KEYS, (("srt (lightfield, srt_MDBN_32)", SRT_MDBN_32),
-                                               ("rp-srt k=4 (rpsrt_MDBN_4_32)", RPSRT_MDBN_4_32)))
+    compare_with_official_keys((("srt_MDBN_32", SRT_MDBN_32, 41_037_615),
+                                ("rpsrt_MDBN_4_32", RPSRT_MDBN_4_32, 41_328_245)))
 
 
 @check
 def official_osrt_state_dict_keys():
     """Official-size osrt_MDBN_64 and rposrt_MDBN_8_64: the same names, order, shapes and parameter totals as the
     official key lists (num_batches_tracked included, as the lists have them)."""
-    compare_with_official_keys(OFFICIAL_OSRT_KEYS, (("osrt (osrt_MDBN_64)", OSRT_MDBN_64),
-                                                    ("rp-osrt k=8 (rposrt_MDBN_8_64)", RPOSRT_MDBN_8_64)))
+    compare_with_official_keys((("osrt_MDBN_64", OSRT_MDBN_64, 94_917_423),
+                                ("rposrt_MDBN_8_64", RPOSRT_MDBN_8_64, 95_213_144)))
 
 
 @check
@@ -437,12 +419,6 @@ def define_case(name):
     return case, make_golden.make_define_scene(case, np.random.default_rng(case.seed))
 
 
-def read_key_list(path):
-    """[(name, shape)] of an engine key list: `name [d0, d1]` per line."""
-    return [(name, json.loads(shape)) for name, shape in
-            (line.split(" ", 1) for line in path.read_text().splitlines() if line)]
-
-
 @check
 def official_define_state_dict_keys():
     """Official-size define_32_stereo_acc and rpdefine_16_32_stereo_acc: the names and shapes of the key lists
@@ -450,7 +426,7 @@ def official_define_state_dict_keys():
     FeatureDecoder registers conv_blocks before conv_0, so the order within decoder_rp_* differs; everything else
     is in the official order."""
     for file, model_cfg, total in DEFINE_KEY_LISTS:
-        official = read_key_list(ENGINE_KEY_LISTS / file)
+        official = official_keys(file)
         with torch.device("meta"):
             model = build_model(model_cfg)
         ours = [(name, list(tensor.shape)) for name, tensor in model.state_dict().items()]
@@ -1084,8 +1060,8 @@ def matches_official_define():
     for file, model_cfg, total in DEFINE_KEY_LISTS:
         with torch.device("meta"):
             module = official_define(official, copy.deepcopy(model_cfg))
-        lines = [f"{name} {list(tensor.shape)}" for name, tensor in module.state_dict().items()]
-        assert lines == (ENGINE_KEY_LISTS / file).read_text().splitlines(), file
+        keys = [(name, list(tensor.shape)) for name, tensor in module.state_dict().items()]
+        assert keys == official_keys(file), file
         assert sum(p.numel() for p in module.parameters()) == total, file
         assert (module.d_min, module.d_max) == (DeFiNe.d_min, DeFiNe.d_max) == (0.1, 10), (module.d_min, module.d_max)
 

@@ -3,75 +3,50 @@
 //! them) and scenes seen by MSN-Easy cameras (`tools/cameras.py`).
 
 use raypatch_engine::EngineError;
-use raypatch_model::{InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT};
+use raypatch_model::{
+    official, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT,
+};
 use raypatch_reference::Rng;
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 use serde_json::{json, Value};
 
-/// The model section of the official MSN-Easy `srt_MDBN_32` run (tberriel/RayPatchQuerying, 297afbc).
+/// The model section of the official MSN-Easy `srt_MDBN_32` run ([`official::config`]).
 pub fn official_srt_config() -> Value {
-    json!({
-        "base": "srt",
-        "encoder_kwargs": {"pos_start_octave": -5, "num_att_blocks": 5, "num_conv_blocks": 3, "norm": "Batch"},
-        "decoder": "lightfield",
-        "decoder_kwargs": {"pos_octaves": 15, "ray_octaves": 15, "pos_start_octave": -5, "pos_end_octave": null,
-                           "ray_start_octave": 0, "ray_end_octave": null, "latent_dim": 768, "mode": "efficient",
-                           "out_dims": 3},
-    })
+    official::config("srt_MDBN_32")
 }
 
 /// The official MSN-Easy `rpsrt_MDBN_4_32` run with patch size `k` (a power of two; the official run has 4): the
 /// `srt_MDBN_32` model with the Ray-Patch decoder, whose feature width the checkpoint stores as `out_dims`.
 pub fn official_rpsrt_config(k: usize) -> Value {
     assert!(k.is_power_of_two() && k > 1, "Ray-Patch k must be a power of two above 1");
-    let mut cfg = official_srt_config();
-    cfg["decoder"] = json!("featurefield");
+    let mut cfg = official::config("rpsrt_MDBN_4_32");
     cfg["decoder_kwargs"]["out_dims"] = json!(128);
-    cfg["rp_kwargs"] = json!({"upsample": k.trailing_zeros(), "h_in": 120 / k, "w_in": 160 / k,
-                              "conv_features": 128, "norm": "Batch"});
+    cfg["rp_kwargs"]["upsample"] = json!(k.trailing_zeros());
+    (cfg["rp_kwargs"]["h_in"], cfg["rp_kwargs"]["w_in"]) = (json!(120 / k), json!(160 / k));
     cfg
 }
 
-/// The model section of the official MSN-Easy OSRT run `osrt_MDBN_64` (tberriel/RayPatchQuerying
-/// `runs/msn_easy/osrt_MDBN_64/config.yaml`; `tools/official_configs.py` `OSRT_MDBN_64`): 5 slots 1536 wide,
-/// the slot mixer's 1536-wide widths, a per-pixel light field (95 M parameters).
+/// The official MSN-Easy OSRT run `osrt_MDBN_64`: 5 slots 1536 wide, the slot mixer's 1536-wide widths, a per-pixel
+/// light field (95 M parameters).
 pub fn official_osrt_config() -> Value {
-    json!({
-        "base": "osrt",
-        "encoder_kwargs": {"max_pooling": false, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
-                           "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
-        "decoder": "lightfield",
-        "decoder_kwargs": {"pos_start_octave": -5},
-    })
+    official::config("osrt_MDBN_64")
 }
 
-/// The official MSN-Easy RP-OSRT run `rposrt_MDBN_8_64` (`tools/official_configs.py` `RPOSRT_MDBN_8_64`): the
-/// OSRT model with the Ray-Patch decoder, k = 8 (15x20 patch rays for 120x160 targets).
+/// The official MSN-Easy RP-OSRT run `rposrt_MDBN_8_64`: the OSRT model with the Ray-Patch decoder, k = 8 (15x20
+/// patch rays for 120x160 targets).
 pub fn official_rposrt_config() -> Value {
-    let mut cfg = official_osrt_config();
-    cfg["decoder"] = json!("featurefield");
-    cfg["rp_kwargs"] = json!({"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20,
-                              "h_out": 120, "w_out": 160});
-    cfg
+    official::config("rposrt_MDBN_8_64")
 }
 
-/// The model section of the official ScanNet DeFiNe runs (tberriel/RayPatchQuerying
-/// `runs/scannet/define_32_stereo_acc` for k = 1, `rpdefine_16_32_stereo_acc` for k = 16): ResNet-18 and a
-/// Perceiver IO of 2048 latents of 512 (31 M parameters), rgb and depth heads.
+/// The official ScanNet DeFiNe runs (`define_32_stereo_acc` for k = 1, `rpdefine_16_32_stereo_acc` for k = 16):
+/// ResNet-18 and a Perceiver IO of 2048 latents of 512 (31 M parameters), rgb and depth heads.
 pub fn official_define_config(k: usize) -> Value {
-    assert!(k == 1 || k == 16, "the official DeFiNe runs have k = 1 and 16");
-    let mut cfg = json!({
-        "base": "define",
-        "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
-        "decoder": "lightfield",
-        "decoder_kwargs": {"pos_start_octave": 1},
-    });
-    if k == 16 {
-        cfg["decoder"] = json!("featurefield");
-        cfg["rp_kwargs"] = json!({"h_in": 30, "w_in": 40, "upsample": 4, "norm": "Batch"});
+    match k {
+        1 => official::config("define_32_stereo_acc"),
+        16 => official::config("rpdefine_16_32_stereo_acc"),
+        _ => panic!("the official DeFiNe runs have k = 1 and 16"),
     }
-    cfg
 }
 
 /// The official structure at small widths, as `tools/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2

@@ -1,68 +1,17 @@
-//! The module trees built from the official run configs (SRT, RP-SRT, OSRT, RP-OSRT, DeFiNe, RP-DeFiNe) fetch exactly the
-//! official state_dict names and shapes, and hold the official parameter counts (`models::expected_tensors`,
-//! no file, no GPU).
+//! The module trees built from the official run configs (`raypatch_model::official`: SRT, RP-SRT, OSRT, RP-OSRT,
+//! DeFiNe, RP-DeFiNe) fetch exactly the official state_dict names and shapes of `assets/official/keys/`, and hold
+//! the official parameter counts (`models::expected_tensors`, no GPU).
 
 use raypatch_engine::models::expected_tensors;
-use raypatch_model::{Family, ModelConfig};
+use raypatch_model::{official, Family, ModelConfig};
 use serde_json::json;
 
-/// The model sections of RayPatchQuerying's runs/msn_easy/{srt_MDBN_32,rpsrt_MDBN_4_32}/config.yaml.
-fn official(decoder: &str) -> serde_json::Value {
-    let mut cfg = json!({
-        "base": "srt",
-        "encoder_kwargs": {"pos_start_octave": -5, "num_att_blocks": 5, "num_conv_blocks": 3, "norm": "Batch"},
-        "decoder": decoder,
-        "decoder_kwargs": {"pos_octaves": 15, "ray_octaves": 15, "pos_start_octave": -5, "pos_end_octave": null,
-                           "ray_start_octave": 0, "ray_end_octave": null, "latent_dim": 768, "mode": "efficient", "out_dims": 3},
-        "lr_config": "linear", "gamma": null, "lr": 0.0001, "decay_it": 500000, "lr_warmup": 2500
-    });
-    if decoder == "featurefield" {
-        cfg["rp_kwargs"] = json!({"upsample": 2, "h_in": 30, "w_in": 40, "conv_features": 128, "norm": "Batch"});
-        cfg["decoder_kwargs"].as_object_mut().unwrap().remove("out_dims");
-    }
-    cfg
-}
-
-/// The model sections of RayPatchQuerying's runs/msn_easy/{osrt_MDBN_64,rposrt_MDBN_8_64}/config.yaml. They
-/// set no decoder_kwargs.out_dims: the official OSRT class overrides it (3 for lightfield, the Ray-Patch
-/// conv_features, by default 128, for featurefield).
-fn official_osrt(decoder: &str) -> serde_json::Value {
-    let mut cfg = json!({
-        "base": "osrt",
-        "encoder_kwargs": {"max_pooling": false, "pos_start_octave": -5, "num_conv_blocks": 3, "num_att_blocks": 5,
-                           "num_slots": 5, "norm": "Batch", "latent_dim": 1536},
-        "decoder": decoder,
-        "decoder_kwargs": {"pos_start_octave": -5},
-        "lr_config": "linear", "lr": 0.0001, "decay_it": 4000000, "lr_warmup": 2500, "gamma": 0.16
-    });
-    if decoder == "featurefield" {
-        cfg["rp_kwargs"] = json!({"out_dims": 3, "norm": "Batch", "upsample": 3, "h_in": 15, "w_in": 20,
-                                  "h_out": 120, "w_out": 160});
-    }
-    cfg
-}
-
-/// The model sections of RayPatchQuerying's runs/scannet/{define_32_stereo_acc,rpdefine_16_32_stereo_acc}/
-/// config.yaml.
-fn official_define(decoder: &str) -> serde_json::Value {
-    let mut cfg = json!({
-        "base": "define",
-        "encoder_kwargs": {"pos_start_octave": 1, "num_att_blocks": 8},
-        "decoder": decoder,
-        "decoder_kwargs": {"pos_start_octave": 1},
-        "lr_config": "step", "lr": 0.0002, "lr_warmup": 2500
-    });
-    if decoder == "featurefield" {
-        cfg["rp_kwargs"] = json!({"h_in": 30, "w_in": 40, "upsample": 4, "norm": "Batch"});
-    }
-    cfg
-}
-
-/// Reads a key list from official-state-dict-keys.txt: `name [d0, d1, ...]` per line.
-fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
-    let text = std::fs::read_to_string(format!("{}/tests/data/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap();
+/// Reads the official run's key list, `assets/official/keys/<run>.txt`: `name [d0, d1, ...]` per line.
+fn official_keys(run: &str) -> Vec<(String, Vec<usize>)> {
+    let path = format!("{}/../../assets/official/keys/{run}.txt", env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(path).unwrap();
     text.lines()
-        .filter(|l| !l.trim().is_empty())
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
         .map(|l| {
             let (name, shape) = l.split_once(' ').unwrap();
             let dims = shape.trim_matches(|c| c == '[' || c == ']');
@@ -73,49 +22,49 @@ fn official_keys(file: &str) -> Vec<(String, Vec<usize>)> {
         .collect()
 }
 
-/// Checks the module tree of `config` against the official key list `file`: the same names and shapes, and
+/// Checks the module tree of the official run `run` against its key list: the same names and shapes, and
 /// `params` parameters (the header of shared/reference/official-state-dict-keys.txt: `model.parameters()`,
 /// BatchNorm running statistics not counted).
-fn check(config: serde_json::Value, file: &str, params: usize) {
-    let config = ModelConfig::from_value("official", config).unwrap();
+fn check(run: &str, params: usize) {
+    let config = ModelConfig::from_value(run, official::config(run)).unwrap();
     let mut ours = expected_tensors(&config).unwrap();
-    let mut theirs = official_keys(file);
+    let mut theirs = official_keys(run);
     let count = |keys: &[(String, Vec<usize>)]| {
         let trained = keys.iter().filter(|(name, _)| !name.ends_with("running_mean") && !name.ends_with("running_var"));
         trained.map(|(_, shape)| shape.iter().product::<usize>()).sum::<usize>()
     };
-    assert_eq!(count(&theirs), params, "{file}: the key list does not hold the header's parameter count");
+    assert_eq!(count(&theirs), params, "{run}: the key list does not hold the header's parameter count");
     ours.sort();
     theirs.sort();
     let names = |keys: &[(String, Vec<usize>)]| keys.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
     let (our_names, their_names) = (names(&ours), names(&theirs));
     let missing: Vec<_> = their_names.iter().filter(|n| !our_names.contains(n)).collect();
     let extra: Vec<_> = our_names.iter().filter(|n| !their_names.contains(n)).collect();
-    assert!(missing.is_empty() && extra.is_empty(), "{file}: not declared {missing:?}; not official {extra:?}");
+    assert!(missing.is_empty() && extra.is_empty(), "{run}: not declared {missing:?}; not official {extra:?}");
     for (a, b) in ours.iter().zip(&theirs) {
-        assert_eq!(a, b, "{file}");
+        assert_eq!(a, b, "{run}");
     }
-    assert_eq!(count(&ours), params, "{file}: parameters");
+    assert_eq!(count(&ours), params, "{run}: parameters");
 }
 
 #[test]
 fn srt_keys_match_official() {
-    check(official("lightfield"), "official-keys-srt_MDBN_32.txt", 41_037_615);
+    check("srt_MDBN_32", 41_037_615);
 }
 
 #[test]
 fn rpsrt_k4_keys_match_official() {
-    check(official("featurefield"), "official-keys-rpsrt_MDBN_4_32.txt", 41_328_245);
+    check("rpsrt_MDBN_4_32", 41_328_245);
 }
 
 #[test]
 fn osrt_keys_match_official() {
-    check(official_osrt("lightfield"), "official-keys-osrt_MDBN_64.txt", 94_917_423);
+    check("osrt_MDBN_64", 94_917_423);
 }
 
 #[test]
 fn rposrt_k8_keys_match_official() {
-    check(official_osrt("featurefield"), "official-keys-rposrt_MDBN_8_64.txt", 95_213_144);
+    check("rposrt_MDBN_8_64", 95_213_144);
 }
 
 /// Trained parameters of the official DeFiNe runs (the key lists written by tools/make_golden.py from the
@@ -125,18 +74,18 @@ const RPDEFINE_PARAMETERS: usize = 31_011_690;
 
 #[test]
 fn define_keys_match_official() {
-    check(official_define("lightfield"), "official-keys-define_32_stereo_acc.txt", DEFINE_PARAMETERS);
+    check("define_32_stereo_acc", DEFINE_PARAMETERS);
 }
 
 #[test]
 fn rpdefine_k16_keys_match_official() {
-    check(official_define("featurefield"), "official-keys-rpdefine_16_32_stereo_acc.txt", RPDEFINE_PARAMETERS);
+    check("rpdefine_16_32_stereo_acc", RPDEFINE_PARAMETERS);
 }
 
 #[test]
 fn official_define_dimensions() {
-    for (decoder, k, heads) in [("lightfield", 1, (3, 1)), ("featurefield", 16, (128, 128))] {
-        let config = ModelConfig::from_value("official", official_define(decoder)).unwrap();
+    for (decoder, k, heads) in [("define_32_stereo_acc", 1, (3, 1)), ("rpdefine_16_32_stereo_acc", 16, (128, 128))] {
+        let config = ModelConfig::from_value("official", official::config(decoder)).unwrap();
         assert_eq!((config.base(), config.patch_size()), ("define", k), "{decoder}");
         let Family::Define(c) = &config.family else { panic!("{decoder}: not a DeFiNe config") };
         let e = &c.encoder;
@@ -152,7 +101,7 @@ fn official_define_dimensions() {
 
 #[test]
 fn official_dimensions() {
-    let config = ModelConfig::from_value("official", official("featurefield")).unwrap();
+    let config = ModelConfig::from_value("official", official::config("rpsrt_MDBN_4_32")).unwrap();
     assert_eq!(config.patch_size(), 4);
     let c = config.srt().unwrap();
     assert_eq!(c.query_dim(), 180);
@@ -167,8 +116,8 @@ fn official_dimensions() {
 
 #[test]
 fn official_osrt_dimensions() {
-    for (decoder, k, out_dims) in [("lightfield", 1, 3), ("featurefield", 8, 128)] {
-        let config = ModelConfig::from_value("official", official_osrt(decoder)).unwrap();
+    for (decoder, k, out_dims) in [("osrt_MDBN_64", 1, 3), ("rposrt_MDBN_8_64", 8, 128)] {
+        let config = ModelConfig::from_value("official", official::config(decoder)).unwrap();
         assert_eq!((config.base(), config.patch_size()), ("osrt", k), "{decoder}");
         let Family::Osrt(c) = &config.family else { panic!("{decoder}: not an OSRT config") };
         assert_eq!(c.query_dim(), 180);
@@ -189,33 +138,33 @@ fn official_osrt_dimensions() {
 
 #[test]
 fn bad_configs_say_what_is_wrong() {
-    let mut cfg = official("featurefield");
+    let mut cfg = official::config("rpsrt_MDBN_4_32");
     cfg["base"] = json!("nerf");
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("m.safetensors") && err.contains("nerf") && err.contains("not supported"), "{err}");
 
     // An SRT config read as OSRT: the SRT decoder's 768-wide latent is not the 1536-wide slots.
-    let mut cfg = official("featurefield");
+    let mut cfg = official::config("rpsrt_MDBN_4_32");
     cfg["base"] = json!("osrt");
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("m.safetensors") && err.contains("latent_dim") && err.contains("slot_dim"), "{err}");
 
-    let mut cfg = official_osrt("lightfield");
+    let mut cfg = official::config("osrt_MDBN_64");
     cfg["decoder"] = json!("slotmixer");
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("`decoder`") && err.contains("slotmixer"), "{err}");
 
-    let mut cfg = official_osrt("lightfield");
+    let mut cfg = official::config("osrt_MDBN_64");
     cfg["encoder_kwargs"]["num_slots"] = json!(0);
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("num_slots"), "{err}");
 
-    let mut cfg = official("featurefield");
+    let mut cfg = official::config("rpsrt_MDBN_4_32");
     cfg["rp_kwargs"]["upsample"] = json!("two");
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("rp_kwargs.upsample"), "{err}");
 
-    let mut cfg = official("lightfield");
+    let mut cfg = official::config("srt_MDBN_32");
     cfg["decoder_kwargs"]["latent_dim"] = json!(512);
     let err = ModelConfig::from_value("m.safetensors", cfg).unwrap_err().to_string();
     assert!(err.contains("latent_dim"), "{err}");

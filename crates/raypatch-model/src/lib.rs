@@ -5,6 +5,7 @@ pub mod config;
 pub mod error;
 pub mod files;
 pub mod layout;
+pub mod official;
 pub mod rays;
 pub mod tensor_file;
 pub mod views;
@@ -14,7 +15,7 @@ pub use config::RayKind;
 pub use config::{
     DecoderConfig, DefineConfig, DefineDecoderConfig, DefineEncoderConfig, EncoderConfig, Family, FamilyConfig,
     ModelConfig, Octaves, OsrtConfig, RayFeatures, RayPatchConfig, RayPredictorConfig, SlotAttentionConfig,
-    SlotMixerConfig, SrtConfig,
+    SlotMixerConfig, SrtConfig, FAMILY_BASES,
 };
 pub use error::ModelError;
 pub use tensor_file::{HostTensor, TensorFile};

@@ -164,8 +164,15 @@ impl RayKind {
     }
 }
 
-/// The `base` values raypatch runs, for messages.
-const BASES: &str = "\"srt\", \"osrt\" or \"define\"";
+/// The families raypatch runs, by their official `base`: the registration of a family (with its arm in
+/// [`ModelConfig::from_value`]). `tests/golden.rs` checks that each has golden cases, plain and Ray-Patch.
+pub const FAMILY_BASES: [&str; 3] = ["srt", "osrt", "define"];
+
+/// [`FAMILY_BASES`] for messages.
+fn bases() -> String {
+    let quoted: Vec<String> = FAMILY_BASES.iter().map(|b| format!("\"{b}\"")).collect();
+    quoted.join(", ")
+}
 
 impl ModelConfig {
     /// Resolves the model section of a run config. `path` names the file in errors.
@@ -181,11 +188,12 @@ impl ModelConfig {
                 return Err(config_err(
                     path,
                     format!(
-                        "model base `{other}` is not supported (raypatch runs {BASES}: SRT, RP-SRT, OSRT, RP-OSRT, DeFiNe and RP-DeFiNe)"
+                        "model base `{other}` is not supported (raypatch runs {}: SRT, RP-SRT, OSRT, RP-OSRT, DeFiNe and RP-DeFiNe)",
+                        bases()
                     ),
                 ))
             }
-            None => return Err(config_err(path, format!("missing `base` (expected {BASES})"))),
+            None => return Err(config_err(path, format!("missing `base` (expected one of {})", bases()))),
         };
         Ok(ModelConfig { family, raw })
     }
