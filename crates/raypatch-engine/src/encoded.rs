@@ -54,6 +54,9 @@ struct RenderPlan {
     plan: Plan,
     io: RenderIo,
     largest_tensor_bytes: u64,
+    /// Held from writing the inputs to reading the outputs: renders of one plan from several threads take
+    /// turns (they share its input and output buffers).
+    in_use: Mutex<()>,
 }
 
 /// What the host writes into and reads from a render plan, and how many decoder queries it runs.
@@ -208,6 +211,7 @@ impl EncodedScene<'_> {
 
     /// Renders one crop with its plan.
     fn render_band(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> Result<Frame> {
+        let _turn = plan.in_use.lock().expect("render plan poisoned");
         self.upload_targets(targets, crop, plan);
         let gpu = self.model.gpu();
         let ids: Vec<TensorId> = plan.io.outputs.iter().map(|&(_, id)| id).collect();
@@ -240,6 +244,7 @@ impl EncodedScene<'_> {
     pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
         let mut times = OpTimes::new();
         for (crop, plan) in self.plans(targets, &request.into())? {
+            let _turn = plan.in_use.lock().expect("render plan poisoned");
             self.upload_targets(targets, &crop, &plan);
             times.extend(plan.plan.profile(self.model.gpu())?);
         }
@@ -432,6 +437,7 @@ impl EncodedScene<'_> {
             plan: recorded.builder.build(self.model.gpu())?,
             io: recorded.io,
             largest_tensor_bytes,
+            in_use: Mutex::new(()),
         });
         let key = PlanKey { views, grid, outputs };
         let mut plans = self.render_plans.lock().expect("render plan cache poisoned");

@@ -1,0 +1,389 @@
+"""raypatch: Light Field Transformers (SRT, OSRT, DeFiNe and their Ray-Patch variants) on any GPU.
+
+Load a model (official PyTorch checkpoints converted with tools/conversion/convert_checkpoint.py, or a bundled
+one), encode posed images into a scene once, render it from any camera: rgb, depth, log-depth and OSRT's
+object masks as numpy arrays. The engine is raypatch's Rust one (WGSL kernels on wgpu: Vulkan, Metal, DX12, or
+the CPU through Mesa lavapipe); this package wraps it and reimplements nothing.
+
+    import raypatch
+    model = raypatch.bundled("fitted")
+    model.encode_scene(raypatch.bundled_scene()).render_view(0).save("view.png")
+
+Arrays in: anything numpy can read (numpy arrays, CPU torch tensors, objects with ``__array__`` or
+``__dlpack__``); images uint8 or float in [0, 1]. Arrays out: numpy float32. Every refusal raises a
+``raypatch.Error`` subclass with a one-line message; the GIL is released while the GPU works.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Iterable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _raypatch
+from ._raypatch import BUNDLED_MODELS, BUNDLED_SCENES, EngineClosed, Error, FileError, GpuError, InputError
+
+__all__ = [
+    "Engine", "Model", "Scene", "SceneData", "Rendered", "load", "bundled", "load_scene", "bundled_scene",
+    "psnr", "ssim", "fg_ari", "depth_errors", "Error", "InputError", "FileError", "GpuError", "EngineClosed",
+    "BUNDLED_MODELS", "BUNDLED_SCENES",
+]
+
+OUTPUTS = ("rgb", "logdepth", "depth", "segmentation")
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _array(name: str, value) -> np.ndarray:
+    """`value` as a numpy array without a copy where numpy can (buffer protocol, __array__, __dlpack__)."""
+    if isinstance(value, np.ndarray):
+        return value
+    try:
+        if hasattr(value, "__array__") or not hasattr(value, "__dlpack__"):
+            return np.asarray(value)
+        return np.from_dlpack(value)
+    except Exception as e:  # anything that is not an array of numbers
+        raise InputError(f"{name}: cannot be read as an array ({type(value).__name__}: {e})") from None
+
+
+def _f32(name: str, value, shape: Tuple[Optional[int], ...], dtype=np.float32) -> np.ndarray:
+    """A C-contiguous float32 (or `dtype`) array of `shape` (None: any size), from floats or (for images) uint8."""
+    array = _array(name, value)
+    if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
+        wanted = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
+        raise InputError(f"{name}: shape {list(array.shape)}, expected {wanted}")
+    if array.dtype == np.uint8:
+        array = array.astype(np.float32) / np.float32(255.0)
+    elif array.dtype.kind == "f":
+        array = array.astype(dtype, copy=False)
+    else:
+        raise InputError(f"{name}: dtype {array.dtype}, expected float32 (or uint8 for images)")
+    if not np.isfinite(array).all():
+        raise InputError(f"{name}: holds NaN or infinity")
+    return np.ascontiguousarray(array)
+
+
+def _bytes(array: np.ndarray) -> bytes:
+    return array.astype("<f4", copy=False).tobytes()
+
+
+def _poses(name: str, poses, count: Optional[int] = None) -> list:
+    """Row-major 4x4 camera-to-world matrices as 16 floats each (float64: a pose is never rounded to float32)."""
+    array = _array(name, poses)
+    if array.ndim == 2 and count is None:
+        array = array[None]
+    array = _f32(name, array, (count, 4, 4), np.float64)
+    return [tuple(float(v) for v in pose.reshape(16)) for pose in array]
+
+
+def _intrinsics(name: str, intrinsics, count: int) -> list:
+    """(fx, fy, cx, cy) per view from 3x3 K matrices or (fx, fy, cx, cy) rows, one shared or one per view."""
+    array = _f32(name, intrinsics, (None,) * np.ndim(_array(name, intrinsics)), np.float64)
+    if array.shape in ((3, 3), (4,)):
+        array = np.broadcast_to(array, (count,) + array.shape)
+    if array.shape == (count, 3, 3):
+        return [(k[0, 0], k[1, 1], k[0, 2], k[1, 2]) for k in array]
+    if array.shape == (count, 4):
+        return [tuple(k) for k in array]
+    raise InputError(f"{name}: shape {list(array.shape)}, expected a 3x3 K, (fx, fy, cx, cy), or one per view")
+
+
+class Engine:
+    """One GPU adapter: a real GPU when there is one, else a CPU one (lavapipe). ``adapter`` picks by name
+    (case-insensitive substring); ``matmul`` forces a kernel family ("rows", "tiled", "lanes")."""
+
+    def __init__(self, adapter: Optional[str] = None, matmul: Optional[str] = None):
+        self._inner = _raypatch.Engine(adapter, matmul)
+
+    @staticmethod
+    def adapters() -> list:
+        """Every adapter wgpu sees, the default first: dicts of name, kind, backend and driver."""
+        return _raypatch.Engine.adapters()
+
+    @property
+    def adapter(self) -> str:
+        return self._inner.adapter
+
+    @property
+    def closed(self) -> bool:
+        return self._inner.closed
+
+    def close(self) -> None:
+        """Later calls on this engine, its models and their scenes raise EngineClosed; their GPU memory is freed
+        once Python drops them."""
+        self._inner.close()
+
+    def __enter__(self) -> "Engine":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def load(self, path: PathLike) -> "Model":
+        """A model file (safetensors with the official key names and the config in its metadata)."""
+        return Model(self._inner.load(os.fspath(path)))
+
+    def bundled(self, name: str = "fitted") -> "Model":
+        """A model shipped with the package (BUNDLED_MODELS): "fitted" is RP-SRT k=4 fitted to the bundled scene."""
+        return Model(self._inner.load_bundled(name))
+
+    def __repr__(self) -> str:
+        return f"raypatch.Engine({self.adapter!r}{', closed' if self.closed else ''})"
+
+
+_default_engine: Optional[Engine] = None
+
+
+def default_engine() -> Engine:
+    """The engine `load` and `bundled` use, made on first use."""
+    global _default_engine
+    if _default_engine is None or _default_engine.closed:
+        _default_engine = Engine()
+    return _default_engine
+
+
+def load(path: PathLike) -> "Model":
+    """A model file on the default engine."""
+    return default_engine().load(path)
+
+
+def bundled(name: str = "fitted") -> "Model":
+    """A bundled model on the default engine."""
+    return default_engine().bundled(name)
+
+
+class SceneData:
+    """Posed views from a scene file (docs/FORMATS.md) or a folder with transforms.json: inputs to encode and
+    target views with their ground truth."""
+
+    def __init__(self, inner):
+        self._inner = inner
+
+    @property
+    def input_count(self) -> int:
+        return self._inner.input_count
+
+    @property
+    def target_count(self) -> int:
+        return self._inner.target_count
+
+    def target_size(self, i: int) -> Tuple[int, int]:
+        """(width, height) of target view i."""
+        return self._inner.target_size(i)
+
+    def target_image(self, i: int) -> Optional[np.ndarray]:
+        """Ground truth [H, W, 3] float32 in [0, 1], or None."""
+        data = self._inner.target_image(i)
+        width, height = self.target_size(i)
+        return None if data is None else np.frombuffer(data, "<f4").reshape(height, width, 3)
+
+    def target_masks(self, i: int) -> Optional[np.ndarray]:
+        """Object ids [H, W] uint32 (0: background), or None."""
+        data = self._inner.target_masks(i)
+        width, height = self.target_size(i)
+        return None if data is None else np.frombuffer(data, "<u4").reshape(height, width)
+
+    def target_depth(self, i: int) -> Optional[np.ndarray]:
+        """Depth [H, W] float32 in metres (0 where unknown), or None."""
+        data = self._inner.target_depth(i)
+        width, height = self.target_size(i)
+        return None if data is None else np.frombuffer(data, "<f4").reshape(height, width)
+
+
+def load_scene(path: PathLike) -> SceneData:
+    """A scene safetensors file or a folder holding transforms.json."""
+    return SceneData(_raypatch.SceneData.load(os.fspath(path)))
+
+
+def bundled_scene(name: str = "scene-2000000") -> SceneData:
+    """A scene shipped with the package (BUNDLED_SCENES): held-out views of a procedural MultiShapeNet-style scene."""
+    return SceneData(_raypatch.SceneData.bundled(name))
+
+
+class Rendered(dict):
+    """One render: output name -> float32 array over the region: "rgb" [H, W, 3], "logdepth" and "depth" [H, W],
+    "segmentation" [H, W, slots]. Batched renders (Scene.render_many) add a leading view axis."""
+
+    def save(self, path: PathLike, output: str = "rgb") -> None:
+        """Writes the rgb image as a PNG (written beside, then renamed into place)."""
+        if output != "rgb" or "rgb" not in self:
+            raise InputError(f"save: needs the rgb output (rendered: {sorted(self)})")
+        rgb = self["rgb"]
+        if rgb.ndim != 3:
+            raise InputError("save: a batched render holds several views; save one, e.g. Rendered(rgb=r['rgb'][0])")
+        height, width, _ = rgb.shape
+        _raypatch.save_png(_bytes(rgb), width, height, os.fspath(path))
+
+
+def _rendered(raw: dict) -> Rendered:
+    out = Rendered()
+    for name, (data, (height, width, channels)) in raw.items():
+        array = np.frombuffer(data, "<f4").reshape(height, width, channels)
+        out[name] = array[..., 0] if name in ("logdepth", "depth") else array
+    return out
+
+
+def _output_names(outputs: Union[str, Iterable[str]]) -> list:
+    names = [outputs] if isinstance(outputs, str) else list(outputs)
+    if not names:
+        raise InputError(f"outputs: none asked for, expected some of {OUTPUTS}")
+    return names
+
+
+class Model:
+    """A model with its weights on the GPU."""
+
+    def __init__(self, inner):
+        self._inner = inner
+
+    @property
+    def config(self) -> dict:
+        """The model section of the run config, with the official defaults filled in."""
+        return json.loads(self._inner.config_json)
+
+    @property
+    def name(self) -> str:
+        """As the paper names it, e.g. "RP-SRT k=4"."""
+        return self._inner.name
+
+    @property
+    def path(self) -> str:
+        return self._inner.path
+
+    @property
+    def patch_size(self) -> int:
+        """Ray-Patch's k (1 for a per-pixel decoder)."""
+        return self._inner.patch_size
+
+    @property
+    def outputs(self) -> Tuple[str, ...]:
+        return tuple(self._inner.outputs)
+
+    @property
+    def parameter_count(self) -> int:
+        return self._inner.parameter_count
+
+    def encode(self, images, poses=None, intrinsics=None, convention: str = "opengl", *, positions=None,
+               rays=None) -> "Scene":
+        """Encodes posed images [V, H, W, 3] (uint8, or float in [0, 1]) into a scene.
+
+        Pinhole cameras: ``poses`` [V, 4, 4] camera-to-world (``convention`` "opengl": x right, y up, looking
+        along -z, as transforms.json; or "opencv") and ``intrinsics`` (a 3x3 K or (fx, fy, cx, cy), shared or
+        one per view). Or the rays scene files hold: ``positions`` [V, 3] camera centres and ``rays``
+        [V, H, W, 3] (unit directions; unit-depth points for DeFiNe)."""
+        images = _f32("images", images, (None, None, None, 3))
+        count, height, width, _ = images.shape
+        if rays is not None or positions is not None:
+            if poses is not None or intrinsics is not None:
+                raise InputError("encode: give poses and intrinsics, or positions and rays, not both")
+            if rays is None or positions is None:
+                raise InputError("encode: rays and positions go together")
+            positions = _f32("positions", positions, (count, 3), np.float64)
+            rays = _f32("rays", rays, (count, height, width, 3))
+            scene = self._inner.encode_rays(_bytes(images), (count, height, width),
+                                            [tuple(p) for p in positions], _bytes(rays))
+            return Scene(scene, self, None)
+        if poses is None or intrinsics is None:
+            raise InputError("encode: needs poses and intrinsics (or positions and rays)")
+        k = _intrinsics("intrinsics", intrinsics, count)
+        scene = self._inner.encode_posed(_bytes(images), (count, height, width), _poses("poses", poses, count), k,
+                                         convention)
+        return Scene(scene, self, (k[0], width, height))
+
+    def encode_scene(self, data: SceneData) -> "Scene":
+        """Encodes the input views of a scene file or frames folder (load_scene, bundled_scene)."""
+        return Scene(self._inner.encode_data(data._inner), self, None, data)
+
+    def __repr__(self) -> str:
+        return f"raypatch.Model({self.name!r}, {self.path!r})"
+
+
+class Scene:
+    """A scene encoded by a model (its latent tokens, computed once): render it from any camera."""
+
+    def __init__(self, inner, model: Model, camera, data: Optional[SceneData] = None):
+        self._inner = inner
+        self.model = model
+        # (fx, fy, cx, cy) and the size of input view 0, for renders that give no intrinsics.
+        self._camera = camera
+        self._data = data
+
+    def _camera_of(self, intrinsics, size) -> Tuple[float, float, float, float, int, int]:
+        if intrinsics is None:
+            if self._camera is None:
+                raise InputError("render: needs intrinsics (the scene was not encoded from pinhole cameras)")
+            k, width, height = self._camera
+        else:
+            k = _intrinsics("intrinsics", intrinsics, 1)[0]
+            width, height = (None, None) if self._camera is None else self._camera[1:]
+        if size is not None:
+            width, height = (int(v) for v in size)
+        elif width is None:
+            raise InputError("render: needs size=(width, height)")
+        return (*k, width, height)
+
+    def render(self, pose, intrinsics=None, size: Optional[Sequence[int]] = None,
+               outputs: Union[str, Iterable[str]] = ("rgb",), region: Optional[Sequence[int]] = None,
+               convention: str = "opengl") -> Rendered:
+        """Renders a 4x4 camera-to-world ``pose`` (intrinsics and size: by default input view 0's). ``region`` =
+        (x, y, width, height) renders only those pixels (and decodes only the patches they need)."""
+        camera = self._camera_of(intrinsics, size)
+        pose = _poses("pose", pose)
+        if len(pose) != 1:
+            raise InputError("render: one pose [4, 4]; render_many takes [T, 4, 4]")
+        region = None if region is None else tuple(int(v) for v in region)
+        return _rendered(self._inner.render_posed(pose[0], camera, convention, _output_names(outputs), region))
+
+    def render_many(self, poses, intrinsics=None, size: Optional[Sequence[int]] = None,
+                    outputs: Union[str, Iterable[str]] = ("rgb",), region: Optional[Sequence[int]] = None,
+                    convention: str = "opengl") -> Rendered:
+        """Renders poses [T, 4, 4] as render does; each output gets a leading axis of T views."""
+        renders = [self.render(pose, intrinsics, size, outputs, region, convention)
+                   for pose in _f32("poses", poses, (None, 4, 4), np.float64)]
+        return Rendered({name: np.stack([r[name] for r in renders]) for name in (renders[0] if renders else {})})
+
+    def render_view(self, i: int, outputs: Union[str, Iterable[str]] = ("rgb",),
+                    region: Optional[Sequence[int]] = None) -> Rendered:
+        """Renders target view i of the scene file this scene was encoded from (encode_scene)."""
+        if self._data is None:
+            raise InputError("render_view: the scene was not encoded from a scene file (use render)")
+        region = None if region is None else tuple(int(v) for v in region)
+        return _rendered(self._inner.render_target(self._data._inner, int(i), _output_names(outputs), region))
+
+
+def psnr(a, b) -> float:
+    """PSNR in dB of two [H, W, 3] images in [0, 1] (the engine's, as render-frame --metrics)."""
+    a, b = _f32("a", a, (None, None, 3)), _f32("b", b, (None, None, 3))
+    if a.shape != b.shape:
+        raise InputError(f"psnr: images of shapes {list(a.shape)} and {list(b.shape)}")
+    return _raypatch.psnr(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
+
+
+def ssim(a, b) -> float:
+    """SSIM of two [H, W, 3] images in [0, 1], as the official evaluation computes it."""
+    a, b = _f32("a", a, (None, None, 3)), _f32("b", b, (None, None, 3))
+    if a.shape != b.shape:
+        raise InputError(f"ssim: images of shapes {list(a.shape)} and {list(b.shape)}")
+    return _raypatch.ssim(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
+
+
+def fg_ari(true_ids, weights) -> float:
+    """FG-ARI of slot weights [H, W, slots] against object ids [H, W] (0: background, ignored)."""
+    weights = _f32("weights", weights, (None, None, None))
+    ids = _array("true_ids", true_ids)
+    if ids.shape != weights.shape[:2] or ids.dtype.kind not in "ui":
+        raise InputError(f"true_ids: {ids.dtype} {list(ids.shape)}, expected integers {list(weights.shape[:2])}")
+    if ids.size and (ids.min() < 0 or ids.max() > np.iinfo(np.uint32).max):
+        raise InputError("true_ids: object ids must fit uint32")
+    pixels = ids.size
+    return _raypatch.fg_ari(ids.astype("<u4").tobytes(), _bytes(weights), pixels, weights.shape[2])
+
+
+def depth_errors(predicted, truth) -> dict:
+    """Abs.Rel, Sq.Rel and RMSE of predicted depth against ground truth (same shape; truth 0 = no data), over
+    the pixels with ground truth, as the official DeFiNe test step computes them."""
+    predicted = _f32("predicted", predicted, (None, None))
+    truth = _f32("truth", truth, predicted.shape)
+    abs_rel, sq_rel, rmse, pixels = _raypatch.depth_errors(_bytes(predicted), _bytes(truth), predicted.size)
+    return {"abs_rel": abs_rel, "sq_rel": sq_rel, "rmse": rmse, "pixels": pixels}

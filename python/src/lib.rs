@@ -1,0 +1,506 @@
+//! `raypatch._raypatch`: the engine's Rust API (the `raypatch` crate) for Python. Arrays cross as bytes
+//! (little-endian f32 or u32, row-major) with their shapes beside them: the limited API of abi3 on
+//! Python 3.9 has no buffer protocol, and `raypatch/__init__.py` turns numpy arrays into bytes and back. The
+//! GIL is released while the engine works, so Python threads render at once.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use glam::{DMat4, DVec3, Vec3};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+use raypatch::{
+    AdapterChoice, Camera, CameraAxes, EngineOptions, Image, InputView, Intrinsics, MatmulKernel, Output, Outputs,
+    RayGrid, Region, Request, SceneData,
+};
+
+create_exception!(_raypatch, Error, PyException, "Everything raypatch refuses or fails at: a one-line message.");
+create_exception!(_raypatch, InputError, Error, "An input the engine cannot take: arrays, cameras, views, requests.");
+create_exception!(_raypatch, FileError, Error, "A model, scene or image file that is missing or malformed.");
+create_exception!(_raypatch, GpuError, Error, "No adapter, a device error, or values that overflow float32.");
+create_exception!(_raypatch, EngineClosed, Error, "Work asked of an engine after `Engine.close()`.");
+
+/// The bundled models (`assets/models`) by name, and the bundled scenes (`assets/scenes`).
+const BUNDLED_MODELS: [(&str, &[u8]); 6] = [
+    ("fitted", include_bytes!("../../assets/models/fitted_scene-2000000_rpsrt_k4.safetensors")),
+    ("rpsrt_k2", include_bytes!("../../assets/models/rpsrt_k2.safetensors")),
+    ("rpsrt_k4", include_bytes!("../../assets/models/rpsrt_k4.safetensors")),
+    ("rpsrt_k8", include_bytes!("../../assets/models/rpsrt_k8.safetensors")),
+    ("rpsrt_k8_long", include_bytes!("../../assets/models/rpsrt_k8_long.safetensors")),
+    ("srt", include_bytes!("../../assets/models/srt.safetensors")),
+];
+const BUNDLED_SCENES: [(&str, &[u8]); 2] = [
+    ("scene-2000000", include_bytes!("../../assets/scenes/scene-2000000.safetensors")),
+    ("scene-2000001", include_bytes!("../../assets/scenes/scene-2000001.safetensors")),
+];
+
+/// The Python exception for an engine error, with the engine's one-line message.
+fn to_py(e: raypatch::Error) -> PyErr {
+    use raypatch::raypatch_engine::EngineError;
+    let message = e.to_string();
+    match e {
+        raypatch::Error::Model(_) | raypatch::Error::Io { .. } | raypatch::Error::Image { .. } => {
+            FileError::new_err(message)
+        }
+        raypatch::Error::Cameras { .. } => FileError::new_err(message),
+        raypatch::Error::Camera(_) | raypatch::Error::Views(_) | raypatch::Error::Metrics(_) => {
+            InputError::new_err(message)
+        }
+        raypatch::Error::Engine(EngineError::Request(_) | EngineError::TooLarge { .. }) => InputError::new_err(message),
+        raypatch::Error::Engine(_) => GpuError::new_err(message),
+    }
+}
+
+fn input_error(message: String) -> PyErr {
+    InputError::new_err(message)
+}
+
+/// Whether the engine was closed; shared by the engine and everything loaded on it.
+#[derive(Clone, Default)]
+struct Alive(Arc<AtomicBool>);
+
+impl Alive {
+    fn check(&self) -> PyResult<()> {
+        if self.0.load(Ordering::Acquire) {
+            return Err(EngineClosed::new_err("the engine was closed: create a new raypatch.Engine"));
+        }
+        Ok(())
+    }
+}
+
+/// Little-endian f32s from bytes, `count` of them.
+fn f32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<f32>> {
+    if bytes.len() != count * 4 {
+        return Err(input_error(format!("{what}: {} bytes, expected {count} float32 values", bytes.len())));
+    }
+    Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+}
+
+fn u32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<u32>> {
+    if bytes.len() != count * 4 {
+        return Err(input_error(format!("{what}: {} bytes, expected {count} uint32 values", bytes.len())));
+    }
+    Ok(bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+}
+
+fn f32_bytes<'py>(py: Python<'py>, values: &[f32]) -> Bound<'py, PyBytes> {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    PyBytes::new(py, &bytes)
+}
+
+fn axes(convention: &str) -> PyResult<CameraAxes> {
+    match convention {
+        "opengl" => Ok(CameraAxes::OpenGl),
+        "opencv" => Ok(CameraAxes::OpenCv),
+        other => Err(input_error(format!("convention {other:?}: expected \"opengl\" or \"opencv\""))),
+    }
+}
+
+/// A pinhole camera from a row-major 4x4 camera-to-world pose and `(fx, fy, cx, cy, width, height)`.
+fn pinhole(pose: [f64; 16], k: (f64, f64, f64, f64, usize, usize), convention: &str) -> PyResult<Camera> {
+    let (fx, fy, cx, cy, width, height) = k;
+    let intrinsics = Intrinsics { width, height, fx, fy, cx, cy };
+    Camera::pinhole(intrinsics, DMat4::from_cols_array(&pose).transpose(), axes(convention)?).map_err(to_py)
+}
+
+fn outputs_of(names: Vec<String>) -> PyResult<Outputs> {
+    let mut outputs = Outputs::default();
+    for (i, name) in names.iter().enumerate() {
+        let output = Output::from_name(name).ok_or_else(|| {
+            input_error(format!("outputs: {name:?} is not one of \"rgb\", \"logdepth\", \"depth\", \"segmentation\""))
+        })?;
+        outputs = if i == 0 { Outputs::of(&[output]) } else { outputs.with(output) };
+    }
+    Ok(outputs)
+}
+
+/// Reads an image of `[height, width, 3]` f32 values in [0, 1].
+fn image_of(what: &str, bytes: &[u8], width: usize, height: usize) -> PyResult<Image> {
+    Image::new(width, height, f32s(what, bytes, width * height * 3)?).map_err(to_py)
+}
+
+/// The engine: one GPU adapter (a real GPU when there is one, else lavapipe).
+#[pyclass(frozen, module = "raypatch._raypatch")]
+struct Engine {
+    inner: Arc<raypatch::Engine>,
+    alive: Alive,
+}
+
+#[pymethods]
+impl Engine {
+    #[new]
+    #[pyo3(signature = (adapter=None, matmul=None))]
+    fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>) -> PyResult<Engine> {
+        let matmul = match matmul.as_deref() {
+            None => None,
+            Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
+                input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
+            })?),
+        };
+        let adapter = adapter.map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+        let options = EngineOptions { adapter, matmul, ..Default::default() };
+        let inner = py.detach(|| raypatch::Engine::new(options)).map_err(to_py)?;
+        Ok(Engine { inner: Arc::new(inner), alive: Alive::default() })
+    }
+
+    /// Every adapter wgpu sees, the default first: dicts of name, kind, backend, driver.
+    #[staticmethod]
+    fn adapters(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
+        raypatch::Engine::adapters()
+            .into_iter()
+            .map(|a| {
+                let d = PyDict::new(py);
+                d.set_item("name", a.name)?;
+                d.set_item("kind", a.kind)?;
+                d.set_item("backend", a.backend)?;
+                d.set_item("driver", a.driver)?;
+                Ok(d)
+            })
+            .collect()
+    }
+
+    #[getter]
+    fn adapter(&self) -> String {
+        self.inner.adapter()
+    }
+
+    #[getter]
+    fn closed(&self) -> bool {
+        self.alive.check().is_err()
+    }
+
+    /// Later calls on this engine and everything loaded on it raise EngineClosed.
+    fn close(&self) {
+        self.alive.0.store(true, Ordering::Release);
+    }
+
+    fn load(&self, py: Python<'_>, path: PathBuf) -> PyResult<Model> {
+        self.alive.check()?;
+        let model = py.detach(|| self.inner.load(&path)).map_err(to_py)?;
+        Ok(Model { inner: Arc::new(model), alive: self.alive.clone() })
+    }
+
+    fn load_bundled(&self, py: Python<'_>, name: &str) -> PyResult<Model> {
+        self.alive.check()?;
+        let Some((_, bytes)) = BUNDLED_MODELS.iter().find(|(n, _)| *n == name) else {
+            let names: Vec<&str> = BUNDLED_MODELS.iter().map(|(n, _)| *n).collect();
+            return Err(input_error(format!("no bundled model {name:?}: the bundled models are {names:?}")));
+        };
+        let model = py.detach(|| self.inner.load_bytes(&format!("bundled model {name}"), bytes)).map_err(to_py)?;
+        Ok(Model { inner: Arc::new(model), alive: self.alive.clone() })
+    }
+}
+
+/// A model with its weights on the GPU.
+#[pyclass(frozen, module = "raypatch._raypatch")]
+struct Model {
+    inner: Arc<raypatch::Model>,
+    alive: Alive,
+}
+
+self_cell::self_cell!(
+    /// An encoded scene with the model it borrows.
+    struct EncodedCell {
+        owner: Arc<raypatch::Model>,
+        #[covariant]
+        dependent: SceneOf,
+    }
+);
+type SceneOf<'m> = raypatch::Scene<'m>;
+
+impl Model {
+    fn encode_views(&self, py: Python<'_>, views: Vec<InputView>) -> PyResult<Scene> {
+        self.alive.check()?;
+        let owner = self.inner.clone();
+        let cell = py.detach(|| EncodedCell::try_new(owner, |model| model.encode(&views))).map_err(to_py)?;
+        Ok(Scene { cell, alive: self.alive.clone() })
+    }
+}
+
+#[pymethods]
+impl Model {
+    /// The resolved config (every key with the official defaults filled in), as JSON text.
+    #[getter]
+    fn config_json(&self) -> String {
+        self.inner.config().raw.to_string()
+    }
+
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.config().label()
+    }
+
+    #[getter]
+    fn path(&self) -> String {
+        self.inner.path().to_string()
+    }
+
+    #[getter]
+    fn patch_size(&self) -> usize {
+        self.inner.patch_size()
+    }
+
+    #[getter]
+    fn outputs(&self) -> Vec<&'static str> {
+        self.inner.outputs().iter().map(|o| o.name()).collect()
+    }
+
+    #[getter]
+    fn parameter_count(&self) -> usize {
+        self.inner.parameter_count()
+    }
+
+    /// Encodes `count` images (`[count, height, width, 3]` f32 in [0, 1]) seen by pinhole cameras: row-major
+    /// 4x4 camera-to-world poses and `(fx, fy, cx, cy)` each.
+    fn encode_posed(
+        &self,
+        py: Python<'_>,
+        images: &[u8],
+        shape: (usize, usize, usize),
+        poses: Vec<[f64; 16]>,
+        intrinsics: Vec<(f64, f64, f64, f64)>,
+        convention: &str,
+    ) -> PyResult<Scene> {
+        let (count, height, width) = shape;
+        if poses.len() != count || intrinsics.len() != count {
+            return Err(input_error(format!(
+                "{count} images with {} poses and {} intrinsics: expected one of each per image",
+                poses.len(),
+                intrinsics.len()
+            )));
+        }
+        let values = f32s("images", images, count * height * width * 3)?;
+        let per = height * width * 3;
+        let views = (0..count)
+            .map(|i| {
+                let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
+                let (fx, fy, cx, cy) = intrinsics[i];
+                let camera = pinhole(poses[i], (fx, fy, cx, cy, width, height), convention)
+                    .map_err(|e| input_error(format!("view {i}: {}", e.value(py))))?;
+                Ok(InputView { image, camera })
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        self.encode_views(py, views)
+    }
+
+    /// Encodes images with explicit rays: camera centres `[count, 3]` and rays `[count, height, width, 3]`
+    /// (of the model's kind: unit directions, or unit-depth points for DeFiNe), as scene files hold them.
+    fn encode_rays(
+        &self,
+        py: Python<'_>,
+        images: &[u8],
+        shape: (usize, usize, usize),
+        positions: Vec<[f64; 3]>,
+        rays: &[u8],
+    ) -> PyResult<Scene> {
+        let (count, height, width) = shape;
+        if positions.len() != count {
+            return Err(input_error(format!("{count} images with {} camera positions", positions.len())));
+        }
+        let per = height * width * 3;
+        let values = f32s("images", images, count * per)?;
+        let rays = f32s("rays", rays, count * per)?;
+        let views = (0..count)
+            .map(|i| {
+                let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
+                let grid =
+                    RayGrid { width, height, rays: rays[i * per..(i + 1) * per].chunks_exact(3).map(Vec3::from_slice).collect() };
+                let camera = Camera::from_rays(DVec3::from_array(positions[i]), grid)
+                    .map_err(|e| input_error(format!("view {i}: {e}")))?;
+                Ok(InputView { image, camera })
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        self.encode_views(py, views)
+    }
+
+    /// Encodes the input views of a scene file or frames folder.
+    fn encode_data(&self, py: Python<'_>, data: &SceneFile) -> PyResult<Scene> {
+        self.encode_views(py, data.inner.inputs.clone())
+    }
+}
+
+/// Posed views read from a scene file or a `transforms.json` folder.
+#[pyclass(frozen, name = "SceneData", module = "raypatch._raypatch")]
+struct SceneFile {
+    inner: SceneData,
+}
+
+#[pymethods]
+impl SceneFile {
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<SceneFile> {
+        Ok(SceneFile { inner: py.detach(|| SceneData::load(&path)).map_err(to_py)? })
+    }
+
+    #[staticmethod]
+    fn bundled(name: &str) -> PyResult<SceneFile> {
+        let Some((_, bytes)) = BUNDLED_SCENES.iter().find(|(n, _)| *n == name) else {
+            let names: Vec<&str> = BUNDLED_SCENES.iter().map(|(n, _)| *n).collect();
+            return Err(input_error(format!("no bundled scene {name:?}: the bundled scenes are {names:?}")));
+        };
+        Ok(SceneFile { inner: SceneData::from_bytes(&format!("bundled scene {name}"), bytes).map_err(to_py)? })
+    }
+
+    #[getter]
+    fn input_count(&self) -> usize {
+        self.inner.inputs.len()
+    }
+
+    #[getter]
+    fn target_count(&self) -> usize {
+        self.inner.targets.len()
+    }
+
+    /// `(width, height)` of target view `i`.
+    fn target_size(&self, i: usize) -> PyResult<(usize, usize)> {
+        let t = self.target(i)?;
+        Ok((t.camera.width(), t.camera.height()))
+    }
+
+    /// Target view `i`'s ground truth `[height, width, 3]` f32, or None.
+    fn target_image<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+        Ok(self.target(i)?.image.as_ref().map(|im| f32_bytes(py, im.data())))
+    }
+
+    /// Target view `i`'s object ids `[height, width]` u32 (0: background), or None.
+    fn target_masks<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+        let masks = self.target(i)?.masks.as_ref();
+        Ok(masks.map(|m| PyBytes::new(py, &m.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>())))
+    }
+
+    /// Target view `i`'s depth `[height, width]` f32 in metres (0: none), or None.
+    fn target_depth<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+        Ok(self.target(i)?.depth.as_ref().map(|d| f32_bytes(py, d)))
+    }
+}
+
+impl SceneFile {
+    fn target(&self, i: usize) -> PyResult<&raypatch::TargetView> {
+        self.inner.targets.get(i).ok_or_else(|| {
+            input_error(format!("target view {i}: the scene has {} (0..{})", self.inner.targets.len(), self.inner.targets.len()))
+        })
+    }
+}
+
+/// An encoded scene: render it from any camera.
+#[pyclass(frozen, module = "raypatch._raypatch")]
+struct Scene {
+    cell: EncodedCell,
+    alive: Alive,
+}
+
+impl Scene {
+    fn render_camera<'py>(
+        &self,
+        py: Python<'py>,
+        camera: &Camera,
+        outputs: Vec<String>,
+        region: Option<(usize, usize, usize, usize)>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        self.alive.check()?;
+        let region = region.map(|(x, y, width, height)| Region { x, y, width, height });
+        let request = Request { outputs: outputs_of(outputs)?, region };
+        let rendered = py.detach(|| self.cell.borrow_dependent().render(camera, &request)).map_err(to_py)?;
+        let result = PyDict::new(py);
+        for out in &rendered.outputs {
+            let shape = (rendered.region.height, rendered.region.width, out.channels);
+            result.set_item(out.output.name(), (f32_bytes(py, &out.values), shape))?;
+        }
+        Ok(result)
+    }
+}
+
+#[pymethods]
+impl Scene {
+    /// Renders a pinhole camera (row-major 4x4 camera-to-world pose, `(fx, fy, cx, cy, width, height)`):
+    /// `{output name: (bytes of f32, (height, width, channels))}` over the region (x, y, width, height).
+    #[pyo3(signature = (pose, intrinsics, convention, outputs, region=None))]
+    fn render_posed<'py>(
+        &self,
+        py: Python<'py>,
+        pose: [f64; 16],
+        intrinsics: (f64, f64, f64, f64, usize, usize),
+        convention: &str,
+        outputs: Vec<String>,
+        region: Option<(usize, usize, usize, usize)>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let camera = pinhole(pose, intrinsics, convention)?;
+        self.render_camera(py, &camera, outputs, region)
+    }
+
+    /// Renders target view `i` of a scene file or frames folder (as `render_posed`).
+    #[pyo3(signature = (data, i, outputs, region=None))]
+    fn render_target<'py>(
+        &self,
+        py: Python<'py>,
+        data: &SceneFile,
+        i: usize,
+        outputs: Vec<String>,
+        region: Option<(usize, usize, usize, usize)>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let camera = data.target(i)?.camera.clone();
+        self.render_camera(py, &camera, outputs, region)
+    }
+}
+
+/// PSNR in dB of two `[height, width, 3]` f32 images.
+#[pyfunction]
+fn psnr(py: Python<'_>, a: &[u8], b: &[u8], width: usize, height: usize) -> PyResult<f64> {
+    let (a, b) = (image_of("a", a, width, height)?, image_of("b", b, width, height)?);
+    py.detach(|| raypatch::metrics::psnr(&a, &b)).map_err(to_py)
+}
+
+/// SSIM of two `[height, width, 3]` f32 images (the official evaluation's).
+#[pyfunction]
+fn ssim(py: Python<'_>, a: &[u8], b: &[u8], width: usize, height: usize) -> PyResult<f64> {
+    let (a, b) = (image_of("a", a, width, height)?, image_of("b", b, width, height)?);
+    py.detach(|| raypatch::metrics::ssim(&a, &b)).map_err(to_py)
+}
+
+/// FG-ARI of slot weights `[pixels, slots]` f32 against object ids `[pixels]` u32 (0: background).
+#[pyfunction]
+fn fg_ari(true_ids: &[u8], weights: &[u8], pixels: usize, slots: usize) -> PyResult<f64> {
+    let ids = u32s("true_ids", true_ids, pixels)?;
+    let weights = f32s("weights", weights, pixels * slots)?;
+    raypatch::metrics::fg_ari(&ids, &weights, slots).map_err(to_py)
+}
+
+/// Abs.Rel, Sq.Rel, RMSE and the pixel count of predicted depth against ground truth (`[pixels]` f32 each).
+#[pyfunction]
+fn depth_errors(predicted: &[u8], truth: &[u8], pixels: usize) -> PyResult<(f64, f64, f64, usize)> {
+    let e = raypatch::metrics::depth_errors(&f32s("predicted", predicted, pixels)?, &f32s("truth", truth, pixels)?)
+        .map_err(to_py)?;
+    Ok((e.abs_rel, e.sq_rel, e.rmse, e.pixels))
+}
+
+/// Writes a `[height, width, 3]` f32 image in [0, 1] as a PNG (written beside, then renamed into place).
+#[pyfunction]
+fn save_png(py: Python<'_>, rgb: &[u8], width: usize, height: usize, path: PathBuf) -> PyResult<()> {
+    let image = image_of("rgb", rgb, width, height)?;
+    py.detach(|| image.save_png(&path)).map_err(to_py)
+}
+
+#[pymodule]
+fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("Error", py.get_type::<Error>())?;
+    m.add("InputError", py.get_type::<InputError>())?;
+    m.add("FileError", py.get_type::<FileError>())?;
+    m.add("GpuError", py.get_type::<GpuError>())?;
+    m.add("EngineClosed", py.get_type::<EngineClosed>())?;
+    m.add("BUNDLED_MODELS", BUNDLED_MODELS.iter().map(|(n, _)| *n).collect::<Vec<_>>())?;
+    m.add("BUNDLED_SCENES", BUNDLED_SCENES.iter().map(|(n, _)| *n).collect::<Vec<_>>())?;
+    m.add_class::<Engine>()?;
+    m.add_class::<Model>()?;
+    m.add_class::<SceneFile>()?;
+    m.add_class::<Scene>()?;
+    m.add_function(wrap_pyfunction!(psnr, m)?)?;
+    m.add_function(wrap_pyfunction!(ssim, m)?)?;
+    m.add_function(wrap_pyfunction!(fg_ari, m)?)?;
+    m.add_function(wrap_pyfunction!(depth_errors, m)?)?;
+    m.add_function(wrap_pyfunction!(save_png, m)?)?;
+    Ok(())
+}
