@@ -17,11 +17,11 @@ use raypatch::{
     RayGrid, Region, Request, SceneData,
 };
 
-create_exception!(_raypatch, Error, PyException, "Everything raypatch refuses or fails at: a one-line message.");
-create_exception!(_raypatch, InputError, Error, "An input the engine cannot take: arrays, cameras, views, requests.");
-create_exception!(_raypatch, FileError, Error, "A model, scene or image file that is missing or malformed.");
-create_exception!(_raypatch, GpuError, Error, "No adapter, a device error, or values that overflow float32.");
-create_exception!(_raypatch, EngineClosed, Error, "Work asked of an engine after `Engine.close()`.");
+create_exception!(raypatch, Error, PyException, "Everything raypatch refuses or fails at: a one-line message.");
+create_exception!(raypatch, InputError, Error, "An input the engine cannot take: arrays, cameras, views, requests.");
+create_exception!(raypatch, FileError, Error, "A model, scene or image file that is missing or malformed.");
+create_exception!(raypatch, GpuError, Error, "No adapter, a device error, or values that overflow float32.");
+create_exception!(raypatch, EngineClosed, Error, "Work asked of an engine after `Engine.close()`.");
 
 /// The bundled models (`assets/models`) by name, and the bundled scenes (`assets/scenes`).
 const BUNDLED_MODELS: [(&str, &[u8]); 6] = [
