@@ -29,7 +29,7 @@ fn max_ray_diff(a: &RayGrid, b: &RayGrid) -> f32 {
     a.rays.iter().zip(&b.rays).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max)
 }
 
-/// The official `get_camera_rays` (tools/cameras.py), written out on the sensor plane in f64.
+/// The official `get_camera_rays` (tools/reference/cameras.py), written out on the sensor plane in f64.
 fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
     let (focal, sensor_width) = (0.035, 0.032);
     let c_dir = -c_pos / c_pos.length();
@@ -54,14 +54,14 @@ fn official_msn_rays(c_pos: DVec3, width: usize, height: usize) -> RayGrid {
 
 #[test]
 fn msn_cameras_give_the_official_rays() {
-    // The golden scenes' target rays were written by tools/cameras.py (numpy, f64 then f32).
+    // The golden scenes' target rays were written by tools/reference/cameras.py (numpy, f64 then f32).
     for case in ["srt_k1", "rpsrt_k4", "rpsrt_k16"] {
         let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
         for target in &data.targets {
             let c = &target.camera;
             let msn = Camera::msn(c.position(), c.width(), c.height()).unwrap();
             let err = max_ray_diff(&msn.rays(), &c.rays());
-            assert!(err <= RAY_TOLERANCE, "{case}: MSN camera rays differ from tools/cameras.py by {err:e}");
+            assert!(err <= RAY_TOLERANCE, "{case}: MSN camera rays differ from tools/reference/cameras.py by {err:e}");
         }
     }
     for (pos, w, h) in [(DVec3::new(3.0, -4.0, 2.0), 7, 5), (DVec3::new(-1.5, 0.2, 9.0), 160, 120)] {

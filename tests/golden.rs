@@ -1,4 +1,4 @@
-//! Parity with the official PyTorch model: every case in assets/golden (written by tools/make_golden.py)
+//! Parity with the official PyTorch model: every case in assets/golden (written by tools/data/make_golden.py)
 //! is encoded and rendered on the GPU, on every matmul kernel the adapter runs, and compared with the latent
 //! and rgb PyTorch computed.
 //! Tolerances (issues #2, #11): max |rgb - rgb_torch| <= 1e-4 and the same for the segmentation (slot weights);
@@ -134,7 +134,7 @@ fn shared_gpu() -> Arc<Gpu> {
 #[test]
 fn golden_cases_match_pytorch() {
     let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
-        .expect("assets/golden is missing: run python3 tools/make_golden.py --out assets/golden")
+        .expect("assets/golden is missing: run python3 tools/data/make_golden.py --out assets/golden")
         .map(|e| e.unwrap().path())
         .filter(|p| p.join("expected.safetensors").exists())
         .collect();
@@ -170,7 +170,7 @@ fn golden_cases_match_pytorch() {
 }
 
 /// The official full-size RP-SRT k=4 (768 wide, 5 encoder layers) at 60×80. Generate it first with
-/// `python3 tools/make_golden.py --full-size --out target/golden-full`, then run
+/// `python3 tools/data/make_golden.py --full-size --out target/golden-full`, then run
 /// `cargo test --release --test golden -- --ignored --nocapture`.
 /// Every registered family (`raypatch_model::FAMILY_BASES`) has golden cases, plain and Ray-Patch: a family
 /// added without them fails here.
@@ -188,7 +188,7 @@ fn every_family_has_golden_cases() {
         for ray_patch in [false, true] {
             assert!(
                 have.contains(&(base, ray_patch)),
-                "no golden case of base {base}{}: add one to tools/make_golden.py (ARCHITECTURE.md, adding a family)",
+                "no golden case of base {base}{}: add one to tools/data/make_golden.py (ARCHITECTURE.md, adding a family)",
                 if ray_patch { " with Ray-Patch" } else { "" }
             );
         }
@@ -196,12 +196,12 @@ fn every_family_has_golden_cases() {
 }
 
 #[test]
-#[ignore = "needs target/golden-full from tools/make_golden.py --full-size (PyTorch)"]
+#[ignore = "needs target/golden-full from tools/data/make_golden.py --full-size (PyTorch)"]
 fn full_size_rpsrt_k4_matches_pytorch() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/golden-full/rpsrt_k4_full");
     assert!(
         dir.join("expected.safetensors").exists(),
-        "{} is missing: run python3 tools/make_golden.py --full-size --out target/golden-full",
+        "{} is missing: run python3 tools/data/make_golden.py --full-size --out target/golden-full",
         dir.display()
     );
     let failures = check_case(&shared_gpu(), &dir);

@@ -1,6 +1,6 @@
 //! `raypatch-bench --gemm`: the linear layers that dominate the official RP-SRT's render and encode, alone,
 //! on every matmul kernel the adapter runs, next to PyTorch's `F.linear` on the same shapes and machine
-//! (`tools/bench_gemm_pytorch.py`; on the CPU, or cuBLAS on a CUDA GPU): GMAC/s per shape, in gemm.json and
+//! (`tools/bench/bench_gemm_pytorch.py`; on the CPU, or cuBLAS on a CUDA GPU): GMAC/s per shape, in gemm.json and
 //! gemm.md.
 
 use std::path::Path;
@@ -80,17 +80,17 @@ struct TorchGemm {
 
 fn pytorch(torch: &Torch, runs: usize) -> Result<Vec<Stats>> {
     let mut command = Command::new("python3");
-    command.arg(source_file("tools/bench_gemm_pytorch.py"));
+    command.arg(source_file("tools/bench/bench_gemm_pytorch.py"));
     command.args(["--repeats", &runs.to_string(), "--device", torch.device.name()]);
     for (m, k, n, _) in SHAPES {
         command.args(["--shape", &format!("{m}x{k}x{n}")]);
     }
-    let out = command.output().context("running python3 tools/bench_gemm_pytorch.py")?;
+    let out = command.output().context("running python3 tools/bench/bench_gemm_pytorch.py")?;
     if !out.status.success() {
-        bail!("tools/bench_gemm_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
+        bail!("tools/bench/bench_gemm_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
     }
     let json: TorchGemm =
-        serde_json::from_slice(&out.stdout).context("tools/bench_gemm_pytorch.py printed no result")?;
+        serde_json::from_slice(&out.stdout).context("tools/bench/bench_gemm_pytorch.py printed no result")?;
     Ok(json.shapes)
 }
 

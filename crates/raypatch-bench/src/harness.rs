@@ -231,7 +231,9 @@ pub fn run(options: &Options) -> Result<()> {
     );
     println!("machine: {}; timing: {timing}; matmul kernel: {}", bench.env.machine, bench.env.matmul_kernel);
     match &bench.torch {
-        Ok(torch) => println!("PyTorch: timing tools/raypatch_reference.py on the same inputs, {}", torch.describe()),
+        Ok(torch) => {
+            println!("PyTorch: timing tools/reference/raypatch_reference.py on the same inputs, {}", torch.describe())
+        }
         Err(why) => println!("PyTorch not timed: {why}"),
     }
 

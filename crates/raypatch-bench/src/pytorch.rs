@@ -1,4 +1,4 @@
-//! The PyTorch reference timed on the same weights and inputs, through `tools/bench_pytorch.py`: on the CPU,
+//! The PyTorch reference timed on the same weights and inputs, through `tools/bench/bench_pytorch.py`: on the CPU,
 //! or on a CUDA GPU when the engine runs on a GPU too (eager float32, and `torch.compile` when asked).
 
 use std::path::{Path, PathBuf};
@@ -178,17 +178,18 @@ pub struct TorchRun {
 pub fn run(torch: &Torch, model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
     let rgb_path = scene.with_extension("pytorch-rgb.safetensors");
     let out = Command::new("python3")
-        .arg(source_file("tools/bench_pytorch.py"))
+        .arg(source_file("tools/bench/bench_pytorch.py"))
         .args(["--model".as_ref(), model.as_os_str(), "--scene".as_ref(), scene.as_os_str()])
         .args(torch.args())
         .args(["--repeats", &repeats.to_string(), "--out-rgb"])
         .arg(&rgb_path)
         .output()
-        .context("running python3 tools/bench_pytorch.py")?;
+        .context("running python3 tools/bench/bench_pytorch.py")?;
     if !out.status.success() {
-        bail!("tools/bench_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
+        bail!("tools/bench/bench_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
     }
-    let json: RunJson = serde_json::from_slice(&out.stdout).context("tools/bench_pytorch.py printed no result")?;
+    let json: RunJson =
+        serde_json::from_slice(&out.stdout).context("tools/bench/bench_pytorch.py printed no result")?;
     let rgb = raypatch_model::TensorFile::open(&rgb_path)?.f32("rgb")?.data;
     std::fs::remove_file(&rgb_path).ok();
     let compiled = match (json.compiled, json.compile_error) {

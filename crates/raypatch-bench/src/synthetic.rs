@@ -1,6 +1,6 @@
 //! Models and scenes made in memory, so that the harness and the stress tests need no files and no PyTorch:
-//! random weights for any config (the official full-size ones included, as `tools/make_golden.py` makes
-//! them) and scenes seen by MSN-Easy cameras (`tools/cameras.py`).
+//! random weights for any config (the official full-size ones included, as `tools/data/make_golden.py` makes
+//! them) and scenes seen by MSN-Easy cameras (`tools/reference/cameras.py`).
 
 use raypatch_engine::EngineError;
 use raypatch_model::{
@@ -49,7 +49,7 @@ pub fn official_define_config(k: usize) -> Value {
     }
 }
 
-/// The official structure at small widths, as `tools/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2
+/// The official structure at small widths, as `tools/data/make_golden.py`'s `small_config`: 3 conv blocks, 2 + 2
 /// attention layers, 15 + 15 octaves, 4 heads, tokens `width` wide; Ray-Patch with patch size `k` when
 /// `k > 1` (conv_features `2·width`, at least 2·k).
 pub fn small_config(k: usize, width: usize) -> Value {
@@ -73,7 +73,7 @@ pub fn small_config(k: usize, width: usize) -> Value {
     cfg
 }
 
-/// Random weights for `config`, as `tools/make_golden.py` draws them: He-style normal weights (gain 1 for the
+/// Random weights for `config`, as `tools/data/make_golden.py` draws them: He-style normal weights (gain 1 for the
 /// attention projections and the output layers, √2 before the (Leaky)ReLUs), biases N(0, 0.1²), norm scales
 /// U(0.5, 1.5), BatchNorm statistics N(0, 0.2²) and U(0.5, 2). The model goes through the same safetensors
 /// parsing and config checks as a file (its tensors are checked when the engine builds it). Returns the model
@@ -159,7 +159,7 @@ pub fn serialize(tensors: &[Tensor], metadata: std::collections::HashMap<String,
     safetensors::serialize(views, Some(metadata)).map_err(|e| e.to_string())
 }
 
-/// A camera centre on the sphere of radius `distance` around the origin (`tools/cameras.py`
+/// A camera centre on the sphere of radius `distance` around the origin (`tools/reference/cameras.py`
 /// `look_at_positions`): azimuth in the xy plane from +x towards +y, elevation towards +z, in degrees.
 pub fn look_at_position(azimuth_deg: f64, distance: f64, elevation_deg: f64) -> [f32; 3] {
     let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
@@ -317,7 +317,7 @@ pub fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>,
 mod tests {
     use super::*;
 
-    /// The golden scenes' target rays were made by tools/cameras.py from their camera positions.
+    /// The golden scenes' target rays were made by tools/reference/cameras.py from their camera positions.
     #[test]
     fn camera_rays_match_tools_cameras_py() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/golden");
@@ -331,7 +331,7 @@ mod tests {
                 let want = &t.rays[v * per_view..(v + 1) * per_view];
                 // numpy sums the pixel offsets in another order: allow one f32 rounding step (2^-24 relative).
                 let err = rays.iter().zip(want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-                assert!(err <= 1.2e-7, "{case} view {v}: rays differ from tools/cameras.py by {err:e}");
+                assert!(err <= 1.2e-7, "{case} view {v}: rays differ from tools/reference/cameras.py by {err:e}");
             }
         }
     }

@@ -67,7 +67,7 @@ fn rposrt_k8_keys_match_official() {
     check("rposrt_MDBN_8_64", 95_213_144);
 }
 
-/// Trained parameters of the official DeFiNe runs (the key lists written by tools/make_golden.py from the
+/// Trained parameters of the official DeFiNe runs (the key lists written by tools/data/make_golden.py from the
 /// official modules; official-models.md: 30.8 M and 31.0 M).
 const DEFINE_PARAMETERS: usize = 30_759_058;
 const RPDEFINE_PARAMETERS: usize = 31_011_690;

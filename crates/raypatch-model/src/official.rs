@@ -1,6 +1,6 @@
 //! The official runs of tberriel/RayPatchQuerying (297afbc): each run's model section, as its
 //! `runs/<dataset>/<run>/config.yaml` has it, from `assets/official/configs.json`, the one copy that
-//! `tools/official_configs.py` reads too. Their state_dict key lists are `assets/official/keys/<run>.txt`.
+//! `tools/reference/official_configs.py` reads too. Their state_dict key lists are `assets/official/keys/<run>.txt`.
 
 use serde_json::Value;
 

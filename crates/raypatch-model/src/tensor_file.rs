@@ -20,8 +20,8 @@ fn sniff(bytes: &[u8]) -> Option<&'static str> {
     let kinds: [(&[u8], &str); 5] = [
         (b"\x89PNG", "a PNG image"),
         (b"\xff\xd8\xff", "a JPEG image"),
-        (b"PK\x03\x04", "a zip archive (a PyTorch checkpoint? convert it with tools/convert_checkpoint.py)"),
-        (b"\x80", "a pickle (a PyTorch checkpoint? convert it with tools/convert_checkpoint.py)"),
+        (b"PK\x03\x04", "a zip archive (a PyTorch checkpoint? convert it with tools/conversion/convert_checkpoint.py)"),
+        (b"\x80", "a pickle (a PyTorch checkpoint? convert it with tools/conversion/convert_checkpoint.py)"),
         (b"{", "a JSON file"),
     ];
     kinds.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, kind)| *kind)

@@ -196,7 +196,7 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
 pub const MAX_OBJECT_ID: i64 = 65535;
 
 /// `target_masks`: object ids `[T,Ht,Wt]` of an integer dtype (0 = background; the MSN-Easy mask PNGs,
-/// `tools/make_scenes.py`), or one-hot `[T,Ht,Wt,G]` (F32 or integer) with channel 0 the background, as the
+/// `tools/data/make_scenes.py`), or one-hot `[T,Ht,Wt,G]` (F32 or integer) with channel 0 the background, as the
 /// official loader builds them (the id is the channel holding the largest value; all zeros is background).
 fn read_masks(file: &TensorFile, t: usize, (h, w): (usize, usize)) -> Result<Vec<u32>, ModelError> {
     let key = "target_masks";

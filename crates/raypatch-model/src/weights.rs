@@ -75,7 +75,7 @@ pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
     }
     let text = file.metadata.get("config").ok_or_else(|| {
         config_err(
-            "no `config` entry in the safetensors metadata (convert official checkpoints with tools/convert_checkpoint.py)"
+            "no `config` entry in the safetensors metadata (convert official checkpoints with tools/conversion/convert_checkpoint.py)"
                 .into(),
         )
     })?;

@@ -14,8 +14,9 @@ use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX
 use crate::tensor::{padded_cols, Dtype};
 
 /// Rows and columns (8-column groups) per row tile of `matmul_lanes`' workgroup (one subgroup of
-/// [`LANES`](crate::device::LANES)), and the row tiles of the band one workgroup walks. `tools/gen_matmul_lanes.py`
-/// reads these three and `LANES` from here to unroll the shader (its `ROWS`, `GROUPS` = columns / lanes, `BAND`).
+/// [`LANES`](crate::device::LANES)), and the row tiles of the band one workgroup walks.
+/// `tools/codegen/gen_matmul_lanes.py` reads these three and `LANES` from here to unroll the shader (its `ROWS`,
+/// `GROUPS` = columns / lanes, `BAND`).
 const LANES_ROWS: usize = 8;
 pub(crate) const LANES_COLS: usize = 8 * 4;
 const LANES_BAND: usize = 8;

@@ -257,7 +257,7 @@ const TILES_128: &[(&str, &str)] =
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
-        /// The linear layer for CPU adapters: see `tools/gen_matmul_lanes.py`.
+        /// The linear layer for CPU adapters: see `tools/codegen/gen_matmul_lanes.py`.
         MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
             => matmul::MatmulLanesParams;
         PACK = "pack" ["texels"] => pack::PackParams;

@@ -1,7 +1,7 @@
-"""Trains SRT or RP-SRT (tools/raypatch_reference.py, the official architecture) on scenes of tools/make_scenes.py,
-as the official tberriel/RayPatchQuerying training does, and exports a raypatch model file.
+"""Trains SRT or RP-SRT (tools/reference/raypatch_reference.py, the official architecture) on scenes of
+tools/data/make_scenes.py, as the official tberriel/RayPatchQuerying training does, and exports a raypatch model file.
 
-    python3 tools/train.py --k 4 --train /work/data/train --val /work/data/val --out target/runs/rpsrt-k4 \\
+    python3 tools/data/train.py --k 4 --train /work/data/train --val /work/data/val --out target/runs/rpsrt-k4 \\
         --steps 3000 --batch 16
 
 What follows the official code (train.py, src/model.py, src/data/multishapenetEasy.py):
@@ -15,7 +15,7 @@ What follows the official code (train.py, src/model.py, src/data/multishapenetEa
 Differences: widths (--preset; raypatch config extensions, docs/FORMATS.md) and 2 conv blocks for 60x80 inputs
 (15x20 tokens, as the official 3 blocks give at 120x160; the engine takes any input size).
 
-Per-scene fitting (--fit-scene): --train holds one views file of tools/make_scenes.py --extra-views (one scene, its
+Per-scene fitting (--fit-scene): --train holds one views file of tools/data/make_scenes.py --extra-views (one scene, its
 view 0 and many views from other cameras). Every step encodes view 0, the view the scene's own renders condition on,
 and renders --targets-per-step of the other views (each once per epoch, shuffled). The model learns that one scene,
 not scenes in general: its metadata says so. --watch DIR renders a folder of scenes (e.g. the scene's own file,
@@ -41,11 +41,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from convert_checkpoint import inference_tensors, write_model  # noqa: E402
-from evaluate import evaluate, scene_batch  # noqa: E402
-from make_scenes import load_views  # noqa: E402
-from raypatch_reference import SRT  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from bench.evaluate import evaluate, scene_batch  # noqa: E402
+from conversion.convert_checkpoint import inference_tensors, write_model  # noqa: E402
+from data.make_scenes import load_views  # noqa: E402
+from reference.raypatch_reference import SRT  # noqa: E402
 
 # Official run: 300k steps, warmup 2.5k, decay_it 500k, lr 1e-4, batch 32, 8192 sampled rays of 2·120·160.
 OFFICIAL_STEPS, OFFICIAL_WARMUP, OFFICIAL_DECAY_IT = 300_000, 2_500, 500_000
@@ -186,7 +186,7 @@ def main(argv=None):
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for PyTorch")
     args = parser.parse_args(argv)
-    command = "python3 tools/train.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = "python3 tools/data/train.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
 
     torch.set_num_threads(args.threads)
     if args.batch is None:
@@ -335,9 +335,9 @@ def main(argv=None):
         record["heldout"] = {"scenes": str(args.watch), "seeds": sorted({int(s) for s in watch[2]}),
                              "curve": [[row["step"], round(row[WATCH_FIELD], 3)] for row in validated]}
     model_path = args.out / "model.safetensors"
-    source = f"trained by tools/train.py (run {args.out.name})"
+    source = f"trained by tools/data/train.py (run {args.out.name})"
     if args.fit_scene:
-        source = f"fitted to scene {int(train_seeds[0])} only by tools/train.py --fit-scene (run {args.out.name})"
+        source = f"fitted to scene {int(train_seeds[0])} only by tools/data/train.py --fit-scene (run {args.out.name})"
     write_model(model_path, inference_tensors(model.state_dict()), model_cfg,
                 {"source": source, "training": json.dumps(record)})
     print(f"wrote {model_path} ({parameters / 1e6:.3f} M parameters, final validation PSNR "

@@ -12,7 +12,7 @@ section also holds `wandb` (added by train.py). rpdefine's rp_kwargs.conv_featur
 import json
 from pathlib import Path
 
-OFFICIAL = Path(__file__).resolve().parent.parent / "assets" / "official"
+OFFICIAL = Path(__file__).resolve().parents[2] / "assets" / "official"
 CONFIGS = json.loads((OFFICIAL / "configs.json").read_text())
 
 SRT_MDBN_32 = CONFIGS["srt_MDBN_32"]

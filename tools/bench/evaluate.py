@@ -1,6 +1,6 @@
 """Quality and cost of a raypatch model file on a folder of test scenes, with the PyTorch reference.
 
-    python3 tools/evaluate.py --model MODEL.safetensors --scenes /work/data/scenes-test [--json OUT.json]
+    python3 tools/bench/evaluate.py --model MODEL.safetensors --scenes /work/data/scenes-test [--json OUT.json]
 
 Renders both target views of every scene from its input view, and prints a markdown row in the layout of the
 paper's Table 1: PSNR and SSIM (means over target images, data range 1: PSNR as torchmetrics
@@ -25,10 +25,10 @@ from safetensors import safe_open
 from safetensors.torch import load_file
 from torch.utils.flop_counter import FlopCounterMode
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cameras import get_camera_rays  # noqa: E402
-from make_scenes import load_views  # noqa: E402
-from raypatch_reference import SRT  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from data.make_scenes import load_views  # noqa: E402
+from reference.cameras import get_camera_rays  # noqa: E402
+from reference.raypatch_reference import SRT  # noqa: E402
 
 SSIM_SIGMA = 1.5
 SSIM_K1, SSIM_K2 = 0.01, 0.03

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Builds the kit that tools/gpu_bench.sh runs on a lent GPU machine (no Rust toolchain, no package registry
+# Builds the kit that tools/bench/gpu_bench.sh runs on a lent GPU machine (no Rust toolchain, no package registry
 # there): .gpu/kit.tar.xz (ignored by git) with
 #   bin/    render-frame and raypatch-bench, release, stripped
 #   tests/  the golden, kernels and api test binaries (`cargo test --release --no-run`), stripped: they find
@@ -8,9 +8,9 @@
 #           libgles2): NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs libGLdispatch from glvnd, and without
 #           it wgpu sees no adapter
 # Run from the repository root where cargo and apt-get work (Debian 12 here; the binaries need glibc 2.36 or
-# later), then carry .gpu to the GPU machine (the device tool: carry [".gpu"]) and run tools/gpu_bench.sh.
+# later), then carry .gpu to the GPU machine (the device tool: carry [".gpu"]) and run tools/bench/gpu_bench.sh.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 kit=$(mktemp -d)
 trap 'rm -rf "$kit"' EXIT
 mkdir -p "$kit/bin" "$kit/tests" "$kit/debs" .gpu

@@ -1,12 +1,12 @@
 """Trivial baselines on a folder of scenes: what PSNR and SSIM a renderer gets without any model.
 
-    python3 tools/baselines.py --scenes assets/scenes [--grey 0.5 --grey 0.6]
+    python3 tools/bench/baselines.py --scenes assets/scenes [--grey 0.5 --grey 0.6]
 
 For every target view of every scene (each scene's view 0 is the input, the other views the targets, as
-tools/evaluate.py renders them) it predicts
+tools/bench/evaluate.py renders them) it predicts
 - input mean colour: every pixel the mean colour of the scene's input view;
 - constant grey: every pixel (g, g, g) for each --grey g, 0.5 by default;
-and prints, per baseline, the mean PSNR and SSIM over the target views (the metrics of tools/evaluate.py and
+and prints, per baseline, the mean PSNR and SSIM over the target views (the metrics of tools/bench/evaluate.py and
 render-frame --metrics: per-image PSNR with data range 1, then the mean; SSIM as torchmetrics 1.x), and with
 --per-scene the means of each scene.
 """
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from evaluate import psnr, ssim  # noqa: E402
-from make_scenes import load_views  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from bench.evaluate import psnr, ssim  # noqa: E402
+from data.make_scenes import load_views  # noqa: E402
 
 
 def baselines(images, greys=(0.5,)):

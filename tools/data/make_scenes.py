@@ -1,13 +1,13 @@
 """Procedural scenes in the spirit of MultiShapeNet-Easy, ray-traced with numpy.
 
-    python3 tools/make_scenes.py --split test --count 200 --size 60x80 --out /work/data/scenes-test
-    python3 tools/make_scenes.py --split train --count 50000 --size 60x80 --shard-size 1000 --out /work/data/train
+    python3 tools/data/make_scenes.py --split test --count 200 --size 60x80 --out /work/data/scenes-test
+    python3 tools/data/make_scenes.py --split train --count 50000 --size 60x80 --shard-size 1000 --out /work/data/train
 
 Each scene holds 2 to 4 objects (sphere, box, cylinder, cone, capsule; random size, colour, material and yaw) resting
 on an infinite floor, lit by a point light with hard shadows (shadow rays), ambient light and, for specular and
 metallic materials, Blinn-Phong highlights and an environment reflection. Three views at 120° steps on a circle
-around the scene centre (the world origin) look at it, with the MSN-Easy camera of tools/cameras.py (z up, focal
-0.035, sensor width 0.032, unit rays through pixel centres). Per view: RGB (8-bit, like the MSN-Easy PNGs), depth
+around the scene centre (the world origin) look at it, with the MSN-Easy camera of tools/reference/cameras.py (z up,
+focal 0.035, sensor width 0.032, unit rays through pixel centres). Per view: RGB (8-bit, like the MSN-Easy PNGs), depth
 (distance from the camera centre along the unit ray, the official zs_to_depths convention; 0 where a ray hits
 nothing) and instance masks (0 = floor, 1..n = objects in generation order).
 
@@ -18,7 +18,7 @@ For per-scene fitting, --extra-views N writes instead, per seed, views-SEED.safe
 views from other cameras drawn from the scenes' own camera distribution, none within --exclude-deg of the cameras
 of --exclude-views (default: the scene's target views 1 and 2, which stay held out):
 
-    python3 tools/make_scenes.py --seed 2000000 --count 1 --extra-views 2000 --out /work/data/fit-2000000/train
+    python3 tools/data/make_scenes.py --seed 2000000 --count 1 --extra-views 2000 --out /work/data/fit-2000000/train
 """
 
 import argparse
@@ -36,9 +36,9 @@ import torch
 from safetensors import safe_open
 from safetensors.numpy import load_file
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cameras import get_camera_rays, look_at_positions  # noqa: E402
-from safetensors_io import save_safetensors  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from reference.cameras import get_camera_rays, look_at_positions  # noqa: E402
+from reference.safetensors_io import save_safetensors  # noqa: E402
 
 SCENE_FORMAT = "raypatch-scene/1"
 SHARD_FORMAT = "raypatch-shard/1"
@@ -645,7 +645,7 @@ def main(argv=None):
     except (ValueError, OSError) as error:
         print(f"make_scenes: error: {error}", file=sys.stderr)
         return 2
-    command = "python3 tools/make_scenes.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = "python3 tools/data/make_scenes.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     height, width = args.size
     if args.extra_views:
         start = time.perf_counter()

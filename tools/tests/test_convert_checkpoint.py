@@ -1,4 +1,6 @@
-"""Tests of tools/convert_checkpoint.py: python3 -m pytest tools/test_convert_checkpoint.py (about 25 s).
+"""Tests of tools/conversion/convert_checkpoint.py (about 25 s):
+
+    python3 -m pytest tools/tests/test_convert_checkpoint.py
 
 Roundtrips of SRT / RP-SRT, OSRT / RP-OSRT (official size too) and DeFiNe / RP-DeFiNe Lightning checkpoints with
 plain-dict and omegaconf configs (omegaconf cases skipped where it is not installed), and the refusals: pickles
@@ -31,13 +33,13 @@ import pytest
 import torch
 from safetensors import safe_open
 
-TOOLS = Path(__file__).resolve().parent
-sys.path.insert(0, str(TOOLS))
-import convert_checkpoint  # noqa: E402
-import make_golden  # noqa: E402
-from official_configs import RPOSRT_MDBN_8_64  # noqa: E402
-from random_models import k4_config, random_define, random_model  # noqa: E402
-from raypatch_reference import build_model  # noqa: E402
+from conversion import convert_checkpoint
+from data import make_golden
+from data.random_models import k4_config, random_define, random_model
+from reference.official_configs import RPOSRT_MDBN_8_64
+from reference.raypatch_reference import build_model
+
+CONVERTER = Path(__file__).resolve().parents[1] / "conversion" / "convert_checkpoint.py"
 
 try:
     import omegaconf
@@ -587,7 +589,7 @@ def test_command_line(tmp_path, k4):
     model_cfg, model = k4
     good, out_path = tmp_path / "lf.ckpt", tmp_path / "lf.safetensors"
     torch.save(fake_checkpoint(model, model_cfg), good)
-    script = [sys.executable, str(TOOLS / "convert_checkpoint.py")]
+    script = [sys.executable, str(CONVERTER)]
     result = subprocess.run(script + [str(good), str(out_path)], capture_output=True, text=True)
     assert result.returncode == 0 and out_path.exists(), result.stderr
     assert result.stdout.startswith(f"wrote {out_path}: ")

@@ -1,7 +1,7 @@
 """Converts an official RayPatchQuerying Lightning checkpoint (SRT / RP-SRT, OSRT / RP-OSRT or DeFiNe / RP-DeFiNe:
 config base srt, osrt or define) into a raypatch model file (docs/FORMATS.md).
 
-    python tools/convert_checkpoint.py IN.ckpt OUT.safetensors
+    python tools/conversion/convert_checkpoint.py IN.ckpt OUT.safetensors
 
 Keeps the `encoder.`, `decoder_att.` and `decoder_rp.` tensors (DeFiNe: `decoder_att_rgb.`, `decoder_att_d.`,
 `decoder_rp_rgb.`, `decoder_rp_d.`) as float32, drops `num_batches_tracked` and everything else (`val_metrics.…`,
@@ -34,9 +34,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from raypatch_reference import build_model  # noqa: E402
-from safetensors_io import save_safetensors  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from reference.raypatch_reference import build_model  # noqa: E402
+from reference.safetensors_io import save_safetensors  # noqa: E402
 
 MODEL_FORMAT = "raypatch-model/1"
 KEPT_PREFIXES = ("encoder.", "decoder_att.", "decoder_rp.",

@@ -1,12 +1,11 @@
 """Checks of the scene generator, the metrics and the training loop.
 
-    python3 -m unittest tools/test_scenes.py     (10 to 35 s)
+    python3 -m pytest tools/tests/test_scenes.py     (10 to 35 s; unittest classes, run by pytest)
 
 Geometry is checked against signed distance functions written independently of the ray-shape intersections.
 """
 
 import json
-import sys
 import tempfile
 import unittest
 from pathlib import Path
@@ -16,12 +15,11 @@ import torch
 from safetensors import safe_open
 from safetensors.numpy import load_file
 
-TOOLS = Path(__file__).resolve().parent
-sys.path.insert(0, str(TOOLS))
-import evaluate  # noqa: E402
-import make_scenes  # noqa: E402
-import train  # noqa: E402
-from cameras import get_camera_rays  # noqa: E402
+from bench import evaluate
+from data import make_scenes, train
+from reference.cameras import get_camera_rays
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 
 def signed_distance(kind, p, size):
@@ -150,7 +148,7 @@ class SceneTests(unittest.TestCase):
 
     def test_bundled_scenes_are_what_the_generator_renders(self):
         """Extending the generator must not change a scene: the bundled files' tensors are regenerated exactly."""
-        bundled = sorted((TOOLS.parent / "assets" / "scenes").glob("scene-*.safetensors"))
+        bundled = sorted((ROOT / "assets" / "scenes").glob("scene-*.safetensors"))
         self.assertTrue(bundled)
         for path in bundled:
             with safe_open(path, "np") as file:

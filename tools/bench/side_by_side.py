@@ -1,14 +1,14 @@
 """A labelled side-by-side PNG of scenes' target views: input view | ground truth | one column per model, each
 model's views rendered by the engine (render-frame) and captioned with its PSNR and SSIM.
 
-    python3 tools/side_by_side.py --scene assets/scenes/scene-2000000.safetensors \\
+    python3 tools/bench/side_by_side.py --scene assets/scenes/scene-2000000.safetensors \\
         --model "fitted to this scene (RP-SRT k=4)=assets/models/fitted_scene-2000000_rpsrt_k4.safetensors" \\
         --model "generalising RP-SRT k=4=assets/models/rpsrt_k4.safetensors" --out docs/quality/fitted_side_by_side.png
 
 --render-frame is the binary (default target/release/render-frame, built by cargo build --release). Rows are the
 target views of each --scene in turn (with --first-view-only, target view 0 of each); the metrics are those
 render-frame --metrics prints (PSNR with data range 1, SSIM as torchmetrics 1.x), recomputed here from the written
-8-bit PNGs with tools/evaluate.py (equal to 0.01 dB).
+8-bit PNGs with tools/bench/evaluate.py (equal to 0.01 dB).
 """
 
 import argparse
@@ -22,8 +22,8 @@ import torch
 from PIL import Image, ImageDraw, ImageFont
 from safetensors.numpy import load_file
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from evaluate import psnr, ssim  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from bench.evaluate import psnr, ssim  # noqa: E402
 
 GAP = 6
 BACKGROUND = (255, 255, 255)

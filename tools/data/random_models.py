@@ -1,4 +1,4 @@
-"""Small models with make_golden's random weights, shared by the tests (test_reference.py,
+"""Small models with make_golden's random weights, shared by the tests (tools/tests: test_reference_*.py,
 test_convert_checkpoint.py)."""
 
 import sys
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import make_golden  # noqa: E402
-from raypatch_reference import SRT, build_model  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from data import make_golden  # noqa: E402
+from reference.raypatch_reference import SRT, build_model  # noqa: E402
 
 
 def random_model(model_cfg, seed=0):

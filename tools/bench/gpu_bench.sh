@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The GPU figures of docs/PERFORMANCE.md and the GPU run of the kernel, golden and API tests, in one command on
 # a lent GPU machine (a GPU, its driver and PyTorch; no Rust toolchain, no package registry). Build the kit
-# where cargo works (tools/gpu_kit.sh writes .gpu/kit.tar.xz), carry .gpu (the device tool: carry [".gpu"]),
+# where cargo works (tools/bench/gpu_kit.sh writes .gpu/kit.tar.xz), carry .gpu (the device tool: carry [".gpu"]),
 # and there, from the repository root:
 #
-#     bash tools/gpu_bench.sh OUT_DIR [STEP ...]
+#     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
 # STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 9 minutes
 # so that one device call of 10 minutes holds them all; a run that worked took 275 s):
@@ -20,7 +20,7 @@
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/gpu_bench.sh OUT_DIR [info|tests|gemm|rpsrt|srt|families ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|rpsrt|srt|families ...]}
 shift
 steps=("$@")
 [ ${#steps[@]} -eq 0 ] && steps=(info tests gemm rpsrt srt families)
@@ -34,7 +34,7 @@ for s in "${steps[@]}"; do
     esac
 done
 if [ ! -f .gpu/kit.tar.xz ]; then
-    echo "gpu_bench: .gpu/kit.tar.xz is missing: run tools/gpu_kit.sh where cargo works and carry .gpu" >&2
+    echo "gpu_bench: .gpu/kit.tar.xz is missing: run tools/bench/gpu_kit.sh where cargo works and carry .gpu" >&2
     exit 2
 fi
 mkdir -p "$out"

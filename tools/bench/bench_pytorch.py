@@ -1,7 +1,7 @@
-"""Times the PyTorch reference (tools/raypatch_reference.py) on a raypatch model file and scene file, for
+"""Times the PyTorch reference (tools/reference/raypatch_reference.py) on a raypatch model file and scene file, for
 raypatch-bench, which runs it on the same weights and inputs as the engine in the same run:
 
-    python3 tools/bench_pytorch.py --model M.safetensors --scene S.safetensors [--repeats N] [--threads T]
+    python3 tools/bench/bench_pytorch.py --model M.safetensors --scene S.safetensors [--repeats N] [--threads T]
                                    [--device cpu|cuda] [--compile] [--out-rgb O.safetensors]
 
 Prints one JSON object: the torch version, its thread count, the device, and the wall times in ms (median, min,
@@ -29,9 +29,9 @@ except ImportError as error:
     print(f"PyTorch is not available: {error}", file=sys.stderr)
     sys.exit(3)
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from raypatch_reference import build_model  # noqa: E402
-from safetensors_io import save_safetensors  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from reference.raypatch_reference import build_model  # noqa: E402
+from reference.safetensors_io import save_safetensors  # noqa: E402
 
 
 def read(path):

@@ -1,7 +1,7 @@
 """Times PyTorch's linear layer (torch.nn.functional.linear with bias, float32, on the CPU or, on a CUDA GPU,
 cuBLAS without TF32) on the shapes raypatch-bench --gemm measures, for the GMAC/s table of docs/PERFORMANCE.md:
 
-    python3 tools/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N] [--device cuda]
+    python3 tools/bench/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N] [--device cuda]
 
 Prints one JSON object: the torch version, its thread count, the device, and per shape (M x K x N: x [M, K],
 weight [N, K]) the median, min and max wall time in ms over the runs after one warm-up, each run waited for.
@@ -19,8 +19,8 @@ except ImportError as error:
     print(f"PyTorch is not available: {error}", file=sys.stderr)
     sys.exit(3)
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pytorch import device_name, device_of, summary, timed  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from bench.bench_pytorch import device_name, device_of, summary, timed  # noqa: E402
 
 
 def shape(text):

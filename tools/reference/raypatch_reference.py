@@ -1,5 +1,5 @@
 """PyTorch reference of the official SRT / RP-SRT model of tberriel/RayPatchQuerying (commit 297afbc); OSRT / RP-OSRT
-below, DeFiNe / RP-DeFiNe in tools/reference_define.py (build_model builds all three by the config's `base`).
+below, DeFiNe / RP-DeFiNe in tools/reference/reference_define.py (build_model builds all three by the config's `base`).
 
 The modules mirror the official src/layers.py, src/encoder.py, src/decoder.py and the SRT class of src/model.py
 module for module and attribute for attribute, so `SRT.state_dict()` carries exactly the official Lightning
@@ -659,13 +659,13 @@ MODEL_BASES = ("define", "osrt", "srt")
 
 
 def build_model(model_cfg):
-    """SRT, OSRT or DeFiNe (tools/reference_define.py) from a config.yaml model section, by its `base`."""
+    """SRT, OSRT or DeFiNe (tools/reference/reference_define.py) from a config.yaml model section, by its `base`."""
     base = model_cfg.get("base") if isinstance(model_cfg, dict) else None
     if base not in MODEL_BASES:
         raise ValueError(f"model config: base must be one of {sorted(MODEL_BASES)}, got {base!r}")
     if base == "define":
-        # Imported here: reference_define builds on the layers of this module.
-        from reference_define import DeFiNe
+        # Imported here, not at module level: reference_define builds on the layers of this module (no import cycle).
+        from reference.reference_define import DeFiNe
         return DeFiNe.from_config(model_cfg)
     return MODEL_CLASSES[base].from_config(model_cfg)
 

@@ -1,9 +1,9 @@
 """Writes the golden test cases of raypatch: small random-weight models, synthetic scenes and the outputs of the
-PyTorch reference (tools/raypatch_reference.py).
+PyTorch reference (tools/reference/raypatch_reference.py).
 
-    python3 tools/make_golden.py --out assets/golden
-    python3 tools/make_golden.py --out assets/golden --cases srt_k1_in60x80,rpsrt_k4_in40x60_2views
-    python3 tools/make_golden.py --full-size --out target/golden-full
+    python3 tools/data/make_golden.py --out assets/golden
+    python3 tools/data/make_golden.py --out assets/golden --cases srt_k1_in60x80,rpsrt_k4_in40x60_2views
+    python3 tools/data/make_golden.py --full-size --out target/golden-full
 
 --cases writes only the named cases (what the full run writes for them) and the README table of all cases, leaving
 the other case folders as they are. Weights and scenes are the same everywhere; PyTorch builds on other machines
@@ -30,13 +30,13 @@ import numpy as np
 import torch
 from torch import nn
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cameras import get_camera_rays, look_at_positions  # noqa: E402
-from convert_checkpoint import write_model  # noqa: E402
-from official_configs import RPSRT_MDBN_4_32  # noqa: E402
-from raypatch_reference import OSRT, build_model, foreground_ari  # noqa: E402
-from reference_define import DeFiNe  # noqa: E402
-from safetensors_io import save_safetensors  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/, whose packages this imports
+from conversion.convert_checkpoint import write_model  # noqa: E402
+from reference.cameras import get_camera_rays, look_at_positions  # noqa: E402
+from reference.official_configs import RPSRT_MDBN_4_32  # noqa: E402
+from reference.raypatch_reference import OSRT, build_model, foreground_ari  # noqa: E402
+from reference.reference_define import DeFiNe  # noqa: E402
+from reference.safetensors_io import save_safetensors  # noqa: E402
 
 SCENE_FORMAT = "raypatch-scene/1"
 GOLDEN_FORMAT = "raypatch-golden/1"
@@ -589,12 +589,12 @@ def write_case(case, out_dir, generator_command):
 
 README_HEADER = """# Golden test cases
 
-Written by `{command}` (tools/make_golden.py); do not edit by hand, regenerate instead. Each folder holds
+Written by `{command}` (tools/data/make_golden.py); do not edit by hand, regenerate instead. Each folder holds
 `model.safetensors` (random weights, raypatch-model/1), `scene.safetensors` (raypatch-scene/1) and
 `expected.safetensors` (raypatch-golden/1), see docs/FORMATS.md.
 
-`latent`, `rgb` and `logdepth` are float32 outputs of the PyTorch reference (tools/raypatch_reference.py) on CPU,
-computed as the official model computes them. Ray-Patch cases with full-resolution target rays also hold
+`latent`, `rgb` and `logdepth` are float32 outputs of the PyTorch reference (tools/reference/raypatch_reference.py)
+on CPU, computed as the official model computes them. Ray-Patch cases with full-resolution target rays also hold
 `patch_rays` [T, Ht/k, Wt/k, 3], the patch rays the model made from them. `latent_f64`, `rgb_f64` and
 `logdepth_f64` are **F64** tensors from a float64 copy of the same model on the same float32 inputs. The float32 and
 float64 rgb differ by up to about 1e-3, because float32 rounds the arguments of the top sin/cos octaves (up to about
@@ -614,7 +614,7 @@ like an official checkpoint. Output layers are rescaled so that the pre-sigmoid 
 deviation 1.5 on the case's own scene.
 
 OSRT cases (`osrt`, `osrt_iters3_ln`, `rposrt_k8`, `rposrt_k4_patchrays`; base osrt) are small OSRT / RP-OSRT
-configs (tools/make_golden.py `small_osrt_config`): the SRT encoder above at token width 16 (4 heads of 4, FF
+configs (tools/data/make_golden.py `small_osrt_config`): the SRT encoder above at token width 16 (4 heads of 4, FF
 hidden 32), slot attention with slots 32 wide (slot MLP hidden 48), allocation transformer of 2 layers with 4
 heads of 8 over the slots, mixing attention 24 wide, render MLP hidden 40. Their random weights include random
 GRU parameters and initial slots. On the case's scene the mixing block's to_q is projected off the mean of its
@@ -630,8 +630,8 @@ compute_adjusted_rand_index of the float32 segmentation against the one-hot targ
 target views of the scene pooled into one set of points, as the official OSRT test_step does.
 
 DeFiNe cases (`define`, `rpdefine_k16`, `rpdefine_k16_patchrays_in60x88`; base define) are small DeFiNe / RP-DeFiNe
-configs (tools/make_golden.py `small_define_config`): a ResNet-18 of width 8 (raypatch `resnet_width`: 8, 16, 32, 64
-channels), a Perceiver with 64 latents 32 wide (`num_latents`, `latent_dim`), 2 self-attention layers of 4 heads
+configs (tools/data/make_golden.py `small_define_config`): a ResNet-18 of width 8 (raypatch `resnet_width`: 8, 16,
+32, 64 channels), a Perceiver with 64 latents 32 wide (`num_latents`, `latent_dim`), 2 self-attention layers of 4 heads
 (`heads`), and the official octaves (position 20 and ray 10, linspace(1, 30)), so tokens are 15·8 + 186 = 306 wide
 and decoder queries 186; Ray-Patch k=16 with 32 conv features. Their scenes are ScanNet-like (make_define_scene):
 2 input views in the frame of input camera 0 (at the origin, identity rotation); `input_rays` and `target_rays`
@@ -682,7 +682,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     # The command that writes every case; files written with --cases are the same as its, so they name it.
-    command = "python3 tools/make_golden.py" + (" --full-size" if args.full_size else "") + f" --out {args.out}"
+    arguments = (" --full-size" if args.full_size else "") + f" --out {args.out}"
+    command = "python3 tools/data/make_golden.py" + arguments
     all_cases = [full_size_case()] if args.full_size else golden_cases()
     cases = all_cases
     if args.cases is not None:

@@ -35,7 +35,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from raypatch_reference import RayEncoder, RayPatchDecoder, _build, _model_sections, _query_rays
+from reference.raypatch_reference import RayEncoder, RayPatchDecoder, _build, _model_sections, _query_rays
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)

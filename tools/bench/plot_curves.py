@@ -1,6 +1,6 @@
 """Training curves of train.py runs: validation PSNR and training loss against step.
 
-    python3 tools/plot_curves.py --out docs/quality/training_curves.png NAME=RUN_DIR [NAME=RUN_DIR ...]
+    python3 tools/bench/plot_curves.py --out docs/quality/training_curves.png NAME=RUN_DIR [NAME=RUN_DIR ...]
 
 Reads RUN_DIR/curve.csv (written by train.py) of each run, draws both panels into --out, and copies each curve
 next to it, named after the run folder (RUN_DIR's last component).csv. A curve with a heldout_psnr column (train.py

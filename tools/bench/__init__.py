@@ -1,0 +1,1 @@
+"""PyTorch timing for raypatch-bench, evaluation, baselines, figures and the GPU-machine kit."""

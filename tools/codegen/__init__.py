@@ -1,0 +1,1 @@
+"""Generators of WGSL shaders (shaders/matmul_lanes.wgsl)."""

@@ -1,0 +1,1 @@
+"""The converter of official Lightning checkpoints to raypatch model files."""
