@@ -2,6 +2,8 @@
 //! region renders exactly the full render's pixels (rgb, log-depth, OSRT segmentation) while decoding only the
 //! patches it needs, and so do row bands; only the requested outputs are computed; outputs a model lacks are an
 //! error; rendering never re-encodes and reuses its plan; bad input is an error.
+//!
+//! Over 600 lines on purpose: one file for the API's promises, each a test that reads on its own.
 
 use std::path::{Path, PathBuf};
 

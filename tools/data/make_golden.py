@@ -10,6 +10,9 @@ the other case folders as they are. Weights and scenes are the same everywhere; 
 round float32 sums differently, so regenerating a case elsewhere changes its outputs and calibrated output
 layers by float32 rounding (~1e-6), which is why adding a case should not regenerate the others.
 
+Over 600 lines on purpose: every case (config, scene, calibration, expected outputs) in one script, so that one
+command writes them all and a case reads as one entry of golden_cases().
+
 Each case is a folder <out>/<case>/ with model.safetensors, scene.safetensors and expected.safetensors
 (docs/FORMATS.md). `latent`, `rgb` (and `logdepth`) are the float32 CPU outputs, computed as the official model
 computes them, and `patch_rays` the patch rays made from full-resolution target rays; `latent_f64`, `rgb_f64`

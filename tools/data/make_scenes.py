@@ -11,6 +11,9 @@ focal 0.035, sensor width 0.032, unit rays through pixel centres). Per view: RGB
 (distance from the camera centre along the unit ray, the official zs_to_depths convention; 0 where a ray hits
 nothing) and instance masks (0 = floor, 1..n = objects in generation order).
 
+Over 600 lines on purpose: the scene sampler, the ray tracer and the file writers are one generator whose
+determinism (a seed gives the same bytes) is easiest to keep, and to review, in one file.
+
 A scene is a pure function of its seed (numpy PCG64): it renders to the same bytes alone or in any batch. Seeds
 select the split (SPLITS); docs/FORMATS.md describes the scene and shard files.
 

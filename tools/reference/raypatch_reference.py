@@ -8,6 +8,9 @@ config, so its slots are `nn.Identity` placeholders that keep the `nn.Sequential
 
 Widths that the official code hard-codes can be set through the raypatch extension keys of docs/FORMATS.md;
 their defaults are the official values.
+
+Over 600 lines on purpose: SRT and OSRT share their encoder, ray encoder and Ray-Patch decoder here, as the official
+src/ files share them, so that a module and its official counterpart read side by side.
 """
 
 import copy

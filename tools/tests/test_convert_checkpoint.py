@@ -8,6 +8,7 @@ that would run code or hold objects that are not plain data, decompression bombs
 zip archives, state_dict entries that are not finite floating-point tensors, configs that do not fit or would
 build an unbounded model, and output paths that are the input, not regular files, in missing folders or too
 long. Every refusal is exit code 2 with `convert_checkpoint: IN: reason` lines on stderr and nothing written.
+Over 600 lines on purpose: one file per tool under test, a test per attack class.
 """
 
 import argparse
