@@ -15,7 +15,7 @@ use raypatch_engine::gpu::TimestampMode;
 use raypatch_engine::{
     AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Request, WeightStorage,
 };
-use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, TargetViews};
+use raypatch_model::{InputViews, LoadedModel, ModelConfig, TargetViews};
 use raypatch_reference::model::{Argument, ReferenceModel, ReferenceScene};
 use serde::{Deserialize, Serialize};
 
@@ -353,17 +353,9 @@ impl Bench {
         // The latent's rows: SRT's tokens, OSRT's slots.
         let tokens = s.encoded.latent.rows;
         let queries = views * (size.0 / k) * (size.1 / k);
-        let attention_scores_bytes = match &cfg.family {
-            Family::Srt(c) => flops::attention_score_bytes(queries, tokens, c.decoder.ray_predictor.heads),
-            // The allocation transformer's cross-attention (heads x queries x slots), and the mixing block's
-            // single-head softmax over the slots (queries x slots).
-            Family::Osrt(c) => {
-                flops::attention_score_bytes(queries, tokens, c.decoder.allocation.heads)
-                    + flops::attention_score_bytes(queries, tokens, 1)
-            }
-            // Two heads (rgb, depth), each one single-head cross-attention to the latents.
-            Family::Define(_) => 2 * flops::attention_score_bytes(queries, tokens, 1),
-        };
+        let attention_scores_bytes = (cfg.describe().decoder_attention_heads().into_iter())
+            .map(|heads| flops::attention_score_bytes(queries, tokens, heads))
+            .sum();
         Record {
             group: s.group.to_string(),
             model: s.name.clone(),
@@ -583,8 +575,9 @@ fn scene(
 /// What a measured render computes: what the official model's forward returns (rgb, and DeFiNe's log-depth,
 /// which needs its second head).
 fn model_outputs(config: &ModelConfig) -> Outputs {
-    match config.family {
-        Family::Define(_) => Outputs::of(&[Output::Rgb, Output::LogDepth]),
-        _ => Outputs::default(),
+    if config.describe().depth_has_own_head() {
+        Outputs::of(&[Output::Rgb, Output::LogDepth])
+    } else {
+        Outputs::default()
     }
 }

@@ -18,35 +18,35 @@ pub struct Comparison {
 /// Which official model a row of the paper's tables is: SRT / RP-SRT (the sweep's `official` records),
 /// OSRT / RP-OSRT (`official-osrt`) or DeFiNe / RP-DeFiNe (`official-define`).
 #[derive(Clone, Copy, PartialEq)]
-enum Family {
+enum PaperModel {
     Srt,
     Osrt,
     Define,
 }
 
 /// A row of Table 1: the model, target size, k, rendering speed in fps on a V100, "Giga FLOPs".
-struct PaperRow(Family, (usize, usize), usize, f64, f64);
+struct PaperRow(PaperModel, (usize, usize), usize, f64, f64);
 
 /// Table 1 (MSN-Easy) and Table 3 (ScanNet, DeFiNe: two 128x192 input views, 480x640 targets).
 const TABLES: [PaperRow; 10] = [
-    PaperRow(Family::Srt, (60, 80), 1, 117.0, 48.2),
-    PaperRow(Family::Srt, (60, 80), 2, 288.0, 15.8),
-    PaperRow(Family::Srt, (60, 80), 4, 341.0, 7.3),
-    PaperRow(Family::Srt, (120, 160), 1, 30.0, 192.1),
-    PaperRow(Family::Srt, (120, 160), 4, 275.0, 28.5),
-    PaperRow(Family::Srt, (120, 160), 8, 305.0, 19.7),
-    PaperRow(Family::Osrt, (120, 160), 1, 21.0, 278.6),
-    PaperRow(Family::Osrt, (120, 160), 8, 278.0, 24.7),
-    PaperRow(Family::Define, (480, 640), 1, 7.0, 801.0),
-    PaperRow(Family::Define, (480, 640), 16, 208.0, 81.0),
+    PaperRow(PaperModel::Srt, (60, 80), 1, 117.0, 48.2),
+    PaperRow(PaperModel::Srt, (60, 80), 2, 288.0, 15.8),
+    PaperRow(PaperModel::Srt, (60, 80), 4, 341.0, 7.3),
+    PaperRow(PaperModel::Srt, (120, 160), 1, 30.0, 192.1),
+    PaperRow(PaperModel::Srt, (120, 160), 4, 275.0, 28.5),
+    PaperRow(PaperModel::Srt, (120, 160), 8, 305.0, 19.7),
+    PaperRow(PaperModel::Osrt, (120, 160), 1, 21.0, 278.6),
+    PaperRow(PaperModel::Osrt, (120, 160), 8, 278.0, 24.7),
+    PaperRow(PaperModel::Define, (480, 640), 1, 7.0, 801.0),
+    PaperRow(PaperModel::Define, (480, 640), 16, 208.0, 81.0),
 ];
 
-fn official(records: &[Record], family: Family, size: (usize, usize), k: usize) -> Option<&Record> {
+fn official(records: &[Record], paper_model: PaperModel, size: (usize, usize), k: usize) -> Option<&Record> {
     let size = format!("{}x{}", size.0, size.1);
-    let model = match family {
-        Family::Srt => "official",
-        Family::Osrt => "official-osrt",
-        Family::Define => "official-define",
+    let model = match paper_model {
+        PaperModel::Srt => "official",
+        PaperModel::Osrt => "official-osrt",
+        PaperModel::Define => "official-define",
     };
     records.iter().find(|r| {
         r.group == "sweep"
@@ -58,11 +58,11 @@ fn official(records: &[Record], family: Family, size: (usize, usize), k: usize) 
     })
 }
 
-fn name(family: Family, k: usize) -> String {
-    let base = match family {
-        Family::Srt => "SRT",
-        Family::Osrt => "OSRT",
-        Family::Define => "DeFiNe",
+fn name(paper_model: PaperModel, k: usize) -> String {
+    let base = match paper_model {
+        PaperModel::Srt => "SRT",
+        PaperModel::Osrt => "OSRT",
+        PaperModel::Define => "DeFiNe",
     };
     if k == 1 {
         base.into()
@@ -83,9 +83,9 @@ fn fps_text(fps: f64) -> String {
 pub fn compare(records: &[Record]) -> Vec<Comparison> {
     let mut rows = Vec::new();
     let adapter = records.iter().find_map(|r| r.env.as_ref()).map_or(String::new(), |e| e.adapter.clone());
-    for &PaperRow(family, size, k, fps, gflops) in &TABLES {
-        let ours = official(records, family, size, k);
-        let name = |k| name(family, k);
+    for &PaperRow(paper_model, size, k, fps, gflops) in &TABLES {
+        let ours = official(records, paper_model, size, k);
+        let name = |k| name(paper_model, k);
         rows.push(Comparison {
             what: format!("{} {}x{}: rendering speed", name(k), size.0, size.1),
             paper: format!("{fps:.0} fps (V100)"),
@@ -103,9 +103,9 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             }),
         });
         if k > 1 {
-            let per_pixel = TABLES.iter().find(|row| row.0 == family && row.1 == size && row.2 == 1);
+            let per_pixel = TABLES.iter().find(|row| row.0 == paper_model && row.1 == size && row.2 == 1);
             let srt = per_pixel.map_or(1.0, |row| row.3);
-            let base = official(records, family, size, 1).and_then(|r| r.fps);
+            let base = official(records, paper_model, size, 1).and_then(|r| r.fps);
             let ours = match (base, ours.and_then(|r| r.fps)) {
                 (Some(s), Some(r)) => format!("{:.1}x", r / s),
                 _ => "not measured".into(),
@@ -129,7 +129,7 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             bytes(attention_score_bytes(960 * 1280 / 256, 2048, 8))
         ),
     });
-    for (family, model) in [(Family::Srt, "official"), (Family::Define, "official-define")] {
+    for (paper_model, model) in [(PaperModel::Srt, "official"), (PaperModel::Define, "official-define")] {
         for k in [1, 16] {
             let size = format!("{}x{}", 960, 1280);
             let Some(r) =
@@ -140,7 +140,7 @@ pub fn compare(records: &[Record]) -> Vec<Comparison> {
             rows.push(Comparison {
                 what: format!(
                     "official {} 960x1280: materialised scores vs the engine's planned peak",
-                    name(family, k)
+                    name(paper_model, k)
                 ),
                 paper: "-".into(),
                 ours: format!(

@@ -122,6 +122,15 @@ impl FamilyConfig for DefineConfig {
             ("rp_kwargs.upsample", self.ray_patch.as_ref().map_or(0, |rp| rp.upsample)),
         ]
     }
+
+    /// Two heads (rgb, depth), each one single-head cross-attention to the latents.
+    fn decoder_attention_heads(&self) -> Vec<usize> {
+        vec![1, 1]
+    }
+
+    fn depth_has_own_head(&self) -> bool {
+        true
+    }
 }
 
 impl DefineConfig {

@@ -137,6 +137,12 @@ pub trait FamilyConfig {
     fn position_octaves(&self) -> (&Octaves, &Octaves);
     /// `(config key, count)` of every layer count, each to be checked against the file's tensors.
     fn layer_counts(&self) -> Vec<(&'static str, usize)>;
+    /// The heads of each attention a decoder query makes over the latent tokens (what a materialised softmax
+    /// would hold per query and token).
+    fn decoder_attention_heads(&self) -> Vec<usize>;
+    /// Whether the official model's forward returns a depth map computed by a head of its own (DeFiNe), so
+    /// that a like-for-like render asks for log-depth too.
+    fn depth_has_own_head(&self) -> bool;
 }
 
 /// What a model's rays are: the per-pixel vectors of a scene's `input_rays` and `target_rays`, and what a

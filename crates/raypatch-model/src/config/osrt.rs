@@ -72,6 +72,15 @@ impl FamilyConfig for OsrtConfig {
     fn layer_counts(&self) -> Vec<(&'static str, usize)> {
         layer_counts(&self.encoder, &self.decoder.allocation, self.ray_patch.as_ref())
     }
+
+    /// The allocation transformer's cross-attention, and the mixing block's single-head softmax over the slots.
+    fn decoder_attention_heads(&self) -> Vec<usize> {
+        vec![self.decoder.allocation.heads, 1]
+    }
+
+    fn depth_has_own_head(&self) -> bool {
+        false
+    }
 }
 
 impl OsrtConfig {

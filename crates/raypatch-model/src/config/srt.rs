@@ -290,6 +290,14 @@ impl FamilyConfig for SrtConfig {
     fn layer_counts(&self) -> Vec<(&'static str, usize)> {
         layer_counts(&self.encoder, &self.decoder.ray_predictor, self.ray_patch.as_ref())
     }
+
+    fn decoder_attention_heads(&self) -> Vec<usize> {
+        vec![self.decoder.ray_predictor.heads]
+    }
+
+    fn depth_has_own_head(&self) -> bool {
+        false
+    }
 }
 
 impl SrtConfig {
