@@ -102,6 +102,25 @@ def posed_scene(engine):
     return model, images, poses, k, model.encode(images, poses, k)
 
 
+def test_a_transforms_json_folder_is_the_same_scene_as_its_arrays(posed_scene, tmp_path):
+    """load_scene on a NeRF-style frames folder (OpenGL poses, fl_x/fl_y/cx/cy) and encode() on the same images,
+    poses and K give the same pixels: the conventions agree."""
+    model, images, poses, k, _ = posed_scene
+    as_uint8 = np.round(images * 255).astype(np.uint8)
+    frames = []
+    for i, pose in enumerate(poses):
+        raypatch.Rendered(rgb=as_uint8[i].astype(np.float32) / 255).save(tmp_path / f"frame_{i}.png")
+        frames.append({"file_path": f"frame_{i}.png", "transform_matrix": pose.tolist()})
+    meta = {"fl_x": k[0, 0], "fl_y": k[1, 1], "cx": k[0, 2], "cy": k[1, 2], "w": 80, "h": 60, "frames": frames}
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    data = raypatch.load_scene(tmp_path)
+    assert (data.input_count, data.target_count) == (2, 2)
+    assert np.array_equal(data.target_image(1), as_uint8[1].astype(np.float32) / 255)
+    from_folder = model.encode_scene(data).render_view(1)["rgb"]
+    from_arrays = model.encode(as_uint8, poses, k).render(poses[1])["rgb"]
+    assert np.array_equal(from_folder, from_arrays)
+
+
 def test_uint8_and_float_images_encode_alike(posed_scene):
     model, images, poses, k, scene = posed_scene
     as_uint8 = np.round(images * 255).astype(np.uint8)
