@@ -426,7 +426,8 @@ impl Scene<'_> {
         camera.target_views_of(self.inner.model().config.ray_kind())
     }
 
-    /// Bytes the encode plan allocated for its intermediates (freed once encoded).
+    /// Bytes the encode plan allocated for its intermediates (kept by the model for its next encode of the same
+    /// input size; an encode of another size frees them).
     pub fn encode_peak_bytes(&self) -> u64 {
         self.inner.encode_peak_bytes
     }
