@@ -301,7 +301,7 @@ pub const MAX_SCENE_PIXELS: usize = 1 << 26;
 /// Largest JSON file read (a `transforms.json` of 10 000 frames is a few MB).
 const MAX_JSON_BYTES: u64 = 64 << 20;
 
-fn read_json_text(path: &Path) -> Result<String> {
+pub(crate) fn read_json_text(path: &Path) -> Result<String> {
     raypatch_model::files::read_regular_text(path, MAX_JSON_BYTES).map_err(|e| Error::io(path, "cannot read", e.into()))
 }
 

@@ -32,6 +32,7 @@
 //! formats) and [`raypatch_engine`] (GPU context, plans, kernels).
 
 mod camera;
+mod camera_path;
 mod dataset;
 mod error;
 mod font;
@@ -46,6 +47,7 @@ pub use camera::{
     Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES,
     MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
 };
+pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};

@@ -66,6 +66,11 @@ struct Args {
     /// Render a turntable of N frames (360/N degrees apart, about the world z axis) of the first target camera.
     #[arg(long, value_name = "N", conflicts_with = "pose", value_parser = parse_count)]
     orbit_frames: Option<usize>,
+    /// Render every camera of a camera path: nerfstudio's camera_path.json (`render_width`/`render_height`,
+    /// `camera_path` of `camera_to_world` and vertical `fov`; perspective only) or raypatch's form (`width`,
+    /// `height`, `frames`); frame_000.png, ... into the --out folder (README, "Camera paths").
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["pose", "orbit", "orbit_frames", "view"])]
+    camera_path: Option<PathBuf>,
     /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder: a name
     /// without extension or an existing folder (view_000.png per target view, frame_000.png per turntable
     /// frame, render.png for one novel view).
@@ -305,7 +310,7 @@ fn run(args: &Args) -> Result<()> {
         scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
     }
     let plan_time = start.elapsed();
-    let progress = if args.orbit_frames.is_some() {
+    let progress = if args.orbit_frames.is_some() || args.camera_path.is_some() {
         let bar = ProgressBar::new(shots.len() as u64);
         bar.set_style(
             ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"),
@@ -451,6 +456,12 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
         label,
         name,
     };
+    if let Some(path) = &args.camera_path {
+        let cameras = raypatch::load_camera_path(path)?.cameras;
+        return Ok((cameras.into_iter().enumerate())
+            .map(|(i, camera)| novel(camera, format!("camera path frame {i}"), format!("frame_{i:03}")))
+            .collect());
+    }
     if let Some(path) = &args.pose {
         let camera = raypatch::load_pose(path, reference)?;
         Ok(vec![novel(camera, format!("--pose {}", path.display()), "render".into())])
@@ -528,7 +539,7 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
             bail!(
                 "--metrics: needs target views with ground truth: ground-truth images (scene `target_images`, or \
                  frames) for rgb, `target_masks` for an OSRT model's segmentation, or `target_depth` (frames: \
-                 `depth_file_path`) for a depth model; not --orbit, --orbit-frames or --pose"
+                 `depth_file_path`) for a depth model; not --orbit, --orbit-frames, --pose or --camera-path"
             );
         }
     }
