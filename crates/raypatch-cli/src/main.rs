@@ -71,9 +71,12 @@ struct Args {
     /// `height`, `frames`); frame_000.png, ... into the --out folder (README, "Camera paths").
     #[arg(long, value_name = "FILE", conflicts_with_all = ["pose", "orbit", "orbit_frames", "view"])]
     camera_path: Option<PathBuf>,
+    /// Frames per second of an animated `--out NAME.gif` [default: the camera path's `fps`, else 24].
+    #[arg(long, value_name = "F", value_parser = parse_fps)]
+    fps: Option<f64>,
     /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder: a name
     /// without extension or an existing folder (view_000.png per target view, frame_000.png per turntable
-    /// frame, render.png for one novel view).
+    /// frame, render.png for one novel view); or a `.gif` file: every image as a frame of one animation.
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
     /// `.safetensors` file to write the raw outputs into, each as a tensor of its name: `rgb` [T,H,W,3] f32
@@ -141,6 +144,13 @@ fn parse_count(text: &str) -> Result<usize, String> {
     match text.trim().parse::<usize>() {
         Ok(n) if n <= MAX_RENDERS => Ok(n),
         _ => Err(format!("expected a whole number from 0 to {MAX_RENDERS}")),
+    }
+}
+
+fn parse_fps(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(f) if f.is_finite() && (1.0..=100.0).contains(&f) => Ok(f),
+        _ => Err("expected frames per second, 1 to 100 (GIF delays are hundredths of a second)".into()),
     }
 }
 
@@ -350,7 +360,16 @@ fn run(args: &Args) -> Result<()> {
         Vec::new()
     };
     let images: Vec<Image> = rendered.iter().filter_map(raypatch::Rendered::rgb).collect();
-    let mut contents = images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?;
+    let mut contents = if is_gif(&args.out) {
+        let fps = match (args.fps, &args.camera_path) {
+            (Some(fps), _) => fps,
+            (None, Some(path)) => raypatch::load_camera_path(path)?.fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0),
+            (None, None) => DEFAULT_FPS,
+        };
+        vec![Image::encode_gif(&images, fps)?]
+    } else {
+        images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?
+    };
     if args.segmentation.is_some() {
         for r in &rendered {
             let (weights, slots) = r.segmentation().expect("segmentation was requested");
@@ -568,12 +587,38 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
 
 /// The files the run writes (rgb PNGs, segmentation PNGs, depth PNGs, the raw outputs), checked before any GPU
 /// work.
+/// Frames per second of an animated GIF when neither --fps nor the camera path gives one.
+const DEFAULT_FPS: f64 = 24.0;
+
+/// Whether `--out` names an animated GIF.
+fn is_gif(out: &Path) -> bool {
+    out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"))
+}
+
 fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs) -> Result<OutputFiles> {
     let names: Vec<String> = shots.iter().map(|s| s.name.clone()).collect();
     let mut files: Vec<(&'static str, PathBuf)> = Vec::new();
     let mut folders: Vec<(&'static str, &Path)> = Vec::new();
+    if args.fps.is_some() && !is_gif(&args.out) {
+        bail!("--fps: only for an animated --out NAME.gif (--out {} is not one)", args.out.display());
+    }
+    let gif = is_gif(&args.out);
+    let png = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !gif && !png && args.out.extension().is_some() && !args.out.is_dir() {
+        bail!(
+            "--out {}: expected a .png file, a .gif file (an animation), or a folder (a name without extension, or \
+             an existing folder)",
+            args.out.display()
+        );
+    }
+    if gif {
+        if !outputs.contains(Output::Rgb) {
+            bail!("--out {}: an animated GIF shows the rgb output; add rgb to --outputs", args.out.display());
+        }
+        files.push(("--out", args.out.clone()));
+    }
     let pngs = [
-        (outputs.contains(Output::Rgb), "--out", Some(&args.out)),
+        (outputs.contains(Output::Rgb) && !gif, "--out", Some(&args.out)),
         (true, "--segmentation", args.segmentation.as_ref()),
         (true, "--depth", args.depth.as_ref()),
     ];
@@ -592,7 +637,7 @@ fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs)
         files.push(("--out-raw", path.clone()));
     }
     let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
-    for (flag, path) in [("--model", &args.model), ("--pose", &args.pose)] {
+    for (flag, path) in [("--model", &args.model), ("--pose", &args.pose), ("--camera-path", &args.camera_path)] {
         if let Some(path) = path {
             inputs.push((flag, path.clone()));
         }

@@ -1,6 +1,6 @@
 //! `render-frame --camera-path`: nerfstudio's camera_path.json (written here by hand in its format, as its
 //! viewer exports it) and raypatch's own form render every camera, each frame as a `--pose` render of the same
-//! camera; bad paths are one-line errors with exit code 2 and nothing written.
+//! camera, to PNG frames or an animated GIF; bad paths are one-line errors with exit code 2 and nothing written.
 
 mod common;
 
@@ -71,6 +71,49 @@ fn nerfstudio_and_raypatch_paths_render_each_camera_as_a_pose_does() {
             std::fs::read(d.join("path").join(&name)).unwrap()
         );
     }
+}
+
+/// The frames of a GIF file as RGB images, with each frame's delay in milliseconds.
+fn gif_frames(path: &std::path::Path) -> Vec<(image::RgbImage, u32)> {
+    use image::AnimationDecoder;
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap())).unwrap();
+    (decoder.into_frames().map(|f| f.unwrap()))
+        .map(|f| {
+            let (numer, denom) = f.delay().numer_denom_ms();
+            (image::DynamicImage::ImageRgba8(f.into_buffer()).to_rgb8(), numer / denom)
+        })
+        .collect()
+}
+
+fn psnr(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    let mse = a.as_raw().iter().zip(b.as_raw()).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum::<f64>()
+        / a.as_raw().len() as f64;
+    10.0 * (255.0f64 * 255.0 / mse).log10()
+}
+
+#[test]
+fn a_camera_path_renders_to_an_animated_gif_at_its_frame_rate() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("camera_path.json"), nerfstudio_path(&opengl_poses(), 40.0).to_string()).unwrap();
+    let r = run(d, &["--camera-path", "camera_path.json", "--out", "path"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let r = run(d, &["--camera-path", "camera_path.json", "--out", "path.gif"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let frames = gif_frames(&d.join("path.gif"));
+    assert_eq!(frames.len(), 3);
+    for (i, (frame, delay)) in frames.iter().enumerate() {
+        assert_eq!(frame.dimensions(), (80, 60));
+        assert_eq!(*delay, 40, "24 fps: 4 hundredths of a second a frame");
+        let png = image::open(d.join(format!("path/frame_{i:03}.png"))).unwrap().to_rgb8();
+        assert!(psnr(frame, &png) >= 30.0, "frame {i}: {} dB against the PNG", psnr(frame, &png));
+    }
+    let r = run(d, &["--camera-path", "camera_path.json", "--out", "slow.gif", "--fps", "5"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(gif_frames(&d.join("slow.gif")).iter().all(|(_, delay)| *delay == 200));
+    fails(d, &["--orbit-frames", "2", "--out", "x.gif", "--fps", "0"], &["--fps", "1 to 100"]);
+    fails(d, &["--orbit-frames", "2", "--out", "x.png", "--fps", "10"], &["--fps", "x.png"]);
 }
 
 #[test]
