@@ -219,12 +219,13 @@ fn gather(win: Window, kk: u32) -> vec4<f32> {
     return x[((win.img + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4 + kk % p.cin4];
 }
 
-// One step's vec4s an invocation stages: pixels r and r + STAGE_STEP, channels r and r + STAGE_STEP.
-struct Gathered {
-    x0: vec4<f32>,
-    x1: vec4<f32>,
-    w0: vec4<f32>,
-    w1: vec4<f32>,
+// The step at vec4 `at` of the weight row for the pixels' windows win0 and win1 and of w's rows at w0 and w1;
+// zeros past k4.
+fn gather_step(at: u32, k4: u32, win0: Window, win1: Window, w0: u32, w1: u32) -> Staged {
+    if (at >= k4) {
+        return Staged();
+    }
+    return Staged(gather(win0, at), gather(win1, at), w[w0 + at], w[w1 + at]);
 }
 
 @compute @workgroup_size(16, 16)
@@ -247,20 +248,12 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     let k4 = p.k * p.k * p.cin4;
     let w0 = min(col0 + r, p.cout - 1u) * k4;
     let w1 = min(col0 + r + STAGE_STEP, p.cout - 1u) * k4;
-    var next = Gathered(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
-    if (kk < k4) {
-        next = Gathered(gather(win0, kk), gather(win1, kk), w[w0 + kk], w[w1 + kk]);
-    }
+    var next = gather_step(kk, k4, win0, win1, w0, w1);
     var acc = array<vec4<f32>, BLOCK>();
     for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
-        stage(kk, r, next.x0, next.w0);
-        stage(kk, r + STAGE_STEP, next.x1, next.w1);
+        stage_step(kk, r, next);
         workgroupBarrier();
-        let at = k0 + TILE_K4 + kk;
-        next = Gathered(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
-        if (at < k4) {
-            next = Gathered(gather(win0, at), gather(win1, at), w[w0 + at], w[w1 + at]);
-        }
+        next = gather_step(k0 + TILE_K4 + kk, k4, win0, win1, w0, w1);
         multiply_staged(lid.x, lid.y, &acc);
         workgroupBarrier();
     }

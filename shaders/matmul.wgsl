@@ -223,12 +223,13 @@ fn x_staged(at: u32, k: u32, n: RowNorm) -> vec4<f32> {
     return ((v - n.x0) - n.delta) * n.rstd * gamma[k] + beta[k];
 }
 
-// One step's vec4s an invocation stages: rows r and r + STAGE_STEP of x's tile and of w's.
-struct Staged {
-    x0: vec4<f32>,
-    x1: vec4<f32>,
-    w0: vec4<f32>,
-    w1: vec4<f32>,
+// The step at vec4 k of x's rows at xa and xb (normalised as `norms` say) and w's rows at wa and wb; zeros past
+// k_end.
+fn load_step(k: u32, k_end: u32, xa: u32, xb: u32, wa: u32, wb: u32, norms: array<RowNorm, 2>) -> Staged {
+    if (k >= k_end) {
+        return Staged();
+    }
+    return Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
 }
 
 @compute @workgroup_size(16, 16)
@@ -258,22 +259,12 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     if (p.norm != 0u) {
         norms = row_norms(li, kk, xa, xb);
     }
-    // K past the end of the range reads zeros.
-    var next = Staged(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
-    if (k_begin + kk < k_end) {
-        let k = k_begin + kk;
-        next = Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
-    }
+    var next = load_step(k_begin + kk, k_end, xa, xb, wa, wb, norms);
     var acc = array<vec4<f32>, BLOCK>();
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
-        stage(kk, r, next.x0, next.w0);
-        stage(kk, r + STAGE_STEP, next.x1, next.w1);
+        stage_step(kk, r, next);
         workgroupBarrier();
-        let k = k0 + TILE_K4 + kk;
-        next = Staged(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
-        if (k < k_end) {
-            next = Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
-        }
+        next = load_step(k0 + TILE_K4 + kk, k_end, xa, xb, wa, wb, norms);
         multiply_staged(lid.x, lid.y, &acc);
         workgroupBarrier();
     }

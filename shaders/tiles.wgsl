@@ -30,6 +30,21 @@ fn stage(kk: u32, r: u32, xv: vec4<f32>, wv: vec4<f32>) {
     w_tile[kk * TILE + (4u * (c4 / 16u) + r % 4u) * 16u + c4 % 16u] = wv;
 }
 
+// One step's vec4s an invocation stages, loaded a step ahead: rows r and r + STAGE_STEP of x's tile (x0, x1)
+// and of w's (w0, w1); `Staged()` (zeros) past the end of K.
+struct Staged {
+    x0: vec4<f32>,
+    x1: vec4<f32>,
+    w0: vec4<f32>,
+    w1: vec4<f32>,
+}
+
+// Stages an invocation's step at vec4 kk of its rows r and r + STAGE_STEP.
+fn stage_step(kk: u32, r: u32, s: Staged) {
+    stage(kk, r, s.x0, s.w0);
+    stage(kk, r + STAGE_STEP, s.x1, s.w1);
+}
+
 // One staged step's products added to invocation (tx, ty)'s block.
 fn multiply_staged(tx: u32, ty: u32, acc: ptr<function, array<vec4<f32>, BLOCK>>) {
     for (var kk = 0u; kk < TILE_K4; kk++) {
