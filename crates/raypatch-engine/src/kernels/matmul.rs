@@ -6,7 +6,7 @@
 //! heads, `kernels::attention`).
 
 use crate::device::{gemm_tile, linear_variant, splits_to_fill, GemmTile, MatmulKernel};
-use crate::kernels::norm::{layernorm, LayerNormArgs};
+use crate::kernels::norm::{check_affine, layernorm, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_128, MATMUL_F16, MATMUL_F16_128, MATMUL_LANES};
@@ -179,11 +179,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         // linear_tiled's layer norm: gamma and beta at 5 and 6 (w again when there is none, unread).
         let (gamma, beta) = match norm {
             Some(RowNorm { gamma, beta, eps }) => {
-                assert!(
-                    [gamma, beta].iter().all(|&t| plan.rows(t) == 1 && plan.cols(t) == k),
-                    "linear {label}: the layer norm's gamma and beta must be [1, {k}]"
-                );
-                assert!(eps > 0.0 && eps.is_finite(), "linear {label}: layer norm eps {eps} must be positive");
+                check_affine(plan, &format!("linear {label}: layer norm"), k, gamma, beta, eps);
                 (params.norm, params.eps) = (1, eps);
                 (plan.all(gamma), plan.all(beta))
             }
@@ -193,46 +189,38 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
     let splits = if variant == MatmulKernel::Tiled && tile == GemmTile::Small { k_splits(groups, k4) } else { 1 };
-    if splits == 1 {
-        bindings.insert(3, (out, out_access));
-        plan.push(Op {
-            label: label.to_string(),
-            shader,
-            entry,
-            params: params.words(),
-            bindings,
-            textures: Vec::new(),
-            workgroups: grid(groups),
-            multiply_adds,
-        });
-        return;
-    }
     // Split K: each range's raw sums into the partials, then one pass adding them up into out.
-    params.k_split4 = (k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4) as u32;
-    params.splits = k4.div_ceil(params.k_split4 as usize) as u32;
-    let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
-    let partials = plan.all(partials);
-    bindings.insert(3, (partials, Access::Write));
+    let (written, op_label, op_groups) = if splits == 1 {
+        ((out, out_access), label.to_string(), groups)
+    } else {
+        params.k_split4 = (k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4) as u32;
+        params.splits = k4.div_ceil(params.k_split4 as usize) as u32;
+        let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
+        ((plan.all(partials), Access::Write), format!("{label}.split"), groups * params.splits as usize)
+    };
+    bindings.insert(3, written);
     plan.push(Op {
-        label: format!("{label}.split"),
+        label: op_label,
         shader,
         entry,
         params: params.words(),
         bindings,
         textures: Vec::new(),
-        workgroups: grid(groups * params.splits as usize),
+        workgroups: grid(op_groups),
         multiply_adds,
     });
-    plan.push(Op {
-        label: format!("{label}.reduce"),
-        shader,
-        entry: "linear_reduce",
-        params: params.words(),
-        bindings: vec![(partials, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
-        textures: Vec::new(),
-        workgroups: grid((m * n4).div_ceil(64)),
-        multiply_adds: 0,
-    });
+    if splits > 1 {
+        plan.push(Op {
+            label: format!("{label}.reduce"),
+            shader,
+            entry: "linear_reduce",
+            params: params.words(),
+            bindings: vec![(written.0, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
+            textures: Vec::new(),
+            workgroups: grid((m * n4).div_ceil(64)),
+            multiply_adds: 0,
+        });
+    }
 }
 
 /// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` of small tiles

@@ -26,6 +26,20 @@ pub struct LayerNormArgs {
     pub eps: f32,
 }
 
+/// Checks a layer norm's `[1, cols]` gamma and beta and its positive eps (`what` names the op in the panic):
+/// for [`layernorm`] and for a linear layer that normalises its input (`kernels::matmul::RowNorm`).
+pub(crate) fn check_affine(plan: &PlanBuilder, what: &str, cols: usize, gamma: TensorId, beta: TensorId, eps: f32) {
+    for (name, t) in [("gamma", gamma), ("beta", beta)] {
+        assert!(
+            plan.rows(t) == 1 && plan.cols(t) == cols,
+            "{what}: {name} is {}x{}, expected 1x{cols}",
+            plan.rows(t),
+            plan.cols(t)
+        );
+    }
+    assert!(eps > 0.0 && eps.is_finite(), "{what}: eps {eps} must be positive");
+}
+
 /// Rows per workgroup: one invocation per row.
 const ROWS_PER_GROUP: usize = 64;
 
@@ -54,15 +68,7 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
         x.rows
     );
     assert!(x.id != out.id, "layernorm {label}: cannot run in place");
-    for (name, t) in [("gamma", gamma), ("beta", beta)] {
-        assert!(
-            plan.rows(t) == 1 && plan.cols(t) == cols,
-            "layernorm {label}: {name} is {}x{}, expected 1x{cols}",
-            plan.rows(t),
-            plan.cols(t)
-        );
-    }
-    assert!(eps > 0.0 && eps.is_finite(), "layernorm {label}: eps {eps} must be positive");
+    check_affine(plan, &format!("layernorm {label}"), cols, gamma, beta, eps);
     let params = LayerNormParams { rows: x.rows as u32, cols: cols as u32, ld4: (plan.ld(x.id) / 4) as u32, eps };
     let bindings =
         vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
