@@ -94,8 +94,8 @@ impl Model {
         let mut last = self.encode_plan.lock().expect("encode plan poisoned");
         let plan = match last.take() {
             Some(plan) if plan.size == size => plan,
-            _ => {
-                drop(last.take()); // the previous size's intermediates, before allocating this one's
+            previous => {
+                drop(previous); // the previous size's intermediates, freed before this size's are allocated
                 self.build_encode_plan(size)?
             }
         };
