@@ -426,14 +426,7 @@ impl Gpu {
             return Ok(parts.iter().map(|_| Vec::new()).collect());
         };
         let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|_| EngineError::Device("readback callback dropped".into()))?
-            .map_err(|e| EngineError::Device(format!("mapping a readback buffer: {e}")))?;
+        self.map_for_reading(&slice, "a readback buffer")?;
         let mapped = slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
         let mut words: &[f32] = bytemuck::cast_slice(&mapped);
         let mut out = Vec::with_capacity(parts.len());
@@ -449,6 +442,19 @@ impl Gpu {
         drop(mapped);
         staging.unmap();
         Ok(out)
+    }
+
+    /// Maps `slice` for reading once the GPU has finished the work submitted so far (waits for it); `what` names
+    /// the buffer in errors.
+    pub(crate) fn map_for_reading(&self, slice: &wgpu::BufferSlice<'_>, what: &str) -> Result<()> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| EngineError::Device(format!("mapping {what}: the callback was dropped")))?
+            .map_err(|e| EngineError::Device(format!("mapping {what}: {e}")))
     }
 
     /// Blocks until the GPU has finished all submitted work.

@@ -125,14 +125,7 @@ impl Gpu {
         };
         let (_, readback) = timestamps.buffers.as_ref().expect("timestamps were resolved");
         let slice = readback.slice(..queries as u64 * 8);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|_| EngineError::Device("timestamp readback callback dropped".into()))?
-            .map_err(|e| EngineError::Device(format!("mapping the timestamps: {e}")))?;
+        self.map_for_reading(&slice, "the timestamps")?;
         let ticks: Vec<u64> = {
             let mapped =
                 slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading timestamps: {e}")))?;
