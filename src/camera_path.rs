@@ -18,6 +18,7 @@ use glam::DMat4;
 use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics};
+use crate::dataset::{number, pixels};
 use crate::error::{Error, Result};
 
 /// Most frames a camera path may hold.
@@ -64,15 +65,9 @@ pub fn load_camera_path(path: impl AsRef<Path>) -> Result<CameraPath> {
             }
         }
     }
-    let size = |key: &str| -> std::result::Result<usize, String> {
-        match root.get(key).and_then(Value::as_f64) {
-            Some(v) if v.fract() == 0.0 && (1.0..=crate::MAX_IMAGE_SIDE as f64).contains(&v) => Ok(v as usize),
-            _ => Err(format!(
-                "`{key}` is {}, expected a whole number of pixels, 1 to {}",
-                root.get(key).map_or("missing".to_string(), Value::to_string),
-                crate::MAX_IMAGE_SIDE
-            )),
-        }
+    let size = |key: &str| match number(&Value::Null, &root, key)? {
+        Some(v) => pixels(key, v),
+        None => Err(format!("no `{key}` (the image size in pixels)")),
     };
     let (width, height) = (size(width_key).map_err(err)?, size(height_key).map_err(err)?);
     crate::image::check_image_size(width, height).map_err(|e| err(e.to_string()))?;
@@ -135,16 +130,9 @@ fn intrinsics(
     height: usize,
     nerfstudio: bool,
 ) -> std::result::Result<Intrinsics, String> {
-    let get = |key: &str| -> std::result::Result<Option<f64>, String> {
-        let value = if nerfstudio { frame.get(key) } else { frame.get(key).or_else(|| root.get(key)) };
-        match value {
-            None | Some(Value::Null) => Ok(None),
-            Some(v) => match v.as_f64() {
-                Some(x) if x.is_finite() => Ok(Some(x)),
-                _ => Err(format!("`{key}` is {v}, expected a finite number")),
-            },
-        }
-    };
+    // nerfstudio's keys are per frame only.
+    let shared = if nerfstudio { &Value::Null } else { root };
+    let get = |key: &str| number(shared, frame, key);
     let (cx, cy) = (get("cx")?.unwrap_or(width as f64 / 2.0), get("cy")?.unwrap_or(height as f64 / 2.0));
     if let Some(fov) = get("fov")? {
         if !(fov > 0.0 && fov < 180.0) {

@@ -336,13 +336,7 @@ pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
     let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
     let has_intrinsics = ["camera_angle_x", "fl_x"].iter().any(|k| root.get(k).is_some());
     let (w, h) = (number(&root, &root, "w").map_err(&err)?, number(&root, &root, "h").map_err(&err)?);
-    let size = |v: Option<f64>, key: &str, default: usize| match v {
-        None => Ok(default),
-        Some(v) if v.fract() == 0.0 && (1.0..=crate::MAX_IMAGE_SIDE as f64).contains(&v) => Ok(v as usize),
-        Some(v) => {
-            Err(err(format!("`{key}` is {v}, expected a whole number of pixels, 1 to {}", crate::MAX_IMAGE_SIDE)))
-        }
-    };
+    let size = |v: Option<f64>, key: &str, default: usize| v.map_or(Ok(default), |v| pixels(key, v).map_err(&err));
     let (width, height) = (size(w, "w", like.width())?, size(h, "h", like.height())?);
     let camera = if has_intrinsics {
         nerf_camera(&root, &root, width, height)
@@ -356,8 +350,17 @@ pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
     camera.map_err(err)
 }
 
+/// `v`, the value under `key`, as a whole number of pixels: 1 to [`MAX_IMAGE_SIDE`](crate::MAX_IMAGE_SIDE).
+pub(crate) fn pixels(key: &str, v: f64) -> std::result::Result<usize, String> {
+    if v.fract() == 0.0 && (1.0..=crate::MAX_IMAGE_SIDE as f64).contains(&v) {
+        Ok(v as usize)
+    } else {
+        Err(format!("`{key}` is {v}, expected a whole number of pixels, 1 to {}", crate::MAX_IMAGE_SIDE))
+    }
+}
+
 /// A number under `key`, from the frame or else the top level.
-fn number(root: &Value, frame: &Value, key: &str) -> std::result::Result<Option<f64>, String> {
+pub(crate) fn number(root: &Value, frame: &Value, key: &str) -> std::result::Result<Option<f64>, String> {
     match frame.get(key).or_else(|| root.get(key)) {
         None | Some(Value::Null) => Ok(None),
         Some(v) => match v.as_f64() {

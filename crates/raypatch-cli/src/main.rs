@@ -2,6 +2,7 @@
 //! model (and DeFiNe), from the shell.
 
 mod files;
+mod parse;
 mod report;
 
 use std::path::{Path, PathBuf};
@@ -18,6 +19,7 @@ use raypatch::{
 };
 
 use files::{is_folder, png_paths, raw_bytes, OutputFiles};
+use parse::{parse_count, parse_depth_range, parse_fps, parse_outputs, parse_region};
 use report::{ms, print_profile, summary, Truth};
 
 /// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
@@ -29,8 +31,6 @@ const DEFAULT_MODEL: (&str, &[u8]) = (
 const DEFAULT_SCENE: (&str, &[u8]) =
     ("assets/scenes/scene-2000000.safetensors", include_bytes!("../../../assets/scenes/scene-2000000.safetensors"));
 const DEFAULT_OUT: &str = "render.png";
-/// Most renders one run makes (turntable frames, repeats): each takes at least milliseconds of GPU time.
-const MAX_RENDERS: usize = 100_000;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -139,53 +139,6 @@ struct Args {
 /// Largest --max-buffer-mib (1 TiB): above any adapter's binding limit.
 const MAX_BUFFER_MIB: u64 = 1 << 20;
 
-/// A count of renders, 0 to [`MAX_RENDERS`].
-fn parse_count(text: &str) -> Result<usize, String> {
-    match text.trim().parse::<usize>() {
-        Ok(n) if n <= MAX_RENDERS => Ok(n),
-        _ => Err(format!("expected a whole number from 0 to {MAX_RENDERS}")),
-    }
-}
-
-fn parse_fps(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(f) if f.is_finite() && (1.0..=100.0).contains(&f) => Ok(f),
-        _ => Err("expected frames per second, 1 to 100 (GIF delays are hundredths of a second)".into()),
-    }
-}
-
-fn parse_outputs(text: &str) -> Result<Outputs, String> {
-    let names = || Output::ALL.iter().map(|o| o.name()).collect::<Vec<_>>().join(", ");
-    text.split(',').try_fold(Outputs::NONE, |set, name| match Output::from_name(name.trim()) {
-        Some(output) => Ok(set.with(output)),
-        None => Err(format!("unknown output {name:?}: expected a comma-separated list of {}", names())),
-    })
-}
-
-/// `MIN,MAX` in metres, 0 <= MIN < MAX.
-fn parse_depth_range(text: &str) -> Result<(f32, f32), String> {
-    let bad = || format!("{text:?} is not MIN,MAX (two depths in metres, 0 <= MIN < MAX)");
-    let parts: Vec<f32> =
-        text.split(',').map(|p| p.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| bad())?;
-    match parts[..] {
-        [lo, hi] if lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi => Ok((lo, hi)),
-        _ => Err(bad()),
-    }
-}
-
-fn parse_region(text: &str) -> Result<Region, String> {
-    let parts: Vec<usize> = text
-        .split(',')
-        .map(|p| p.trim().parse::<usize>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("{text:?} is not X,Y,W,H (four non-negative integers)"))?;
-    match parts[..] {
-        [x, y, width, height] if width > 0 && height > 0 => Ok(Region { x, y, width, height }),
-        [_, _, _, _] => Err(format!("{text:?}: width and height must be positive")),
-        _ => Err(format!("{text:?} is not X,Y,W,H (four non-negative integers)")),
-    }
-}
-
 fn main() -> ExitCode {
     let args = Args::parse();
     match run(&args) {
@@ -253,6 +206,13 @@ struct Shot {
     name: String,
 }
 
+impl Shot {
+    /// A camera without ground truth (a novel view).
+    fn novel(camera: Camera, label: String, name: String) -> Shot {
+        Shot { camera, truth: None, masks: None, depth: None, label, name }
+    }
+}
+
 fn run(args: &Args) -> Result<()> {
     if args.list_adapters {
         for (i, adapter) in Engine::adapters().iter().enumerate() {
@@ -297,7 +257,17 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
-    let shots = shots(args, &data, &views)?;
+    // A camera path's frames, with its frame rate; else the views, turntable or pose asked for.
+    let (shots, path_fps) = match &args.camera_path {
+        Some(path) => {
+            let path = raypatch::load_camera_path(path)?;
+            let shots = (path.cameras.into_iter().enumerate())
+                .map(|(i, camera)| Shot::novel(camera, format!("camera path frame {i}"), format!("frame_{i:03}")))
+                .collect();
+            (shots, path.fps)
+        }
+        None => (shots(args, &data, &views)?, None),
+    };
     let outputs = requested_outputs(args, &shots, model.outputs())?;
     let output_files = output_files(args, &shots, &data, outputs)?;
     let mut warnings = model.check_inputs(&inputs)?;
@@ -361,11 +331,7 @@ fn run(args: &Args) -> Result<()> {
     };
     let images: Vec<Image> = rendered.iter().filter_map(raypatch::Rendered::rgb).collect();
     let mut contents = if is_gif(&args.out) {
-        let fps = match (args.fps, &args.camera_path) {
-            (Some(fps), _) => fps,
-            (None, Some(path)) => raypatch::load_camera_path(path)?.fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0),
-            (None, None) => DEFAULT_FPS,
-        };
+        let fps = args.fps.unwrap_or_else(|| path_fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0));
         vec![Image::encode_gif(&images, fps)?]
     } else {
         images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?
@@ -467,23 +433,9 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
     if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
         bail!("--orbit {degrees}: expected a finite angle in degrees");
     }
-    let novel = |camera: Camera, label: String, name: String| Shot {
-        camera,
-        truth: None,
-        masks: None,
-        depth: None,
-        label,
-        name,
-    };
-    if let Some(path) = &args.camera_path {
-        let cameras = raypatch::load_camera_path(path)?.cameras;
-        return Ok((cameras.into_iter().enumerate())
-            .map(|(i, camera)| novel(camera, format!("camera path frame {i}"), format!("frame_{i:03}")))
-            .collect());
-    }
     if let Some(path) = &args.pose {
         let camera = raypatch::load_pose(path, reference)?;
-        Ok(vec![novel(camera, format!("--pose {}", path.display()), "render".into())])
+        Ok(vec![Shot::novel(camera, format!("--pose {}", path.display()), "render".into())])
     } else if let Some(n) = args.orbit_frames {
         if n == 0 {
             bail!("--orbit-frames 0: expected at least one frame");
@@ -493,11 +445,11 @@ fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
         Ok((0..n)
             .map(|i| {
                 let label = format!("turntable frame {i} ({:.1}°)", turn(i));
-                novel(reference.orbited(turn(i)), label, format!("frame_{i:03}"))
+                Shot::novel(reference.orbited(turn(i)), label, format!("frame_{i:03}"))
             })
             .collect())
     } else if let Some(degrees) = args.orbit {
-        Ok(vec![novel(reference.orbited(degrees), format!("--orbit {degrees}"), "render".into())])
+        Ok(vec![Shot::novel(reference.orbited(degrees), format!("--orbit {degrees}"), "render".into())])
     } else {
         Ok(views
             .iter()
