@@ -47,18 +47,19 @@ def _array(name: str, value) -> np.ndarray:
         raise InputError(f"{name}: cannot be read as an array ({type(value).__name__}: {e})") from None
 
 
-def _f32(name: str, value, shape: Tuple[Optional[int], ...], dtype=np.float32) -> np.ndarray:
-    """A C-contiguous float32 (or `dtype`) array of `shape` (None: any size), from floats or (for images) uint8."""
+def _floats(name: str, value, shape: Tuple[Optional[int], ...], dtype=np.float32, image: bool = False) -> np.ndarray:
+    """A C-contiguous, finite `dtype` array (float32 by default) of `shape` (None: any size), from floats, or for an
+    `image` also from uint8 (divided by 255)."""
     array = _array(name, value)
     if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
         wanted = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
         raise InputError(f"{name}: shape {list(array.shape)}, expected {wanted}")
-    if array.dtype == np.uint8:
+    if image and array.dtype == np.uint8:
         array = array.astype(np.float32) / np.float32(255.0)
     elif array.dtype.kind == "f":
         array = array.astype(dtype, copy=False)
     else:
-        raise InputError(f"{name}: dtype {array.dtype}, expected float32 (or uint8 for images)")
+        raise InputError(f"{name}: dtype {array.dtype}, expected {'uint8 or ' if image else ''}floating point")
     if not np.isfinite(array).all():
         raise InputError(f"{name}: holds NaN or infinity")
     return np.ascontiguousarray(array)
@@ -73,13 +74,13 @@ def _poses(name: str, poses, count: Optional[int] = None) -> list:
     array = _array(name, poses)
     if array.ndim == 2 and count is None:
         array = array[None]
-    array = _f32(name, array, (count, 4, 4), np.float64)
+    array = _floats(name, array, (count, 4, 4), np.float64)
     return [tuple(float(v) for v in pose.reshape(16)) for pose in array]
 
 
 def _intrinsics(name: str, intrinsics, count: int) -> list:
     """(fx, fy, cx, cy) per view from 3x3 K matrices or (fx, fy, cx, cy) rows, one shared or one per view."""
-    array = _f32(name, intrinsics, (None,) * np.ndim(_array(name, intrinsics)), np.float64)
+    array = _floats(name, intrinsics, (None,) * np.ndim(_array(name, intrinsics)), np.float64)
     if array.shape in ((3, 3), (4,)):
         array = np.broadcast_to(array, (count,) + array.shape)
     if array.shape == (count, 3, 3):
@@ -272,15 +273,15 @@ class Model:
         along -z, as transforms.json; or "opencv") and ``intrinsics`` (a 3x3 K or (fx, fy, cx, cy), shared or
         one per view). Or the rays scene files hold: ``positions`` [V, 3] camera centres and ``rays``
         [V, H, W, 3] (unit directions; unit-depth points for DeFiNe)."""
-        images = _f32("images", images, (None, None, None, 3))
+        images = _floats("images", images, (None, None, None, 3), image=True)
         count, height, width, _ = images.shape
         if rays is not None or positions is not None:
             if poses is not None or intrinsics is not None:
                 raise InputError("encode: give poses and intrinsics, or positions and rays, not both")
             if rays is None or positions is None:
                 raise InputError("encode: rays and positions go together")
-            positions = _f32("positions", positions, (count, 3), np.float64)
-            rays = _f32("rays", rays, (count, height, width, 3))
+            positions = _floats("positions", positions, (count, 3), np.float64)
+            rays = _floats("rays", rays, (count, height, width, 3))
             scene = self._inner.encode_rays(_bytes(images), (count, height, width),
                                             [tuple(p) for p in positions], _bytes(rays))
             return Scene(scene, self, None)
@@ -340,7 +341,7 @@ class Scene:
                     convention: str = "opengl") -> Rendered:
         """Renders poses [T, 4, 4] as render does; each output gets a leading axis of T views."""
         renders = [self.render(pose, intrinsics, size, outputs, region, convention)
-                   for pose in _f32("poses", poses, (None, 4, 4), np.float64)]
+                   for pose in _floats("poses", poses, (None, 4, 4), np.float64)]
         return Rendered({name: np.stack([r[name] for r in renders]) for name in (renders[0] if renders else {})})
 
     def render_view(self, i: int, outputs: Union[str, Iterable[str]] = ("rgb",),
@@ -354,7 +355,7 @@ class Scene:
 
 def psnr(a, b) -> float:
     """PSNR in dB of two [H, W, 3] images in [0, 1] (the engine's, as render-frame --metrics)."""
-    a, b = _f32("a", a, (None, None, 3)), _f32("b", b, (None, None, 3))
+    a, b = _floats("a", a, (None, None, 3), image=True), _floats("b", b, (None, None, 3), image=True)
     if a.shape != b.shape:
         raise InputError(f"psnr: images of shapes {list(a.shape)} and {list(b.shape)}")
     return _raypatch.psnr(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
@@ -362,7 +363,7 @@ def psnr(a, b) -> float:
 
 def ssim(a, b) -> float:
     """SSIM of two [H, W, 3] images in [0, 1], as the official evaluation computes it."""
-    a, b = _f32("a", a, (None, None, 3)), _f32("b", b, (None, None, 3))
+    a, b = _floats("a", a, (None, None, 3), image=True), _floats("b", b, (None, None, 3), image=True)
     if a.shape != b.shape:
         raise InputError(f"ssim: images of shapes {list(a.shape)} and {list(b.shape)}")
     return _raypatch.ssim(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
@@ -370,7 +371,7 @@ def ssim(a, b) -> float:
 
 def fg_ari(true_ids, weights) -> float:
     """FG-ARI of slot weights [H, W, slots] against object ids [H, W] (0: background, ignored)."""
-    weights = _f32("weights", weights, (None, None, None))
+    weights = _floats("weights", weights, (None, None, None))
     ids = _array("true_ids", true_ids)
     if ids.shape != weights.shape[:2] or ids.dtype.kind not in "ui":
         raise InputError(f"true_ids: {ids.dtype} {list(ids.shape)}, expected integers {list(weights.shape[:2])}")
@@ -383,7 +384,7 @@ def fg_ari(true_ids, weights) -> float:
 def depth_errors(predicted, truth) -> dict:
     """Abs.Rel, Sq.Rel and RMSE of predicted depth against ground truth (same shape; truth 0 = no data), over
     the pixels with ground truth, as the official DeFiNe test step computes them."""
-    predicted = _f32("predicted", predicted, (None, None))
-    truth = _f32("truth", truth, predicted.shape)
+    predicted = _floats("predicted", predicted, (None, None))
+    truth = _floats("truth", truth, predicted.shape)
     abs_rel, sq_rel, rmse, pixels = _raypatch.depth_errors(_bytes(predicted), _bytes(truth), predicted.size)
     return {"abs_rel": abs_rel, "sq_rel": sq_rel, "rmse": rmse, "pixels": pixels}

@@ -104,9 +104,7 @@ def main(argv: List[str] = None) -> int:
         return 2
     if args.task == "evaluate":
         write_csv(rows, args.out)
-        print(f"{len(rows)} view(s) of {len(paths)} scene(s) -> {args.out}")
-    else:
-        print(f"{len(rows)} view(s) of {len(paths)} scene(s) -> {args.out}")
+    print(f"{len(rows)} view(s) of {len(paths)} scene(s) -> {args.out}")
     return 0
 
 

@@ -42,10 +42,10 @@ fn to_py(e: raypatch::Error) -> PyErr {
     use raypatch::raypatch_engine::EngineError;
     let message = e.to_string();
     match e {
-        raypatch::Error::Model(_) | raypatch::Error::Io { .. } | raypatch::Error::Image { .. } => {
-            FileError::new_err(message)
-        }
-        raypatch::Error::Cameras { .. } => FileError::new_err(message),
+        raypatch::Error::Model(_)
+        | raypatch::Error::Io { .. }
+        | raypatch::Error::Image { .. }
+        | raypatch::Error::Cameras { .. } => FileError::new_err(message),
         raypatch::Error::Camera(_) | raypatch::Error::Views(_) | raypatch::Error::Metrics(_) => {
             InputError::new_err(message)
         }
