@@ -1,6 +1,6 @@
 """Shared by the reference tests (test_reference_srt.py, test_reference_osrt.py, test_reference_define.py,
-test_official_code.py): the golden cases and scenes they run on, the comparison with the official key lists and
-OSRT's random weights."""
+test_official_code.py): the golden cases and scenes they run on, the comparison with the official key lists, the
+check that a config is refused, and OSRT's random weights."""
 
 from pathlib import Path
 
@@ -17,6 +17,17 @@ DEFINE_CASES = ("define", "rpdefine_k16", "rpdefine_k16_patchrays_in60x88")
 # The official DeFiNe runs (key lists written from the official modules) and their parameter totals.
 DEFINE_KEY_LISTS = (("define_32_stereo_acc", DEFINE_32_STEREO_ACC, 30_759_058),
                     ("rpdefine_16_32_stereo_acc", RPDEFINE_16_32_STEREO_ACC, 31_011_690))
+
+
+def assert_refused(build, cfg, message):
+    """build(cfg) (on the meta device) raises a ValueError whose text holds `message`."""
+    try:
+        with torch.device("meta"):
+            build(cfg)
+    except ValueError as error:
+        assert message in str(error), str(error)
+    else:
+        raise AssertionError(f"no error for {message}")
 
 
 def scene_tensors(case_name="rpsrt_k4"):
