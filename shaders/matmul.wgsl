@@ -47,6 +47,38 @@ struct Params {
 alias WeightVec = vec4<f32>;
 
 @group(0) @binding(0) var<uniform> p: Params;
+
+// Shapes fixed per pipeline (device::fixed_shapes: `linear_tiled` and `linear_reduce` on GPUs): with SHAPED, the
+// op's dimensions and flags are these override constants (kernels::matmul::fixed_shape), so the GPU's compiler
+// sees loop bounds, strides and branches as constants; without, they come from the params (the same names).
+override SHAPED: bool = false;
+override SHAPED_M: u32 = 0u;
+override SHAPED_N: u32 = 0u;
+override SHAPED_K4: u32 = 0u;
+override SHAPED_N4: u32 = 0u;
+override SHAPED_ACT: u32 = 0u;
+override SHAPED_HAS_BIAS: u32 = 0u;
+override SHAPED_ACCUMULATE: u32 = 0u;
+override SHAPED_W_LD4: u32 = 0u;
+override SHAPED_SPLITS: u32 = 0u;
+override SHAPED_K_SPLIT4: u32 = 0u;
+override SHAPED_M_TILES: u32 = 0u;
+override SHAPED_NORM: u32 = 0u;
+override SHAPED_NORM_COLS: u32 = 0u;
+fn op_m() -> u32 { return select(p.m, SHAPED_M, SHAPED); }
+fn op_n() -> u32 { return select(p.n, SHAPED_N, SHAPED); }
+fn op_k4() -> u32 { return select(p.k4, SHAPED_K4, SHAPED); }
+fn op_n4() -> u32 { return select(p.n4, SHAPED_N4, SHAPED); }
+fn op_act() -> u32 { return select(p.act, SHAPED_ACT, SHAPED); }
+fn op_has_bias() -> u32 { return select(p.has_bias, SHAPED_HAS_BIAS, SHAPED); }
+fn op_accumulate() -> u32 { return select(p.accumulate, SHAPED_ACCUMULATE, SHAPED); }
+fn op_w_ld4() -> u32 { return select(p.w_ld4, SHAPED_W_LD4, SHAPED); }
+fn op_splits() -> u32 { return select(p.splits, SHAPED_SPLITS, SHAPED); }
+fn op_k_split4() -> u32 { return select(p.k_split4, SHAPED_K_SPLIT4, SHAPED); }
+fn op_m_tiles() -> u32 { return select(p.m_tiles, SHAPED_M_TILES, SHAPED); }
+fn op_norm() -> u32 { return select(p.norm, SHAPED_NORM, SHAPED); }
+fn op_norm_cols() -> u32 { return select(p.norm_cols, SHAPED_NORM_COLS, SHAPED); }
+
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> w: array<WeightVec>;
 // [1, N]; when there is no bias the wrapper binds w here and has_bias is 0.
@@ -60,44 +92,44 @@ const ROWS: u32 = 4u;
 // Finishes 4 columns of one row: bias, activation, zeroed padding columns, accumulate, store.
 fn store4(row: u32, c4: u32, acc: vec4<f32>) {
     var v = acc;
-    if (p.has_bias != 0u) {
+    if (op_has_bias() != 0u) {
         v += bias[c4];
     }
     let cols = vec4<u32>(4u * c4) + vec4<u32>(0u, 1u, 2u, 3u);
-    let at = row * p.n4 + c4;
+    let at = row * op_n4() + c4;
     var prior = vec4<f32>(0.0);
-    if (p.accumulate != 0u) {
+    if (op_accumulate() != 0u) {
         prior = out[at];
     }
-    out[at] = epilogue(v, prior, p.accumulate, p.act, p.slope, cols < vec4<u32>(p.n));
+    out[at] = epilogue(v, prior, op_accumulate(), op_act(), p.slope, cols < vec4<u32>(op_n()));
 }
 
 @compute @workgroup_size(64)
 fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
           @builtin(local_invocation_index) lid: u32) {
-    let tiles = (p.n4 + 1u) / 2u;
+    let tiles = (op_n4() + 1u) / 2u;
     let group = wid.x + wid.y * nwg.x;
     let tile = group % tiles;
     let row0 = ((group / tiles) * WG + lid) * ROWS;
-    if (row0 >= p.m) {
+    if (row0 >= op_m()) {
         return;
     }
     // Rows past the end of x or w are clamped to the last one; their results are dropped or zeroed.
-    let last_m = p.m - 1u;
-    let last_n = p.n - 1u;
-    let x0 = row0 * p.k4;
-    let x1 = min(row0 + 1u, last_m) * p.k4;
-    let x2 = min(row0 + 2u, last_m) * p.k4;
-    let x3 = min(row0 + 3u, last_m) * p.k4;
+    let last_m = op_m() - 1u;
+    let last_n = op_n() - 1u;
+    let x0 = row0 * op_k4();
+    let x1 = min(row0 + 1u, last_m) * op_k4();
+    let x2 = min(row0 + 2u, last_m) * op_k4();
+    let x3 = min(row0 + 3u, last_m) * op_k4();
     let col0 = 8u * tile;
-    let w0 = min(col0, last_n) * p.w_ld4;
-    let w1 = min(col0 + 1u, last_n) * p.w_ld4;
-    let w2 = min(col0 + 2u, last_n) * p.w_ld4;
-    let w3 = min(col0 + 3u, last_n) * p.w_ld4;
-    let w4 = min(col0 + 4u, last_n) * p.w_ld4;
-    let w5 = min(col0 + 5u, last_n) * p.w_ld4;
-    let w6 = min(col0 + 6u, last_n) * p.w_ld4;
-    let w7 = min(col0 + 7u, last_n) * p.w_ld4;
+    let w0 = min(col0, last_n) * op_w_ld4();
+    let w1 = min(col0 + 1u, last_n) * op_w_ld4();
+    let w2 = min(col0 + 2u, last_n) * op_w_ld4();
+    let w3 = min(col0 + 3u, last_n) * op_w_ld4();
+    let w4 = min(col0 + 4u, last_n) * op_w_ld4();
+    let w5 = min(col0 + 5u, last_n) * op_w_ld4();
+    let w6 = min(col0 + 6u, last_n) * op_w_ld4();
+    let w7 = min(col0 + 7u, last_n) * op_w_ld4();
     // acc<row><half>: columns 0..3 (half 0) and 4..7 (half 1) of the block.
     var acc00 = vec4<f32>(0.0);
     var acc01 = vec4<f32>(0.0);
@@ -107,7 +139,7 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     var acc21 = vec4<f32>(0.0);
     var acc30 = vec4<f32>(0.0);
     var acc31 = vec4<f32>(0.0);
-    for (var k = 0u; k < p.k4; k++) {
+    for (var k = 0u; k < op_k4(); k++) {
         let b0 = vec4<f32>(w[w0 + k]);
         let b1 = vec4<f32>(w[w1 + k]);
         let b2 = vec4<f32>(w[w2 + k]);
@@ -135,7 +167,7 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
         let row = row0 + i / 2u;
         let c4 = 2u * tile + i % 2u;
         // The second half of the last tile may lie past ld(N).
-        if (row < p.m && c4 < p.n4) {
+        if (row < op_m() && c4 < op_n4()) {
             store4(row, c4, block[i]);
         }
     }
@@ -187,14 +219,14 @@ fn sum_over_row(li: u32, part: vec4<f32>) -> vec4<f32> {
     return sum;
 }
 
-// Statistics of rows a and b (x offsets, vec4s) over the p.norm_cols columns, each of the TILE_K4 invocations
+// Statistics of rows a and b (x offsets, vec4s) over the norm_cols columns, each of the TILE_K4 invocations
 // sharing them taking every TILE_K4-th vec4 from kk.
 fn row_norms(li: u32, kk: u32, a: u32, b: u32) -> array<RowNorm, 2> {
     let x0 = vec2<f32>(x[a].x, x[b].x);
-    let cols = p.norm_cols;
+    let cols = op_norm_cols();
     let lanes = vec4<u32>(0u, 1u, 2u, 3u);
     var s = vec4<f32>(0.0);
-    for (var k = kk; k < p.k4; k += TILE_K4) {
+    for (var k = kk; k < op_k4(); k += TILE_K4) {
         let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
         let da = select(vec4<f32>(0.0), x[a + k] - x0.x, inside);
         let db = select(vec4<f32>(0.0), x[b + k] - x0.y, inside);
@@ -202,7 +234,7 @@ fn row_norms(li: u32, kk: u32, a: u32, b: u32) -> array<RowNorm, 2> {
     }
     let delta = sum_over_row(li, s).xy / f32(cols);
     var v = vec4<f32>(0.0);
-    for (var k = kk; k < p.k4; k += TILE_K4) {
+    for (var k = kk; k < op_k4(); k += TILE_K4) {
         let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
         let da = select(vec4<f32>(0.0), (x[a + k] - x0.x) - delta.x, inside);
         let db = select(vec4<f32>(0.0), (x[b + k] - x0.y) - delta.y, inside);
@@ -213,11 +245,11 @@ fn row_norms(li: u32, kk: u32, a: u32, b: u32) -> array<RowNorm, 2> {
     return array<RowNorm, 2>(RowNorm(x0.x, delta.x, rstd.x), RowNorm(x0.y, delta.y, rstd.y));
 }
 
-// Vec4 k of a row of x as staged: normalised when `p.norm` is 1 (zero in the padding columns, where gamma and
+// Vec4 k of a row of x as staged: normalised when `norm` is 1 (zero in the padding columns, where gamma and
 // beta are zero).
 fn x_staged(at: u32, k: u32, n: RowNorm) -> vec4<f32> {
     let v = x[at + k];
-    if (p.norm == 0u) {
+    if (op_norm() == 0u) {
         return v;
     }
     return ((v - n.x0) - n.delta) * n.rstd * gamma[k] + beta[k];
@@ -235,28 +267,28 @@ fn load_step(k: u32, k_end: u32, xa: u32, xb: u32, wa: u32, wb: u32, norms: arra
 @compute @workgroup_size(16, 16)
 fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let tiles = (p.n4 + TILE / 4u - 1u) / (TILE / 4u);
+    let tiles = (op_n4() + TILE / 4u - 1u) / (TILE / 4u);
     let group = wid.x + wid.y * nwg.x;
     let tile = group % tiles;
     let rest = group / tiles;
-    let row0 = (rest % p.m_tiles) * TILE;
-    let split = rest / p.m_tiles;
+    let row0 = (rest % op_m_tiles()) * TILE;
+    let split = rest / op_m_tiles();
     // The same for every invocation of the workgroup, so the barriers below stay in uniform control flow.
-    if (split >= p.splits) {
+    if (split >= op_splits()) {
         return;
     }
-    let k_begin = split * p.k_split4;
-    let k_end = min(p.k4, k_begin + p.k_split4);
+    let k_begin = split * op_k_split4();
+    let k_end = min(op_k4(), k_begin + op_k_split4());
     let col0 = tile * TILE;
     let r = li / TILE_K4;
     let kk = li % TILE_K4;
     // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed).
-    let xa = min(row0 + r, p.m - 1u) * p.k4;
-    let xb = min(row0 + r + STAGE_STEP, p.m - 1u) * p.k4;
-    let wa = min(col0 + r, p.n - 1u) * p.w_ld4;
-    let wb = min(col0 + r + STAGE_STEP, p.n - 1u) * p.w_ld4;
+    let xa = min(row0 + r, op_m() - 1u) * op_k4();
+    let xb = min(row0 + r + STAGE_STEP, op_m() - 1u) * op_k4();
+    let wa = min(col0 + r, op_n() - 1u) * op_w_ld4();
+    let wb = min(col0 + r + STAGE_STEP, op_n() - 1u) * op_w_ld4();
     var norms = array<RowNorm, 2>(RowNorm(0.0, 0.0, 1.0), RowNorm(0.0, 0.0, 1.0));
-    if (p.norm != 0u) {
+    if (op_norm() != 0u) {
         norms = row_norms(li, kk, xa, xb);
     }
     var next = load_step(k_begin + kk, k_end, xa, xb, wa, wb, norms);
@@ -272,11 +304,11 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         let row = row0 + lid.y + 16u * i;
         for (var j = 0u; j < TILE_COLS4; j++) {
             let c4 = tile * (TILE / 4u) + 16u * j + lid.x;
-            if (row < p.m && c4 < p.n4) {
-                if (p.splits == 1u) {
+            if (row < op_m() && c4 < op_n4()) {
+                if (op_splits() == 1u) {
                     store4(row, c4, acc[i * TILE_COLS4 + j]);
                 } else {
-                    out[(split * p.m + row) * p.n4 + c4] = acc[i * TILE_COLS4 + j];
+                    out[(split * op_m() + row) * op_n4() + c4] = acc[i * TILE_COLS4 + j];
                 }
             }
         }
@@ -290,14 +322,14 @@ fn linear_reduce(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups)
                  @builtin(local_invocation_index) lid: u32) {
     _ = w[0];
     let index = (wid.x + wid.y * nwg.x) * WG + lid;
-    if (index >= p.m * p.n4) {
+    if (index >= op_m() * op_n4()) {
         return;
     }
-    let row = index / p.n4;
-    let c4 = index % p.n4;
+    let row = index / op_n4();
+    let c4 = index % op_n4();
     var sum = vec4<f32>(0.0);
-    for (var s = 0u; s < p.splits; s++) {
-        sum += x[(s * p.m + row) * p.n4 + c4];
+    for (var s = 0u; s < op_splits(); s++) {
+        sum += x[(s * op_m() + row) * op_n4() + c4];
     }
     store4(row, c4, sum);
 }

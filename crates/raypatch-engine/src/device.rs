@@ -2,7 +2,7 @@
 //! profile ([`KernelChoice`]: the matmul kernel family for its adapter, the texture room) once; every plan
 //! copies it; each kernel wrapper works out its op's shape facts (whether the operands fit a kernel's
 //! textures and grid) and asks here for the variant: [`linear_variant`], [`conv_variant`],
-//! [`attention_variant`].
+//! [`attention_variant`], and whether its pipeline is specialised to its shape: [`fixed_shapes`].
 //!
 //! The families: `Rows` (storage buffers and register tiles, any adapter), `Tiled` (workgroup-memory tiles:
 //! GPUs), `Lanes` (packed textures and 8-lane subgroup broadcasts: llvmpipe). Adding a variant is an arm here,
@@ -100,6 +100,14 @@ pub fn linear_variant(choice: &KernelChoice, f32_weights: bool, lanes_fit: impl 
 /// kernel.
 pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
     linear_variant(choice, true, lanes_suit)
+}
+
+/// Whether ops of this variant run on pipelines compiled for their own shape (override constants: `SHAPED` in
+/// `shaders/matmul.wgsl`): on `Tiled`, the GPUs' variant, whose drivers compile a pipeline in milliseconds (once,
+/// then from the pipeline cache) and, given the dimensions as constants, unroll and fold the K loop's bounds and
+/// strides. Not on the CPU kernels: llvmpipe takes longer to compile a pipeline than to run most ops.
+pub fn fixed_shapes(variant: MatmulKernel) -> bool {
+    variant == MatmulKernel::Tiled
 }
 
 /// The tile of a `Tiled` GEMM (`shaders/tiles.wgsl`): 64 x 64 outputs per workgroup (4 x 4 per invocation,

@@ -100,6 +100,9 @@ pub struct CounterSnapshot {
     pub dispatches: u64,
 }
 
+/// A compiled pipeline's identity: shader, entry point, and its override constants' values (as bits).
+type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
+
 pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
@@ -111,7 +114,7 @@ pub struct Gpu {
     pub max_buffer_bytes: u64,
     /// Kernel variants plans record on this adapter.
     pub kernels: KernelChoice,
-    pipelines: Mutex<HashMap<(&'static str, &'static str), Arc<wgpu::ComputePipeline>>>,
+    pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
     /// The driver's cache of compiled pipelines, kept on disk between runs (written when dropped).
     pub(crate) pipeline_cache: DiskCache,
     /// Constant tensors (weights, scenes' keys and values) packed into textures for `matmul_lanes`, per
@@ -227,12 +230,18 @@ impl Gpu {
         format!("{} ({:?}, {} {})", self.info.name, self.info.backend, self.info.driver, self.info.driver_info)
     }
 
-    /// The compute pipeline of `shader`'s `entry`, compiled on first use (through the pipeline cache on disk,
-    /// where there is one) and cached for the life of the Gpu.
-    pub fn pipeline(&self, shader: &'static Shader, entry: &'static str) -> Arc<wgpu::ComputePipeline> {
+    /// The compute pipeline of `shader`'s `entry` with its override `constants`, compiled on first use (through
+    /// the pipeline cache on disk, where there is one) and cached for the life of the Gpu.
+    pub fn pipeline(
+        &self,
+        shader: &'static Shader,
+        entry: &'static str,
+        constants: &[(&'static str, f64)],
+    ) -> Arc<wgpu::ComputePipeline> {
         let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
+        let key = (shader.name, entry, constants.iter().map(|&(name, value)| (name, value.to_bits())).collect());
         cache
-            .entry((shader.name, entry))
+            .entry(key)
             .or_insert_with(|| {
                 self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
                 let start = Instant::now();
@@ -245,7 +254,7 @@ impl Gpu {
                     layout: None,
                     module: &module,
                     entry_point: Some(entry),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
                     cache: self.pipeline_cache.wgpu(),
                 });
                 let nanos = start.elapsed().as_nanos().try_into().unwrap_or(u64::MAX);

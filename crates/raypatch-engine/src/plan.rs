@@ -76,6 +76,9 @@ pub struct Op {
     pub bindings: Vec<(View, Access)>,
     pub textures: Vec<(TextureRef, Access)>,
     pub workgroups: [u32; 3],
+    /// Values of the shader's override constants (`override NAME: T;`) this op's pipeline is compiled with:
+    /// a kernel specialised to its op's shape (`device::fixed_shapes`), else none.
+    pub constants: Vec<(&'static str, f64)>,
     /// Multiply-adds of the op's arithmetic (matmuls, attention products, convolutions); 0 for ops whose
     /// work is linear in their data (norms, encodings, resizes, elementwise maps).
     pub multiply_adds: u64,
@@ -359,7 +362,7 @@ impl PlanBuilder {
 
         let mut planned = Vec::with_capacity(ops.len());
         for ((op, &param_offset), op_views) in ops.iter().zip(&offsets).zip(&views) {
-            let pipeline = gpu.pipeline(op.shader, op.entry);
+            let pipeline = gpu.pipeline(op.shader, op.entry, &op.constants);
             let param_size = ((op.params.len() * 4) as u64).max(16).div_ceil(16) * 16;
             let mut entries = vec![wgpu::BindGroupEntry {
                 binding: 0,

@@ -134,6 +134,7 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         bindings: vec![(q, Access::Read), (k, Access::Read), (v, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid(q.rows.div_ceil(ROWS_PER_GROUP) * heads),
+        constants: Vec::new(),
         multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
     });
 }
@@ -185,6 +186,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
             bindings: [&inputs[..], &[(out, Access::Write)]].concat(),
             textures: Vec::new(),
             workgroups: groups,
+            constants: Vec::new(),
             multiply_adds,
         });
         return;
@@ -199,6 +201,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         bindings: [&inputs[..], &[(partials, Access::Write)]].concat(),
         textures: Vec::new(),
         workgroups: groups,
+        constants: Vec::new(),
         multiply_adds,
     });
     plan.push(Op {
@@ -209,6 +212,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         bindings: vec![(partials, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid((q.rows * heads).div_ceil(FLASH_ROWS)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -51,6 +51,7 @@ pub fn concat_columns(plan: &mut PlanBuilder, label: &str, a: View, b: View, out
         bindings: vec![(a, Access::Read), (b, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid((a.rows * out_ld).div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -169,6 +169,7 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
         ],
         textures: Vec::new(),
         workgroups: grid(pixel_tiles * cout_tiles),
+        constants: Vec::new(),
         multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
     });
 }

@@ -72,6 +72,7 @@ pub fn copy_columns(plan: &mut PlanBuilder, label: &str, args: CopyArgs) {
         bindings: vec![(x, Access::Read), (out, Access::ReadWrite)],
         textures: Vec::new(),
         workgroups: grid((out.rows * cols).div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

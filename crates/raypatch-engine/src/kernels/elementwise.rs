@@ -105,6 +105,7 @@ pub fn map_columns(plan: &mut PlanBuilder, label: &str, args: MapColumnsArgs) {
         bindings: vec![(x, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid((x.rows * ld4).div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: 0, // elementwise: not multiply-add work worth counting
     });
 }

@@ -63,6 +63,7 @@ pub fn gru_cell(plan: &mut PlanBuilder, label: &str, args: GruArgs) {
         bindings: vec![(gi, Access::Read), (gh, Access::Read), (h, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid((h.rows * ld).div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -5,7 +5,7 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{gemm_tile, linear_variant, splits_to_fill, GemmTile, MatmulKernel};
+use crate::device::{fixed_shapes, gemm_tile, linear_variant, splits_to_fill, GemmTile, MatmulKernel};
 use crate::kernels::norm::{check_affine, layernorm, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
@@ -199,6 +199,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         ((plan.all(partials), Access::Write), format!("{label}.split"), groups * params.splits as usize)
     };
     bindings.insert(3, written);
+    let constants = if fixed_shapes(variant) { fixed_shape(&params) } else { Vec::new() };
     plan.push(Op {
         label: op_label,
         shader,
@@ -207,6 +208,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         bindings,
         textures: Vec::new(),
         workgroups: grid(op_groups),
+        constants: constants.clone(),
         multiply_adds,
     });
     if splits > 1 {
@@ -218,9 +220,32 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
             bindings: vec![(written.0, Access::Read), (weight, Access::Read), (bias, Access::Read), (out, out_access)],
             textures: Vec::new(),
             workgroups: grid((m * n4).div_ceil(64)),
+            constants,
             multiply_adds: 0,
         });
     }
+}
+
+/// The override constants that fix `shaders/matmul.wgsl`'s op to `params` (`SHAPED`, and every field the shader
+/// reads through its `op_*` accessors; `slope` and `eps` stay in the params).
+fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
+    let p = params;
+    let fields = [
+        ("SHAPED_M", p.m),
+        ("SHAPED_N", p.n),
+        ("SHAPED_K4", p.k4),
+        ("SHAPED_N4", p.n4),
+        ("SHAPED_ACT", p.act),
+        ("SHAPED_HAS_BIAS", p.has_bias),
+        ("SHAPED_ACCUMULATE", p.accumulate),
+        ("SHAPED_W_LD4", p.w_ld4),
+        ("SHAPED_SPLITS", p.splits),
+        ("SHAPED_K_SPLIT4", p.k_split4),
+        ("SHAPED_M_TILES", p.m_tiles),
+        ("SHAPED_NORM", p.norm),
+        ("SHAPED_NORM_COLS", p.norm_cols),
+    ];
+    std::iter::once(("SHAPED", 1.0)).chain(fields.map(|(name, value)| (name, f64::from(value)))).collect()
 }
 
 /// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` of small tiles
@@ -430,6 +455,7 @@ fn push_gemm(
         bindings: vec![(bias, Access::Read), (out, out_access)],
         textures: vec![(x, Access::Read), (w, Access::Read)],
         workgroups,
+        constants: Vec::new(),
         multiply_adds,
     });
 }

@@ -54,6 +54,7 @@ pub fn mix_rows(plan: &mut PlanBuilder, label: &str, args: MixArgs) {
         bindings: vec![(w, Access::Read), (plan.all(x), Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid((w.rows * ld4).div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: (w.rows * n * cols) as u64,
     });
 }

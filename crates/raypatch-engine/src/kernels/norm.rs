@@ -80,6 +80,7 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
         bindings,
         textures: Vec::new(),
         workgroups: grid(x.rows.div_ceil(ROWS_PER_GROUP)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -212,6 +212,7 @@ pub fn pack_source(plan: &mut PlanBuilder, label: &str, src: Source, dst: Textur
         textures: vec![(dst, Access::Write)],
         // One workgroup per 8 packed rows (zero rows included).
         workgroups: grid((params.texels / params.k4p).div_ceil(8) as usize),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }
@@ -230,6 +231,7 @@ pub fn pack_softmax_rows(plan: &mut PlanBuilder, label: &str, src: Source, dst: 
         bindings: vec![(src.view, Access::Read)],
         textures: vec![(dst, Access::Write)],
         workgroups: grid(src.view.rows.div_ceil(64)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

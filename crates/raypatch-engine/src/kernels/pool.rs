@@ -87,6 +87,7 @@ pub fn max_pool2d(plan: &mut PlanBuilder, label: &str, args: PoolArgs) {
         bindings: vec![(x, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid(total.div_ceil(64)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

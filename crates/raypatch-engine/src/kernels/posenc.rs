@@ -136,6 +136,7 @@ pub fn fourier_encode(plan: &mut PlanBuilder, label: &str, args: FourierArgs) {
         bindings: vec![(coords, Access::Read), (out, Access::ReadWrite)],
         textures: Vec::new(),
         workgroups: grid(out.rows.div_ceil(ROWS_PER_GROUP)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -74,6 +74,7 @@ fn resize(plan: &mut PlanBuilder, label: &str, entry: &'static str, args: Resize
         bindings: vec![(x, Access::Read), (out, if accumulate { Access::ReadWrite } else { Access::Write })],
         textures: Vec::new(),
         workgroups: grid(total.div_ceil(64)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }

@@ -93,6 +93,7 @@ fn record(
         bindings: vec![(x, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
         workgroups: grid(invocations.div_ceil(GROUP_SIZE)),
+        constants: Vec::new(),
         multiply_adds: 0,
     });
 }
