@@ -209,12 +209,13 @@ struct RowNorm {
 // x_tile[li] and adds up its row's. x_tile is free before the first step.
 fn sum_over_row(li: u32, part: vec4<f32>) -> vec4<f32> {
     workgroupBarrier();
-    x_tile[li] = part;
+    // (f16 tiles would round the sums: the f16-activation variants run the norm as a dispatch of its own.)
+    x_tile[li] = vec4<TileFloat>(part);
     workgroupBarrier();
     var sum = vec4<f32>(0.0);
     let first = li - li % TILE_K4;
     for (var t = 0u; t < TILE_K4; t++) {
-        sum += x_tile[first + t];
+        sum += vec4<f32>(x_tile[first + t]);
     }
     return sum;
 }
@@ -261,7 +262,9 @@ fn load_step(k: u32, k_end: u32, xa: u32, xb: u32, wa: u32, wb: u32, norms: arra
     if (k >= k_end) {
         return Staged();
     }
-    return Staged(x_staged(xa, k, norms[0]), x_staged(xb, k, norms[1]), vec4<f32>(w[wa + k]), vec4<f32>(w[wb + k]));
+    let x0 = x_staged(xa, k, norms[0]);
+    let x1 = x_staged(xb, k, norms[1]);
+    return Staged(vec4<TileFloat>(x0), vec4<TileFloat>(x1), vec4<TileFloat>(w[wa + k]), vec4<TileFloat>(w[wb + k]));
 }
 
 @compute @workgroup_size(16, 16)

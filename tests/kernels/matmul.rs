@@ -8,6 +8,7 @@ use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::{padded_cols, Dtype};
+use raypatch_engine::Precision;
 use raypatch_reference::matmul as reference;
 use raypatch_reference::norm::layernorm;
 
@@ -31,13 +32,16 @@ const NORM_EPS: f32 = 1e-5;
 /// Runs one case and checks the values, the zeroed padding of out, and that rows outside the view of
 /// out are untouched.
 fn check(case: &Case, rng: &mut Rng) {
-    check_with(case, rng, Dtype::F32);
+    check_with(case, rng, Precision::F32);
 }
 
-/// [`check`] with the weights stored as `weights` (f16 weights: the reference uses the f16-rounded
-/// weights, since the kernel computes with exactly those in f32).
-fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
+/// [`check`] at `precision`. f16 weights: the reference uses the f16-rounded weights, since the kernel computes
+/// with exactly those in f32. f16 activations (on `Tiled` only, where they apply): the reference also rounds
+/// x (normalised, where it is) to f16, and the tolerance adds the f16 sums of each K step.
+fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
     let Case { m, k, n, act, .. } = *case;
+    let weights = if precision.f16_weights() { Dtype::F16 } else { Dtype::F32 };
+    let f16_activations = precision == Precision::F16Activations;
     let gpu = gpu();
     let (x_start, out_start, extra) = if case.view { (64, 128, 3) } else { (0, 0, 0) };
     let x_rows = x_start + m + extra;
@@ -90,6 +94,9 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     if case.norm {
         x = layernorm(&x, k, &to_f64(&gamma), &to_f64(&beta), f64::from(NORM_EPS));
     }
+    if f16_activations {
+        x.iter_mut().for_each(|v| *v = half::f16::from_f64(*v).to_f64());
+    }
     let w64 = to_f64(&w);
     let bias64 = bias.as_ref().map(|b| to_f64(b));
     let residual = residual.map(|r| to_f64(&r));
@@ -97,10 +104,11 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
     let w = w64;
     let bias = bias64;
 
-    for kernel in matmul_kernels() {
+    let kernels = if f16_activations { vec![MatmulKernel::Tiled] } else { matmul_kernels() };
+    for kernel in kernels {
         gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
         let mut plan = PlanBuilder::new();
-        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+        plan.kernels = KernelChoice { matmul: kernel, f16_activations, ..gpu.kernels };
         let x_id = plan.external("x", &x_t);
         let w_id = plan.external("w", &w_t);
         let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
@@ -122,6 +130,9 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
             norm,
         };
         linear(&mut plan, "linear", args);
+        if f16_activations {
+            assert!(plan.op_kernels().any(|k| k.starts_with("matmul_f16_act")), "f16 activations did not run");
+        }
         run(plan);
         let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
 
@@ -160,6 +171,22 @@ fn check_with(case: &Case, rng: &mut Rng, weights: Dtype) {
             let normed_err = (k as f64 / 4.0 + 3.0) * u * 2.0 * 3f64.sqrt();
             let w_sum = (0..n).map(|j| w[j * k..(j + 1) * k].iter().map(|v| v.abs()).sum::<f64>()).fold(0.0, f64::max);
             tol += normed_err * w_sum;
+        }
+        if f16_activations {
+            // Each K step's products are summed in f16 (unit roundoff 2^-11): per step a random walk of at most
+            // 32 roundings of its partial sums, c·√32·2^-11·Σ_step|x·w|, and the steps' errors add up like a
+            // random walk too. c = 4, as above.
+            let step = 32;
+            let f16_err = (0..m)
+                .flat_map(|i| (0..n).map(move |j| (i, j)))
+                .map(|(i, j)| {
+                    let steps = (0..k)
+                        .step_by(step)
+                        .map(|s0| (s0..(s0 + step).min(k)).map(|l| (x[i * k + l] * w[j * k + l]).abs()).sum::<f64>());
+                    steps.map(|sum| sum * sum).sum::<f64>().sqrt()
+                })
+                .fold(0.0, f64::max);
+            tol += 4.0 * (step as f64).sqrt() * 2f64.powi(-11) * f16_err;
         }
         assert_close(&what, &values, &expected, tol, 0.0);
     }
@@ -211,8 +238,47 @@ fn linear_f16_weights() {
             view: i % 3 == 0,
             norm: false,
         };
-        check_with(&case, &mut rng, Dtype::F16);
+        check_with(&case, &mut rng, Precision::F16Weights);
     }
+}
+
+/// f16 activations (`Precision::F16Activations`: `linear_tiled` stages x as f16 and sums each K step's products
+/// in f16), where the adapter has shader-f16: random shapes on both tile sizes, every option, a layer norm
+/// first (a dispatch of its own here), and K from one vec4 to many steps.
+#[test]
+fn linear_f16_activations() {
+    if !gpu().features.contains(raypatch_engine::wgpu::Features::SHADER_F16) {
+        eprintln!("{} has no shader-f16: f16 activations not tested", gpu().describe());
+        return;
+    }
+    let mut rng = Rng::new(5);
+    for i in 0..12 {
+        let k = if i < 3 { [1, 5, 9][i] } else { rng.range(1, 400) };
+        let case = Case {
+            m: rng.range(1, 300),
+            k,
+            n: rng.range(1, 100),
+            act: ACTIVATIONS[i % 4],
+            bias: (i / 4) % 2 == 1,
+            accumulate: i % 5 == 2,
+            view: i % 3 == 0,
+            norm: i % 4 == 1,
+        };
+        check_with(&case, &mut rng, Precision::F16Activations);
+    }
+    // 128x128 tiles (16 floats of K a step).
+    assert_eq!(gemm_tile(2000, 1100), GemmTile::Large);
+    let case = Case {
+        m: 2000,
+        k: 40,
+        n: 1100,
+        act: Activation::None,
+        bias: true,
+        accumulate: false,
+        view: false,
+        norm: false,
+    };
+    check_with(&case, &mut rng, Precision::F16Activations);
 }
 
 /// Shapes on and just past the edges of the tiles: `Rows`' 256x8 workgroup tile and 4x8 invocation block,

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use raypatch_engine::gpu::TimestampMode;
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Request, WeightStorage,
+    AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Precision, Request,
 };
 use raypatch_model::{InputViews, LoadedModel, ModelConfig, TargetViews};
 use raypatch_reference::model::{Argument, ReferenceModel, ReferenceScene};
@@ -173,7 +173,7 @@ struct Subject<'a> {
     /// The model as a file, for PyTorch.
     file: Option<&'a [u8]>,
     model: &'a Model,
-    storage: WeightStorage,
+    precision: Precision,
     inputs: &'a InputViews,
     encode: (Stats, Option<Stats>),
     encoded: EncodedScene<'a>,
@@ -282,10 +282,11 @@ fn size_text((h, w): (usize, usize)) -> String {
     format!("{h}x{w}")
 }
 
-fn precision_name(storage: WeightStorage) -> &'static str {
-    match storage {
-        WeightStorage::F32 => "f32",
-        WeightStorage::F16 => "f16",
+fn precision_name(precision: Precision) -> &'static str {
+    match precision {
+        Precision::F32 => "f32",
+        Precision::F16Weights => "f16",
+        Precision::F16Activations => "f16-act",
     }
 }
 
@@ -337,12 +338,12 @@ impl Bench {
         loaded: &'a LoadedModel,
         file: Option<&'a [u8]>,
         model: &'a Model,
-        storage: WeightStorage,
+        precision: Precision,
         inputs: &'a InputViews,
         references: std::result::Result<&'a References, String>,
     ) -> Result<Subject<'a>> {
         let (encode, encoded) = self.encode(model, inputs)?;
-        Ok(Subject { name, group, loaded, file, model, storage, inputs, encode, encoded, references })
+        Ok(Subject { name, group, loaded, file, model, precision, inputs, encode, encoded, references })
     }
 
     /// The fields of a record that do not need a render: the configuration, the encode's FLOPs, the memory a
@@ -361,7 +362,7 @@ impl Bench {
             model: s.name.clone(),
             decoder: cfg.name(),
             k,
-            precision: precision_name(s.storage).into(),
+            precision: precision_name(s.precision).into(),
             variant: variant.to_string(),
             parameters: s.loaded.parameter_count(),
             weight_bytes: s.model.weight_bytes(),
@@ -505,7 +506,7 @@ impl Bench {
                 &loaded,
                 None,
                 &model,
-                WeightStorage::F32,
+                Precision::F32,
                 &scene.inputs,
                 references.as_ref().map_err(Clone::clone),
             )?;
@@ -538,7 +539,7 @@ impl Bench {
                 &loaded,
                 Some(&file),
                 &model,
-                WeightStorage::F32,
+                Precision::F32,
                 &inputs,
                 references.as_ref().map_err(Clone::clone),
             )?;

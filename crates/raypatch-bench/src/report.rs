@@ -38,7 +38,8 @@ pub struct Record {
     /// `SRT`, `RP-SRT`, `OSRT` or `RP-OSRT`.
     pub decoder: String,
     pub k: usize,
-    /// Weight storage: `f32`, or `f16` (f32 arithmetic).
+    /// `f32`; `f16`: f16 linear weights, f32 arithmetic; `f16-act`: f16 weights and, on GPUs' `Tiled` kernel,
+    /// linear layers' inputs staged as f16 with each K step's products summed in f16 (`Precision`).
     pub precision: String,
     /// For the skips group: what is skipped or not.
     pub variant: String,

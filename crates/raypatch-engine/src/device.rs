@@ -83,6 +83,9 @@ pub struct KernelChoice {
     /// Texels the adapter's largest texture holds (`TEXTURE_WIDTH` x its largest 2-D dimension): ops whose
     /// packed operands would not fit fall back to buffer kernels.
     pub max_texels: usize,
+    /// The model's precision is `Precision::F16Activations`: `Tiled` linear layers with f16 weights stage their
+    /// inputs as f16 ([`linear_tiles`]). Set per model, not by the adapter.
+    pub f16_activations: bool,
 }
 
 /// The variant of a linear layer: `f32_weights` (f16 weights are read from buffers only) and `lanes_fit`
@@ -100,6 +103,24 @@ pub fn linear_variant(choice: &KernelChoice, f32_weights: bool, lanes_fit: impl 
 /// kernel.
 pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
     linear_variant(choice, true, lanes_suit)
+}
+
+/// What a linear layer running on `variant` with f16 or f32 weights stages in its workgroup tiles: f16 (inputs
+/// rounded, each step's products summed in f16) where the model asks for f16 activations and the layer runs on
+/// `Tiled` with f16 weights (a layer kept f32 for its range stays f32 throughout); else f32.
+pub fn linear_tiles(choice: &KernelChoice, variant: MatmulKernel, f16_weights: bool) -> TileElement {
+    if choice.f16_activations && variant == MatmulKernel::Tiled && f16_weights {
+        TileElement::F16
+    } else {
+        TileElement::F32
+    }
+}
+
+/// The element type of a `Tiled` GEMM's workgroup tiles (`TileFloat` in `shaders/tiles.wgsl`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TileElement {
+    F32,
+    F16,
 }
 
 /// Whether ops of this variant run on pipelines compiled for their own shape (override constants: `SHAPED` in

@@ -80,7 +80,7 @@ impl Model {
     /// Multiply-adds of encoding `count` input views of `height`×`width`, counted from the encode plan's ops
     /// (recorded, not built: nothing is allocated).
     pub fn encode_multiply_adds(&self, count: usize, height: usize, width: usize) -> u64 {
-        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
+        let mut g = self.graph();
         self.family.encode(&mut g, ImageSize { n: count, h: height, w: width });
         g.b.multiply_adds()
     }
@@ -147,7 +147,7 @@ impl Model {
 
     /// Records and builds the encode plan for input views of `size`.
     fn build_encode_plan(&self, size: ImageSize) -> Result<EncodePlan> {
-        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
+        let mut g = self.graph();
         let encoded = self.family.encode(&mut g, size);
         let Graph { b, host_inputs, .. } = g;
         let multiply_adds = b.multiply_adds();
@@ -420,7 +420,7 @@ impl EncodedScene<'_> {
     /// Records the render of `views` target views of a crop (no buffer exists yet).
     fn record(&self, views: usize, crop: &Crop, outputs: Outputs) -> Recorded {
         let model = self.model;
-        let mut g = Graph::new(model.gpu(), &model.weights.tensors);
+        let mut g = model.graph();
         let rendered = model.family.render(&mut g, &self.cached, views, crop.grid, outputs);
         let Graph { b, host_inputs, .. } = g;
         let k = model.family.patch_size();

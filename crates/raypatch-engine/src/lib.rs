@@ -28,6 +28,6 @@ pub use gpu::{AdapterChoice, Gpu, GpuOptions};
 pub use model::Model;
 pub use pipeline_cache::{PipelineCacheDir, PipelineCacheStatus};
 pub use tensor::GpuTensor;
-pub use weights::{KeptF32, LoadOptions, WeightStorage};
+pub use weights::{KeptF32, LoadOptions, Precision};
 /// The wgpu this engine is built on (for its types in the public API, e.g. `Gpu::features`).
 pub use wgpu;

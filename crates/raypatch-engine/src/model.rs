@@ -9,7 +9,7 @@ use raypatch_model::{LoadedModel, ModelConfig};
 use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
-use crate::graph::{HostInput, ImageSize};
+use crate::graph::{Graph, HostInput, ImageSize};
 use crate::models::{self, LightField};
 use crate::nn::ReadLimits;
 use crate::plan::{Plan, TensorId};
@@ -48,7 +48,7 @@ impl Model {
         Model::from_loaded_with(gpu, loaded, &LoadOptions::default())
     }
 
-    /// [`from_loaded`](Self::from_loaded) with options (f16 weights).
+    /// [`from_loaded`](Self::from_loaded) with options (the precision).
     pub fn from_loaded_with(gpu: Arc<Gpu>, loaded: &LoadedModel, options: &LoadOptions) -> Result<Model> {
         let limits =
             ReadLimits { tensor_bytes: gpu.max_buffer_bytes, total_bytes: host_memory_available().unwrap_or(u64::MAX) };
@@ -69,6 +69,13 @@ impl Model {
         &self.gpu
     }
 
+    /// A plan recording over this model's weights, against the GPU's kernel choice at the model's precision.
+    pub(crate) fn graph(&self) -> Graph<'_> {
+        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
+        g.b.kernels.f16_activations = self.weights.f16_activations;
+        g
+    }
+
     /// The outputs this model can render.
     pub fn outputs(&self) -> Outputs {
         self.family.outputs()
@@ -79,7 +86,7 @@ impl Model {
         self.weights.bytes
     }
 
-    /// Linear layers kept in f32 under f16 weight storage (a weight beyond f16's range).
+    /// Linear layers whose weights stay f32 under an f16 precision (a weight beyond f16's range).
     pub fn weights_kept_f32(&self) -> &[KeptF32] {
         &self.weights.kept_f32
     }

@@ -2,7 +2,7 @@
 //! multiple of 16 bytes (`ld` elements: 4 floats, or 8 halves), so kernels can load `vec4`s along a row.
 //! The padding is always zero: every kernel writes zeros into the padding of the rows it produces, and
 //! uploads pad with zeros. Images are NHWC matrices: one row per pixel, one column per channel.
-//! Everything is f32 except weights that a model stores as f16 (see `weights::WeightStorage`).
+//! Everything is f32 except weights that a model stores as f16 (see `weights::Precision`).
 
 use std::sync::Arc;
 

@@ -7,24 +7,39 @@ use crate::kernels::conv::pack_conv;
 use crate::nn::{Layout, WeightSet};
 use crate::tensor::GpuTensor;
 
-/// How the linear layers' weights are stored on the GPU (they are most of the bytes and of the time).
-/// Everything else (convolutions, biases, norms, activations) stays f32, and all arithmetic is f32.
+/// The precision a model runs at. Its linear layers' weights are most of the bytes and of the time; everything
+/// else (convolutions, biases, norms, attention, what layers hand each other) stays f32.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum WeightStorage {
+pub enum Precision {
+    /// f32 storage and arithmetic.
     #[default]
     F32,
-    /// f16 (needs the adapter's `SHADER_F16`). A layer with a weight beyond f16's range (|w| > 65504,
-    /// which f16 would turn into infinity) stays f32 and is listed in [`GpuWeights::kept_f32`].
-    F16,
+    /// Linear weights stored as f16 (needs the adapter's `SHADER_F16`), widened to f32 as they are read: f32
+    /// arithmetic. A layer with a weight beyond f16's range (|w| > 65504, which f16 would turn into infinity)
+    /// stays f32 and is listed in [`GpuWeights::kept_f32`].
+    F16Weights,
+    /// [`F16Weights`](Self::F16Weights), and where linear layers run on the GPUs' kernel (`MatmulKernel::Tiled`)
+    /// their inputs are rounded to f16 too as they are staged, and each K step's products (32 or 16 terms) are
+    /// summed in f16 before the steps are summed in f32 (`shaders/tiles.wgsl`): GPUs with packed f16 do that
+    /// arithmetic at twice f32's rate. Inputs beyond f16's range become infinite. Other kernels compute as under
+    /// `F16Weights`.
+    F16Activations,
+}
+
+impl Precision {
+    /// Whether linear weights are stored as f16.
+    pub fn f16_weights(self) -> bool {
+        self != Precision::F32
+    }
 }
 
 /// Options for putting a model on the GPU.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct LoadOptions {
-    pub weight_storage: WeightStorage,
+    pub precision: Precision,
 }
 
-/// A linear layer that stays f32 under [`WeightStorage::F16`], and why.
+/// A linear layer whose weights stay f32 under an f16 [`Precision`], and why.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KeptF32 {
     pub tensor: String,
@@ -37,21 +52,28 @@ pub struct GpuWeights {
     pub tensors: Vec<GpuTensor>,
     /// Bytes of GPU memory the weights take.
     pub bytes: u64,
-    /// Linear layers kept in f32 under [`WeightStorage::F16`] because a weight is beyond f16's range.
+    /// Linear layers kept in f32 under an f16 [`Precision`] because a weight is beyond f16's range.
     pub kept_f32: Vec<KeptF32>,
+    /// Whether plans over these weights stage linear layers' inputs as f16 ([`Precision::F16Activations`]).
+    pub f16_activations: bool,
 }
 
 impl WeightSet {
     /// Puts every prepared weight on the GPU in the layout its kernel reads.
     pub fn upload(&self, gpu: &Gpu, options: &LoadOptions) -> Result<GpuWeights> {
-        if options.weight_storage == WeightStorage::F16 && !gpu.features.contains(wgpu::Features::SHADER_F16) {
+        let f16_weights = options.precision.f16_weights();
+        if f16_weights && !gpu.features.contains(wgpu::Features::SHADER_F16) {
             return Err(EngineError::Request(format!(
                 "f16 weights need shader-f16, which {} does not have",
                 gpu.info.name
             )));
         }
-        let mut weights =
-            GpuWeights { tensors: Vec::with_capacity(self.prepared.len()), bytes: 0, kept_f32: Vec::new() };
+        let mut weights = GpuWeights {
+            tensors: Vec::with_capacity(self.prepared.len()),
+            bytes: 0,
+            kept_f32: Vec::new(),
+            f16_activations: options.precision == Precision::F16Activations,
+        };
         for p in &self.prepared {
             let data = p.data.to_f32();
             let tensor = match p.layout {
@@ -63,15 +85,13 @@ impl WeightSet {
                 }
                 Layout::Matrix { rows, cols } => {
                     let max_abs = data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-                    match options.weight_storage {
-                        WeightStorage::F16 if half::f16::from_f32(max_abs).is_finite() => {
-                            gpu.upload_f16(&p.name, rows, cols, &data)?
-                        }
-                        WeightStorage::F16 => {
-                            weights.kept_f32.push(KeptF32 { tensor: p.name.clone(), max_abs });
-                            gpu.upload(&p.name, rows, cols, &data)?
-                        }
-                        WeightStorage::F32 => gpu.upload(&p.name, rows, cols, &data)?,
+                    if !f16_weights {
+                        gpu.upload(&p.name, rows, cols, &data)?
+                    } else if half::f16::from_f32(max_abs).is_finite() {
+                        gpu.upload_f16(&p.name, rows, cols, &data)?
+                    } else {
+                        weights.kept_f32.push(KeptF32 { tensor: p.name.clone(), max_abs });
+                        gpu.upload(&p.name, rows, cols, &data)?
                     }
                 }
             };

@@ -127,7 +127,7 @@ impl Bench {
             &s.loaded.config.name(),
             grid.height,
             grid.width,
-            precision_name(s.storage)
+            precision_name(s.precision)
         );
         let mut rows = crate::kernels::fold(&format!("{config} render"), &render);
         rows.extend(crate::kernels::fold(&format!("{config} encode"), &encode));

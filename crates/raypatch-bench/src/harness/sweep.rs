@@ -5,7 +5,7 @@
 //! not built) and the rate measured at the previous size.
 
 use anyhow::Result;
-use raypatch_engine::{EngineError, LoadOptions, Model, WeightStorage};
+use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision};
 use raypatch_model::TargetViews;
 
 use super::{
@@ -74,18 +74,21 @@ impl Bench {
             let (loaded, file) = synthetic::random_model(&config, SEED + k as u64, name)?;
             let (inputs, _) = scene(views, input_size, 1, input_size)?;
             // Whether the float64 references are affordable is decided from the first model's encode (the
-            // weight storage does not change the work), and they serve both storages.
+            // precision does not change the work), and they serve every precision.
             let mut references = None;
-            let mut storages = vec![WeightStorage::F32];
-            // OSRT and DeFiNe in f32 only (the paper's comparison; f16 weights scale as they do for SRT).
+            let mut precisions = vec![Precision::F32];
+            // OSRT and DeFiNe in f32 only (the paper's comparison; f16 weights scale as they do for SRT). f16
+            // activations only where linear layers run on `Tiled` (GPUs): elsewhere they compute as f16 weights.
             if f16 && (name == "small" || !self.quick) && name != OSRT && name != DEFINE {
-                storages.push(WeightStorage::F16);
+                precisions.push(Precision::F16Weights);
+                if self.gpu.kernels.matmul == MatmulKernel::Tiled {
+                    precisions.push(Precision::F16Activations);
+                }
             }
             let mut sizes: Vec<(usize, usize)> =
                 sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
-            for storage in storages {
-                let model =
-                    Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { weight_storage: storage })?;
+            for precision in precisions {
+                let model = Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { precision })?;
                 if references.is_none() {
                     references = Some(self.references(&loaded, &model, &inputs)?);
                 }
@@ -95,7 +98,7 @@ impl Bench {
                     &loaded,
                     Some(&file),
                     &model,
-                    storage,
+                    precision,
                     &inputs,
                     references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
@@ -119,7 +122,7 @@ impl Bench {
         kernels: &mut Vec<KernelTime>,
     ) -> Result<Vec<(usize, usize)>> {
         let mut measured = Vec::new();
-        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.storage == WeightStorage::F32);
+        let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.precision == Precision::F32);
         let mut rate: Option<f64> = None;
         for &size in sizes {
             let (_, targets) = scene(views, input_size, 1, size)?;

@@ -5,11 +5,13 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{fixed_shapes, gemm_tile, linear_variant, splits_to_fill, GemmTile, MatmulKernel};
+use crate::device::{fixed_shapes, gemm_tile, linear_tiles, linear_variant, splits_to_fill};
+use crate::device::{GemmTile, MatmulKernel, TileElement};
 use crate::kernels::norm::{check_affine, layernorm, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_128, MATMUL_F16, MATMUL_F16_128, MATMUL_LANES};
+use crate::kernels::{MATMUL_F16_ACT, MATMUL_F16_ACT_128};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
@@ -84,15 +86,16 @@ pub struct RowNorm {
 /// out = act(x · wᵀ + bias), or out += act(x · wᵀ + bias) when `accumulate` (residual add in place).
 ///
 /// x: `[M, K]` view; w: `[N, K]` tensor (PyTorch `nn.Linear` layout, rows padded with zeros), f32 or f16
-/// (f16 weights are widened to f32 as they are loaded; the arithmetic is f32 either way);
+/// (f16 weights are widened to f32 as they are loaded, and the arithmetic is f32, except where the plan asks for
+/// f16 activations: `device::linear_tiles`);
 /// bias: optional `[1, N]` tensor; out: `[M, N]` view (written with [`Access::Write`], or
 /// [`Access::ReadWrite`] when accumulating). The activation is applied before the add. The padding
 /// columns of `out` are written as zeros (when accumulating they are zero already and stay zero).
 /// Records `M·N·K` multiply-adds. Runs on the plan's [`MatmulKernel`] (`plan.kernels.matmul`); `Lanes`
 /// hands f16 weights and operands too large for its textures to `Rows`.
 ///
-/// With `norm`, x's rows are layer-normalised first: on `Tiled` as `linear_tiled` stages them (the normalised
-/// rows are never written), elsewhere by a [`layernorm`] into a transient that the layer then reads.
+/// With `norm`, x's rows are layer-normalised first: on `Tiled` with f32 tiles as `linear_tiled` stages them (the
+/// normalised rows are never written), elsewhere by a [`layernorm`] into a transient that the layer then reads.
 pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let LinearArgs { x, weight: w, bias, out, act, accumulate, norm } = args;
     let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
@@ -152,7 +155,10 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
     };
     let variant = linear_variant(&plan.kernels, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
-    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, variant == MatmulKernel::Tiled) {
+    let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
+    // The norm in the prologue is linear_tiled's, with f32 tiles (it sums rows' statistics in them).
+    let fused_norm = variant == MatmulKernel::Tiled && tiles == TileElement::F32;
+    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, fused_norm) {
         let normed = plan.transient(&format!("{label}.norm"), m, k);
         let normed = plan.all(normed);
         layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
@@ -164,11 +170,13 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         MatmulKernel::Tiled => ("linear_tiled", (tile.size(), tile.size())),
         MatmulKernel::Rows => ("linear", ROWS_TILE),
     };
-    let shader = match (plan.dtype(w), variant == MatmulKernel::Tiled && tile == GemmTile::Large) {
-        (Dtype::F32, false) => &MATMUL,
-        (Dtype::F32, true) => &MATMUL_128,
-        (Dtype::F16, false) => &MATMUL_F16,
-        (Dtype::F16, true) => &MATMUL_F16_128,
+    let shader = match (plan.dtype(w), tiles, variant == MatmulKernel::Tiled && tile == GemmTile::Large) {
+        (Dtype::F32, _, false) => &MATMUL,
+        (Dtype::F32, _, true) => &MATMUL_128,
+        (Dtype::F16, TileElement::F32, false) => &MATMUL_F16,
+        (Dtype::F16, TileElement::F32, true) => &MATMUL_F16_128,
+        (Dtype::F16, TileElement::F16, false) => &MATMUL_F16_ACT,
+        (Dtype::F16, TileElement::F16, true) => &MATMUL_F16_ACT_128,
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     params.m_tiles = m.div_ceil(tile_rows) as u32;

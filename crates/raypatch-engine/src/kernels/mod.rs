@@ -254,6 +254,20 @@ macro_rules! shaders {
 const TILES_128: &[(&str, &str)] =
     &[("const TILE: u32 = 64u;", "const TILE: u32 = 128u;"), ("const TILE_K4: u32 = 8u;", "const TILE_K4: u32 = 4u;")];
 
+/// The replacement that makes `shaders/matmul.wgsl`'s weights f16 (widened to the tiles' type as they are loaded).
+const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;");
+
+/// The replacements that make `shaders/tiles.wgsl`'s tiles f16 and have `linear_tiled` sum each staged step's
+/// products in f16 before they join its f32 block (`Precision::F16Activations`).
+const F16_TILES: [(&str, &str); 2] = [
+    ("alias TileFloat = f32;", "alias TileFloat = f16;"),
+    (
+        "        multiply_staged(lid.x, lid.y, &acc);\n",
+        "        var step = array<vec4<TileFloat>, BLOCK>();\n        multiply_staged(lid.x, lid.y, &step);\n        \
+         for (var i = 0u; i < BLOCK; i++) {\n            acc[i] += vec4<f32>(step[i]);\n        }\n",
+    ),
+];
+
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
@@ -281,7 +295,7 @@ shaders! {
         MATMUL_F16 = MATMUL {
             name: "matmul_f16",
             prefix: "enable f16;\n",
-            replace: &[("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;")],
+            replace: &[F16_WEIGHTS],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
         /// `matmul` with 128 x 128 tiles in `linear_tiled` ([`GemmTile::Large`](crate::device::GemmTile)).
@@ -295,11 +309,21 @@ shaders! {
         MATMUL_F16_128 = MATMUL {
             name: "matmul_f16_128",
             prefix: "enable f16;\n",
-            replace: &[
-                ("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;"),
-                TILES_128[0],
-                TILES_128[1],
-            ],
+            replace: &[F16_WEIGHTS, TILES_128[0], TILES_128[1]],
+            features: wgpu::Features::SHADER_F16,
+        } => matmul::MatmulParams;
+        /// `matmul_f16` whose `linear_tiled` stages x as f16 too and sums each step's products in f16.
+        MATMUL_F16_ACT = MATMUL {
+            name: "matmul_f16_act",
+            prefix: "enable f16;\n",
+            replace: &[F16_WEIGHTS, F16_TILES[0], F16_TILES[1]],
+            features: wgpu::Features::SHADER_F16,
+        } => matmul::MatmulParams;
+        /// `matmul_f16_act` with 128 x 128 tiles.
+        MATMUL_F16_ACT_128 = MATMUL {
+            name: "matmul_f16_act_128",
+            prefix: "enable f16;\n",
+            replace: &[F16_WEIGHTS, F16_TILES[0], F16_TILES[1], TILES_128[0], TILES_128[1]],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
         /// `conv` with 128 x 128 tiles in `conv_tiled`.

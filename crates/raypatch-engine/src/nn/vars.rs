@@ -38,7 +38,7 @@ pub enum Source<'a> {
 /// How a prepared weight is laid out on the GPU.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Layout {
-    /// A `[rows, cols]` linear weight: may be stored as f16 (see `WeightStorage`).
+    /// A `[rows, cols]` linear weight: may be stored as f16 (see `Precision`).
     Matrix { rows: usize, cols: usize },
     /// A `[1, len]` row: biases, norm scales.
     Row,
