@@ -53,8 +53,8 @@ pub use error::{Error, Result};
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
 pub use raypatch_engine::{
-    AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Region, RenderStats,
-    Request,
+    AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Precision, Region,
+    RenderStats, Request,
 };
 pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 

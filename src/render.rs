@@ -4,8 +4,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, Gpu, GpuOptions, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir,
-    PipelineCacheStatus, RenderStats, Request,
+    AdapterChoice, EncodedScene, Gpu, GpuOptions, LoadOptions, MatmulKernel, OpTimes, Output, Outputs,
+    PipelineCacheDir, PipelineCacheStatus, Precision, RenderStats, Request,
 };
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
@@ -31,6 +31,9 @@ pub struct EngineOptions {
     pub max_buffer_bytes: Option<u64>,
     /// The kernel linear layers run on (`None`: the adapter's fastest; `Some` to compare or check one).
     pub matmul: Option<MatmulKernel>,
+    /// The precision models load at: f32 (the default), f16 linear weights, or f16 weights and activations
+    /// (faster on GPUs with shader-f16, rgb within ~1e-2; see [`Precision`]). f16 needs the adapter's shader-f16.
+    pub precision: Precision,
     /// Where compiled GPU pipelines are kept between runs (Vulkan): by default `$RAYPATCH_CACHE_DIR` (`off`
     /// turns it off), else `$XDG_CACHE_HOME/raypatch`, else `$HOME/.cache/raypatch`.
     pub pipeline_cache: PipelineCacheDir,
@@ -83,6 +86,7 @@ impl std::fmt::Display for Adapter {
 /// ```
 pub struct Engine {
     gpu: Arc<Gpu>,
+    load: LoadOptions,
 }
 
 impl Engine {
@@ -95,6 +99,7 @@ impl Engine {
                 matmul: options.matmul,
                 pipeline_cache: options.pipeline_cache,
             })?),
+            load: LoadOptions { precision: options.precision },
         })
     }
 
@@ -131,14 +136,15 @@ impl Engine {
     /// # Ok::<(), raypatch::Error>(())
     /// ```
     pub fn load(&self, path: impl AsRef<Path>) -> Result<Model> {
-        Ok(Model { inner: raypatch_engine::Model::load(self.gpu.clone(), path)? })
+        let loaded = raypatch_model::load_model(path)?;
+        Ok(Model { inner: raypatch_engine::Model::from_loaded_with(self.gpu.clone(), &loaded, &self.load)? })
     }
 
     /// Loads a model from the bytes of a model file (e.g. one embedded in a program); `name` stands for the
     /// file in messages.
     pub fn load_bytes(&self, name: &str, bytes: &[u8]) -> Result<Model> {
         let loaded = raypatch_model::weights::model_from_file(raypatch_model::TensorFile::parse(name, bytes)?)?;
-        Ok(Model { inner: raypatch_engine::Model::from_loaded(self.gpu.clone(), &loaded)? })
+        Ok(Model { inner: raypatch_engine::Model::from_loaded_with(self.gpu.clone(), &loaded, &self.load)? })
     }
 
     /// What the GPU has done so far (pipelines compiled, buffers created, submits, dispatches): for checking

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch::metrics::{psnr, ssim};
 use raypatch::{
-    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Output, Outputs, RayGrid, Region,
-    Rendered, Request, SceneData,
+    Camera, CameraAxes, Engine, EngineOptions, Error, Image, InputView, Intrinsics, Output, Outputs, Precision,
+    RayGrid, Region, Rendered, Request, SceneData,
 };
 
 /// Largest difference allowed between two ray directions that describe the same camera: both are rounded
@@ -312,6 +312,32 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     assert_eq!(after.buffers_created, before.buffers_created, "a same-size render created buffers");
     assert_eq!(after.pipelines_compiled, before.pipelines_compiled, "a same-size render compiled pipelines");
     assert_eq!(after.submits, before.submits + 2, "each render is one submit");
+}
+
+/// The engine's precision applies to every model it loads: f16 weights (and, on the GPUs' kernel, activations)
+/// move the render by f16's rounding (tests/stress/f16.rs bounds it against the float64 model), no more.
+#[test]
+fn models_load_at_the_engines_precision() {
+    let render = |precision| {
+        let engine = Engine::new(EngineOptions { precision, ..Default::default() }).unwrap();
+        let model = match engine.load(golden("rpsrt_k4").join("model.safetensors")) {
+            Err(e) if e.to_string().contains("need shader-f16") => return None,
+            loaded => loaded.unwrap(),
+        };
+        let data = SceneData::load(golden("rpsrt_k4").join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let rendered = scene.render(&data.targets[0].camera, &Request::default()).unwrap();
+        Some(rendered.get(Output::Rgb).unwrap().to_vec())
+    };
+    let f32_rgb = render(Precision::F32).expect("f32 needs no feature");
+    for precision in [Precision::F16Weights, Precision::F16Activations] {
+        let Some(rgb) = render(precision) else {
+            eprintln!("the adapter has no shader-f16: {precision:?} not tested");
+            return;
+        };
+        let diff = max_diff(&rgb, &f32_rgb);
+        assert!(diff > 0.0 && diff < 1e-2, "{precision:?}: rgb moved by {diff} from f32's");
+    }
 }
 
 #[test]
