@@ -134,7 +134,10 @@ def main(argv=None):
         return views[0], summary(encode_times), summary(render_times)
 
     rgb, encode, render = time_model(model.encode, model.render_views)
-    result = {"torch_version": torch.__version__, "threads": torch.get_num_threads(), "device": device_name(device),
+    # The vector ISA PyTorch's CPU kernels use (AVX2, AVX512, ...): CPU ratios depend on it, as lavapipe's do not
+    # in the same way (llvmpipe runs 256-bit vectors on both).
+    result = {"torch_version": torch.__version__, "threads": torch.get_num_threads(),
+              "cpu_capability": torch.backends.cpu.get_cpu_capability(), "device": device_name(device),
               "encode": encode, "render": render}
     if args.compile:
         try:

@@ -467,7 +467,10 @@ impl Bench {
         record.max_err_pytorch = Some(max_abs_f32(rgb, &run.rgb));
         record.pytorch_over_ours = record.render_wall_ms.map(|ours| run.eager.render.median_ms / ours.median_ms);
         let on = match torch.device {
-            pytorch::Device::Cpu => format!("{} CPU threads", run.threads),
+            pytorch::Device::Cpu => match &run.cpu_capability {
+                Some(isa) => format!("{} CPU threads ({isa})", run.threads),
+                None => format!("{} CPU threads", run.threads),
+            },
             pytorch::Device::Cuda => torch.device_name.clone(),
         };
         record.note = format!("{} PyTorch on {on}", record.note).trim().to_string();

@@ -145,6 +145,8 @@ struct PhasesJson {
 #[derive(Debug, Deserialize)]
 struct RunJson {
     threads: usize,
+    /// The vector ISA of PyTorch's CPU kernels (e.g. `AVX2`), where the script reports it.
+    cpu_capability: Option<String>,
     #[serde(flatten)]
     eager: PhasesJson,
     compiled: Option<PhasesJson>,
@@ -167,6 +169,7 @@ impl From<PhasesJson> for Phases {
 /// PyTorch's times and output on one model and scene.
 pub struct TorchRun {
     pub threads: usize,
+    pub cpu_capability: Option<String>,
     pub eager: Phases,
     /// Under torch.compile, when asked for and it ran; else why not (when asked for).
     pub compiled: std::result::Result<Option<Phases>, String>,
@@ -196,7 +199,7 @@ pub fn run(torch: &Torch, model: &Path, scene: &Path, repeats: usize) -> Result<
         (_, Some(why)) => Err(why),
         (compiled, None) => Ok(compiled.map(Phases::from)),
     };
-    Ok(TorchRun { threads: json.threads, eager: json.eager.into(), compiled, rgb })
+    Ok(TorchRun { threads: json.threads, cpu_capability: json.cpu_capability, eager: json.eager.into(), compiled, rgb })
 }
 
 #[cfg(test)]
