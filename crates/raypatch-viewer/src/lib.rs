@@ -106,7 +106,8 @@ fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Resu
     let model_entries: Vec<ModelEntry> = models.iter().map(ModelEntry::of).collect();
     let scene_entries =
         scene_data.iter().map(|(name, data)| SceneEntry::of(name, data)).collect::<raypatch::Result<Vec<_>>>()?;
-    let adapter = engine.adapter();
+    let details = engine.adapter_details();
+    let adapter = format!("{} ({})", details.name, details.backend);
     let limits = json!({
         "max_side": query::MAX_SIDE,
         "max_pixels": query::MAX_PIXELS,
