@@ -5,7 +5,10 @@ use glam::DMat4;
 use raypatch::{Camera, CameraAxes, Intrinsics, Model, Output, RayGrid, RayKind, SceneData};
 use serde_json::json;
 
-use crate::query::{MAX_PIXELS, MAX_SIDE};
+/// The longest side of a rendered image, in pixels.
+pub const MAX_SIDE: usize = 1024;
+/// The most pixels a render may have (a render holds the one render thread for its whole duration).
+pub const MAX_PIXELS: usize = 512 * 512;
 
 /// An output the page can show, by the name the page and the endpoint use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

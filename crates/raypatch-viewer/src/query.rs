@@ -3,13 +3,9 @@
 
 use glam::DMat4;
 
-use crate::catalog::{pose_of, ModelEntry, SceneEntry, ViewOutput};
+use crate::catalog::{pose_of, ModelEntry, SceneEntry, ViewOutput, MAX_PIXELS, MAX_SIDE};
 use crate::http::HttpError;
 
-/// The longest side of a rendered image, in pixels.
-pub const MAX_SIDE: usize = 1024;
-/// The most pixels a render may have (a render holds the one render thread for its whole duration).
-pub const MAX_PIXELS: usize = 512 * 512;
 /// The longest client id (the page's random id, which makes a client's newest camera replace its older one).
 const MAX_CLIENT_ID: usize = 64;
 
