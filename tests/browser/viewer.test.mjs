@@ -61,14 +61,21 @@ function frameInfo(page) {
   });
 }
 
-async function waitForFrame(page, test, what) {
+/** Waits until the newest frame asked for is shown, full-size (80x60), newer than frame `after`, of `output` and
+ *  `model` (the camera has settled), and returns it (read in the same check, so that no later frame slips in). */
+async function waitForFrame(page, what, { after = 0, output = 'rgb', model = '0' } = {}) {
   try {
-    await page.waitForFunction(test, null, { timeout: WAIT_MS, polling: 50 });
+    const found = await page.waitForFunction(([after, output, model]) => {
+      const img = document.getElementById('view');
+      const frame = img.dataset;
+      return +frame.frame > after && +frame.frame === window.viewer.sent && img.complete && img.naturalWidth > 0 && frame.size === '80x60' &&
+        frame.output === output && frame.model === model && { ...frame };
+    }, [+after, output, model], { timeout: WAIT_MS, polling: 50 });
+    return await found.jsonValue();
   } catch (e) {
     fail(`${what}: ${e.message.split('\n')[0]} (last frame ${JSON.stringify(await frameInfo(page))}, error line: ` +
       `${await page.textContent('#error')})`);
   }
-  return frameInfo(page);
 }
 
 /** The view's image pixels as drawn on a canvas (RGBA). */
@@ -127,29 +134,31 @@ async function run() {
     page.on('pageerror', (e) => pageErrors.push(e.message));
     await page.goto(url);
 
-    const first = await waitForFrame(page, () => {
-      const img = document.getElementById('view');
-      return img.dataset.frame && img.complete && img.naturalWidth > 0 && img.dataset.size === '80x60';
-    }, 'the first full-size frame');
+    const first = await waitForFrame(page, 'the first full-size frame');
     const firstPixels = await viewPixels(page);
     check((await page.textContent('#stats')).match(/RP-SRT.*k=4.*render [\d.]+ ms.*\d+ fps/), 'the stats line');
     check((await page.$$('#inputs img')).length > 0, 'the input thumbnails');
 
-    // Drag across the view: preview frames while moving, then a full-size frame of the new camera.
+    // Drag across the view: preview frames (half size) while moving, then a full-size frame of the new camera.
+    await page.evaluate(() => {
+      window.shownSizes = [];
+      const img = document.getElementById('view');
+      new MutationObserver(() => window.shownSizes.push(img.dataset.size))
+        .observe(img, { attributes: true, attributeFilter: ['data-frame'] });
+    });
     const box = await page.locator('#stage').boundingBox();
     const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
     await page.mouse.move(x, y);
     await page.mouse.down();
-    for (let i = 1; i <= 12; i++) {
-      await page.mouse.move(x + 10 * i, y + 2 * i);
-      await page.waitForTimeout(40);
+    for (let i = 1; i <= 20; i++) {
+      await page.mouse.move(x + 6 * i, y + 2 * i);
+      await page.waitForTimeout(50);
     }
     await page.mouse.up();
-    const moved = await waitForFrame(page, (before) => {
-      const img = document.getElementById('view');
-      return +img.dataset.frame > before && img.complete && img.naturalWidth > 0 && img.dataset.size === '80x60';
-    }, 'a full-size frame after the drag', first.frame);
+    const moved = await waitForFrame(page, 'a full-size frame after the drag', { after: first.frame });
     check(moved.pose !== first.pose, 'the drag moved the camera');
+    const sizes = await page.evaluate(() => window.shownSizes);
+    check(sizes.includes('40x28'), `no preview frame (40x28) while dragging: frames of ${sizes.join(', ')}`);
     const movedPixels = await viewPixels(page);
     const meanDifference = movedPixels.reduce((s, v, i) => s + Math.abs(v - firstPixels[i]), 0) / movedPixels.length;
     check(meanDifference > 1, `the new frame differs from the first (mean difference ${meanDifference.toFixed(3)})`);
@@ -165,15 +174,29 @@ async function run() {
     const psnr = await screenshotPsnr(page, screenshot, fs.readFileSync(referenceFile), 80, 60);
     check(psnr >= MIN_PSNR_DB, `screenshot vs render-frame --pose: PSNR ${psnr.toFixed(1)} dB < ${MIN_PSNR_DB} dB`);
 
+    // Scroll, a key and a camera button each bring a new full-size frame of their camera.
+    let last = moved;
+    const nextFrame = (what) => waitForFrame(page, what, { after: last.frame });
+    await page.mouse.wheel(0, 300);
+    const zoomed = await nextFrame('a frame after scrolling');
+    check(zoomed.pose !== last.pose, 'scrolling moved the camera');
+    last = zoomed;
+    await page.keyboard.press('w');
+    const walked = await nextFrame('a frame after the W key');
+    check(walked.pose !== last.pose, 'the W key moved the camera');
+    last = walked;
+    await page.click('#targets button:nth-child(2)');
+    const jumped = await nextFrame('a frame after the target 1 button');
+    last = jumped;
+    const target = await page.evaluate(() => fetch('/api/info').then((r) => r.json()).then((i) => i.scenes[0].targets[1].pose));
+    const shownPose = jumped.pose.split(',').map(Number);
+    check(shownPose.every((v, i) => Math.abs(v - target[i]) < 1e-9), `target 1's button shows pose ${jumped.pose}`);
+
     // Switch to the OSRT model and its masks.
     check((await page.$$eval('#output option', (o) => o.map((e) => e.value))).join() === 'rgb', 'RP-SRT renders rgb only');
     await page.selectOption('#model', '1');
     await page.selectOption('#output', 'masks');
-    await waitForFrame(page, () => {
-      const img = document.getElementById('view');
-      return img.dataset.output === 'masks' && img.dataset.model === '1' && img.complete && img.naturalWidth > 0 &&
-        img.dataset.size === '80x60';
-    }, 'a masks frame of the OSRT model');
+    await waitForFrame(page, 'a masks frame of the OSRT model', { after: last.frame, output: 'masks', model: '1' });
     await page.locator('#view').screenshot({ path: path.join(outDir, 'masks.png') });
     check(pageErrors.length === 0, `errors in the page: ${pageErrors.join('; ')}`);
     console.log(`browser test: ok (screenshot vs render-frame --pose: PSNR ${psnr === Infinity ? 'inf' : psnr.toFixed(1)} dB; ` +

@@ -4,6 +4,7 @@
 
 const SETTLE_MS = 250;       // after this long without camera moves, the full size is rendered
 const MAX_IN_FLIGHT = 3;     // one rendering, one waiting, one replacing the waiting one on the server
+const MIN_SEND_MS = 20;      // at most 50 requests a second: under the server's 60 per client
 const UP = [0, 0, 1];
 
 const $ = (id) => document.getElementById(id);
@@ -26,10 +27,15 @@ const view = {
   dirty: false,
   inFlight: 0,
   sent: 0,           // sequence number of the last request
+  sentAt: -Infinity,
+  sendTimer: null,
   shown: 0,          // sequence number of the frame on screen
   frameTimes: [],
   client: Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, '0')).join(''),
 };
+
+// The page's state, for scripts and the browser test (tests/browser): `viewer.sent` numbers the newest request.
+window.viewer = view;
 
 /** The pose looking from the eye at the orbit centre with z up. */
 function lookAtPose(eye, center) {
@@ -84,8 +90,14 @@ function previewSize() {
 
 /** Sends the newest camera when one is wanted; older requests still waiting on the server are replaced. */
 function pump() {
-  if (!view.info || !view.dirty || view.inFlight >= MAX_IN_FLIGHT) return;
+  if (!view.info || !view.dirty || view.inFlight >= MAX_IN_FLIGHT || view.sendTimer) return;
+  const wait = view.sentAt + MIN_SEND_MS - performance.now();
+  if (wait > 0) {
+    view.sendTimer = setTimeout(() => { view.sendTimer = null; pump(); }, wait);
+    return;
+  }
   view.dirty = false;
+  view.sentAt = performance.now();
   const moving = performance.now() - view.lastMove < SETTLE_MS;
   const [w, h] = moving ? previewSize() : fullSize();
   const pose = currentPose();
