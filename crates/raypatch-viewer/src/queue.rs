@@ -1,5 +1,6 @@
 //! Renders waiting for the one render thread: at most one per client (its newest camera: an older one still
-//! waiting is answered 409 and dropped, not rendered), a bounded queue, and frame rates bounded per client.
+//! waiting is answered 409 and dropped, not rendered), a queue bounded in renders and in pixels, and frame
+//! rates bounded per client.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::mpsc::{channel, Receiver, Sender};
@@ -11,6 +12,9 @@ use crate::query::RenderQuery;
 
 /// The most renders waiting at once (all clients together); more are answered 503.
 pub const MAX_QUEUED: usize = 64;
+/// The most pixels waiting to be rendered (four of the largest renders): large renders cannot pile up work
+/// that would keep every other client waiting for minutes.
+pub const MAX_QUEUED_PIXELS: usize = 4 * crate::catalog::MAX_PIXELS;
 
 /// A finished render and how long the engine took.
 pub struct Frame {
@@ -34,7 +38,13 @@ pub struct RenderQueue {
 #[derive(Default)]
 struct QueueState {
     jobs: VecDeque<Job>,
+    /// The pixels of the jobs waiting.
+    pixels: usize,
     stopped: bool,
+}
+
+fn pixels(job: &Job) -> usize {
+    job.query.width * job.query.height
 }
 
 /// A lock that a panic elsewhere does not make unusable: the state it guards is valid after any one update.
@@ -52,16 +62,22 @@ impl RenderQueue {
         if let Some(client) = &query.client {
             if let Some(i) = state.jobs.iter().position(|j| j.query.client.as_ref() == Some(client)) {
                 if let Some(stale) = state.jobs.remove(i) {
+                    state.pixels -= pixels(&stale);
                     let _ =
                         stale.reply.send(Err(HttpError::new(409, "render: replaced by a newer camera of this client")));
                 }
             }
         }
-        if state.jobs.len() >= MAX_QUEUED {
-            return Err(HttpError::new(503, format!("server: busy ({MAX_QUEUED} renders waiting); try again")));
-        }
         let (reply, frame) = channel();
-        state.jobs.push_back(Job { query, reply });
+        let job = Job { query, reply };
+        if state.jobs.len() >= MAX_QUEUED || state.pixels + pixels(&job) > MAX_QUEUED_PIXELS {
+            return Err(HttpError::new(
+                503,
+                format!("server: busy ({} renders of {} pixels waiting); try again", state.jobs.len(), state.pixels),
+            ));
+        }
+        state.pixels += pixels(&job);
+        state.jobs.push_back(job);
         self.wake.notify_one();
         Ok(frame)
     }
@@ -74,6 +90,7 @@ impl RenderQueue {
                 return None;
             }
             if let Some(job) = state.jobs.pop_front() {
+                state.pixels -= pixels(&job);
                 return Some(job);
             }
             state = self.wake.wait(state).unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -84,6 +101,7 @@ impl RenderQueue {
     pub fn stop(&self) {
         let mut state = lock(&self.state);
         state.stopped = true;
+        state.pixels = 0;
         for job in state.jobs.drain(..) {
             let _ = job.reply.send(Err(HttpError::new(503, "server: stopping")));
         }
@@ -151,12 +169,16 @@ mod tests {
     use crate::catalog::ViewOutput;
 
     fn query(client: Option<&str>) -> RenderQuery {
+        sized(client, 8)
+    }
+
+    fn sized(client: Option<&str>, side: usize) -> RenderQuery {
         RenderQuery {
             model: 0,
             scene: 0,
             output: ViewOutput::Rgb,
-            width: 8,
-            height: 8,
+            width: side,
+            height: side,
             pose: glam::DMat4::IDENTITY,
             client: client.map(String::from),
         }
@@ -181,6 +203,21 @@ mod tests {
         assert!(queue.next().is_none());
         assert_eq!(anonymous[0].recv().unwrap().err().unwrap().status, 503);
         drop((other, newest));
+    }
+
+    #[test]
+    fn the_pixels_waiting_are_bounded() {
+        let queue = RenderQueue::default();
+        let big: Vec<_> = (0..4).map(|_| queue.submit(sized(None, 512)).unwrap()).collect();
+        assert_eq!(queue.submit(sized(None, 4)).unwrap_err().status, 503);
+        // Renders taken and a client's replaced camera no longer count.
+        queue.next().unwrap();
+        let replaced = queue.submit(sized(Some("b"), 4)).unwrap();
+        queue.submit(sized(Some("b"), 4)).unwrap();
+        assert_eq!(replaced.recv().unwrap().err().unwrap().status, 409);
+        assert_eq!(lock(&queue.state).pixels, 3 * 512 * 512 + 16);
+        assert_eq!(queue.submit(sized(None, 512)).unwrap_err().status, 503);
+        drop(big);
     }
 
     #[test]
