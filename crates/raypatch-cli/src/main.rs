@@ -37,7 +37,8 @@ const DEFAULT_OUT: &str = "render.png";
     name = "render-frame",
     version,
     about = "Render novel views, depth and object masks of a scene with an SRT, OSRT or DeFiNe model (or its Ray-Patch variant) on the GPU",
-    after_help = "With no arguments, renders target view 0 of the bundled scene with the bundled model into render.png."
+    after_help = "With no arguments, renders target view 0 of the bundled scene with the bundled model into render.png. \
+                  `render-frame --serve` serves a live viewer in the browser (its flags: `render-frame --serve --help`)."
 )]
 struct Args {
     /// Model file (safetensors with the official key names and the config in its metadata) [default: the
@@ -140,6 +141,9 @@ struct Args {
 const MAX_BUFFER_MIB: u64 = 1 << 20;
 
 fn main() -> ExitCode {
+    if raypatch_viewer::requested() {
+        return raypatch_viewer::main(DEFAULT_MODEL, DEFAULT_SCENE);
+    }
     let args = Args::parse();
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,

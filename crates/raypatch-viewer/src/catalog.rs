@@ -1,0 +1,205 @@
+//! What the command line loaded, as the page sees it: models and scenes by index (never by path), their
+//! cameras and input thumbnails, and the cameras the page asks for.
+
+use glam::DMat4;
+use raypatch::{Camera, CameraAxes, Intrinsics, Model, Output, RayGrid, RayKind, SceneData};
+use serde_json::json;
+
+/// The longest side of a rendered image, in pixels.
+pub const MAX_SIDE: usize = 1024;
+/// The most pixels a render may have (a render holds the one render thread for its whole duration).
+pub const MAX_PIXELS: usize = 512 * 512;
+
+/// An output the page can show, by the name the page and the endpoint use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewOutput {
+    Rgb,
+    /// Depth coloured with the turbo map above its legend.
+    Depth,
+    /// OSRT object masks: each pixel coloured by its most-weighted slot.
+    Masks,
+}
+
+impl ViewOutput {
+    pub const ALL: [ViewOutput; 3] = [ViewOutput::Rgb, ViewOutput::Depth, ViewOutput::Masks];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ViewOutput::Rgb => "rgb",
+            ViewOutput::Depth => "depth",
+            ViewOutput::Masks => "masks",
+        }
+    }
+
+    /// The engine output it is drawn from.
+    pub fn output(self) -> Output {
+        match self {
+            ViewOutput::Rgb => Output::Rgb,
+            ViewOutput::Depth => Output::Depth,
+            ViewOutput::Masks => Output::Segmentation,
+        }
+    }
+}
+
+/// A loaded model as the page describes it.
+pub struct ModelEntry {
+    pub name: String,
+    pub family: String,
+    pub k: usize,
+    pub outputs: Vec<ViewOutput>,
+}
+
+impl ModelEntry {
+    pub fn of(model: &Model) -> ModelEntry {
+        let outputs = ViewOutput::ALL.into_iter().filter(|o| model.outputs().contains(o.output())).collect();
+        ModelEntry { name: file_name(model.path()), family: model.config().name(), k: model.patch_size(), outputs }
+    }
+}
+
+/// A loaded scene: its name, the camera whose size and intrinsics renders take (the first target view's, else
+/// the first input's), every camera to jump to, and its input images as PNG thumbnails.
+pub struct SceneEntry {
+    pub name: String,
+    pub reference: Camera,
+    pub input_cameras: Vec<Camera>,
+    pub target_cameras: Vec<Camera>,
+    pub thumbnails: Vec<Vec<u8>>,
+}
+
+impl SceneEntry {
+    pub fn of(name: &str, data: &SceneData) -> raypatch::Result<SceneEntry> {
+        let input_cameras: Vec<Camera> = data.inputs.iter().map(|v| v.camera.clone()).collect();
+        let target_cameras: Vec<Camera> = data.targets.iter().map(|t| t.camera.clone()).collect();
+        let reference = target_cameras.first().or(input_cameras.first()).cloned().ok_or_else(|| {
+            raypatch::Error::Views(format!("{name}: the scene has no camera to start the viewer from"))
+        })?;
+        let thumbnails = data.inputs.iter().map(|v| v.image.encode_png()).collect::<raypatch::Result<_>>()?;
+        Ok(SceneEntry { name: file_name(name), reference, input_cameras, target_cameras, thumbnails })
+    }
+
+    /// The size renders take when none is asked for: the reference camera's, shrunk to fit the bounds on
+    /// requests if it must, each side rounded down to a multiple of the patch size `k`.
+    pub fn full_size(&self, k: usize) -> (usize, usize) {
+        let (w, h) = (self.reference.width() as f64, self.reference.height() as f64);
+        let shrink = (MAX_SIDE as f64 / w.max(h)).min((MAX_PIXELS as f64 / (w * h)).sqrt()).min(1.0);
+        let side = |v: f64| ((v * shrink) as usize / k * k).max(k);
+        (side(w), side(h))
+    }
+
+    /// The camera at `pose` (camera-to-world, OpenGL axes as NeRF's `transform_matrix`) with an image of
+    /// `width` x `height`: the reference camera's intrinsics scaled to that size (the same view at any
+    /// resolution; exactly `render-frame --pose`'s camera at the reference size), or MultiShapeNet's when the
+    /// scene's cameras are given by rays.
+    pub fn camera(&self, pose: DMat4, width: usize, height: usize) -> raypatch::Result<Camera> {
+        let intrinsics = match self.reference.as_pinhole() {
+            Some((k, _)) => {
+                let (sx, sy) = (width as f64 / k.width as f64, height as f64 / k.height as f64);
+                Intrinsics { width, height, fx: k.fx * sx, fy: k.fy * sy, cx: k.cx * sx, cy: k.cy * sy }
+            }
+            None => Intrinsics::msn(width, height),
+        };
+        Camera::pinhole(intrinsics, pose, CameraAxes::OpenGl)
+    }
+}
+
+/// A camera's pose as 16 numbers, row-major camera-to-world in OpenGL axes (the `pose` parameter's form).
+/// A camera given by rays gets the pose of the pinhole camera with a centred principal point that makes them
+/// (its forward ray at the image centre, its right axis across the middle rows); `None` when its rays span no
+/// width to find that axis from.
+pub fn pose_of(camera: &Camera) -> Option<[f64; 16]> {
+    let opencv = match (camera.as_pinhole(), camera.given_rays()) {
+        (Some((_, pose)), _) => pose,
+        (None, Some(grid)) => fitted_pose(camera, grid)?,
+        (None, None) => return None,
+    };
+    let opengl = DMat4::from_cols(opencv.x_axis, -opencv.y_axis, -opencv.z_axis, opencv.w_axis);
+    Some(opengl.transpose().to_cols_array())
+}
+
+/// The camera-to-world pose (OpenCV axes) of a pinhole camera making `grid`'s rays, which are unit
+/// directions or, for DeFiNe scenes, points at depth 1.
+fn fitted_pose(camera: &Camera, grid: &RayGrid) -> Option<DMat4> {
+    let position = camera.position();
+    let points = camera.check_rays(RayKind::UnitDepthPoint).is_ok();
+    let (w, h) = (grid.width, grid.height);
+    let ray = |x: usize, y: usize| {
+        let r = grid.rays[y * w + x].as_dvec3();
+        if points { r - position } else { r }.normalize_or_zero()
+    };
+    // Pixels mirrored about the image centre: their rays sum along the optical axis and differ along the
+    // image's x axis.
+    let (x0, x1, y0, y1) = ((w - 1) / 2, w / 2, (h - 1) / 2, h / 2);
+    let forward = (ray(x0, y0) + ray(x1, y0) + ray(x0, y1) + ray(x1, y1)).try_normalize()?;
+    let across = ray(w - 1, y0) + ray(w - 1, y1) - ray(0, y0) - ray(0, y1);
+    let right = (across - forward * across.dot(forward)).try_normalize()?;
+    let down = forward.cross(right);
+    Some(DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), position.extend(1.0)))
+}
+
+/// The last component of a path, so that the page never sees where files lie.
+fn file_name(path: &str) -> String {
+    std::path::Path::new(path).file_name().map_or_else(|| path.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Everything the page needs to know, as the JSON of `GET /api/info`.
+pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, limits: serde_json::Value) -> String {
+    let cameras = |list: &[Camera]| -> Vec<serde_json::Value> {
+        list.iter().map(|c| json!({ "pose": pose_of(c), "width": c.width(), "height": c.height() })).collect()
+    };
+    json!({
+        "adapter": adapter,
+        "models": models.iter().map(|m| json!({
+            "name": m.name, "family": m.family, "k": m.k,
+            "outputs": m.outputs.iter().map(|o| o.name()).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "scenes": scenes.iter().map(|s| json!({
+            "name": s.name,
+            "width": s.reference.width(),
+            "height": s.reference.height(),
+            "pose": pose_of(&s.reference),
+            "sizes": models.iter().map(|m| s.full_size(m.k)).collect::<Vec<_>>(),
+            "inputs": cameras(&s.input_cameras),
+            "targets": cameras(&s.target_cameras),
+        })).collect::<Vec<_>>(),
+        "limits": limits,
+    })
+    .to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// A pose read back from a camera builds the same camera, at its size and (scaled) at half of it.
+    #[test]
+    fn a_camera_pose_round_trips_and_scales() {
+        let camera = Camera::msn(DVec3::new(4.0, -3.0, 2.0), 80, 60).unwrap();
+        let scene = SceneEntry {
+            name: "s".into(),
+            reference: camera.clone(),
+            input_cameras: vec![],
+            target_cameras: vec![],
+            thumbnails: vec![],
+        };
+        let pose = DMat4::from_cols_array(&pose_of(&camera).unwrap()).transpose();
+        let again = scene.camera(pose, 80, 60).unwrap();
+        for (a, b) in camera.rays().rays.iter().zip(&again.rays().rays) {
+            assert!((*a - *b).abs().max_element() < 1e-6);
+        }
+        let half = scene.camera(pose, 40, 30).unwrap();
+        let (full_rays, half_rays) = (camera.rays(), half.rays());
+        // The half-size image's pixel (x, y) covers the full one's (2x..2x+1, 2y..2y+1): its centre ray lies
+        // between those of the full image's pixels (2x, 2y) and (2x+1, 2y+1).
+        let centre = (full_rays.rays[30 * 80 + 40] + full_rays.rays[31 * 80 + 41]).normalize();
+        assert!((half_rays.rays[15 * 40 + 20] - centre).abs().max_element() < 1e-3);
+        // A camera given by its rays gets the pose that makes them, whether directions or unit-depth points.
+        for kind in [RayKind::UnitDirection, RayKind::UnitDepthPoint] {
+            let given = Camera::from_rays(camera.position(), camera.rays_of(kind)).unwrap();
+            let fitted = pose_of(&given).unwrap();
+            assert!(fitted.iter().zip(pose_of(&camera).unwrap()).all(|(a, b)| (a - b).abs() < 1e-6), "{kind:?}");
+        }
+        assert_eq!((scene.full_size(4), scene.full_size(8), scene.full_size(64)), ((80, 60), (80, 56), (64, 64)));
+        assert_eq!(file_name("assets/models/a.safetensors"), "a.safetensors");
+    }
+}

@@ -1,0 +1,15 @@
+//! `render-frame --serve`: a live viewer in the browser. The command line loads models and scenes (the page
+//! names them only by index), encodes each scene once per model, and serves a page that flies a camera around
+//! them while one engine renders: a lower resolution while the camera moves, the full size when it stops.
+//!
+//! Threads: the caller's thread owns the engine and renders (`queue.rs`: the newest camera per client); an
+//! acceptor and a fixed pool of HTTP workers (`server.rs`) parse requests and encode PNGs.
+
+mod catalog;
+mod http;
+mod query;
+mod queue;
+mod serve;
+mod server;
+
+pub use serve::{main, requested, Bundled};

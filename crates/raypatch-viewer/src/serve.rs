@@ -1,0 +1,166 @@
+//! `render-frame --serve`'s flags and its run: load, encode each scene once per model, start the HTTP side,
+//! render on the caller's thread until Ctrl-C.
+
+use std::net::{IpAddr, SocketAddr, TcpListener};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use raypatch::{AdapterChoice, Engine, EngineOptions, Model, Outputs, Request, Scene, SceneData};
+use serde_json::json;
+
+use crate::catalog::{info_json, ModelEntry, SceneEntry, MAX_PIXELS, MAX_SIDE};
+use crate::http::HttpError;
+use crate::queue::{Frame, Job, Reply};
+use crate::server::{Http, Shared, CLIENT_FRAMES_PER_SECOND};
+
+/// Render plans kept per encoded scene (one per size and output asked for); past this they are dropped, so
+/// that requests for ever new sizes cannot grow GPU memory.
+const MAX_CACHED_PLANS: usize = 8;
+
+/// The flags of `render-frame --serve`.
+#[derive(Parser, Debug)]
+#[command(
+    name = "render-frame --serve",
+    version,
+    about = "Serve a live viewer of raypatch renders in the browser: drag to orbit, scroll to zoom, keys to move",
+    after_help = "The page and `GET /render.png?pose=...&size=WxH&model=M&scene=S&output=rgb` are described in the README \
+                  (\"Live viewer\"). Ctrl-C stops the server."
+)]
+struct ServeArgs {
+    /// Serve the viewer (this set of flags).
+    #[arg(long)]
+    serve: bool,
+    /// Port to listen on (0: any free port; the URL printed says which).
+    #[arg(long, default_value_t = 8765)]
+    port: u16,
+    /// Address to listen on. Anything but loopback lets other machines render on this one.
+    #[arg(long, value_name = "ADDR", default_value = "127.0.0.1")]
+    host: IpAddr,
+    /// A model file; repeat for several (the page picks by index) [default: the bundled model].
+    #[arg(long = "model", value_name = "FILE")]
+    models: Vec<PathBuf>,
+    /// A scene file or NeRF folder; repeat for several [default: the bundled scene].
+    #[arg(long = "scene", value_name = "PATH")]
+    scenes: Vec<PathBuf>,
+    /// Adapter to use: the first whose name contains this text (default: a real GPU, else lavapipe).
+    #[arg(long)]
+    adapter: Option<String>,
+}
+
+/// Whether the command line asks for the viewer (`--serve` anywhere among the arguments).
+pub fn requested() -> bool {
+    std::env::args_os().skip(1).any(|a| a == "--serve")
+}
+
+/// A file built into the program: the name it stands for in messages, and its bytes.
+pub type Bundled = (&'static str, &'static [u8]);
+
+/// `render-frame --serve`: parses the flags, serves until Ctrl-C; exit code 2 with one line on any error.
+pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
+    let args = ServeArgs::parse();
+    match run(&args, default_model, default_scene) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("render-frame: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Result<()> {
+    let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    let engine = Engine::new(EngineOptions { adapter, ..Default::default() }).context("--adapter")?;
+    let models: Vec<Model> = if args.models.is_empty() {
+        vec![engine.load_bytes(default_model.0, default_model.1)?]
+    } else {
+        args.models
+            .iter()
+            .map(|p| engine.load(p).with_context(|| format!("--model {}", p.display())))
+            .collect::<Result<_>>()?
+    };
+    let scene_data: Vec<(String, SceneData)> = if args.scenes.is_empty() {
+        vec![(default_scene.0.to_string(), SceneData::from_bytes(default_scene.0, default_scene.1)?)]
+    } else {
+        let load = |p: &PathBuf| SceneData::load(p).with_context(|| format!("--scene {}", p.display()));
+        args.scenes.iter().map(|p| Ok((p.display().to_string(), load(p)?))).collect::<Result<_>>()?
+    };
+    let address = SocketAddr::new(args.host, args.port);
+    let listener = TcpListener::bind(address).with_context(|| format!("--host {} --port {}", args.host, args.port))?;
+    let start = Instant::now();
+    let scenes = encode_all(&models, &scene_data)?;
+    let model_entries: Vec<ModelEntry> = models.iter().map(ModelEntry::of).collect();
+    let scene_entries =
+        scene_data.iter().map(|(name, data)| SceneEntry::of(name, data)).collect::<raypatch::Result<Vec<_>>>()?;
+    let details = engine.adapter_details();
+    let adapter = format!("{} ({})", details.name, details.backend);
+    let limits = json!({
+        "max_side": MAX_SIDE,
+        "max_pixels": MAX_PIXELS,
+        "client_frames_per_second": CLIENT_FRAMES_PER_SECOND,
+    });
+    let info = info_json(&model_entries, &scene_entries, &adapter, limits);
+    let shared = Arc::new(Shared::new(model_entries, scene_entries, info));
+    let url = format!("http://{}/", listener.local_addr()?);
+    let http = Http::start(listener, shared.clone()).context("cannot start the server threads")?;
+    let stopper = shared.clone();
+    ctrlc::set_handler(move || stopper.queue.stop()).context("cannot catch Ctrl-C")?;
+    println!(
+        "raypatch viewer: {url} ({} model(s) x {} scene(s) encoded in {:.1} s on {adapter}; Ctrl-C stops)",
+        models.len(),
+        scene_data.len(),
+        start.elapsed().as_secs_f64()
+    );
+    while let Some(job) = shared.queue.next() {
+        let reply = catch_unwind(AssertUnwindSafe(|| render(&job, &scenes, &shared.scenes)))
+            .unwrap_or_else(|_| Err(HttpError::new(500, "render: the engine failed on this request")));
+        // The client may have gone; its worker then no longer waits.
+        let _ = job.reply.send(reply);
+    }
+    http.stop(Duration::from_secs(2));
+    println!("raypatch viewer: stopped");
+    Ok(())
+}
+
+/// Every scene encoded by every model, `[model][scene]`.
+fn encode_all<'m>(models: &'m [Model], scenes: &[(String, SceneData)]) -> Result<Vec<Vec<Scene<'m>>>> {
+    models
+        .iter()
+        .map(|model| {
+            scenes
+                .iter()
+                .map(|(name, data)| {
+                    let context = || format!("--scene {name} with --model {}", model.path());
+                    data.check_rays(model.ray_kind()).with_context(context)?;
+                    model.encode(&data.inputs).with_context(context)
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// One render: the camera the job asks for, through its model's encoding of its scene.
+fn render(job: &Job, scenes: &[Vec<Scene>], entries: &[SceneEntry]) -> Reply {
+    let query = &job.query;
+    let camera = entries[query.scene]
+        .camera(query.pose, query.width, query.height)
+        .map_err(|e| HttpError::bad(format!("pose: {e}")))?;
+    let scene = &scenes[query.model][query.scene];
+    if scene.cached_plans() >= MAX_CACHED_PLANS {
+        scene.engine_scene().clear_render_plans();
+    }
+    let request = Request { outputs: Outputs::of(&[query.output.output()]), region: None };
+    let start = Instant::now();
+    let rendered = scene.render(&camera, &request).map_err(|e| match e {
+        raypatch::Error::Camera(_) => HttpError::bad(format!("pose: {e}")),
+        raypatch::Error::Engine(raypatch::raypatch_engine::EngineError::TooLarge { .. }) => {
+            HttpError::bad(format!("size: {e}"))
+        }
+        e => HttpError::new(500, format!("render: {e}")),
+    })?;
+    Ok(Frame { rendered, render_time: start.elapsed() })
+}
