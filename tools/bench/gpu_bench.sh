@@ -6,7 +6,7 @@
 #
 #     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
-# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 9 minutes
+# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 9.5 minutes
 # so that one device call of 10 minutes holds them all; a run that worked took 275 s):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
@@ -16,19 +16,20 @@
 #               PyTorch CUDA eager and torch.compile on the same weights and inputs
 #     srt       the official SRT (k=1) likewise
 #     families  the official RP-OSRT k=8 and RP-DeFiNe k=16 likewise
+#     viewer    the live viewer's frames per second (render-frame --serve and tools/bench/viewer_fps.py)
 # OUT_DIR gets two files, rewritten as each step finishes (a run cut short still returns what it did):
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|rpsrt|srt|families ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|rpsrt|srt|families|viewer ...]}
 shift
 steps=("$@")
-[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm rpsrt srt families)
+[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm rpsrt srt families viewer)
 for s in "${steps[@]}"; do
     case $s in
-        info | tests | gemm | rpsrt | srt | families) ;;
+        info | tests | gemm | rpsrt | srt | families | viewer) ;;
         *)
-            echo "gpu_bench: unknown step $s: expected info, tests, gemm, rpsrt, srt or families" >&2
+            echo "gpu_bench: unknown step $s: expected info, tests, gemm, rpsrt, srt, families or viewer" >&2
             exit 2
             ;;
     esac
@@ -86,6 +87,27 @@ sweep() {
         --out "$work/results/$name"
 }
 
+# The viewer's frames per second: render-frame --serve (bundled model and scene) on a free port, one page's
+# renders for 5 s at each of its sizes, then Ctrl-C.
+viewer() {
+    local log=$work/results/viewer-server.log url=
+    "$bin/render-frame" --serve --port 0 >"$log" 2>&1 &
+    local server=$!
+    for _ in $(seq 40); do
+        url=$(grep -o 'http://[0-9.:]*/' "$log" | head -n 1) && [ -n "$url" ] && break
+        sleep 0.5
+    done
+    if [ -n "$url" ]; then
+        run viewer 20 python3 tools/bench/viewer_fps.py "$url" 5
+    else
+        echo "== viewer: the server printed no URL in 20 s"
+        cat "$log"
+        failed=$((failed + 1))
+    fi
+    kill -INT "$server" 2>/dev/null
+    wait "$server"
+}
+
 # The results so far, into OUT_DIR (after every step).
 save() {
     tar -czf "$out/gpu-bench.tar.gz.part" -C "$work/results" . && mv "$out/gpu-bench.tar.gz.part" "$out/gpu-bench.tar.gz"
@@ -114,6 +136,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
             rpsrt) sweep rpsrt 90 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 60 0 --only official:1 ;;
             families) sweep families 75 25 --only official-osrt:8 --only official-define:16 ;;
+            viewer) viewer ;;
         esac
         save
     done
