@@ -186,7 +186,7 @@ fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 
 // `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (tiles.wgsl, the
 // tiling of matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16
-// invocations computes TILE output pixels x TILE output channels (64 or 128), invocation (tx, ty) pixels
+// invocations computes TILE output pixels x TILE output channels (64), invocation (tx, ty) pixels
 // ty + 16 i and the channels of vec4 columns tx + 16 j. K is the weight row, taps x cin4 vec4s (tap-major, as
 // pack_conv lays it out), walked TILE_K4 vec4s at a time whatever the tap boundaries, so that few input
 // channels (ResNet's RGB stem, one vec4 a tap) waste no steps. Each step gathers TILE pixels' input vec4s (the

@@ -174,9 +174,9 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 }
 
 // `linear_tiled`: the classic GPU tiling. A workgroup of 16 x 16 invocations computes a TILE x TILE tile of out
-// (64 x 64, or 128 x 128 in the `_128` variants: tiles.wgsl); per step along K it copies TILE rows of x and TILE
+// (64 x 64: tiles.wgsl); per step along K it copies TILE rows of x and TILE
 // rows of w into workgroup memory (two vec4s each per invocation, read by neighbouring invocations as contiguous
-// bytes) and every invocation takes a 4 x 4 (8 x 8) block of dot products from there, so each value loaded from
+// bytes) and every invocation takes a 4 x 4 block of dot products from there, so each value loaded from
 // memory serves TILE outputs. Invocation (tx, ty) owns rows ty + 16 i and vec4 columns tx + 16 j: its stores of a
 // row are whole vec4s, and 16 neighbouring invocations store 256 contiguous bytes. The next step's vec4s are
 // loaded into registers while the staged step is multiplied (double buffering through registers, as

@@ -5,15 +5,14 @@
 // rows of x (or of the gathered input pixels) and TILE rows of w here, K-major; invocation li stages rows
 // li / TILE_K4 and li / TILE_K4 + STAGE_STEP of both, at vec4 li % TILE_K4 of the step.
 //
-// Two sizes, the same 512 vec4s (16 KiB, WebGPU's guaranteed minimum) of workgroup memory: 64 x 64 tiles with
-// 32 floats of K a step (4 x 4 outputs per invocation), and 128 x 128 tiles with 16 floats a step (8 x 8 per
-// invocation: each value read from workgroup memory serves 8 outputs, not 4), for outputs with enough tiles to
-// fill a GPU at that size (device::gemm_tile). The `_128` variants (kernels/mod.rs) replace TILE and TILE_K4.
+// 64 x 64 tiles with 32 floats of K a step (4 x 4 outputs per invocation) take 512 vec4s (16 KiB, WebGPU's
+// guaranteed minimum) of workgroup memory. (128 x 128 tiles, 8 x 8 outputs an invocation, ran at half the speed
+// on an H200.)
 //
 // The tiles hold f32, or f16 in the f16-activation variants (`matmul_f16_act`, `Precision::F16Activations`),
 // which replace TileFloat and `linear_tiled`'s call of multiply_staged: there x and w are rounded to f16 as they
-// are staged, each step's products are summed in f16 (TILE_K4 vec4s: 32 or 16 terms, at twice f32's rate on GPUs with packed f16), and
-// the steps' sums in f32.
+// are staged, each step's products are summed in f16 (32 terms, at twice f32's rate on GPUs with packed f16),
+// and the steps' sums in f32.
 
 const TILE: u32 = 64u;
 // vec4s of K per step.

@@ -27,7 +27,7 @@ pub struct EngineOptions {
     /// Which adapter to run on: by default a real GPU when there is one, else a CPU one such as lavapipe.
     pub adapter: AdapterChoice,
     /// The largest GPU buffer the engine may use, in bytes, when below the adapter's own limit (`None`: the
-    /// adapter's limit). Renders that would need larger buffers run in row bands (same pixels).
+    /// adapter's limit). Renders that would need larger buffers run in row bands (the same pixels, up to f32 rounding on GPUs).
     pub max_buffer_bytes: Option<u64>,
     /// The kernel linear layers run on (`None`: the adapter's fastest; `Some` to compare or check one).
     pub matmul: Option<MatmulKernel>,

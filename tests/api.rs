@@ -18,6 +18,11 @@ use raypatch::{
 /// from f64 to f32 (half an ulp, 6e-8) after f64 maths whose rounding differs by a few 1e-16.
 const RAY_TOLERANCE: f32 = 1e-6;
 
+/// How far a render in row bands may differ from one render: the same ops on fewer rows, but on a GPU a layer's
+/// kernel and its K split follow its row count (`device::linear_variant`), so its sums may run in another order
+/// (an H200 measured 1.9e-6 and 2.9e-6); lavapipe's are the same sums. A wrong band or halo is off by far more.
+const BAND_TOLERANCE: f32 = 1e-5;
+
 fn golden(case: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(case)
 }
@@ -482,10 +487,11 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
             assert_eq!(banded.region, region, "{case}");
             let want = full.rgb().unwrap().crop(region).unwrap();
             let err = max_diff(banded.rgb().unwrap().data(), want.data());
-            assert!(err <= 1e-6, "{case} {region:?}: banded rgb differs from one render by {err:e}");
+            assert!(err <= BAND_TOLERANCE, "{case} {region:?}: banded rgb differs from one render by {err:e}");
             if let (Some(d), Some(full_d)) = (banded.logdepth(), full.logdepth()) {
                 let want = crop_map(full_d, camera.width(), region);
-                assert_eq!(max_diff(d, &want), 0.0, "{case} {region:?}: log-depth");
+                let err = max_diff(d, &want);
+                assert!(err <= BAND_TOLERANCE, "{case} {region:?}: log-depth differs by {err:e}");
             }
         }
     }
@@ -532,7 +538,7 @@ fn check_same_pixels(what: &str, part: &Rendered, full: &Rendered, width: usize,
         assert_eq!(channels(part, output), c, "{what}: {} channels", output.title());
         let want = crop_channels(want.expect("the full render has every output"), width, c, region);
         let err = max_diff(got.expect("asked for"), &want);
-        assert!(err <= 1e-6, "{what}: {} differs from the full render's by {err:e}", output.title());
+        assert!(err <= BAND_TOLERANCE, "{what}: {} differs from the full render's by {err:e}", output.title());
     }
 }
 

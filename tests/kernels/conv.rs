@@ -1,7 +1,7 @@
 //! conv2d against the float64 reference, and the placement helpers the resize and pool tests share.
 
 use raypatch_engine::device::KernelChoice;
-use raypatch_engine::device::{gemm_tile, GemmTile, MatmulKernel};
+use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::conv::{conv2d, pack_conv};
 use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use raypatch_engine::kernels::{Activation, Window};
@@ -327,19 +327,6 @@ fn conv3x3_many_pixel_tiles() {
         let (h, w) = if upsample { (30, 40) } else { (120, 160) };
         let act = Activation::LeakyRelu(0.2);
         Case { n: 2, h, w, cin: 6, cout: 13, window: k3(stride), upsample, act, bias: true, mode }.check(&mut rng);
-    }
-}
-
-#[test]
-fn conv_tiled_large_tiles() {
-    // Outputs with enough 128x128 tiles for `Tiled`'s large tile (8x8 outputs an invocation), one upsampled.
-    let mut rng = Rng::new(9);
-    let shapes = [(2, 64, 64, 8, 300, false, ConvMode::Residual), (1, 40, 48, 13, 272, true, ConvMode::Accumulate)];
-    for (n, h, w, cin, cout, upsample, mode) in shapes {
-        let (ho, wo) = (h << usize::from(upsample), w << usize::from(upsample));
-        assert_eq!(gemm_tile(n * ho * wo, padded_cols(cout)), GemmTile::Large, "{h}x{w} -> {cout}");
-        let act = Activation::LeakyRelu(0.2);
-        Case { n, h, w, cin, cout, window: k3(1), upsample, act, bias: true, mode }.check(&mut rng);
     }
 }
 

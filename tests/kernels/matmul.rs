@@ -1,9 +1,9 @@
-//! `linear` on every kernel against the float64 reference: random shapes (tails of the 256x8, 64x64, 128x128
+//! `linear` on every kernel against the float64 reference: random shapes (tails of the 256x8, 64x64
 //! and 8x24 workgroup tiles, several K steps of the tiled ones), every activation, with and without bias,
 //! accumulate, row-range views, a layer norm of x's rows first; plus erf accuracy through GELU.
 
 use raypatch_engine::device::KernelChoice;
-use raypatch_engine::device::{gemm_tile, GemmTile, MatmulKernel};
+use raypatch_engine::device::{linear_variant, MatmulKernel};
 use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
@@ -108,7 +108,7 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
     for kernel in kernels {
         gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
         let mut plan = PlanBuilder::new();
-        plan.kernels = KernelChoice { matmul: kernel, f16_activations, ..gpu.kernels };
+        plan.kernels = KernelChoice { matmul: kernel, f16_activations, pinned: true, ..gpu.kernels };
         let x_id = plan.external("x", &x_t);
         let w_id = plan.external("w", &w_t);
         let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
@@ -243,7 +243,7 @@ fn linear_f16_weights() {
 }
 
 /// f16 activations (`Precision::F16Activations`: `linear_tiled` stages x as f16 and sums each K step's products
-/// in f16), where the adapter has shader-f16: random shapes on both tile sizes, every option, a layer norm
+/// in f16), where the adapter has shader-f16: random shapes, every option, a layer norm
 /// first (a dispatch of its own here), and K from one vec4 to many steps.
 #[test]
 fn linear_f16_activations() {
@@ -266,19 +266,6 @@ fn linear_f16_activations() {
         };
         check_with(&case, &mut rng, Precision::F16Activations);
     }
-    // 128x128 tiles (16 floats of K a step).
-    assert_eq!(gemm_tile(2000, 1100), GemmTile::Large);
-    let case = Case {
-        m: 2000,
-        k: 40,
-        n: 1100,
-        act: Activation::None,
-        bias: true,
-        accumulate: false,
-        view: false,
-        norm: false,
-    };
-    check_with(&case, &mut rng, Precision::F16Activations);
 }
 
 /// Shapes on and just past the edges of the tiles: `Rows`' 256x8 workgroup tile and 4x8 invocation block,
@@ -348,15 +335,17 @@ fn linear_tiled_splits_k_when_tiles_are_few() {
     }
 }
 
-/// `Tiled` takes 128x128 tiles (8x8 outputs an invocation) where the output has enough of them to fill a GPU;
-/// `linear_big_shapes` checks two such shapes.
+/// On the GPU profile (not pinned), `Tiled` runs only the layers whose K it splits; the others run on `Rows`.
 #[test]
-fn linear_large_tile_where_tiles_are_many() {
-    assert_eq!(gemm_tile(2000, 1100), GemmTile::Large);
-    assert_eq!(gemm_tile(2100, 1030), GemmTile::Large);
-    assert_eq!(gemm_tile(4800, 2304), GemmTile::Large);
-    assert_eq!(gemm_tile(300, 1536), GemmTile::Small);
-    assert_eq!(gemm_tile(1000, 256), GemmTile::Small);
+fn tiled_profile_runs_linear_tiled_only_where_k_splits() {
+    let gpu_profile = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu().kernels };
+    let variant = |splits| linear_variant(&gpu_profile, true, || false, || splits);
+    assert_eq!((variant(5), variant(1)), (MatmulKernel::Tiled, MatmulKernel::Rows));
+    let pinned = KernelChoice { pinned: true, ..gpu_profile };
+    assert_eq!(linear_variant(&pinned, true, || false, || 1), MatmulKernel::Tiled);
+    // The official RP-SRT's 300x1536x1536 render layers split K (5 x 24 tiles); the encoder's 4800-token layers
+    // do not (75 x 36).
+    assert_eq!((k_splits(120, 384), k_splits(2700, 192)), (5, 1));
 }
 
 #[test]
@@ -385,7 +374,7 @@ fn linear_big_shapes() {
             view: false,
             norm: true,
         },
-        // Enough 128x128 tiles for `Tiled`'s large tile (`linear_large_tile_where_tiles_are_many`).
+        // Outputs of many tiles, with K shorter than a step or two.
         Case { m: 2000, k: 40, n: 1100, act: Activation::Relu, bias: true, accumulate: true, view: true, norm: true },
         Case {
             m: 2100,

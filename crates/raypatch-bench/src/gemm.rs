@@ -56,7 +56,7 @@ fn time_linear(gpu: &Gpu, kernel: MatmulKernel, (m, k, n): (usize, usize, usize)
     let w = gpu.upload("w", n, k, &rng.vec_f32(n * k, -1.0, 1.0))?;
     let b = gpu.upload("b", 1, n, &rng.vec_f32(n, -1.0, 1.0))?;
     let mut plan = PlanBuilder::new();
-    plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+    plan.kernels = KernelChoice { matmul: kernel, pinned: true, ..gpu.kernels };
     let (x, weight, bias) = (plan.external("x", &x), plan.constant("w", &w), plan.constant("b", &b));
     let out = plan.output("out", m, n);
     let (x, out) = (plan.all(x), plan.all(out));

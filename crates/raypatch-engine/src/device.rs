@@ -86,14 +86,29 @@ pub struct KernelChoice {
     /// The model's precision is `Precision::F16Activations`: `Tiled` linear layers with f16 weights stage their
     /// inputs as f16 ([`linear_tiles`]). Set per model, not by the adapter.
     pub f16_activations: bool,
+    /// Linear layers run on `matmul` wherever it can run them, rather than where another family measured faster
+    /// for their shape ([`linear_variant`]): how the kernel tests and `raypatch-bench --gemm` check each family.
+    pub pinned: bool,
 }
 
-/// The variant of a linear layer: `f32_weights` (f16 weights are read from buffers only) and `lanes_fit`
-/// (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`).
-pub fn linear_variant(choice: &KernelChoice, f32_weights: bool, lanes_fit: impl FnOnce() -> bool) -> MatmulKernel {
+/// The variant of a linear layer: `f32_weights` (f16 weights are read from buffers only), `lanes_fit`
+/// (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`) and `k_splits` (how many
+/// ranges `linear_tiled` would cut K into; asked only on `Tiled`).
+///
+/// On `Tiled`, only layers whose K is split run `linear_tiled`: outputs with too few 64 x 64 tiles to fill the GPU
+/// (the 300-row layers of a Ray-Patch render or of an encode), which it spreads over split K. Where the output
+/// alone fills the GPU, `Rows`' register tiles are faster: on an H200, 5.4 against 2.8 TMAC/s for 4800x768x2304,
+/// and SRT's 120x160 render took 58 ms against 81 (tools/bench/gpu_bench.sh; docs/PERFORMANCE.md).
+pub fn linear_variant(
+    choice: &KernelChoice,
+    f32_weights: bool,
+    lanes_fit: impl FnOnce() -> bool,
+    k_splits: impl FnOnce() -> usize,
+) -> MatmulKernel {
     match choice.matmul {
         MatmulKernel::Lanes if f32_weights && lanes_fit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
+        MatmulKernel::Tiled if !choice.pinned && k_splits() == 1 => MatmulKernel::Rows,
         other => other,
     }
 }
@@ -102,7 +117,11 @@ pub fn linear_variant(choice: &KernelChoice, f32_weights: bool, lanes_fit: impl 
 /// useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the register-blocked direct
 /// kernel.
 pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
-    linear_variant(choice, true, lanes_suit)
+    match choice.matmul {
+        MatmulKernel::Lanes if lanes_suit() => MatmulKernel::Lanes,
+        MatmulKernel::Lanes => MatmulKernel::Rows,
+        other => other,
+    }
 }
 
 /// What a linear layer running on `variant` with f16 or f32 weights stages in its workgroup tiles: f16 (inputs
@@ -129,40 +148,6 @@ pub enum TileElement {
 /// strides. Not on the CPU kernels: llvmpipe takes longer to compile a pipeline than to run most ops.
 pub fn fixed_shapes(variant: MatmulKernel) -> bool {
     variant == MatmulKernel::Tiled
-}
-
-/// The tile of a `Tiled` GEMM (`shaders/tiles.wgsl`): 64 x 64 outputs per workgroup (4 x 4 per invocation,
-/// 32 floats of K a step), or 128 x 128 (8 x 8 per invocation, 16 floats a step: the `_128` shader variants).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GemmTile {
-    Small,
-    Large,
-}
-
-impl GemmTile {
-    /// Rows (and columns) of out per workgroup.
-    pub fn size(self) -> usize {
-        match self {
-            GemmTile::Small => 64,
-            GemmTile::Large => 128,
-        }
-    }
-}
-
-/// Workgroups of 128 x 128 tiles an output needs before it takes them: about one a multiprocessor of a large
-/// GPU (an H100 has 132). Fewer large tiles would leave multiprocessors idle, where small ones (with K split,
-/// for linear layers) fill them.
-pub const LARGE_TILE_MIN_GROUPS: usize = 128;
-
-/// The tile of a `Tiled` GEMM whose output is `rows` x `cols`: large where the output has enough large tiles
-/// to fill a GPU, small otherwise.
-pub fn gemm_tile(rows: usize, cols: usize) -> GemmTile {
-    let large = GemmTile::Large.size();
-    if rows.div_ceil(large) * cols.div_ceil(large) >= LARGE_TILE_MIN_GROUPS {
-        GemmTile::Large
-    } else {
-        GemmTile::Small
-    }
 }
 
 /// How attention runs ([`attention_variant`]).

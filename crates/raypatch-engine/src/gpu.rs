@@ -216,7 +216,7 @@ impl Gpu {
             limits,
             features,
             max_buffer_bytes,
-            kernels: KernelChoice { matmul, max_texels, f16_activations: false },
+            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false },
             pipelines: Mutex::new(HashMap::new()),
             pipeline_cache,
             kept_textures: Mutex::new(Vec::new()),

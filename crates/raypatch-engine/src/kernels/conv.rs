@@ -6,10 +6,10 @@
 //! run on `matmul_lanes` (`kernels::matmul::gemm_lanes`, an implicit GEMM over packed textures); the rest on
 //! `conv.wgsl`'s register-blocked `conv2d`.
 
-use crate::device::{conv_variant, gemm_tile, GemmTile, MatmulKernel};
+use crate::device::{conv_variant, MatmulKernel};
 use crate::kernels::matmul::{gemm_lanes, lanes_fit, LANES_COLS};
 use crate::kernels::pack::Packing;
-use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV, CONV_128};
+use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder};
 use crate::tensor::padded_cols;
 
@@ -17,6 +17,8 @@ use crate::tensor::padded_cols;
 const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
+/// Output pixels and channels per workgroup of `conv_tiled` (`TILE` in `shaders/tiles.wgsl`).
+const TILE: usize = 64;
 
 /// Repacks a PyTorch conv weight [cout, cin, k, k] (row-major) into the kernel's layout, returned as a
 /// row-major [cout, k*k * padded_cols(cin)] matrix: for each output channel, the k*k taps (ky, kx row-major),
@@ -119,16 +121,9 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
 
     let cout4 = padded_cols(cout) / 4;
-    // conv_tiled's output pixels and channels per workgroup (`TILE` in the shader).
-    let tile = gemm_tile(npix, 4 * cout4);
     let (shader, entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, || lanes_suit(plan, &args)) {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
-        MatmulKernel::Tiled => (
-            if tile == GemmTile::Large { &CONV_128 } else { &CONV },
-            "conv_tiled",
-            cout4.div_ceil(tile.size() / 4),
-            npix.div_ceil(tile.size()),
-        ),
+        MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILE / 4), npix.div_ceil(TILE)),
         MatmulKernel::Rows => {
             (&CONV, "conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
         }

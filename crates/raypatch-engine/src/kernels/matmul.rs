@@ -5,13 +5,11 @@
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{fixed_shapes, gemm_tile, linear_tiles, linear_variant, splits_to_fill};
-use crate::device::{GemmTile, MatmulKernel, TileElement};
+use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, MatmulKernel, TileElement};
 use crate::kernels::norm::{check_affine, layernorm, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
-use crate::kernels::{Activation, Window, MATMUL, MATMUL_128, MATMUL_F16, MATMUL_F16_128, MATMUL_LANES};
-use crate::kernels::{MATMUL_F16_ACT, MATMUL_F16_ACT_128};
+use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
@@ -24,8 +22,10 @@ pub(crate) const LANES_COLS: usize = 8 * 4;
 const LANES_BAND: usize = 8;
 
 /// Rows and columns of `out` one workgroup of `linear` computes: 64 invocations x 4 rows (`WG * ROWS` in
-/// the shader) by an 8-column tile of w. `linear_tiled`'s are its [`GemmTile`]'s.
+/// the shader) by an 8-column tile of w.
 const ROWS_TILE: (usize, usize) = (256, 8);
+/// Rows and columns of `out` one workgroup of `linear_tiled` computes (`TILE` in `shaders/tiles.wgsl`).
+const TILED_TILE: usize = 64;
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -154,7 +154,13 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         act,
         mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
     };
-    let variant = linear_variant(&plan.kernels, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
+    let tiled_groups = m.div_ceil(TILED_TILE) * padded_cols(n).div_ceil(TILED_TILE);
+    let variant = linear_variant(
+        &plan.kernels,
+        plan.dtype(w) == Dtype::F32,
+        || lanes_fit(plan, &as_conv),
+        || k_splits(tiled_groups, k4),
+    );
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
     // The norm in the prologue is linear_tiled's, with f32 tiles (it sums rows' statistics in them).
     let fused_norm = variant == MatmulKernel::Tiled && tiles == TileElement::F32;
@@ -164,19 +170,15 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
         return linear(plan, label, LinearArgs { x: normed, norm: None, ..args });
     }
-    let tile = gemm_tile(m, padded_cols(n));
     let (entry, (tile_rows, tile_cols)) = match variant {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, as_conv),
-        MatmulKernel::Tiled => ("linear_tiled", (tile.size(), tile.size())),
+        MatmulKernel::Tiled => ("linear_tiled", (TILED_TILE, TILED_TILE)),
         MatmulKernel::Rows => ("linear", ROWS_TILE),
     };
-    let shader = match (plan.dtype(w), tiles, variant == MatmulKernel::Tiled && tile == GemmTile::Large) {
-        (Dtype::F32, _, false) => &MATMUL,
-        (Dtype::F32, _, true) => &MATMUL_128,
-        (Dtype::F16, TileElement::F32, false) => &MATMUL_F16,
-        (Dtype::F16, TileElement::F32, true) => &MATMUL_F16_128,
-        (Dtype::F16, TileElement::F16, false) => &MATMUL_F16_ACT,
-        (Dtype::F16, TileElement::F16, true) => &MATMUL_F16_ACT_128,
+    let shader = match (plan.dtype(w), tiles) {
+        (Dtype::F32, _) => &MATMUL,
+        (Dtype::F16, TileElement::F32) => &MATMUL_F16,
+        (Dtype::F16, TileElement::F16) => &MATMUL_F16_ACT,
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     params.m_tiles = m.div_ceil(tile_rows) as u32;
@@ -196,7 +198,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         bindings.extend([(gamma, Access::Read), (beta, Access::Read)]);
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
-    let splits = if variant == MatmulKernel::Tiled && tile == GemmTile::Small { k_splits(groups, k4) } else { 1 };
+    let splits = if variant == MatmulKernel::Tiled { k_splits(groups, k4) } else { 1 };
     // Split K: each range's raw sums into the partials, then one pass adding them up into out.
     let (written, op_label, op_groups) = if splits == 1 {
         ((out, out_access), label.to_string(), groups)

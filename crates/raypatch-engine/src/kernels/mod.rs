@@ -249,11 +249,6 @@ macro_rules! shaders {
     };
 }
 
-/// The replacements that turn `shaders/tiles.wgsl`'s 64 x 64 tiles (32 floats of K a step) into 128 x 128 ones
-/// (16 floats a step).
-const TILES_128: &[(&str, &str)] =
-    &[("const TILE: u32 = 64u;", "const TILE: u32 = 128u;"), ("const TILE_K4: u32 = 8u;", "const TILE_K4: u32 = 4u;")];
-
 /// The replacement that makes `shaders/matmul.wgsl`'s weights f16 (widened to the tiles' type as they are loaded).
 const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;");
 
@@ -298,20 +293,6 @@ shaders! {
             replace: &[F16_WEIGHTS],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
-        /// `matmul` with 128 x 128 tiles in `linear_tiled` ([`GemmTile::Large`](crate::device::GemmTile)).
-        MATMUL_128 = MATMUL {
-            name: "matmul_128",
-            prefix: "",
-            replace: TILES_128,
-            features: wgpu::Features::empty(),
-        } => matmul::MatmulParams;
-        /// `matmul_f16` with 128 x 128 tiles in `linear_tiled`.
-        MATMUL_F16_128 = MATMUL {
-            name: "matmul_f16_128",
-            prefix: "enable f16;\n",
-            replace: &[F16_WEIGHTS, TILES_128[0], TILES_128[1]],
-            features: wgpu::Features::SHADER_F16,
-        } => matmul::MatmulParams;
         /// `matmul_f16` whose `linear_tiled` stages x as f16 too and sums each step's products in f16.
         MATMUL_F16_ACT = MATMUL {
             name: "matmul_f16_act",
@@ -319,20 +300,6 @@ shaders! {
             replace: &[F16_WEIGHTS, F16_TILES[0], F16_TILES[1]],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
-        /// `matmul_f16_act` with 128 x 128 tiles.
-        MATMUL_F16_ACT_128 = MATMUL {
-            name: "matmul_f16_act_128",
-            prefix: "enable f16;\n",
-            replace: &[F16_WEIGHTS, F16_TILES[0], F16_TILES[1], TILES_128[0], TILES_128[1]],
-            features: wgpu::Features::SHADER_F16,
-        } => matmul::MatmulParams;
-        /// `conv` with 128 x 128 tiles in `conv_tiled`.
-        CONV_128 = CONV {
-            name: "conv_128",
-            prefix: "",
-            replace: TILES_128,
-            features: wgpu::Features::empty(),
-        } => conv::ConvParams;
         /// `attention_flash` with registers for heads of up to 64 floats.
         ATTENTION_FLASH_16 = ATTENTION_FLASH {
             name: "attention_flash_16",
