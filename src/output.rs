@@ -337,4 +337,26 @@ mod tests {
         assert!(other.exists(), "not ours: kept");
         std::fs::remove_dir_all(&dir).unwrap();
     }
+
+    /// Streamed outputs appear only at the commit; dropped without one, nothing of them is left.
+    #[test]
+    fn staged_outputs_appear_all_at_the_commit_or_not_at_all() {
+        let dir = temp_dir("staged");
+        let (a, b) = (dir.join("a.mp4"), dir.join("b.png"));
+        std::fs::write(&b, b"old").unwrap();
+        let mut staged = Staged::default();
+        staged.create(&a).unwrap().write_all(b"frames").unwrap();
+        staged.create(&b).unwrap().write_all(b"new").unwrap();
+        assert!(!a.exists() && std::fs::read(&b).unwrap() == b"old", "nothing placed before the commit");
+        drop(staged);
+        let names = |dir: &Path| std::fs::read_dir(dir).unwrap().count();
+        assert_eq!((a.exists(), std::fs::read(&b).unwrap(), names(&dir)), (false, b"old".to_vec(), 1));
+        let mut staged = Staged::default();
+        staged.create(&a).unwrap().write_all(b"frames").unwrap();
+        staged.create(&b).unwrap().write_all(b"new").unwrap();
+        staged.commit().unwrap();
+        assert_eq!((std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap()), (b"frames".to_vec(), b"new".to_vec()));
+        assert_eq!(names(&dir), 2, "no temporary left");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

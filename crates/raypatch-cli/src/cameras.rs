@@ -54,7 +54,8 @@ pub struct CameraArgs {
     #[arg(long, requires = "motion")]
     pub fade: bool,
     /// Render --frames cameras along a smooth path through the key cameras: the --camera-path's cameras, the
-    /// --view target views when given, else the scene's input views (Catmull-Rom positions, slerped rotations).
+    /// --view target views when given, else the scene's cameras, inputs then targets (Catmull-Rom positions,
+    /// slerped rotations).
     #[arg(long, conflicts_with_all = ["pose", "orbit", "orbit_frames"])]
     pub interpolate: bool,
     /// Render every camera at this size, keeping its vertical field of view (the model's k must divide it).
@@ -136,7 +137,7 @@ pub fn shots(
         let keys: Vec<&Camera> = match (&path, views_given) {
             (Some(path), _) => path.cameras.iter().collect(),
             (None, true) => views.iter().map(|&v| &data.targets[v].camera).collect(),
-            (None, false) => data.inputs.iter().map(|v| &v.camera).collect(),
+            (None, false) => (data.inputs.iter().map(|v| &v.camera)).chain(data.targets.iter().map(|t| &t.camera)).collect(),
         };
         let keys = (keys.into_iter())
             .map(|c| pinhole(c).and_then(|(k, pose)| Ok((raypatch::resized(k, args.size, args.fov)?, pose))))

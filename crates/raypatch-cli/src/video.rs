@@ -127,12 +127,14 @@ const TICKS_PER_FRAME: u32 = 1000;
 
 impl Mp4Writer {
     fn new(file: BufWriter<File>, fps: f64) -> Result<Mp4Writer> {
-        // As close to the rendered pixels as OpenH264 goes (a constant QP of 12), a keyframe every two seconds
-        // for seeking.
+        // As close to the rendered pixels as OpenH264 goes (a constant QP of 12; the buffer-based rate control
+        // is the one that neither skips frames nor warns when told not to), a keyframe every two seconds for
+        // seeking.
         let config = EncoderConfig::new()
             .max_frame_rate(FrameRate::from_hz(fps as f32))
             .bitrate(BitRate::from_bps(20_000_000))
             .qp(QpRange::new(LOWEST_QP, LOWEST_QP))
+            .rate_control_mode(openh264::encoder::RateControlMode::Bufferbased)
             .skip_frames(false)
             .intra_frame_period(IntraFramePeriod::from_num_frames((2.0 * fps).round() as u32))
             .vui(VuiConfig::bt601());
