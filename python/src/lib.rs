@@ -3,6 +3,8 @@
 //! Python 3.9 has no buffer protocol, and `raypatch/__init__.py` turns numpy arrays into bytes and back. The
 //! GIL is released while the engine works, so Python threads render at once.
 
+mod paths;
+
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -393,6 +395,15 @@ struct Scene {
 }
 
 impl Scene {
+    fn dict<'py>(py: Python<'py>, rendered: &raypatch::Rendered) -> PyResult<Bound<'py, PyDict>> {
+        let result = PyDict::new(py);
+        for out in &rendered.outputs {
+            let shape = (rendered.region.height, rendered.region.width, out.channels);
+            result.set_item(out.output.name(), (f32_bytes(py, &out.values), shape))?;
+        }
+        Ok(result)
+    }
+
     fn render_camera<'py>(
         &self,
         py: Python<'py>,
@@ -404,12 +415,7 @@ impl Scene {
         let region = region.map(|(x, y, width, height)| Region { x, y, width, height });
         let request = Request { outputs: outputs_of(outputs)?, region };
         let rendered = py.detach(|| self.cell.borrow_dependent().render(camera, &request)).map_err(to_py)?;
-        let result = PyDict::new(py);
-        for out in &rendered.outputs {
-            let shape = (rendered.region.height, rendered.region.width, out.channels);
-            result.set_item(out.output.name(), (f32_bytes(py, &out.values), shape))?;
-        }
-        Ok(result)
+        Scene::dict(py, &rendered)
     }
 }
 
@@ -429,6 +435,29 @@ impl Scene {
     ) -> PyResult<Bound<'py, PyDict>> {
         let camera = pinhole(pose, intrinsics, convention)?;
         self.render_camera(py, &camera, outputs, region)
+    }
+
+    /// Renders pinhole cameras of one size (OpenCV poses, see paths.rs) in one render call, one dict each (as
+    /// `render_posed`).
+    fn render_batch<'py>(
+        &self,
+        py: Python<'py>,
+        cameras: Vec<paths::Pinhole>,
+        outputs: Vec<String>,
+    ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.alive.check()?;
+        let cameras = cameras.into_iter().map(paths::camera_of).collect::<PyResult<Vec<_>>>()?;
+        let request = Request { outputs: outputs_of(outputs)?, region: None };
+        let frames = py.detach(|| self.cell.borrow_dependent().render_batch(&cameras, &request)).map_err(to_py)?;
+        frames.iter().map(|f| Scene::dict(py, f)).collect()
+    }
+
+    /// A scene file's cameras, inputs then targets, as pinhole cameras (OpenCV poses; cameras given as rays
+    /// fitted with one, see raypatch::fit_pinhole).
+    fn fitted_cameras(&self, data: &SceneFile) -> PyResult<Vec<paths::Pinhole>> {
+        let kind = self.cell.borrow_owner().ray_kind();
+        let cameras = (data.inner.inputs.iter().map(|v| &v.camera)).chain(data.inner.targets.iter().map(|t| &t.camera));
+        cameras.map(|c| raypatch::fit_pinhole(c, kind).map(paths::to_tuple).map_err(to_py)).collect()
     }
 
     /// Renders target view `i` of a scene file or frames folder (as `render_posed`).
@@ -502,5 +531,10 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fg_ari, m)?)?;
     m.add_function(wrap_pyfunction!(depth_errors, m)?)?;
     m.add_function(wrap_pyfunction!(save_png, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::motion_cameras, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::interpolate_cameras, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::scene_centre, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::up_axis, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::camera_path_cameras, m)?)?;
     Ok(())
 }

@@ -314,7 +314,7 @@ fn run(args: &Args) -> Result<()> {
         region.width,
         region.height,
         sequence.batch(),
-        destinations.files.paths().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        written(&destinations.files)
     );
     for line in &metric_lines {
         println!("{line}");
@@ -446,4 +446,13 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
 /// Whether the shots are a sequence of frames (batched, with a progress bar) rather than views or one camera.
 fn is_sequence(cameras: &CameraArgs) -> bool {
     cameras.motion.is_some() || cameras.interpolate || cameras.camera_path.is_some() || cameras.orbit_frames.is_some()
+}
+
+/// The files a run wrote, for its summary line: every one, or the first and last of many.
+fn written(files: &files::OutputFiles) -> String {
+    let paths: Vec<String> = files.paths().map(|p| p.display().to_string()).collect();
+    match &paths[..] {
+        [first, .., last] if paths.len() > 4 => format!("{first} ... {last} ({} files)", paths.len()),
+        _ => paths.join(", "),
+    }
 }
