@@ -33,8 +33,6 @@
 
 mod camera;
 mod camera_path;
-mod motion;
-mod panels;
 mod dataset;
 mod error;
 mod font;
@@ -42,7 +40,9 @@ mod font;
 pub mod fuzzing;
 mod image;
 pub mod metrics;
+mod motion;
 mod output;
+mod panels;
 mod render;
 
 pub use camera::{
@@ -50,12 +50,12 @@ pub use camera::{
     MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
 };
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
-pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use image::{check_image_size, slot_ids, GifWriter, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-pub use panels::{scaled_to_height, side_by_side};
+pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic, Staged};
+pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::{
     AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Region, RenderStats,
     Request,

@@ -101,20 +101,10 @@ pub fn fit_pinhole(camera: &Camera, kind: RayKind) -> Result<(Intrinsics, DMat4)
         (Some(f), None) | (None, Some(f)) => (f, f),
         (None, None) => return Err(unfit()),
     };
-    let intrinsics = Intrinsics {
-        width: camera.width(),
-        height: camera.height(),
-        fx,
-        fy,
-        cx: width / 2.0,
-        cy: height / 2.0,
-    };
-    let pose = DMat4::from_cols(
-        right.extend(0.0),
-        down.extend(0.0),
-        forward.extend(0.0),
-        camera.position().extend(1.0),
-    );
+    let intrinsics =
+        Intrinsics { width: camera.width(), height: camera.height(), fx, fy, cx: width / 2.0, cy: height / 2.0 };
+    let pose =
+        DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), camera.position().extend(1.0));
     Ok((intrinsics, pose))
 }
 
@@ -234,7 +224,9 @@ pub fn interpolate(keys: &[(Intrinsics, DMat4)], frames: usize) -> Result<Vec<Ca
     let Some(&(first, _)) = keys.first() else {
         return Err(Error::Camera("no key camera to interpolate between".into()));
     };
-    if let Some((i, (k, _))) = keys.iter().enumerate().find(|(_, (k, _))| (k.width, k.height) != (first.width, first.height)) {
+    if let Some((i, (k, _))) =
+        keys.iter().enumerate().find(|(_, (k, _))| (k.width, k.height) != (first.width, first.height))
+    {
         return Err(Error::Camera(format!(
             "key camera {i} is {}x{}, key camera 0 is {}x{}: interpolated cameras need one size (give --size)",
             k.width, k.height, first.width, first.height
@@ -260,8 +252,13 @@ pub fn interpolate(keys: &[(Intrinsics, DMat4)], frames: usize) -> Result<Vec<Ca
             let rotation = rotations[i].slerp(rotations[j], t);
             let (a, b) = (keys[i].0, keys[j].0);
             let lerp = |x: f64, y: f64| x + (y - x) * t;
-            let intrinsics =
-                Intrinsics { fx: lerp(a.fx, b.fx), fy: lerp(a.fy, b.fy), cx: lerp(a.cx, b.cx), cy: lerp(a.cy, b.cy), ..a };
+            let intrinsics = Intrinsics {
+                fx: lerp(a.fx, b.fx),
+                fy: lerp(a.fy, b.fy),
+                cx: lerp(a.cx, b.cx),
+                cy: lerp(a.cy, b.cy),
+                ..a
+            };
             Camera::pinhole(intrinsics, DMat4::from_rotation_translation(rotation, position), CameraAxes::OpenCv)
         })
         .collect()

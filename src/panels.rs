@@ -25,12 +25,21 @@ pub fn side_by_side(panels: &[(&str, &Image)]) -> Result<Image> {
         + pad * panels.len().saturating_sub(1);
     let height = label_height + panels.iter().map(|(_, p)| p.height()).max().unwrap_or(1);
     let (width, height) = (width.next_multiple_of(2), height.next_multiple_of(2));
-    crate::image::check_image_size(width, height).map_err(|reason| crate::Error::Image { path: "panels".into(), reason })?;
+    crate::image::check_image_size(width, height)
+        .map_err(|reason| crate::Error::Image { path: "panels".into(), reason })?;
     let mut data = vec![1.0; width * height * 3];
     let mut x0 = 0;
     for (label, panel) in panels {
         let column = panel.width().max(font::text_width(label, scale));
-        font::draw_text(&mut data, width, x0 + (column - font::text_width(label, scale)) / 2, 2 * scale, label, scale, [0.0; 3]);
+        font::draw_text(
+            &mut data,
+            width,
+            x0 + (column - font::text_width(label, scale)) / 2,
+            2 * scale,
+            label,
+            scale,
+            [0.0; 3],
+        );
         let left = x0 + (column - panel.width()) / 2;
         for y in 0..panel.height() {
             let row = &panel.data()[y * panel.width() * 3..(y + 1) * panel.width() * 3];

@@ -48,8 +48,9 @@ fn a_pinhole_fitted_to_given_rays_is_the_camera_that_made_them() {
 #[test]
 fn the_centre_is_where_the_cameras_look_and_up_follows_the_scene() {
     // z-up MultiShapeNet cameras look at the origin.
-    let ring: Vec<DMat4> =
-        [DVec3::new(8.0, -2.0, 5.0), DVec3::new(-6.0, 7.0, 4.0), DVec3::new(2.0, 9.0, 6.0)].map(|e| pose(&msn(e))).to_vec();
+    let ring: Vec<DMat4> = [DVec3::new(8.0, -2.0, 5.0), DVec3::new(-6.0, 7.0, 4.0), DVec3::new(2.0, 9.0, 6.0)]
+        .map(|e| pose(&msn(e)))
+        .to_vec();
     assert!(close(scene_centre(&ring).unwrap(), DVec3::ZERO, 1e-9));
     assert_eq!(up_axis(&ring), DVec3::Z);
     // The same ring in a y-up NeRF world (x, y, z) -> (x, z, -y), looking at (1, 2, 3), OpenGL poses.
@@ -69,7 +70,8 @@ fn the_centre_is_where_the_cameras_look_and_up_follows_the_scene() {
     assert_eq!(up_axis(&y_up), DVec3::Y);
     // An orbit of the y-up scene keeps the height along y.
     let start = (Intrinsics::msn(48, 32), y_up[0]);
-    let orbit = motion_path(Motion::Orbit, start, &MotionOptions { centre: target, up: DVec3::Y, ..options(8) }).unwrap();
+    let orbit =
+        motion_path(Motion::Orbit, start, &MotionOptions { centre: target, up: DVec3::Y, ..options(8) }).unwrap();
     for camera in &orbit {
         assert!((camera.position().y - y_up[0].w_axis.y).abs() < 1e-9);
         assert!(axis_miss(camera, target) < 1e-9);
@@ -135,9 +137,10 @@ fn every_motion_preset_moves_as_documented() {
 
 #[test]
 fn interpolation_passes_through_the_keys_smoothly() {
-    let keys: Vec<(Intrinsics, DMat4)> = [DVec3::new(8.0, 0.0, 4.0), DVec3::new(0.0, 8.0, 4.0), DVec3::new(-8.0, 0.0, 4.0)]
-        .map(|e| msn(e).as_pinhole().unwrap())
-        .to_vec();
+    let keys: Vec<(Intrinsics, DMat4)> =
+        [DVec3::new(8.0, 0.0, 4.0), DVec3::new(0.0, 8.0, 4.0), DVec3::new(-8.0, 0.0, 4.0)]
+            .map(|e| msn(e).as_pinhole().unwrap())
+            .to_vec();
     let frames = interpolate(&keys, 9).unwrap();
     assert_eq!(frames.len(), 9);
     for (key, frame) in [(0, 0), (1, 4), (2, 8)] {
@@ -171,7 +174,8 @@ fn a_path_renders_as_each_camera_alone_in_one_plan() {
     let engine = raypatch::Engine::new(Default::default()).unwrap();
     let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
     let model = engine.load(format!("{golden}/model.safetensors")).unwrap();
-    let scene = model.encode(&raypatch::SceneData::load(format!("{golden}/scene.safetensors")).unwrap().inputs).unwrap();
+    let scene =
+        model.encode(&raypatch::SceneData::load(format!("{golden}/scene.safetensors")).unwrap().inputs).unwrap();
     let start = msn(DVec3::new(6.0, 4.0, 3.0)).as_pinhole().unwrap();
     let cameras = motion_path(Motion::Orbit, start, &options(5)).unwrap();
     let request = Request::default();

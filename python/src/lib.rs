@@ -136,12 +136,13 @@ impl Engine {
     #[new]
     #[pyo3(signature = (adapter=None, matmul=None))]
     fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>) -> PyResult<Engine> {
-        let matmul = match matmul.as_deref() {
-            None => None,
-            Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
-                input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
-            })?),
-        };
+        let matmul =
+            match matmul.as_deref() {
+                None => None,
+                Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
+                    input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
+                })?),
+            };
         let adapter = adapter.map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
         let options = EngineOptions { adapter, matmul, ..Default::default() };
         let inner = py.detach(|| raypatch::Engine::new(options)).map_err(to_py)?;
@@ -308,8 +309,11 @@ impl Model {
         let views = (0..count)
             .map(|i| {
                 let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
-                let grid =
-                    RayGrid { width, height, rays: rays[i * per..(i + 1) * per].chunks_exact(3).map(Vec3::from_slice).collect() };
+                let grid = RayGrid {
+                    width,
+                    height,
+                    rays: rays[i * per..(i + 1) * per].chunks_exact(3).map(Vec3::from_slice).collect(),
+                };
                 let camera = Camera::from_rays(DVec3::from_array(positions[i]), grid)
                     .map_err(|e| input_error(format!("view {i}: {e}")))?;
                 Ok(InputView { image, camera })
@@ -382,7 +386,11 @@ impl SceneFile {
 impl SceneFile {
     fn target(&self, i: usize) -> PyResult<&raypatch::TargetView> {
         self.inner.targets.get(i).ok_or_else(|| {
-            input_error(format!("target view {i}: the scene has {} (0..{})", self.inner.targets.len(), self.inner.targets.len()))
+            input_error(format!(
+                "target view {i}: the scene has {} (0..{})",
+                self.inner.targets.len(),
+                self.inner.targets.len()
+            ))
         })
     }
 }

@@ -7,7 +7,9 @@ use anyhow::{bail, Context, Result};
 use glam::DVec3;
 use raypatch::{Camera, Image, Intrinsics, Motion, MotionOptions, RayKind, SceneData};
 
-use crate::parse::{parse_count, parse_elevation, parse_fov, parse_motion, parse_point, parse_radius, parse_size, parse_up};
+use crate::parse::{
+    parse_count, parse_elevation, parse_fov, parse_motion, parse_point, parse_radius, parse_size, parse_up,
+};
 
 /// Frames of a motion or an interpolation when --frames is not given.
 const DEFAULT_FRAMES: usize = 36;
@@ -131,13 +133,16 @@ pub fn shots(
             radius: args.radius,
             fade: args.fade,
         };
-        let cameras = raypatch::motion_path(motion, start, &options).with_context(|| format!("--motion {}", motion.name()))?;
+        let cameras =
+            raypatch::motion_path(motion, start, &options).with_context(|| format!("--motion {}", motion.name()))?;
         Shot::frames(cameras, motion.name())
     } else if args.interpolate {
         let keys: Vec<&Camera> = match (&path, views_given) {
             (Some(path), _) => path.cameras.iter().collect(),
             (None, true) => views.iter().map(|&v| &data.targets[v].camera).collect(),
-            (None, false) => (data.inputs.iter().map(|v| &v.camera)).chain(data.targets.iter().map(|t| &t.camera)).collect(),
+            (None, false) => {
+                (data.inputs.iter().map(|v| &v.camera)).chain(data.targets.iter().map(|t| &t.camera)).collect()
+            }
         };
         let keys = (keys.into_iter())
             .map(|c| pinhole(c).and_then(|(k, pose)| Ok((raypatch::resized(k, args.size, args.fov)?, pose))))
@@ -227,8 +232,11 @@ pub fn check_patch_size(shots: &[Shot], config: &raypatch::raypatch_model::Model
         let (w, h) = (shot.camera.width(), shot.camera.height());
         if w % k != 0 || h % k != 0 {
             let near = |v: usize| if v % k == 0 { vec![v] } else { vec![v / k * k, (v / k + 1) * k] };
-            let mut sizes: Vec<(usize, usize)> =
-                near(w).into_iter().flat_map(|a| near(h).into_iter().map(move |b| (a, b))).filter(|&(a, b)| a > 0 && b > 0).collect();
+            let mut sizes: Vec<(usize, usize)> = near(w)
+                .into_iter()
+                .flat_map(|a| near(h).into_iter().map(move |b| (a, b)))
+                .filter(|&(a, b)| a > 0 && b > 0)
+                .collect();
             sizes.sort_by_key(|&(a, b)| a.abs_diff(w) + b.abs_diff(h));
             let list: Vec<String> = sizes.iter().map(|(a, b)| format!("{a}x{b}")).collect();
             let what = if size_flag { "--size".to_string() } else { shot.label.clone() };

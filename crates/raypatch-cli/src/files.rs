@@ -5,9 +5,9 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use raypatch::{Output, Outputs, SceneData, Staged};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
-use raypatch::{Output, Outputs, SceneData, Staged};
 
 use crate::cameras::Shot;
 use crate::video::{check_video_size, VideoFormat};
@@ -105,7 +105,8 @@ impl OutputFiles {
     pub fn begin(&self) -> Result<Writing<'_>> {
         let mut writing = Writing { files: self, staged: Staged::default(), created: Vec::new() };
         for (flag, folder) in &self.new_folders {
-            std::fs::create_dir(folder).with_context(|| format!("{flag} {}: cannot create the folder", folder.display()))?;
+            std::fs::create_dir(folder)
+                .with_context(|| format!("{flag} {}: cannot create the folder", folder.display()))?;
             writing.created.push(folder.clone());
         }
         Ok(writing)
@@ -242,7 +243,12 @@ pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, output
             }
             let sizes: Vec<(usize, usize)> = shots.iter().map(|s| frame_size(args, &s.camera)).collect();
             if let Some(other) = sizes.iter().find(|&&s| s != sizes[0]) {
-                bail!("--out {}: a video's frames have one size, these are {:?} and {:?}", args.out.display(), sizes[0], other);
+                bail!(
+                    "--out {}: a video's frames have one size, these are {:?} and {:?}",
+                    args.out.display(),
+                    sizes[0],
+                    other
+                );
             }
             let (width, height) = sizes[0];
             // Panels are laid out at even sizes.

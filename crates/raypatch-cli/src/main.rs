@@ -16,7 +16,9 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
-use raypatch::{AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource};
+use raypatch::{
+    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource,
+};
 
 use cameras::{check_patch_size, CameraArgs, Shot};
 use panels::Panel;

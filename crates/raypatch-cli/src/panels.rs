@@ -56,7 +56,8 @@ pub fn frame_picture(
                     Image::from_depth(width, height, depth, depth_range)?
                 }
                 Panel::Segmentation => {
-                    let (weights, slots) = rendered.segmentation().expect("the segmentation panel's output was requested");
+                    let (weights, slots) =
+                        rendered.segmentation().expect("the segmentation panel's output was requested");
                     Image::from_segmentation(width, height, weights, slots)?
                 }
                 Panel::Input => raypatch::scaled_to_height(input, height)?,

@@ -83,7 +83,9 @@ pub fn parse_motion(text: &str) -> Result<raypatch::Motion, String> {
 pub fn parse_point(text: &str) -> Result<glam::DVec3, String> {
     let parts: Vec<f64> = text.split(',').filter_map(|p| p.trim().parse::<f64>().ok()).collect();
     match parts[..] {
-        [x, y, z] if text.split(',').count() == 3 && parts.iter().all(|v| v.is_finite()) => Ok(glam::DVec3::new(x, y, z)),
+        [x, y, z] if text.split(',').count() == 3 && parts.iter().all(|v| v.is_finite()) => {
+            Ok(glam::DVec3::new(x, y, z))
+        }
         _ => Err(format!("{text:?} is not X,Y,Z (three finite numbers)")),
     }
 }

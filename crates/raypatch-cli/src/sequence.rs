@@ -50,7 +50,11 @@ pub struct Rendering<'a> {
 
 impl Sequence<'_> {
     pub fn batch(&self) -> usize {
-        if self.batched { SEQUENCE_BATCH } else { 1 }
+        if self.batched {
+            SEQUENCE_BATCH
+        } else {
+            1
+        }
     }
 
     fn progress_bar(&self, what: &str) -> ProgressBar {

@@ -61,7 +61,10 @@ pub fn check_video_size(out: &Path, format: VideoFormat, width: usize, height: u
 /// One destination of a sequence's colour frames.
 pub enum FrameWriter {
     /// One PNG per frame, at these paths in order.
-    Pngs { paths: Vec<PathBuf>, next: usize },
+    Pngs {
+        paths: Vec<PathBuf>,
+        next: usize,
+    },
     Gif(GifWriter<BufWriter<File>>),
     Mp4(Box<Mp4Writer>),
 }
@@ -178,7 +181,10 @@ impl Mp4Writer {
             let config = mp4::Mp4Config {
                 major_brand: "isom".parse()?,
                 minor_version: 512,
-                compatible_brands: ["isom", "iso2", "avc1", "mp41"].iter().map(|b| b.parse()).collect::<Result<_, _>>()?,
+                compatible_brands: ["isom", "iso2", "avc1", "mp41"]
+                    .iter()
+                    .map(|b| b.parse())
+                    .collect::<Result<_, _>>()?,
                 timescale: 1000,
             };
             let mut mux = mp4::Mp4Writer::write_start(file, &config)?;

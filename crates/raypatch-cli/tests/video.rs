@@ -57,14 +57,29 @@ fn tool(name: &str, args: &[&str]) -> std::process::Output {
 fn probe(path: &Path) -> (usize, usize, usize, f64, String) {
     let out = tool(
         "ffprobe",
-        &["-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
-          "stream=codec_name,width,height,nb_read_frames,duration", "-of", "json", path.to_str().unwrap()],
+        &[
+            "-v",
+            "error",
+            "-count_frames",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "stream=codec_name,width,height,nb_read_frames,duration",
+            "-of",
+            "json",
+            path.to_str().unwrap(),
+        ],
     );
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     let s = &v["streams"][0];
     let number = |key: &str| s[key].as_str().map_or_else(|| s[key].as_f64().unwrap(), |t| t.parse().unwrap());
-    (number("nb_read_frames") as usize, number("width") as usize, number("height") as usize, number("duration"),
-     s["codec_name"].as_str().unwrap().to_string())
+    (
+        number("nb_read_frames") as usize,
+        number("width") as usize,
+        number("height") as usize,
+        number("duration"),
+        s["codec_name"].as_str().unwrap().to_string(),
+    )
 }
 
 /// A video's first frame, decoded by ffmpeg.
@@ -116,7 +131,10 @@ fn a_nerfstudio_path_renders_to_an_mp4_and_a_gif_whose_first_frame_is_the_pose()
         assert!(psnr(&video, &posed) >= least, "{size:?}: {} dB", psnr(&video, &posed));
 
         ok(d, &["--camera-path", "camera_path.json", "--out", "path.gif"]);
-        let gif = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(d.join("path.gif")).unwrap())).unwrap();
+        let gif = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+            std::fs::File::open(d.join("path.gif")).unwrap(),
+        ))
+        .unwrap();
         let gif_frames: Vec<_> = image::AnimationDecoder::into_frames(gif).collect::<Result<_, _>>().unwrap();
         assert_eq!(gif_frames.len(), 6);
         let first = image::DynamicImage::ImageRgba8(gif_frames[0].buffer().clone()).to_rgb8();
@@ -180,24 +198,78 @@ fn size_fov_and_panels() {
     // Depth panels share one range: every frame's colour bar and labels are the same pixels.
     let golden_depth = |f: &str| golden("srt_k1_depth", f);
     let (model, scene) = (golden_depth("model.safetensors"), golden_depth("scene.safetensors"));
-    ok(d, &["--model", &model, "--scene", &scene, "--motion", "orbit", "--frames", "3", "--panels", "rgb,depth,input", "--out", "panels"]);
+    ok(
+        d,
+        &[
+            "--model",
+            &model,
+            "--scene",
+            &scene,
+            "--motion",
+            "orbit",
+            "--frames",
+            "3",
+            "--panels",
+            "rgb,depth,input",
+            "--out",
+            "panels",
+        ],
+    );
     let frames: Vec<_> = (0..3).map(|i| png(&d.join(format!("panels/frame_{i:03}.png")))).collect();
     let (w, h) = frames[0].dimensions();
     assert!(w > 3 * 24 && h > 16 && w % 2 == 0 && h % 2 == 0, "{w}x{h}");
     let legend = |f: &image::RgbImage| f.rows().skip(h as usize - 10).flat_map(|r| r.map(|p| p.0)).collect::<Vec<_>>();
     assert!(frames.iter().all(|f| legend(f) == legend(&frames[0])), "one depth range for the whole sequence");
     assert!(frames[0] != frames[1]);
-    ok(d, &["--model", &model, "--scene", &scene, "--motion", "orbit", "--frames", "3", "--panels", "depth", "--depth-range", "1,9", "--out", "ranged.mp4"]);
+    ok(
+        d,
+        &[
+            "--model",
+            &model,
+            "--scene",
+            &scene,
+            "--motion",
+            "orbit",
+            "--frames",
+            "3",
+            "--panels",
+            "depth",
+            "--depth-range",
+            "1,9",
+            "--out",
+            "ranged.mp4",
+        ],
+    );
     assert_eq!(probe(&d.join("ranged.mp4")).0, 3);
     let osrt = |f: &str| golden("osrt", f);
-    ok(d, &["--model", &osrt("model.safetensors"), "--scene", &osrt("scene.safetensors"), "--motion", "spiral", "--frames", "2", "--panels", "rgb,segmentation", "--out", "masks.gif"]);
+    ok(
+        d,
+        &[
+            "--model",
+            &osrt("model.safetensors"),
+            "--scene",
+            &osrt("scene.safetensors"),
+            "--motion",
+            "spiral",
+            "--frames",
+            "2",
+            "--panels",
+            "rgb,segmentation",
+            "--out",
+            "masks.gif",
+        ],
+    );
 }
 
 #[test]
 fn bad_sequences_are_one_line_errors_with_nothing_written() {
     let dir = TempDir::new().unwrap();
     let d = dir.path();
-    fails(d, &["--motion", "orbit", "--size", "81x60", "--out", "x.mp4"], &["--size", "81x60", "k=4", "nearest valid sizes: 80x60, 84x60"]);
+    fails(
+        d,
+        &["--motion", "orbit", "--size", "81x60", "--out", "x.mp4"],
+        &["--size", "81x60", "k=4", "nearest valid sizes: 80x60, 84x60"],
+    );
     fails(d, &["--motion", "orbit", "--out", "x.webp"], &["x.webp", ".mp4"]);
     fails(d, &["--frames", "3", "--out", "x.mp4"], &["--frames", "--motion"]);
     fails(d, &["--motion", "twirl"], &["twirl", "orbit, spiral, zoom, closeup, eyeroll"]);
@@ -213,7 +285,18 @@ fn bad_sequences_are_one_line_errors_with_nothing_written() {
     let srt = |f: &str| golden("srt_k1", f);
     fails(
         d,
-        &["--model", &srt("model.safetensors"), "--scene", &srt("scene.safetensors"), "--motion", "orbit", "--size", "81x61", "--out", "odd.mp4"],
+        &[
+            "--model",
+            &srt("model.safetensors"),
+            "--scene",
+            &srt("scene.safetensors"),
+            "--motion",
+            "orbit",
+            "--size",
+            "81x61",
+            "--out",
+            "odd.mp4",
+        ],
         &["odd.mp4", "even", "82x62"],
     );
     // A bad camera path for a video: the same one-line errors, no file.
