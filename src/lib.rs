@@ -36,6 +36,7 @@ mod camera_path;
 mod dataset;
 mod error;
 mod font;
+mod gif;
 #[doc(hidden)]
 pub mod fuzzing;
 mod image;
@@ -52,7 +53,8 @@ pub use camera::{
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
-pub use image::{check_image_size, slot_ids, GifWriter, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
+pub use gif::GifWriter;
+pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
 pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic, Staged};
 pub use panels::{scaled_to_height, side_by_side};

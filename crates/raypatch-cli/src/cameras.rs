@@ -168,7 +168,7 @@ pub fn shots(
 
 /// `intrinsics` at --size and --fov.
 fn sized(args: &CameraArgs, intrinsics: Intrinsics) -> Result<Intrinsics> {
-    Ok(raypatch::resized(intrinsics, args.size, args.fov).context("--size/--fov")?)
+    raypatch::resized(intrinsics, args.size, args.fov).context("--size/--fov")
 }
 
 fn resize_all(args: &CameraArgs, cameras: Vec<Camera>, kind: RayKind) -> Result<Vec<Camera>> {
@@ -231,7 +231,7 @@ pub fn check_patch_size(shots: &[Shot], config: &raypatch::raypatch_model::Model
     for shot in shots {
         let (w, h) = (shot.camera.width(), shot.camera.height());
         if w % k != 0 || h % k != 0 {
-            let near = |v: usize| if v % k == 0 { vec![v] } else { vec![v / k * k, (v / k + 1) * k] };
+            let near = |v: usize| if v.is_multiple_of(k) { vec![v] } else { vec![v / k * k, (v / k + 1) * k] };
             let mut sizes: Vec<(usize, usize)> = near(w)
                 .into_iter()
                 .flat_map(|a| near(h).into_iter().map(move |b| (a, b)))

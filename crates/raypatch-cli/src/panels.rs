@@ -67,7 +67,7 @@ pub fn frame_picture(
         .collect::<raypatch::Result<Vec<_>>>()
         .context("--panels")?;
     let refs: Vec<(&str, &Image)> = pictures.iter().map(|(name, p)| (*name, p)).collect();
-    Ok(raypatch::side_by_side(&refs).context("--panels")?)
+    raypatch::side_by_side(&refs).context("--panels")
 }
 
 /// The depth range over every valid pixel of `depths`, folded into `range`.

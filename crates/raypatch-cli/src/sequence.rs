@@ -115,7 +115,7 @@ impl Sequence<'_> {
             region.get_or_insert(frame.region);
             if let Some(writer) = &mut writer {
                 let picture = frame_picture(self.panels, &frame, panel_range, self.input)?;
-                writer.push(writing.staged(), &picture).with_context(|| format!("{}", self.shots[i].label))?;
+                writer.push(writing.staged(), &picture).with_context(|| self.shots[i].label.clone())?;
             }
             if let Some(path) = destinations.segmentation.get(i) {
                 let (weights, slots) = frame.segmentation().expect("segmentation was requested");

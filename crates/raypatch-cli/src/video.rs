@@ -52,8 +52,9 @@ pub fn check_video_size(out: &Path, format: VideoFormat, width: usize, height: u
             height + height % 2
         );
     }
-    if format == VideoFormat::Mp4 && (width > u16::MAX as usize || height > u16::MAX as usize) {
-        bail!("--out {}: frames of {width}x{height} are larger than MP4 takes", out.display());
+    // OpenH264 encodes up to level 5.2: 3840x2160, either way round.
+    if format == VideoFormat::Mp4 && (width.max(height) > 3840 || width.min(height) > 2160) {
+        bail!("--out {}: frames of {width}x{height} are larger than H.264 here takes (3840x2160)", out.display());
     }
     Ok(())
 }

@@ -271,6 +271,7 @@ fn bad_sequences_are_one_line_errors_with_nothing_written() {
         &["--size", "81x60", "k=4", "nearest valid sizes: 80x60, 84x60"],
     );
     fails(d, &["--motion", "orbit", "--out", "x.webp"], &["x.webp", ".mp4"]);
+    fails(d, &["--motion", "orbit", "--size", "4000x2000", "--out", "x.mp4"], &["x.mp4", "3840x2160"]);
     fails(d, &["--frames", "3", "--out", "x.mp4"], &["--frames", "--motion"]);
     fails(d, &["--motion", "twirl"], &["twirl", "orbit, spiral, zoom, closeup, eyeroll"]);
     fails(d, &["--motion", "orbit", "--fov", "180"], &["--fov", "(0, 180)"]);
