@@ -36,9 +36,9 @@ mod camera_path;
 mod dataset;
 mod error;
 mod font;
-mod gif;
 #[doc(hidden)]
 pub mod fuzzing;
+mod gif;
 mod image;
 pub mod metrics;
 mod motion;
