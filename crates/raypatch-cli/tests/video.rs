@@ -198,48 +198,18 @@ fn size_fov_and_panels() {
     // Depth panels share one range: every frame's colour bar and labels are the same pixels.
     let golden_depth = |f: &str| golden("srt_k1_depth", f);
     let (model, scene) = (golden_depth("model.safetensors"), golden_depth("scene.safetensors"));
-    ok(
-        d,
-        &[
-            "--model",
-            &model,
-            "--scene",
-            &scene,
-            "--motion",
-            "orbit",
-            "--frames",
-            "3",
-            "--panels",
-            "rgb,depth,input",
-            "--out",
-            "panels",
-        ],
-    );
+    let orbit = |more: &[&str]| {
+        let args = ["--model", &model, "--scene", &scene, "--motion", "orbit", "--frames", "3"];
+        ok(d, &[&args[..], more].concat())
+    };
+    orbit(&["--panels", "rgb,depth,input", "--out", "panels"]);
     let frames: Vec<_> = (0..3).map(|i| png(&d.join(format!("panels/frame_{i:03}.png")))).collect();
     let (w, h) = frames[0].dimensions();
     assert!(w > 3 * 24 && h > 16 && w % 2 == 0 && h % 2 == 0, "{w}x{h}");
     let legend = |f: &image::RgbImage| f.rows().skip(h as usize - 10).flat_map(|r| r.map(|p| p.0)).collect::<Vec<_>>();
     assert!(frames.iter().all(|f| legend(f) == legend(&frames[0])), "one depth range for the whole sequence");
     assert!(frames[0] != frames[1]);
-    ok(
-        d,
-        &[
-            "--model",
-            &model,
-            "--scene",
-            &scene,
-            "--motion",
-            "orbit",
-            "--frames",
-            "3",
-            "--panels",
-            "depth",
-            "--depth-range",
-            "1,9",
-            "--out",
-            "ranged.mp4",
-        ],
-    );
+    orbit(&["--panels", "depth", "--depth-range", "1,9", "--out", "ranged.mp4"]);
     assert_eq!(probe(&d.join("ranged.mp4")).0, 3);
     let osrt = |f: &str| golden("osrt", f);
     ok(
