@@ -6,6 +6,19 @@ use crate::image::Image;
 /// An animated GIF that loops, written a frame at a time (nothing but the current frame is held), `fps` frames
 /// per second (GIF delays are whole hundredths of a second: 24 fps plays at 25). Colours are quantised to each
 /// frame's own 256-colour palette; the animation is the first frame's size.
+///
+/// ```
+/// use raypatch::{GifWriter, Image};
+/// let mut gif = Vec::new();
+/// let mut writer = GifWriter::new(&mut gif, 12.0)?;
+/// for shade in [0.2, 0.8] {
+///     writer.push(&Image::new(4, 2, vec![shade; 24])?)?;
+/// }
+/// writer.finish()?;
+/// assert!(gif.starts_with(b"GIF89a") && gif.ends_with(&[0x3B])); // the trailer ends the file
+/// assert!(GifWriter::new(Vec::new(), 12.0)?.finish().is_err()); // no frame
+/// # Ok::<(), raypatch::Error>(())
+/// ```
 pub struct GifWriter<W: std::io::Write> {
     out: Option<W>,
     encoder: Option<gif::Encoder<W>>,

@@ -191,17 +191,6 @@ impl Image {
         Ok(png)
     }
 
-    /// `frames` as an animated GIF that loops, `fps` frames per second (see [`GifWriter`]).
-    pub fn encode_gif(frames: &[Image], fps: f64) -> Result<Vec<u8>> {
-        let mut gif = Vec::new();
-        let mut writer = crate::gif::GifWriter::new(&mut gif, fps)?;
-        for frame in frames {
-            writer.push(frame)?;
-        }
-        writer.finish()?;
-        Ok(gif)
-    }
-
     /// Writes an 8-bit RGB PNG through a temporary file and a rename (see [`write_atomic`]).
     pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
         write_atomic(path.as_ref(), &self.encode_png()?)

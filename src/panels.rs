@@ -13,8 +13,10 @@ use crate::image::Image;
 /// let red = Image::new(8, 6, [1.0, 0.0, 0.0].repeat(48))?;
 /// let blue = Image::new(10, 4, [0.0, 0.0, 1.0].repeat(40))?;
 /// let both = side_by_side(&[("rgb", &red), ("depth", &blue)])?;
-/// assert!(both.width() > 18 && both.height() > 6);
-/// assert_eq!(both.pixel(0, both.height() - 6), [1.0, 0.0, 0.0]);
+/// assert!(both.width() > 18 && both.height() > 6 && both.width() % 2 == 0 && both.height() % 2 == 0);
+/// let has = |colour: [f32; 3]| both.data().chunks(3).filter(|p| *p == colour).count();
+/// assert_eq!((has([1.0, 0.0, 0.0]), has([0.0, 0.0, 1.0])), (48, 40)); // both panels, whole
+/// assert!(has([0.0; 3]) > 0); // the labels
 /// # Ok::<(), raypatch::Error>(())
 /// ```
 pub fn side_by_side(panels: &[(&str, &Image)]) -> Result<Image> {
