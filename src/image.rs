@@ -191,31 +191,6 @@ impl Image {
         Ok(png)
     }
 
-    /// `frames` as an animated GIF that loops, `fps` frames per second (GIF delays are whole hundredths of a
-    /// second: 24 fps plays at 25). Colours are quantised to each frame's own 256-colour palette.
-    pub fn encode_gif(frames: &[Image], fps: f64) -> Result<Vec<u8>> {
-        use image::codecs::gif::{GifEncoder, Repeat};
-        let err = |reason: String| Error::Image { path: "image".into(), reason };
-        if !(fps.is_finite() && fps > 0.0) {
-            return Err(err(format!("GIF frame rate {fps}: expected a positive number of frames per second")));
-        }
-        let mut gif = Vec::new();
-        {
-            let mut encoder = GifEncoder::new_with_speed(&mut gif, 10);
-            encoder.set_repeat(Repeat::Infinite).map_err(|e| err(format!("cannot encode GIF: {e}")))?;
-            let delay = image::Delay::from_numer_denom_ms(1000, (fps.round() as u32).max(1));
-            for frame in frames {
-                let rgba: Vec<u8> = frame.to_rgb8().chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
-                let buffer = image::RgbaImage::from_raw(frame.width as u32, frame.height as u32, rgba)
-                    .expect("an Image always holds width * height * 3 values");
-                encoder
-                    .encode_frame(image::Frame::from_parts(buffer, 0, 0, delay))
-                    .map_err(|e| err(format!("cannot encode GIF: {e}")))?;
-            }
-        }
-        Ok(gif)
-    }
-
     /// Writes an 8-bit RGB PNG through a temporary file and a rename (see [`write_atomic`]).
     pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
         write_atomic(path.as_ref(), &self.encode_png()?)

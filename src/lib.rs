@@ -38,9 +38,12 @@ mod error;
 mod font;
 #[doc(hidden)]
 pub mod fuzzing;
+mod gif;
 mod image;
 pub mod metrics;
+mod motion;
 mod output;
+mod panels;
 mod render;
 
 pub use camera::{
@@ -50,13 +53,16 @@ pub use camera::{
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
+pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic};
+pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
+pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic, Staged};
+pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::{
     AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Precision, Region,
     RenderStats, Request,
 };
-pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
+pub use render::{Adapter, Engine, EngineOptions, InputView, Model, RenderPath, Rendered, Scene};
 
 pub use raypatch_engine;
 pub use raypatch_model;

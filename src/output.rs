@@ -57,31 +57,60 @@ pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
     for (path, _) in files {
         check_output_path(path)?;
     }
-    let mut folders: Vec<&Path> = files.iter().map(|(p, _)| folder_of(p)).collect();
-    folders.dedup();
-    for folder in &folders {
-        remove_stale_temporaries(folder);
+    let mut staged = Staged::default();
+    for (path, bytes) in files {
+        let mut file = staged.create(path)?;
+        file.write_all(bytes).map_err(|e| Error::io(path, "cannot write", e))?;
     }
-    let mut temporaries: Vec<PathBuf> = Vec::with_capacity(files.len());
-    let written = files.iter().try_for_each(|(path, bytes)| {
+    staged.commit()
+}
+
+/// Outputs being written, all or none, as they are made (a video's frames stream into its file): each is a
+/// temporary in its own folder until [`commit`](Self::commit) moves them all into place as
+/// [`write_all_atomic`] does; dropped without a commit (an error, a panic), the temporaries are removed.
+#[derive(Default)]
+pub struct Staged {
+    /// (temporary, destination), in the order they were created.
+    files: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staged {
+    /// Creates the temporary that will become `path` ([`check_output_path`] first) and opens it for writing.
+    pub fn create(&mut self, path: &Path) -> Result<std::fs::File> {
+        check_output_path(path)?;
+        let folder = folder_of(path);
+        if !self.files.iter().any(|(_, dest)| folder_of(dest) == folder) {
+            remove_stale_temporaries(folder);
+        }
         let tmp = temporary_for(path);
         // create_new: never follows or reuses anything already at the temporary's name.
         let file = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp);
-        let result = file.and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_data()));
-        if file_exists(&tmp) {
-            temporaries.push(tmp);
+        let file = file.map_err(|e| Error::io(path, "cannot write", e))?;
+        self.files.push((tmp, path.to_path_buf()));
+        Ok(file)
+    }
+
+    /// Flushes every temporary to disk and moves them all into place, all or none.
+    pub fn commit(mut self) -> Result<()> {
+        let files = std::mem::take(&mut self.files);
+        let synced = files.iter().try_for_each(|(tmp, dest)| {
+            std::fs::File::open(tmp).and_then(|f| f.sync_all()).map_err(|e| Error::io(dest, "cannot write", e))
+        });
+        let moves: Vec<(&Path, &Path)> = files.iter().map(|(t, d)| (t.as_path(), d.as_path())).collect();
+        let placed = synced.and_then(|()| move_all_into_place(&moves));
+        if placed.is_err() {
+            self.files = files;
         }
-        result.map_err(|e| Error::io(path, "cannot write", e))
-    });
-    let moves: Vec<(&Path, &Path)> =
-        temporaries.iter().map(PathBuf::as_path).zip(files.iter().map(|(p, _)| *p)).collect();
-    let placed = written.and_then(|()| move_all_into_place(&moves));
-    if placed.is_err() {
-        for tmp in &temporaries {
+        placed
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
             let _ = std::fs::remove_file(tmp);
         }
     }
-    placed
 }
 
 /// One step of [`move_all_into_place`], to undo if a later one fails.
@@ -306,6 +335,28 @@ mod tests {
             assert!(!stale.exists());
         }
         assert!(other.exists(), "not ours: kept");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Streamed outputs appear only at the commit; dropped without one, nothing of them is left.
+    #[test]
+    fn staged_outputs_appear_all_at_the_commit_or_not_at_all() {
+        let dir = temp_dir("staged");
+        let (a, b) = (dir.join("a.mp4"), dir.join("b.png"));
+        std::fs::write(&b, b"old").unwrap();
+        let mut staged = Staged::default();
+        staged.create(&a).unwrap().write_all(b"frames").unwrap();
+        staged.create(&b).unwrap().write_all(b"new").unwrap();
+        assert!(!a.exists() && std::fs::read(&b).unwrap() == b"old", "nothing placed before the commit");
+        drop(staged);
+        let names = |dir: &Path| std::fs::read_dir(dir).unwrap().count();
+        assert_eq!((a.exists(), std::fs::read(&b).unwrap(), names(&dir)), (false, b"old".to_vec(), 1));
+        let mut staged = Staged::default();
+        staged.create(&a).unwrap().write_all(b"frames").unwrap();
+        staged.create(&b).unwrap().write_all(b"new").unwrap();
+        staged.commit().unwrap();
+        assert_eq!((std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap()), (b"frames".to_vec(), b"new".to_vec()));
+        assert_eq!(names(&dir), 2, "no temporary left");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

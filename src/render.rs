@@ -387,7 +387,7 @@ impl Rendered {
     }
 }
 
-impl Scene<'_> {
+impl<'m> Scene<'m> {
     /// Renders the view of `camera`: the outputs the request asks for, over its region (the whole image by
     /// default). The first render of a size builds a plan; later renders of that size (any camera, any
     /// region position of the same computed size) reuse it with no allocation and no compilation.
@@ -414,6 +414,70 @@ impl Scene<'_> {
         check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
         let frame = self.inner.render(&self.target_views(camera), *request)?;
         Ok(Rendered { region: frame.region, outputs: frame.outputs })
+    }
+
+    /// Renders several cameras of one image size in one plan and one submit (the engine's T target views),
+    /// one [`Rendered`] per camera, in order: the same pixels as rendering each alone.
+    pub fn render_batch(&self, cameras: &[Camera], request: &Request) -> Result<Vec<Rendered>> {
+        let config = &self.inner.model().config;
+        let Some(first) = cameras.first() else {
+            return Ok(Vec::new());
+        };
+        for camera in cameras {
+            check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
+            if (camera.width(), camera.height(), camera.pixels_per_ray())
+                != (first.width(), first.height(), first.pixels_per_ray())
+            {
+                return Err(Error::Camera(format!(
+                    "a batch renders cameras of one size: {}x{} after {}x{}",
+                    camera.width(),
+                    camera.height(),
+                    first.width(),
+                    first.height()
+                )));
+            }
+        }
+        let mut targets = self.target_views(first);
+        for camera in &cameras[1..] {
+            let more = self.target_views(camera);
+            targets.camera_pos.extend(more.camera_pos);
+            targets.rays.extend(more.rays);
+        }
+        targets.count = cameras.len();
+        let frame = self.inner.render(&targets, *request)?;
+        Ok((0..cameras.len())
+            .map(|v| Rendered {
+                region: frame.region,
+                outputs: (frame.outputs.iter())
+                    .map(|out| {
+                        let per_view = out.values.len() / cameras.len();
+                        let values = out.values[v * per_view..(v + 1) * per_view].to_vec();
+                        raypatch_engine::OutputValues { values, ..*out }
+                    })
+                    .collect(),
+            })
+            .collect())
+    }
+
+    /// The frames of a camera path, rendered as they are taken: `batch` cameras per render call (one plan for
+    /// the whole path: a last, shorter batch is filled up with its last camera and the extra frames dropped),
+    /// holding no more than one batch of frames. Every camera must have one image size.
+    ///
+    /// ```
+    /// use glam::DVec3;
+    /// use raypatch::{Camera, Request};
+    /// # let engine = raypatch::Engine::new(Default::default())?;
+    /// let golden = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/golden/rpsrt_k4");
+    /// let model = engine.load(format!("{golden}/model.safetensors"))?;
+    /// let scene = model.encode(&raypatch::SceneData::load(format!("{golden}/scene.safetensors"))?.inputs)?;
+    /// let cameras: Vec<Camera> = (0..3).map(|i| Camera::msn(DVec3::new(6.0, 4.0 + i as f64, 3.0), 48, 32)).collect::<Result<_, _>>()?;
+    /// let frames = scene.render_path(&cameras, &Request::default(), 2).collect::<Result<Vec<_>, _>>()?;
+    /// assert_eq!(frames.len(), 3);
+    /// assert_eq!(scene.cached_plans(), 1); // one plan of 2 views for both batches
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn render_path<'s>(&'s self, cameras: &'s [Camera], request: &Request, batch: usize) -> RenderPath<'s, 'm> {
+        RenderPath { scene: self, cameras, request: *request, batch: batch.max(1), next: 0, ready: Vec::new() }
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
@@ -452,5 +516,49 @@ impl Scene<'_> {
     /// The engine-level scene (latent, cached tensors, plan labels), for tools that look inside.
     pub fn engine_scene(&self) -> &EncodedScene<'_> {
         &self.inner
+    }
+}
+
+/// The frames of [`Scene::render_path`], in order; an error ends the path.
+pub struct RenderPath<'s, 'm> {
+    scene: &'s Scene<'m>,
+    cameras: &'s [Camera],
+    request: Request,
+    batch: usize,
+    next: usize,
+    /// The rest of the current batch, last frame first.
+    ready: Vec<Rendered>,
+}
+
+impl Iterator for RenderPath<'_, '_> {
+    type Item = Result<Rendered>;
+
+    fn next(&mut self) -> Option<Result<Rendered>> {
+        if self.ready.is_empty() && self.next < self.cameras.len() {
+            let end = (self.next + self.batch).min(self.cameras.len());
+            let mut batch = self.cameras[self.next..end].to_vec();
+            let real = batch.len();
+            if self.cameras.len() > self.batch {
+                batch.resize(self.batch, batch[real - 1].clone());
+            }
+            self.next = end;
+            match self.scene.render_batch(&batch, &self.request) {
+                Ok(mut frames) => {
+                    frames.truncate(real);
+                    frames.reverse();
+                    self.ready = frames;
+                }
+                Err(e) => {
+                    self.next = self.cameras.len();
+                    return Some(Err(e));
+                }
+            }
+        }
+        self.ready.pop().map(Ok)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let left = self.ready.len() + self.cameras.len() - self.next;
+        (left, Some(left))
     }
 }

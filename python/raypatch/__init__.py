@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Iterable, Optional, Sequence, Tuple, Union
+from typing import Iterable, Iterator, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -288,9 +288,10 @@ class Model:
         if poses is None or intrinsics is None:
             raise InputError("encode: needs poses and intrinsics (or positions and rays)")
         k = _intrinsics("intrinsics", intrinsics, count)
-        scene = self._inner.encode_posed(_bytes(images), (count, height, width), _poses("poses", poses, count), k,
-                                         convention)
-        return Scene(scene, self, (k[0], width, height))
+        poses = _poses("poses", poses, count)
+        scene = self._inner.encode_posed(_bytes(images), (count, height, width), poses, k, convention)
+        cameras = [(_opencv(p, convention), (*k_i, width, height)) for p, k_i in zip(poses, k)]
+        return Scene(scene, self, (k[0], width, height), cameras=cameras)
 
     def encode_scene(self, data: SceneData) -> "Scene":
         """Encodes the input views of a scene file or frames folder (load_scene, bundled_scene)."""
@@ -303,12 +304,14 @@ class Model:
 class Scene:
     """A scene encoded by a model (its latent tokens, computed once): render it from any camera."""
 
-    def __init__(self, inner, model: Model, camera, data: Optional[SceneData] = None):
+    def __init__(self, inner, model: Model, camera, data: Optional[SceneData] = None, cameras=None):
         self._inner = inner
         self.model = model
         # (fx, fy, cx, cy) and the size of input view 0, for renders that give no intrinsics.
         self._camera = camera
         self._data = data
+        # The input cameras as (row-major OpenCV pose, (fx, fy, cx, cy, width, height)), when encoded from poses.
+        self._cameras = cameras
 
     def _camera_of(self, intrinsics, size) -> Tuple[float, float, float, float, int, int]:
         if intrinsics is None:
@@ -351,6 +354,81 @@ class Scene:
             raise InputError("render_view: the scene was not encoded from a scene file (use render)")
         region = None if region is None else tuple(int(v) for v in region)
         return _rendered(self._inner.render_target(self._data._inner, int(i), _output_names(outputs), region))
+
+
+    def render_path(self, poses=None, intrinsics=None, size: Optional[Sequence[int]] = None, *,
+                    camera_path: Optional[PathLike] = None, motion: Optional[str] = None, frames: int = 36,
+                    elevation: Optional[float] = None, radius: Optional[float] = None, centre=None, up=None,
+                    fade: bool = False, interpolate: bool = False, outputs: Union[str, Iterable[str]] = ("rgb",),
+                    convention: str = "opengl", batch: int = 4) -> Iterator[Rendered]:
+        """Renders a sequence of cameras, yielding one Rendered per frame as it is rendered (``batch`` frames
+        per render call, one plan for the whole sequence; only one batch is held).
+
+        The cameras: ``poses`` [T, 4, 4] (intrinsics and size as render), the cameras of a ``camera_path`` file
+        (nerfstudio's camera_path.json or raypatch's form, docs/CAMERA_PATHS.md), or a ``motion`` preset
+        ("orbit", "spiral", "zoom", "closeup", "eyeroll") of ``frames`` frames from the scene's first target
+        camera (scene files) or first input camera, about ``centre`` (default: the point nearest to the scene
+        cameras' optical axes) and ``up`` (default: the world axis nearest their up), at ``elevation`` degrees
+        and ``radius`` (default: the start camera's). ``interpolate=True``: ``frames`` cameras along a smooth
+        path through the given poses, the camera path's cameras, or else the scene's cameras."""
+        cameras = self._path_cameras(poses, intrinsics, size, camera_path, motion, frames, elevation, radius,
+                                     centre, up, fade, interpolate, convention)
+        names = _output_names(outputs)
+        if int(batch) < 1:
+            raise InputError(f"render_path: batch {batch}: expected at least 1")
+        return self._frames(cameras, names, int(batch))
+
+    def _frames(self, cameras: list, names: list, batch: int) -> Iterator[Rendered]:
+        for start in range(0, len(cameras), batch):
+            chunk = cameras[start:start + batch]
+            real = len(chunk)
+            if len(cameras) > batch:  # a short last batch filled up: one plan for the whole sequence
+                chunk = chunk + [chunk[-1]] * (batch - real)
+            for raw in self._inner.render_batch(chunk, names)[:real]:
+                yield _rendered(raw)
+
+    def _scene_cameras(self) -> Tuple[list, int]:
+        """The scene's cameras (inputs, then targets) and the index of the one motions start from."""
+        if self._data is not None:
+            return self._inner.fitted_cameras(self._data._inner), self._data.input_count
+        if self._cameras is not None:
+            return self._cameras, 0
+        raise InputError("render_path: the scene was encoded from rays: give poses or a camera_path")
+
+    def _path_cameras(self, poses, intrinsics, size, camera_path, motion, frames, elevation, radius, centre, up,
+                      fade, interpolate, convention) -> list:
+        given = [name for name, v in (("poses", poses), ("camera_path", camera_path), ("motion", motion)) if v is not None]
+        if len(given) > 1:
+            raise InputError(f"render_path: give one of poses, camera_path and motion, not {' and '.join(given)}")
+        if poses is not None:
+            camera = self._camera_of(intrinsics, size)
+            cameras = [(_opencv(p, convention), camera) for p in _poses("poses", poses)]
+        elif camera_path is not None:
+            cameras = _raypatch.camera_path_cameras(os.fspath(camera_path))[0]
+        elif motion is not None:
+            scene, first = self._scene_cameras()
+            if centre is None:
+                centre = _raypatch.scene_centre([pose for pose, _ in scene])
+            if up is None:
+                up = _raypatch.up_axis([pose for pose, _ in scene])
+            point = lambda name, v: tuple(float(x) for x in _floats(name, v, (3,), np.float64))
+            return _raypatch.motion_cameras(str(motion), scene[first], int(frames), point("centre", centre),
+                                            point("up", up), elevation, radius, bool(fade))
+        elif interpolate:
+            cameras = self._scene_cameras()[0]
+        else:
+            raise InputError("render_path: give poses, a camera_path or a motion")
+        return _raypatch.interpolate_cameras(cameras, int(frames)) if interpolate else cameras
+
+
+def _opencv(pose: Sequence[float], convention: str) -> tuple:
+    """A row-major 4x4 camera-to-world pose with OpenCV axes (y down, looking along +z)."""
+    if convention not in ("opengl", "opencv"):
+        raise InputError(f"convention {convention!r}: expected 'opengl' or 'opencv'")
+    m = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+    if convention == "opengl":
+        m = m @ np.diag([1.0, -1.0, -1.0, 1.0])
+    return tuple(m.reshape(-1).tolist())
 
 
 def psnr(a, b) -> float:

@@ -3,6 +3,8 @@
 //! Python 3.9 has no buffer protocol, and `raypatch/__init__.py` turns numpy arrays into bytes and back. The
 //! GIL is released while the engine works, so Python threads render at once.
 
+mod paths;
+
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -134,12 +136,13 @@ impl Engine {
     #[new]
     #[pyo3(signature = (adapter=None, matmul=None))]
     fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>) -> PyResult<Engine> {
-        let matmul = match matmul.as_deref() {
-            None => None,
-            Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
-                input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
-            })?),
-        };
+        let matmul =
+            match matmul.as_deref() {
+                None => None,
+                Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
+                    input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
+                })?),
+            };
         let adapter = adapter.map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
         let options = EngineOptions { adapter, matmul, ..Default::default() };
         let inner = py.detach(|| raypatch::Engine::new(options)).map_err(to_py)?;
@@ -306,8 +309,11 @@ impl Model {
         let views = (0..count)
             .map(|i| {
                 let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
-                let grid =
-                    RayGrid { width, height, rays: rays[i * per..(i + 1) * per].chunks_exact(3).map(Vec3::from_slice).collect() };
+                let grid = RayGrid {
+                    width,
+                    height,
+                    rays: rays[i * per..(i + 1) * per].chunks_exact(3).map(Vec3::from_slice).collect(),
+                };
                 let camera = Camera::from_rays(DVec3::from_array(positions[i]), grid)
                     .map_err(|e| input_error(format!("view {i}: {e}")))?;
                 Ok(InputView { image, camera })
@@ -380,7 +386,11 @@ impl SceneFile {
 impl SceneFile {
     fn target(&self, i: usize) -> PyResult<&raypatch::TargetView> {
         self.inner.targets.get(i).ok_or_else(|| {
-            input_error(format!("target view {i}: the scene has {} (0..{})", self.inner.targets.len(), self.inner.targets.len()))
+            input_error(format!(
+                "target view {i}: the scene has {} (0..{})",
+                self.inner.targets.len(),
+                self.inner.targets.len()
+            ))
         })
     }
 }
@@ -393,6 +403,15 @@ struct Scene {
 }
 
 impl Scene {
+    fn dict<'py>(py: Python<'py>, rendered: &raypatch::Rendered) -> PyResult<Bound<'py, PyDict>> {
+        let result = PyDict::new(py);
+        for out in &rendered.outputs {
+            let shape = (rendered.region.height, rendered.region.width, out.channels);
+            result.set_item(out.output.name(), (f32_bytes(py, &out.values), shape))?;
+        }
+        Ok(result)
+    }
+
     fn render_camera<'py>(
         &self,
         py: Python<'py>,
@@ -404,12 +423,7 @@ impl Scene {
         let region = region.map(|(x, y, width, height)| Region { x, y, width, height });
         let request = Request { outputs: outputs_of(outputs)?, region };
         let rendered = py.detach(|| self.cell.borrow_dependent().render(camera, &request)).map_err(to_py)?;
-        let result = PyDict::new(py);
-        for out in &rendered.outputs {
-            let shape = (rendered.region.height, rendered.region.width, out.channels);
-            result.set_item(out.output.name(), (f32_bytes(py, &out.values), shape))?;
-        }
-        Ok(result)
+        Scene::dict(py, &rendered)
     }
 }
 
@@ -429,6 +443,29 @@ impl Scene {
     ) -> PyResult<Bound<'py, PyDict>> {
         let camera = pinhole(pose, intrinsics, convention)?;
         self.render_camera(py, &camera, outputs, region)
+    }
+
+    /// Renders pinhole cameras of one size (OpenCV poses, see paths.rs) in one render call, one dict each (as
+    /// `render_posed`).
+    fn render_batch<'py>(
+        &self,
+        py: Python<'py>,
+        cameras: Vec<paths::Pinhole>,
+        outputs: Vec<String>,
+    ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.alive.check()?;
+        let cameras = cameras.into_iter().map(paths::camera_of).collect::<PyResult<Vec<_>>>()?;
+        let request = Request { outputs: outputs_of(outputs)?, region: None };
+        let frames = py.detach(|| self.cell.borrow_dependent().render_batch(&cameras, &request)).map_err(to_py)?;
+        frames.iter().map(|f| Scene::dict(py, f)).collect()
+    }
+
+    /// A scene file's cameras, inputs then targets, as pinhole cameras (OpenCV poses; cameras given as rays
+    /// fitted with one, see raypatch::fit_pinhole).
+    fn fitted_cameras(&self, data: &SceneFile) -> PyResult<Vec<paths::Pinhole>> {
+        let kind = self.cell.borrow_owner().ray_kind();
+        let cameras = (data.inner.inputs.iter().map(|v| &v.camera)).chain(data.inner.targets.iter().map(|t| &t.camera));
+        cameras.map(|c| raypatch::fit_pinhole(c, kind).map(paths::to_tuple).map_err(to_py)).collect()
     }
 
     /// Renders target view `i` of a scene file or frames folder (as `render_posed`).
@@ -502,5 +539,10 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fg_ari, m)?)?;
     m.add_function(wrap_pyfunction!(depth_errors, m)?)?;
     m.add_function(wrap_pyfunction!(save_png, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::motion_cameras, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::interpolate_cameras, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::scene_centre, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::up_axis, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::camera_path_cameras, m)?)?;
     Ok(())
 }

@@ -5,8 +5,13 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use raypatch::{Output, Outputs, SceneData, Staged};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
+
+use crate::cameras::Shot;
+use crate::video::{check_video_size, VideoFormat};
+use crate::Args;
 
 /// The files of a run, each with the flag that named it, and the folders to create for them.
 pub struct OutputFiles {
@@ -96,29 +101,56 @@ impl OutputFiles {
         Ok(OutputFiles { files, new_folders })
     }
 
-    /// Writes `contents` (one per file, in order), creating the new folders first.
-    pub fn write(&self, contents: &[Vec<u8>]) -> Result<()> {
-        let mut created = Vec::new();
-        let result = (|| {
-            for (flag, folder) in &self.new_folders {
-                std::fs::create_dir(folder)
-                    .with_context(|| format!("{flag} {}: cannot create the folder", folder.display()))?;
-                created.push(folder);
-            }
-            let files: Vec<(&Path, &[u8])> =
-                self.files.iter().map(|(_, p)| p.as_path()).zip(contents.iter().map(Vec::as_slice)).collect();
-            Ok(raypatch::write_all_atomic(&files)?)
-        })();
-        if result.is_err() {
-            for folder in created.iter().rev() {
-                let _ = std::fs::remove_dir(folder);
-            }
+    /// Starts writing: creates the new folders; each output is then a temporary until [`Writing::commit`].
+    pub fn begin(&self) -> Result<Writing<'_>> {
+        let mut writing = Writing { files: self, staged: Staged::default(), created: Vec::new() };
+        for (flag, folder) in &self.new_folders {
+            std::fs::create_dir(folder)
+                .with_context(|| format!("{flag} {}: cannot create the folder", folder.display()))?;
+            writing.created.push(folder.clone());
         }
-        result
+        Ok(writing)
     }
 
     pub fn paths(&self) -> impl Iterator<Item = &Path> {
         self.files.iter().map(|(_, p)| p.as_path())
+    }
+}
+
+/// A run's outputs being written: temporaries beside each output until [`commit`](Self::commit); dropped
+/// without a commit, the temporaries and the folders the run created are removed.
+pub struct Writing<'a> {
+    files: &'a OutputFiles,
+    staged: Staged,
+    created: Vec<PathBuf>,
+}
+
+impl Writing<'_> {
+    /// Opens the temporary of `path`, one of the checked outputs.
+    pub fn create(&mut self, path: &Path) -> Result<std::fs::File> {
+        debug_assert!(self.files.files.iter().any(|(_, p)| p == path), "{} was not checked", path.display());
+        Ok(self.staged.create(path)?)
+    }
+
+    pub fn staged(&mut self) -> &mut Staged {
+        &mut self.staged
+    }
+
+    /// Moves every output into place, all or none.
+    pub fn commit(mut self) -> Result<()> {
+        std::mem::take(&mut self.staged).commit()?;
+        self.created.clear();
+        Ok(())
+    }
+}
+
+impl Drop for Writing<'_> {
+    fn drop(&mut self) {
+        // The temporaries first: a created folder is removed only when empty.
+        drop(std::mem::take(&mut self.staged));
+        for folder in self.created.iter().rev() {
+            let _ = std::fs::remove_dir(folder);
+        }
     }
 }
 
@@ -152,4 +184,119 @@ pub fn raw_bytes(rendered: &[raypatch::Rendered]) -> Result<Vec<u8>> {
         .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
     let metadata = HashMap::from([("format".to_string(), "raypatch-frame/1".to_string())]);
     Ok(safetensors::serialize(views, Some(metadata))?)
+}
+
+/// Where --out's images go: one video file, or one PNG per image.
+pub enum OutDest {
+    Video(PathBuf, VideoFormat),
+    Pngs(Vec<PathBuf>),
+}
+
+/// Every file a run writes, per image where there is one per image, all checked before any GPU work.
+pub struct Destinations {
+    /// --out, unless rgb is not rendered.
+    pub out: Option<OutDest>,
+    /// --segmentation's and --depth's PNGs, one per image (empty without the flag).
+    pub segmentation: Vec<PathBuf>,
+    pub depth: Vec<PathBuf>,
+    pub raw: Option<PathBuf>,
+    pub files: OutputFiles,
+}
+
+impl Destinations {
+    /// --out's path, for messages.
+    pub fn out_path(&self) -> &Path {
+        match &self.out {
+            Some(OutDest::Video(path, _)) => path,
+            Some(OutDest::Pngs(paths)) => paths.first().map_or(Path::new(""), PathBuf::as_path),
+            None => Path::new(""),
+        }
+    }
+}
+
+/// The files the run writes (--out's video or PNGs, segmentation PNGs, depth PNGs, the raw outputs), checked
+/// before any GPU work.
+pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, outputs: Outputs) -> Result<Destinations> {
+    let names: Vec<String> = shots.iter().map(|s| s.name.clone()).collect();
+    let mut files: Vec<(&'static str, PathBuf)> = Vec::new();
+    let mut folders: Vec<(&'static str, &Path)> = Vec::new();
+    let video = VideoFormat::of(&args.out)?;
+    if args.fps.is_some() && video.is_none() {
+        bail!("--fps: only for a video, --out NAME.mp4 or NAME.gif (--out {} is not one)", args.out.display());
+    }
+    let png = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if video.is_none() && !png && args.out.extension().is_some() && !args.out.is_dir() {
+        bail!(
+            "--out {}: expected a .png file, a video (.mp4 or .gif), or a folder (a name without extension, or an \
+             existing folder)",
+            args.out.display()
+        );
+    }
+    if args.panels.is_some() && !outputs.contains(Output::Rgb) {
+        bail!("--panels: the panels are --out's images; add rgb to --outputs");
+    }
+    let rgb = outputs.contains(Output::Rgb);
+    let out = match video {
+        Some(format) => {
+            if !rgb {
+                bail!("--out {}: a video shows the rgb output; add rgb to --outputs", args.out.display());
+            }
+            let sizes: Vec<(usize, usize)> = shots.iter().map(|s| frame_size(args, &s.camera)).collect();
+            if let Some(other) = sizes.iter().find(|&&s| s != sizes[0]) {
+                bail!(
+                    "--out {}: a video's frames have one size, these are {:?} and {:?}",
+                    args.out.display(),
+                    sizes[0],
+                    other
+                );
+            }
+            let (width, height) = sizes[0];
+            // Panels are laid out at even sizes.
+            if args.panels.is_none() {
+                check_video_size(&args.out, format, width, height)?;
+            }
+            files.push(("--out", args.out.clone()));
+            Some(OutDest::Video(args.out.clone(), format))
+        }
+        None if rgb => {
+            let paths = png_paths("--out", &args.out, &names)?;
+            files.extend(paths.iter().map(|p| ("--out", p.clone())));
+            if is_folder("--out", &args.out)? {
+                folders.push(("--out", &args.out));
+            }
+            Some(OutDest::Pngs(paths))
+        }
+        None => None,
+    };
+    let mut per_image = |flag: &'static str, dest: Option<&'a PathBuf>| -> Result<Vec<PathBuf>> {
+        let Some(dest) = dest else { return Ok(Vec::new()) };
+        let paths = png_paths(flag, dest, &names)?;
+        files.extend(paths.iter().map(|p| (flag, p.clone())));
+        if is_folder(flag, dest)? {
+            folders.push((flag, dest));
+        }
+        Ok(paths)
+    };
+    let segmentation = per_image("--segmentation", args.segmentation.as_ref())?;
+    let depth = per_image("--depth", args.depth.as_ref())?;
+    if let Some(path) = &args.out_raw {
+        if path.extension().is_none_or(|e| !e.eq_ignore_ascii_case("safetensors")) {
+            bail!("--out-raw {}: expected a file name ending in .safetensors", path.display());
+        }
+        files.push(("--out-raw", path.clone()));
+    }
+    let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
+    let cameras = &args.cameras;
+    for (flag, path) in [("--model", &args.model), ("--pose", &cameras.pose), ("--camera-path", &cameras.camera_path)] {
+        if let Some(path) = path {
+            inputs.push((flag, path.clone()));
+        }
+    }
+    let files = OutputFiles::check(files, &folders, &inputs)?;
+    Ok(Destinations { out, segmentation, depth, raw: args.out_raw.clone(), files })
+}
+
+/// The size of --out's image of a camera: the region's, or the camera's.
+fn frame_size(args: &Args, camera: &raypatch::Camera) -> (usize, usize) {
+    args.region.map_or((camera.width(), camera.height()), |r| (r.width, r.height))
 }

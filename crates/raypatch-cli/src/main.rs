@@ -1,26 +1,31 @@
 //! render-frame: render novel views, depth and object masks of a scene with an SRT, RP-SRT, OSRT or RP-OSRT
 //! model (and DeFiNe), from the shell.
 
+mod cameras;
 mod files;
+mod panels;
 mod parse;
 mod report;
+mod sequence;
+mod video;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
-use indicatif::{ProgressBar, ProgressStyle};
 use raypatch::{
-    AdapterChoice, Camera, Engine, EngineOptions, Image, MatmulKernel, Output, Outputs, Region, Request, SceneData,
-    SceneSource,
+    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource,
 };
 
-use files::{is_folder, png_paths, raw_bytes, OutputFiles};
-use parse::{parse_count, parse_depth_range, parse_fps, parse_outputs, parse_region};
+use cameras::{check_patch_size, CameraArgs, Shot};
+use panels::Panel;
+use parse::{parse_count, parse_depth_range, parse_fps, parse_outputs, parse_panels, parse_region};
 use report::{ms, print_profile, summary, Truth};
+use sequence::Sequence;
+use video::DEFAULT_FPS;
 
 /// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
 /// that it renders them wherever it is installed.
@@ -57,29 +62,25 @@ struct Args {
     /// for a folder].
     #[arg(long, value_name = "LIST")]
     view: Option<String>,
-    /// Render the first target camera turned by DEG degrees about the world z axis (a novel view).
-    #[arg(long, value_name = "DEG", allow_hyphen_values = true, conflicts_with = "pose")]
-    orbit: Option<f64>,
-    /// Render from the camera in FILE: JSON with a 4x4 camera-to-world `transform_matrix` (NeRF axes) and
-    /// optional intrinsics (`camera_angle_x` or `fl_x`/`fl_y`/`cx`/`cy`, `w`/`h`).
-    #[arg(long, value_name = "FILE")]
-    pose: Option<PathBuf>,
-    /// Render a turntable of N frames (360/N degrees apart, about the world z axis) of the first target camera.
-    #[arg(long, value_name = "N", conflicts_with = "pose", value_parser = parse_count)]
-    orbit_frames: Option<usize>,
-    /// Render every camera of a camera path: nerfstudio's camera_path.json (`render_width`/`render_height`,
-    /// `camera_path` of `camera_to_world` and vertical `fov`; perspective only) or raypatch's form (`width`,
-    /// `height`, `frames`); frame_000.png, ... into the --out folder (README, "Camera paths").
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["pose", "orbit", "orbit_frames", "view"])]
-    camera_path: Option<PathBuf>,
-    /// Frames per second of an animated `--out NAME.gif` [default: the camera path's `fps`, else 24].
+    #[command(flatten)]
+    cameras: CameraArgs,
+    /// Frames per second of a video `--out NAME.mp4` or `NAME.gif` [default: the camera path's `fps`, else 24].
     #[arg(long, value_name = "F", value_parser = parse_fps)]
     fps: Option<f64>,
-    /// Where to write PNGs: a `.png` file (several images become NAME_000.png, ...), or a folder: a name
-    /// without extension or an existing folder (view_000.png per target view, frame_000.png per turntable
-    /// frame, render.png for one novel view); or a `.gif` file: every image as a frame of one animation.
+    /// Where to write the colour images: a `.png` file (several images become NAME_000.png, ...), or a folder:
+    /// a name without extension or an existing folder (view_000.png per target view, frame_000.png per
+    /// sequence frame, render.png for one novel view); or a video, every image a frame: `.mp4` (H.264, even
+    /// sizes) or `.gif` (animated).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
+    /// Lay each --out image out side by side with labels: rgb, depth (turbo map, one range for the whole
+    /// run: --depth-range, else a first pass over every frame's depth), segmentation (OSRT: masks in the fixed
+    /// palette), input (the first input view); e.g. rgb,depth.
+    #[arg(long, value_name = "LIST", value_parser = parse_panels)]
+    panels: Option<std::vec::Vec<Panel>>,
+    /// No progress bar (there is none either when stderr is not a terminal).
+    #[arg(long, short)]
+    quiet: bool,
     /// `.safetensors` file to write the raw outputs into, each as a tensor of its name: `rgb` [T,H,W,3] f32
     /// after the sigmoid, `logdepth` and `depth` [T,H,W], `segmentation` [T,H,W,slots].
     #[arg(long, value_name = "FILE")]
@@ -101,8 +102,9 @@ struct Args {
     /// `.png` file or a folder as --out does. Adds `depth` to --outputs.
     #[arg(long, value_name = "DIR|FILE.png")]
     depth: Option<PathBuf>,
-    /// The depth range the --depth colours span, in metres [default: each view's own minimum and maximum].
-    #[arg(long, value_name = "MIN,MAX", requires = "depth", value_parser = parse_depth_range)]
+    /// The depth range the --depth and --panels depth colours span, in metres [default: --depth: each view's
+    /// own minimum and maximum; --panels: the minimum and maximum over every frame].
+    #[arg(long, value_name = "MIN,MAX", value_parser = parse_depth_range)]
     depth_range: Option<(f32, f32)>,
     /// Print each target view's PSNR and SSIM against the scene's target images, for OSRT models the FG-ARI of
     /// the segmentation against the scene's `target_masks`, and for depth models Abs.Rel, Sq.Rel and RMSE of
@@ -197,26 +199,6 @@ fn pick(flag: &str, list: &str, count: usize, what: &str) -> Result<Vec<usize>> 
     Ok(picked)
 }
 
-/// One image to render, and its name in an output folder.
-struct Shot {
-    camera: Camera,
-    /// The target view's ground truth, for --metrics.
-    truth: Option<Image>,
-    /// The target view's object ids, for --metrics (FG-ARI).
-    masks: Option<Vec<u32>>,
-    /// The target view's depth in metres, for --metrics (Abs.Rel, Sq.Rel, RMSE).
-    depth: Option<Vec<f32>>,
-    label: String,
-    name: String,
-}
-
-impl Shot {
-    /// A camera without ground truth (a novel view).
-    fn novel(camera: Camera, label: String, name: String) -> Shot {
-        Shot { camera, truth: None, masks: None, depth: None, label, name }
-    }
-}
-
 fn run(args: &Args) -> Result<()> {
     if args.list_adapters {
         for (i, adapter) in Engine::adapters().iter().enumerate() {
@@ -261,19 +243,10 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
-    // A camera path's frames, with its frame rate; else the views, turntable or pose asked for.
-    let (shots, path_fps) = match &args.camera_path {
-        Some(path) => {
-            let path = raypatch::load_camera_path(path)?;
-            let shots = (path.cameras.into_iter().enumerate())
-                .map(|(i, camera)| Shot::novel(camera, format!("camera path frame {i}"), format!("frame_{i:03}")))
-                .collect();
-            (shots, path.fps)
-        }
-        None => (shots(args, &data, &views)?, None),
-    };
+    let (shots, path_fps) = cameras::shots(&args.cameras, &data, &views, args.view.is_some(), model.ray_kind())?;
+    check_patch_size(&shots, model.config(), args.cameras.size.is_some())?;
     let outputs = requested_outputs(args, &shots, model.outputs())?;
-    let output_files = output_files(args, &shots, &data, outputs)?;
+    let destinations = files::destinations(args, &shots, &data, outputs)?;
     let mut warnings = model.check_inputs(&inputs)?;
     for shot in &shots {
         warnings.extend(model.check_camera(&shot.camera).with_context(|| shot.label.clone())?);
@@ -287,38 +260,19 @@ fn run(args: &Args) -> Result<()> {
     let start = Instant::now();
     let scene = model.encode(&inputs)?;
     let encode_time = start.elapsed();
-    // Check every camera against the model and the request (this builds the render plans) before touching
-    // any output.
-    let start = Instant::now();
-    for shot in &shots {
-        scene.render_stats(&shot.camera, &request).with_context(|| shot.label.clone())?;
-    }
-    let plan_time = start.elapsed();
-    let progress = if args.orbit_frames.is_some() || args.camera_path.is_some() {
-        let bar = ProgressBar::new(shots.len() as u64);
-        bar.set_style(
-            ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})").expect("template"),
-        );
-        bar
-    } else {
-        ProgressBar::hidden()
+    let sequence = Sequence {
+        shots: &shots,
+        request,
+        panels: args.panels.as_deref().unwrap_or_default(),
+        depth_range: args.depth_range,
+        input: &inputs[0].image,
+        fps: args.fps.unwrap_or_else(|| path_fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0)),
+        progress: !args.quiet,
+        keep: args.metrics || args.out_raw.is_some(),
+        batched: is_sequence(&args.cameras),
     };
-    let mut rendered = Vec::with_capacity(shots.len());
-    let mut render_times = Vec::with_capacity(shots.len());
-    for shot in &shots {
-        let start = Instant::now();
-        rendered.push(scene.render(&shot.camera, &request).with_context(|| shot.label.clone())?);
-        render_times.push(start.elapsed());
-        progress.inc(1);
-    }
-    progress.finish_and_clear();
-    let mut repeats = Vec::with_capacity(args.repeat);
-    for _ in 0..args.repeat {
-        let start = Instant::now();
-        scene.render(&shots[0].camera, &request)?;
-        repeats.push(start.elapsed());
-    }
-
+    let rendering = sequence.render(&scene, &destinations)?;
+    let rendered = &rendering.kept;
     let metric_lines = if args.metrics {
         let truths: Vec<Truth> = shots
             .iter()
@@ -329,43 +283,26 @@ fn run(args: &Args) -> Result<()> {
                 depth: s.depth.as_deref(),
             })
             .collect();
-        report::metrics(&truths, &rendered, shots[0].camera.width())?
+        report::metrics(&truths, rendered, shots[0].camera.width())?
     } else {
         Vec::new()
     };
-    let images: Vec<Image> = rendered.iter().filter_map(raypatch::Rendered::rgb).collect();
-    let mut contents = if is_gif(&args.out) {
-        let fps = args.fps.unwrap_or_else(|| path_fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0));
-        vec![Image::encode_gif(&images, fps)?]
-    } else {
-        images.iter().map(Image::encode_png).collect::<raypatch::Result<Vec<_>>>()?
-    };
-    if args.segmentation.is_some() {
-        for r in &rendered {
-            let (weights, slots) = r.segmentation().expect("segmentation was requested");
-            contents.push(Image::from_segmentation(r.region.width, r.region.height, weights, slots)?.encode_png()?);
-        }
+    let mut repeats = Vec::with_capacity(args.repeat);
+    for _ in 0..args.repeat {
+        let start = Instant::now();
+        scene.render(&shots[0].camera, &request)?;
+        repeats.push(start.elapsed());
     }
-    if args.depth.is_some() {
-        for r in &rendered {
-            let depth = r.depth().expect("depth was requested");
-            let picture = Image::from_depth(r.region.width, r.region.height, depth, args.depth_range)?;
-            contents.push(picture.encode_png()?);
-        }
-    }
-    if args.out_raw.is_some() {
-        contents.push(raw_bytes(&rendered)?);
-    }
-    output_files.write(&contents)?;
+    rendering.writing.commit()?;
 
     let k = model.patch_size();
-    let region = rendered[0].region;
+    let region = rendering.region;
     let region_text =
         args.region.map_or(String::new(), |r| format!(" (region x={} y={} {}x{})", r.x, r.y, r.width, r.height));
     let family = model.config().name();
     println!(
         "rendered {} view(s) of {}x{}{region_text} ({}) from {} input view(s) with {} ({family}, k={k}, {:.2}M parameters) on {}",
-        rendered.len(),
+        rendering.frames,
         shots[0].camera.width(),
         shots[0].camera.height(),
         outputs.iter().map(Output::name).collect::<Vec<_>>().join(", "),
@@ -374,30 +311,30 @@ fn run(args: &Args) -> Result<()> {
         model.parameter_count() as f64 / 1e6,
         engine.adapter()
     );
-    let total: Duration = render_times.iter().sum();
+    let fps = rendering.frames as f64 / rendering.total.as_secs_f64();
     println!(
-        "encode {:.1} ms, render {:.1} ms ({} image(s) of {}x{}); wrote {}",
+        "encode {:.1} ms, render {:.1} ms ({} image(s) of {}x{}, {fps:.2} per second, {} per render call); wrote {}",
         ms(encode_time),
-        ms(total),
-        rendered.len(),
+        ms(rendering.total),
+        rendering.frames,
         region.width,
         region.height,
-        output_files.paths().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        sequence.batch(),
+        written(&destinations.files)
     );
     for line in &metric_lines {
         println!("{line}");
     }
     if args.timings {
         println!(
-            "load {:.1} ms, encode {:.1} ms, render plan {:.1} ms (buffers allocated, pipelines compiled), \
-             first render {:.1} ms",
+            "load {:.1} ms, encode {:.1} ms, first render {:.1} ms (with its plan: buffers allocated, pipelines \
+             compiled)",
             ms(load_time),
             ms(encode_time),
-            ms(plan_time),
-            ms(render_times[0])
+            ms(rendering.first),
         );
-        if render_times.len() > 1 {
-            println!("later renders: {}", summary(&render_times[1..]));
+        if rendering.each.len() > 1 {
+            println!("later renders: {}", summary(&rendering.each[1..]));
         }
         if !repeats.is_empty() {
             println!("repeated render: {}", summary(&repeats));
@@ -431,44 +368,6 @@ fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// The images to render: the chosen target views, or novel cameras made from the first of them.
-fn shots(args: &Args, data: &SceneData, views: &[usize]) -> Result<Vec<Shot>> {
-    let reference = &data.targets[views[0]].camera;
-    if let Some(degrees) = args.orbit.filter(|d| !d.is_finite()) {
-        bail!("--orbit {degrees}: expected a finite angle in degrees");
-    }
-    if let Some(path) = &args.pose {
-        let camera = raypatch::load_pose(path, reference)?;
-        Ok(vec![Shot::novel(camera, format!("--pose {}", path.display()), "render".into())])
-    } else if let Some(n) = args.orbit_frames {
-        if n == 0 {
-            bail!("--orbit-frames 0: expected at least one frame");
-        }
-        let start = args.orbit.unwrap_or(0.0);
-        let turn = |i: usize| start + 360.0 * i as f64 / n as f64;
-        Ok((0..n)
-            .map(|i| {
-                let label = format!("turntable frame {i} ({:.1}°)", turn(i));
-                Shot::novel(reference.orbited(turn(i)), label, format!("frame_{i:03}"))
-            })
-            .collect())
-    } else if let Some(degrees) = args.orbit {
-        Ok(vec![Shot::novel(reference.orbited(degrees), format!("--orbit {degrees}"), "render".into())])
-    } else {
-        Ok(views
-            .iter()
-            .map(|&v| Shot {
-                camera: data.targets[v].camera.clone(),
-                truth: data.targets[v].image.clone(),
-                masks: data.targets[v].masks.clone(),
-                depth: data.targets[v].depth.clone(),
-                label: format!("target view {v}"),
-                name: format!("view_{v:03}"),
-            })
-            .collect())
-    }
-}
-
 /// The outputs to compute: --outputs, with what --logdepth, --segmentation, --depth and --metrics imply; each
 /// must be one the model renders and have somewhere to go.
 fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Result<Outputs> {
@@ -482,9 +381,18 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
     if args.depth.is_some() {
         outputs = outputs.with(Output::Depth);
     }
+    let panels = args.panels.as_deref().unwrap_or_default();
+    let panel_output = |o: Output| panels.iter().any(|p| p.output() == Some(o));
+    for panel in panels {
+        outputs = outputs.with(panel.output().unwrap_or(Output::Rgb));
+    }
+    if args.depth_range.is_some() && args.depth.is_none() && !panel_output(Output::Depth) {
+        bail!("--depth-range: only with --depth or --panels with depth");
+    }
     let flag = |o: Output| match o {
         Output::Segmentation if args.segmentation.is_some() => "--segmentation".to_string(),
         Output::Depth if args.depth.is_some() => "--depth".to_string(),
+        o if panel_output(o) => format!("--panels {}", o.name()),
         Output::LogDepth if args.logdepth => "--logdepth".to_string(),
         o => format!("--outputs {}", o.name()),
     };
@@ -514,7 +422,7 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
             bail!(
                 "--metrics: needs target views with ground truth: ground-truth images (scene `target_images`, or \
                  frames) for rgb, `target_masks` for an OSRT model's segmentation, or `target_depth` (frames: \
-                 `depth_file_path`) for a depth model; not --orbit, --orbit-frames, --pose or --camera-path"
+                 `depth_file_path`) for a depth model; not --orbit, --orbit-frames, --pose, --camera-path, --motion or --interpolate"
             );
         }
     }
@@ -522,11 +430,11 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
         let (written, writers) = match output {
             Output::Rgb => (true, ""),
             Output::Segmentation => (
-                args.segmentation.is_some() || args.out_raw.is_some() || args.metrics,
+                args.segmentation.is_some() || args.out_raw.is_some() || args.metrics || panel_output(output),
                 "--segmentation DIR|FILE.png or --out-raw FILE",
             ),
             Output::Depth => (
-                args.depth.is_some() || args.out_raw.is_some() || (args.metrics && depth_truth),
+                args.depth.is_some() || args.out_raw.is_some() || (args.metrics && depth_truth) || panel_output(output),
                 "--depth DIR|FILE.png or --out-raw FILE",
             ),
             Output::LogDepth => (args.out_raw.is_some(), "--out-raw FILE"),
@@ -541,62 +449,16 @@ fn requested_outputs(args: &Args, shots: &[Shot], model_outputs: Outputs) -> Res
     Ok(outputs)
 }
 
-/// The files the run writes (rgb PNGs, segmentation PNGs, depth PNGs, the raw outputs), checked before any GPU
-/// work.
-/// Frames per second of an animated GIF when neither --fps nor the camera path gives one.
-const DEFAULT_FPS: f64 = 24.0;
-
-/// Whether `--out` names an animated GIF.
-fn is_gif(out: &Path) -> bool {
-    out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"))
+/// Whether the shots are a sequence of frames (batched, with a progress bar) rather than views or one camera.
+fn is_sequence(cameras: &CameraArgs) -> bool {
+    cameras.motion.is_some() || cameras.interpolate || cameras.camera_path.is_some() || cameras.orbit_frames.is_some()
 }
 
-fn output_files(args: &Args, shots: &[Shot], data: &SceneData, outputs: Outputs) -> Result<OutputFiles> {
-    let names: Vec<String> = shots.iter().map(|s| s.name.clone()).collect();
-    let mut files: Vec<(&'static str, PathBuf)> = Vec::new();
-    let mut folders: Vec<(&'static str, &Path)> = Vec::new();
-    if args.fps.is_some() && !is_gif(&args.out) {
-        bail!("--fps: only for an animated --out NAME.gif (--out {} is not one)", args.out.display());
+/// The files a run wrote, for its summary line: every one, or the first and last of many.
+fn written(files: &files::OutputFiles) -> String {
+    let paths: Vec<String> = files.paths().map(|p| p.display().to_string()).collect();
+    match &paths[..] {
+        [first, .., last] if paths.len() > 4 => format!("{first} ... {last} ({} files)", paths.len()),
+        _ => paths.join(", "),
     }
-    let gif = is_gif(&args.out);
-    let png = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    if !gif && !png && args.out.extension().is_some() && !args.out.is_dir() {
-        bail!(
-            "--out {}: expected a .png file, a .gif file (an animation), or a folder (a name without extension, or \
-             an existing folder)",
-            args.out.display()
-        );
-    }
-    if gif {
-        if !outputs.contains(Output::Rgb) {
-            bail!("--out {}: an animated GIF shows the rgb output; add rgb to --outputs", args.out.display());
-        }
-        files.push(("--out", args.out.clone()));
-    }
-    let pngs = [
-        (outputs.contains(Output::Rgb) && !gif, "--out", Some(&args.out)),
-        (true, "--segmentation", args.segmentation.as_ref()),
-        (true, "--depth", args.depth.as_ref()),
-    ];
-    for (wanted, flag, dest) in pngs {
-        if let Some(dest) = dest.filter(|_| wanted) {
-            files.extend(png_paths(flag, dest, &names)?.into_iter().map(|p| (flag, p)));
-            if is_folder(flag, dest)? {
-                folders.push((flag, dest));
-            }
-        }
-    }
-    if let Some(path) = &args.out_raw {
-        if path.extension().is_none_or(|e| !e.eq_ignore_ascii_case("safetensors")) {
-            bail!("--out-raw {}: expected a file name ending in .safetensors", path.display());
-        }
-        files.push(("--out-raw", path.clone()));
-    }
-    let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
-    for (flag, path) in [("--model", &args.model), ("--pose", &args.pose), ("--camera-path", &args.camera_path)] {
-        if let Some(path) = path {
-            inputs.push((flag, path.clone()));
-        }
-    }
-    OutputFiles::check(files, &folders, &inputs)
 }

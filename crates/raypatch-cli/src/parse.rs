@@ -3,6 +3,8 @@
 
 use raypatch::{Output, Outputs, Region};
 
+use crate::panels::Panel;
+
 /// Most renders one run makes (turntable frames, repeats): each takes at least milliseconds of GPU time.
 pub const MAX_RENDERS: usize = 100_000;
 
@@ -51,4 +53,83 @@ pub fn parse_region(text: &str) -> Result<Region, String> {
         [_, _, _, _] => Err(format!("{text:?}: width and height must be positive")),
         _ => Err(format!("{text:?} is not X,Y,W,H (four non-negative integers)")),
     }
+}
+
+/// `WxH` in pixels, each side 1 to [`raypatch::MAX_IMAGE_SIDE`], at most [`raypatch::MAX_IMAGE_PIXELS`] in all.
+pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("{text:?} is not WxH (two whole numbers of pixels, e.g. 160x120)");
+    let (w, h) = text.trim().split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h) = (w.trim().parse::<usize>().map_err(|_| bad())?, h.trim().parse::<usize>().map_err(|_| bad())?);
+    raypatch::check_image_size(w, h).map_err(|e| format!("{text:?}: {e}"))?;
+    Ok((w, h))
+}
+
+/// A vertical field of view in degrees, in (0, 180).
+pub fn parse_fov(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(f) if f > 0.0 && f < 180.0 => Ok(f),
+        _ => Err(format!("{text:?}: expected a vertical field of view in degrees, in (0, 180)")),
+    }
+}
+
+pub fn parse_motion(text: &str) -> Result<raypatch::Motion, String> {
+    raypatch::Motion::from_name(text.trim()).ok_or_else(|| {
+        let names: Vec<&str> = raypatch::Motion::ALL.iter().map(|m| m.name()).collect();
+        format!("unknown motion {text:?}: expected one of {}", names.join(", "))
+    })
+}
+
+/// `X,Y,Z`: three finite numbers.
+pub fn parse_point(text: &str) -> Result<glam::DVec3, String> {
+    let parts: Vec<f64> = text.split(',').filter_map(|p| p.trim().parse::<f64>().ok()).collect();
+    match parts[..] {
+        [x, y, z] if text.split(',').count() == 3 && parts.iter().all(|v| v.is_finite()) => {
+            Ok(glam::DVec3::new(x, y, z))
+        }
+        _ => Err(format!("{text:?} is not X,Y,Z (three finite numbers)")),
+    }
+}
+
+/// A world axis: x, y, z, -x, -y or -z.
+pub fn parse_up(text: &str) -> Result<glam::DVec3, String> {
+    let axis = match text.trim().trim_start_matches('+') {
+        "x" => glam::DVec3::X,
+        "y" => glam::DVec3::Y,
+        "z" => glam::DVec3::Z,
+        "-x" => -glam::DVec3::X,
+        "-y" => -glam::DVec3::Y,
+        "-z" => -glam::DVec3::Z,
+        _ => return Err(format!("{text:?}: expected an axis: x, y, z, -x, -y or -z")),
+    };
+    Ok(axis)
+}
+
+/// Finite numbers for --elevation (degrees, -90 to 90) and --radius (positive).
+pub fn parse_elevation(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(e) if (-90.0..=90.0).contains(&e) => Ok(e),
+        _ => Err(format!("{text:?}: expected degrees from -90 to 90")),
+    }
+}
+
+pub fn parse_radius(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(r) if r.is_finite() && r > 0.0 => Ok(r),
+        _ => Err(format!("{text:?}: expected a positive, finite distance")),
+    }
+}
+
+pub fn parse_panels(text: &str) -> Result<Vec<Panel>, String> {
+    let mut panels = Vec::new();
+    for name in text.split(',').map(str::trim) {
+        let panel = Panel::ALL.into_iter().find(|p| p.name() == name).ok_or_else(|| {
+            let names: Vec<&str> = Panel::ALL.iter().map(|p| p.name()).collect();
+            format!("unknown panel {name:?}: expected a comma-separated list of {}", names.join(", "))
+        })?;
+        if panels.contains(&panel) {
+            return Err(format!("{name} is listed twice"));
+        }
+        panels.push(panel);
+    }
+    Ok(panels)
 }

@@ -88,7 +88,7 @@ fn a_failed_run_leaves_every_file_as_it_was() {
         &["--out-raw", "would overwrite the input given by --model"],
     );
     fails(d, &["--out-raw", "x.png"], &["--out-raw x.png", "ending in .safetensors"]);
-    fails(d, &["--out", "x.jpg"], &["--out x.jpg", "expected a .png file, a .gif file (an animation), or a folder"]);
+    fails(d, &["--out", "x.jpg"], &["--out x.jpg", "expected a .png file, a video (.mp4 or .gif), or a folder"]);
     #[cfg(unix)]
     {
         std::os::unix::fs::symlink(d.join("keep.png"), d.join("link.png")).unwrap();
