@@ -92,10 +92,12 @@ def _intrinsics(name: str, intrinsics, count: int) -> list:
 
 class Engine:
     """One GPU adapter: a real GPU when there is one, else a CPU one (lavapipe). ``adapter`` picks by name
-    (case-insensitive substring); ``matmul`` forces a kernel family ("rows", "tiled", "lanes")."""
+    (case-insensitive substring); ``matmul`` forces a kernel family ("rows", "tiled", "lanes"); ``precision`` is
+    "f32" (default), "f16" (f16 linear weights) or "f16-act" (and, on GPUs, f16 inputs to the linear layers:
+    faster, rgb within ~1e-2); f16 needs the adapter's shader-f16."""
 
-    def __init__(self, adapter: Optional[str] = None, matmul: Optional[str] = None):
-        self._inner = _raypatch.Engine(adapter, matmul)
+    def __init__(self, adapter: Optional[str] = None, matmul: Optional[str] = None, precision: str = "f32"):
+        self._inner = _raypatch.Engine(adapter, matmul, precision)
 
     @staticmethod
     def adapters() -> list:

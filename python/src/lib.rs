@@ -16,7 +16,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use raypatch::{
     AdapterChoice, Camera, CameraAxes, EngineOptions, Image, InputView, Intrinsics, MatmulKernel, Output, Outputs,
-    RayGrid, Region, Request, SceneData,
+    Precision, RayGrid, Region, Request, SceneData,
 };
 
 create_exception!(raypatch, Error, PyException, "Everything raypatch refuses or fails at: a one-line message.");
@@ -134,8 +134,8 @@ struct Engine {
 #[pymethods]
 impl Engine {
     #[new]
-    #[pyo3(signature = (adapter=None, matmul=None))]
-    fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>) -> PyResult<Engine> {
+    #[pyo3(signature = (adapter=None, matmul=None, precision="f32"))]
+    fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>, precision: &str) -> PyResult<Engine> {
         let matmul =
             match matmul.as_deref() {
                 None => None,
@@ -143,8 +143,11 @@ impl Engine {
                     input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
                 })?),
             };
+        let precision = Precision::from_name(precision).ok_or_else(|| {
+            input_error(format!("precision {precision:?}: expected \"f32\", \"f16\" or \"f16-act\""))
+        })?;
         let adapter = adapter.map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
-        let options = EngineOptions { adapter, matmul, ..Default::default() };
+        let options = EngineOptions { adapter, matmul, precision, ..Default::default() };
         let inner = py.detach(|| raypatch::Engine::new(options)).map_err(to_py)?;
         Ok(Engine { inner: Arc::new(inner), alive: Alive::default() })
     }

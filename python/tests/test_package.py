@@ -183,6 +183,22 @@ def test_bad_inputs_raise_with_one_line(posed_scene, bad, message):
     assert message.lower() in text.lower() and "\n" not in text, text
 
 
+def test_precisions():
+    rgb = {}
+    for precision in ("f32", "f16", "f16-act"):
+        try:
+            model = raypatch.Engine(precision=precision).bundled("fitted")
+        except raypatch.Error as error:
+            assert precision != "f32" and "shader-f16" in str(error), error
+            continue
+        rgb[precision] = model.encode_scene(raypatch.bundled_scene()).render_view(0)["rgb"]
+    for precision in set(rgb) - {"f32"}:
+        diff = float(np.abs(rgb[precision] - rgb["f32"]).max())
+        assert 0.0 < diff < 1e-2, (precision, diff)
+    with pytest.raises(raypatch.InputError, match="precision 'f8'"):
+        raypatch.Engine(precision="f8")
+
+
 def test_a_closed_engine_refuses_work():
     engine = raypatch.Engine()
     model = engine.bundled("fitted")

@@ -282,14 +282,6 @@ fn size_text((h, w): (usize, usize)) -> String {
     format!("{h}x{w}")
 }
 
-fn precision_name(precision: Precision) -> &'static str {
-    match precision {
-        Precision::F32 => "f32",
-        Precision::F16Weights => "f16",
-        Precision::F16Activations => "f16-act",
-    }
-}
-
 impl Bench {
     /// A render's wall time and, with timestamps, its GPU time.
     fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, request: Request) -> Result<Sample> {
@@ -362,7 +354,7 @@ impl Bench {
             model: s.name.clone(),
             decoder: cfg.name(),
             k,
-            precision: precision_name(s.precision).into(),
+            precision: s.precision.name().into(),
             variant: variant.to_string(),
             parameters: s.loaded.parameter_count(),
             weight_bytes: s.model.weight_bytes(),

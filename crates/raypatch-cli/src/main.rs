@@ -17,7 +17,8 @@ use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use raypatch::{
-    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Region, Request, SceneData, SceneSource,
+    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Precision, Region, Request, SceneData,
+    SceneSource,
 };
 
 use cameras::{check_patch_size, CameraArgs, Shot};
@@ -127,6 +128,11 @@ struct Args {
     #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
         .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
     matmul_kernel: Option<MatmulKernel>,
+    /// `f32` (default); `f16`: linear weights stored as f16; `f16-act`: and, on GPUs, the linear layers' inputs
+    /// staged as f16 with each step's products summed in f16 (faster; rgb within ~1e-2). f16 needs shader-f16.
+    #[arg(long, value_name = "P", default_value = "f32", value_parser = PossibleValuesParser::new(Precision::ALL.map(Precision::name))
+        .map(|name: String| Precision::from_name(&name).unwrap_or_default()))]
+    precision: Precision,
     /// Print load, encode and render times, the planned peak GPU memory, and the time spent compiling GPU
     /// pipelines with the pipeline cache file used (set RAYPATCH_CACHE_DIR to move it, or to `off`).
     #[arg(long)]
@@ -210,8 +216,9 @@ fn run(args: &Args) -> Result<()> {
     let max_buffer_bytes = args.max_buffer_mib.map(|mib| mib << 20);
     let matmul = args.matmul_kernel;
     let context = if matmul.is_some() { "--adapter / --matmul-kernel" } else { "--adapter" };
-    let engine =
-        Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul, ..Default::default() }).context(context)?;
+    let precision = args.precision;
+    let engine = Engine::new(EngineOptions { adapter, max_buffer_bytes, matmul, precision, ..Default::default() })
+        .context(context)?;
     let start = Instant::now();
     let model = match &args.model {
         Some(path) => engine.load(path)?,

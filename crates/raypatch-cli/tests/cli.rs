@@ -23,6 +23,31 @@ fn no_arguments_renders_the_bundled_scene_into_render_png() {
     assert_eq!(files(dir.path()), vec!["render.png"]);
 }
 
+/// `--precision f16` renders the same view within f16's rounding (tests/stress/f16.rs bounds it); an unknown
+/// precision is a one-line error naming the flag.
+#[test]
+fn precision_f16_renders_close_to_f32() {
+    let dir = TempDir::new().unwrap();
+    let render = |precision: &str| {
+        let out = dir.path().join(format!("{precision}.safetensors"));
+        let r = run(dir.path(), &["--precision", precision, "--out-raw", out.to_str().unwrap()]);
+        if r.code == 2 && r.stderr.contains("need shader-f16") {
+            return None;
+        }
+        assert_eq!(r.code, 0, "{}", r.stderr);
+        Some(TensorFile::open(&out).unwrap().f32("rgb").unwrap().data)
+    };
+    let f32_rgb = render("f32").expect("f32 needs no feature");
+    match render("f16") {
+        Some(rgb) => {
+            let diff = rgb.iter().zip(&f32_rgb).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(diff > 0.0 && diff < 1e-2, "--precision f16 moved rgb by {diff}");
+        }
+        None => eprintln!("the adapter has no shader-f16: --precision f16 not tested"),
+    }
+    fails(dir.path(), &["--precision", "f8"], &["--precision", "f16-act"]);
+}
+
 #[test]
 fn target_views_match_pytorch_with_metrics_and_raw_output() {
     let dir = TempDir::new().unwrap();

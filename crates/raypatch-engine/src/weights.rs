@@ -27,6 +27,23 @@ pub enum Precision {
 }
 
 impl Precision {
+    /// Every precision.
+    pub const ALL: [Precision; 3] = [Precision::F32, Precision::F16Weights, Precision::F16Activations];
+
+    /// The name `--precision` takes and the benchmark's records use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F16Weights => "f16",
+            Precision::F16Activations => "f16-act",
+        }
+    }
+
+    /// The precision called `name` ([`name`](Self::name)).
+    pub fn from_name(name: &str) -> Option<Precision> {
+        Precision::ALL.into_iter().find(|p| p.name() == name)
+    }
+
     /// Whether linear weights are stored as f16.
     pub fn f16_weights(self) -> bool {
         self != Precision::F32
@@ -64,7 +81,8 @@ impl WeightSet {
         let f16_weights = options.precision.f16_weights();
         if f16_weights && !gpu.features.contains(wgpu::Features::SHADER_F16) {
             return Err(EngineError::Request(format!(
-                "f16 weights need shader-f16, which {} does not have",
+                "precision {}: f16 weights need shader-f16, which {} does not have (use f32)",
+                options.precision.name(),
                 gpu.info.name
             )));
         }

@@ -9,7 +9,7 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::{Output, Outputs, Region, Request};
 use raypatch_model::TargetViews;
 
-use super::{model_outputs, precision_name, set_times, Bench, Subject};
+use super::{model_outputs, set_times, Bench, Subject};
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
 use crate::report::print_row;
@@ -127,7 +127,7 @@ impl Bench {
             &s.loaded.config.name(),
             grid.height,
             grid.width,
-            precision_name(s.precision)
+            s.precision.name()
         );
         let mut rows = crate::kernels::fold(&format!("{config} render"), &render);
         rows.extend(crate::kernels::fold(&format!("{config} encode"), &encode));
