@@ -195,7 +195,7 @@ def test_precisions():
     for precision in set(rgb) - {"f32"}:
         diff = float(np.abs(rgb[precision] - rgb["f32"]).max())
         assert 0.0 < diff < 1e-2, (precision, diff)
-    with pytest.raises(raypatch.InputError, match="precision 'f8'"):
+    with pytest.raises(raypatch.InputError, match='precision "f8"'):
         raypatch.Engine(precision="f8")
 
 
