@@ -2,7 +2,7 @@
 //! cameras and input thumbnails, and the cameras the page asks for.
 
 use glam::DMat4;
-use raypatch::{Camera, CameraAxes, Intrinsics, Model, Output, RayGrid, RayKind, SceneData};
+use raypatch::{Camera, CameraAxes, Intrinsics, Model, Output, RayKind, SceneData};
 use serde_json::json;
 
 /// The longest side of a rendered image, in pixels.
@@ -103,37 +103,15 @@ impl SceneEntry {
 }
 
 /// A camera's pose as 16 numbers, row-major camera-to-world in OpenGL axes (the `pose` parameter's form).
-/// A camera given by rays gets the pose of the pinhole camera with a centred principal point that makes them
-/// (its forward ray at the image centre, its right axis across the middle rows); `None` when its rays span no
-/// width to find that axis from.
+/// A camera given by rays gets the pose of the centred pinhole camera that makes them (`raypatch::fit_pinhole`;
+/// scenes' rays are unit directions or, for DeFiNe scenes, points at depth 1); `None` when its rays span no
+/// width or height to fit that camera to.
 pub fn pose_of(camera: &Camera) -> Option<[f64; 16]> {
-    let opencv = match (camera.as_pinhole(), camera.given_rays()) {
-        (Some((_, pose)), _) => pose,
-        (None, Some(grid)) => fitted_pose(camera, grid)?,
-        (None, None) => return None,
-    };
+    let points = camera.given_rays().is_some() && camera.check_rays(RayKind::UnitDepthPoint).is_ok();
+    let kind = if points { RayKind::UnitDepthPoint } else { RayKind::UnitDirection };
+    let (_, opencv) = raypatch::fit_pinhole(camera, kind).ok()?;
     let opengl = DMat4::from_cols(opencv.x_axis, -opencv.y_axis, -opencv.z_axis, opencv.w_axis);
     Some(opengl.transpose().to_cols_array())
-}
-
-/// The camera-to-world pose (OpenCV axes) of a pinhole camera making `grid`'s rays, which are unit
-/// directions or, for DeFiNe scenes, points at depth 1.
-fn fitted_pose(camera: &Camera, grid: &RayGrid) -> Option<DMat4> {
-    let position = camera.position();
-    let points = camera.check_rays(RayKind::UnitDepthPoint).is_ok();
-    let (w, h) = (grid.width, grid.height);
-    let ray = |x: usize, y: usize| {
-        let r = grid.rays[y * w + x].as_dvec3();
-        if points { r - position } else { r }.normalize_or_zero()
-    };
-    // Pixels mirrored about the image centre: their rays sum along the optical axis and differ along the
-    // image's x axis.
-    let (x0, x1, y0, y1) = ((w - 1) / 2, w / 2, (h - 1) / 2, h / 2);
-    let forward = (ray(x0, y0) + ray(x1, y0) + ray(x0, y1) + ray(x1, y1)).try_normalize()?;
-    let across = ray(w - 1, y0) + ray(w - 1, y1) - ray(0, y0) - ray(0, y1);
-    let right = (across - forward * across.dot(forward)).try_normalize()?;
-    let down = forward.cross(right);
-    Some(DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), position.extend(1.0)))
 }
 
 /// The last component of a path, so that the page never sees where files lie.
