@@ -198,7 +198,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         bindings.extend([(gamma, Access::Read), (beta, Access::Read)]);
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
-    let splits = if variant == MatmulKernel::Tiled { k_splits(groups, k4) } else { 1 };
+    let splits = if variant == MatmulKernel::Tiled { k_splits(tiled_groups, k4) } else { 1 };
     // Split K: each range's raw sums into the partials, then one pass adding them up into out.
     let (written, op_label, op_groups) = if splits == 1 {
         ((out, out_access), label.to_string(), groups)
@@ -258,8 +258,8 @@ fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
     std::iter::once(("SHAPED", 1.0)).chain(fields.map(|(name, value)| (name, f64::from(value)))).collect()
 }
 
-/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` of small tiles
-/// with fewer output tiles than this has its K split among workgroups.
+/// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors): a `linear_tiled` with fewer output
+/// tiles than this has its K split among workgroups.
 const TILED_TARGET_GROUPS: usize = 512;
 /// vec4s of K per step of `linear_tiled` (`TILE_K4`), and the fewest vec4s a K range may have (4 steps).
 const TILED_K4: usize = 8;
