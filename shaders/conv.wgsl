@@ -185,9 +185,9 @@ fn conv2d(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 }
 
 // `conv_tiled`: the same convolution as an implicit GEMM in workgroup-memory tiles, for GPUs (tiles.wgsl, the
-// tiling of matmul.wgsl's `linear_tiled`, which says why these sizes and layouts): a workgroup of 16 x 16
-// invocations computes TILE output pixels x TILE output channels (64), invocation (tx, ty) pixels
-// ty + 16 i and the channels of vec4 columns tx + 16 j. K is the weight row, taps x cin4 vec4s (tap-major, as
+// tiling of matmul.wgsl's `linear_tiled`; tiles.wgsl says why these sizes and layouts): a workgroup of 16 x 16
+// invocations computes TILE output pixels x TILE output channels (128), invocation (tx, ty) pixels
+// block_row(ty, i) and the channels of vec4 columns block_col4(tx, j). K is the weight row, taps x cin4 vec4s (tap-major, as
 // pack_conv lays it out), walked TILE_K4 vec4s at a time whatever the tap boundaries, so that few input
 // channels (ResNet's RGB stem, one vec4 a tap) waste no steps. Each step gathers TILE pixels' input vec4s (the
 // im2col of the tile, never materialised: the tap's offset, the zero padding and the 2x nearest upsampling
@@ -219,13 +219,12 @@ fn gather(win: Window, kk: u32) -> vec4<f32> {
     return x[((win.img + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4 + kk % p.cin4];
 }
 
-// The step at vec4 `at` of the weight row for the pixels' windows win0 and win1 and of w's rows at w0 and w1;
-// zeros past k4.
-fn gather_step(at: u32, k4: u32, win0: Window, win1: Window, w0: u32, w1: u32) -> Staged {
+// The step at vec4 `at` of the weight row for the pixel's window `win` and of w's row at `wa`; zeros past k4.
+fn gather_step(at: u32, k4: u32, win: Window, wa: u32) -> Staged {
     if (at >= k4) {
         return Staged();
     }
-    return Staged(gather(win0, at), gather(win1, at), w[w0 + at], w[w1 + at]);
+    return Staged(gather(win, at), w[wa + at]);
 }
 
 @compute @workgroup_size(16, 16)
@@ -238,28 +237,23 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     if (pix0 >= p.npix) {
         return;
     }
-    let col0 = tile * TILE;
-    // This invocation loads rows r and r + STAGE_STEP of both tiles (pixels, and output channels), at vec4 kk
-    // of each step. Channels past cout reuse the last one (their results are dropped).
-    let r = li / TILE_K4;
+    // This invocation loads row li / TILE_K4 of both tiles (a pixel, and an output channel), at vec4 kk of each
+    // step. Channels past cout reuse the last one (their results are dropped).
     let kk = li % TILE_K4;
-    let win0 = window_of(pix0 + r);
-    let win1 = window_of(pix0 + r + STAGE_STEP);
+    let win = window_of(pix0 + li / TILE_K4);
     let k4 = p.k * p.k * p.cin4;
-    let w0 = min(col0 + r, p.cout - 1u) * k4;
-    let w1 = min(col0 + r + STAGE_STEP, p.cout - 1u) * k4;
-    var next = gather_step(kk, k4, win0, win1, w0, w1);
-    var acc = array<vec4<f32>, BLOCK>();
+    let wa = min(tile * TILE + li / TILE_K4, p.cout - 1u) * k4;
+    var next = gather_step(kk, k4, win, wa);
     for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
-        stage_step(kk, r, next);
+        stage_step(li, next);
         workgroupBarrier();
-        next = gather_step(k0 + TILE_K4 + kk, k4, win0, win1, w0, w1);
-        multiply_staged(lid.x, lid.y, &acc);
+        next = gather_step(k0 + TILE_K4 + kk, k4, win, wa);
+        multiply_staged(lid.x, lid.y);
         workgroupBarrier();
     }
     for (var i = 0u; i < TILE_ROWS; i++) {
         for (var j = 0u; j < TILE_COLS4; j++) {
-            store_one(acc[i * TILE_COLS4 + j], pix0 + lid.y + 16u * i, tile * (TILE / 4u) + 16u * j + lid.x);
+            store_one(sums[i * TILE_COLS4 + j], pix0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j));
         }
     }
 }

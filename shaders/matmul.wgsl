@@ -173,23 +173,16 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     }
 }
 
-// `linear_tiled`: the classic GPU tiling. A workgroup of 16 x 16 invocations computes a TILE x TILE tile of out
-// (64 x 64: tiles.wgsl); per step along K it copies TILE rows of x and TILE
-// rows of w into workgroup memory (two vec4s each per invocation, read by neighbouring invocations as contiguous
-// bytes) and every invocation takes a 4 x 4 block of dot products from there, so each value loaded from
-// memory serves TILE outputs. Invocation (tx, ty) owns rows ty + 16 i and vec4 columns tx + 16 j: its stores of a
-// row are whole vec4s, and 16 neighbouring invocations store 256 contiguous bytes. The next step's vec4s are
-// loaded into registers while the staged step is multiplied (double buffering through registers, as
-// workgroup memory holds one step).
+// `linear_tiled`: the classic GPU tiling (tiles.wgsl). A workgroup of 16 x 16 invocations computes a TILE x TILE
+// tile of out; per step along K each invocation loads one vec4 of a row of x and one of a row of w (neighbouring
+// invocations read contiguous bytes), stages them in workgroup memory, and multiplies the staged step into its
+// block, so each value loaded from memory serves TILE outputs. The next step's vec4s are loaded into registers
+// while the staged one is multiplied (double buffering through registers, as workgroup memory holds one step).
 //
-// In workgroup memory both tiles are K-major ([K step][row]), so the 16 invocations of a row of the
-// workgroup read 16 consecutive vec4s (no bank conflicts): w's columns are stored permuted (tiles.wgsl, the
-// tiles and their products, shared with conv.wgsl's `conv_tiled`).
-//
-// Split K: where out has too few tiles to fill a GPU (M = 300 rows: 5 x 24 tiles on a 1536-column layer, about
-// one 256-invocation workgroup per multiprocessor of an H100), K is cut into `splits` ranges, a workgroup per
-// (tile, range); each writes its raw sums to the partials (bound as `out`, [splits * m, n4] vec4s) and
-// `linear_reduce` adds the ranges up and finishes (bias, activation, accumulation) into out.
+// Split K: where out has too few tiles to fill a GPU (M = 300 rows: 3 x 12 tiles on a 1536-column layer), K is
+// cut into `splits` ranges, a workgroup per (tile, range); each writes its raw sums to the partials (bound as
+// `out`, [splits * m, n4] vec4s) and `linear_reduce` adds the ranges up and finishes (bias, activation,
+// accumulation) into out.
 //
 // Layer norm in the prologue (`norm` = 1): x's rows are normalised as they are staged, out = act(LN(x) · wᵀ +
 // bias) with LN's gamma and beta bound at 5 and 6, so the normalised rows are never written (the pre-norm of
@@ -207,43 +200,41 @@ struct RowNorm {
 
 // The TILE_K4 invocations that stage a row (consecutive li) sum `part` over it: each leaves its part in
 // x_tile[li] and adds up its row's. x_tile is free before the first step.
-fn sum_over_row(li: u32, part: vec4<f32>) -> vec4<f32> {
+fn sum_over_row(li: u32, part: f32) -> f32 {
     workgroupBarrier();
-    // (f16 tiles would round the sums: the f16-activation variants run the norm as a dispatch of its own.)
-    x_tile[li] = vec4<TileFloat>(part);
+    // (f16 tiles would round the sums: the f16-activation variant runs the norm as a dispatch of its own.)
+    x_tile[li] = vec4<TileFloat>(TileFloat(part));
     workgroupBarrier();
-    var sum = vec4<f32>(0.0);
+    var sum = 0.0;
     let first = li - li % TILE_K4;
     for (var t = 0u; t < TILE_K4; t++) {
-        sum += vec4<f32>(x_tile[first + t]);
+        sum += f32(x_tile[first + t].x);
     }
     return sum;
 }
 
-// Statistics of rows a and b (x offsets, vec4s) over the norm_cols columns, each of the TILE_K4 invocations
-// sharing them taking every TILE_K4-th vec4 from kk.
-fn row_norms(li: u32, kk: u32, a: u32, b: u32) -> array<RowNorm, 2> {
-    let x0 = vec2<f32>(x[a].x, x[b].x);
+// Statistics of the row at x offset `at` (vec4s) over the norm_cols columns, each of the TILE_K4 invocations
+// sharing it taking every TILE_K4-th vec4 from kk.
+fn row_norm(li: u32, kk: u32, at: u32) -> RowNorm {
+    let x0 = x[at].x;
     let cols = op_norm_cols();
     let lanes = vec4<u32>(0u, 1u, 2u, 3u);
-    var s = vec4<f32>(0.0);
+    var s = 0.0;
     for (var k = kk; k < op_k4(); k += TILE_K4) {
         let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
-        let da = select(vec4<f32>(0.0), x[a + k] - x0.x, inside);
-        let db = select(vec4<f32>(0.0), x[b + k] - x0.y, inside);
-        s += vec4<f32>(da.x + da.y + da.z + da.w, db.x + db.y + db.z + db.w, 0.0, 0.0);
+        let d = select(vec4<f32>(0.0), x[at + k] - x0, inside);
+        s += d.x + d.y + d.z + d.w;
     }
-    let delta = sum_over_row(li, s).xy / f32(cols);
-    var v = vec4<f32>(0.0);
+    let delta = sum_over_row(li, s) / f32(cols);
+    var v = 0.0;
     for (var k = kk; k < op_k4(); k += TILE_K4) {
         let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
-        let da = select(vec4<f32>(0.0), (x[a + k] - x0.x) - delta.x, inside);
-        let db = select(vec4<f32>(0.0), (x[b + k] - x0.y) - delta.y, inside);
-        v += vec4<f32>(dot(da, da), dot(db, db), 0.0, 0.0);
+        let d = select(vec4<f32>(0.0), (x[at + k] - x0) - delta, inside);
+        v += dot(d, d);
     }
-    let rstd = 1.0 / sqrt(sum_over_row(li, v).xy / f32(cols) + p.eps);
+    let rstd = 1.0 / sqrt(sum_over_row(li, v) / f32(cols) + p.eps);
     workgroupBarrier();
-    return array<RowNorm, 2>(RowNorm(x0.x, delta.x, rstd.x), RowNorm(x0.y, delta.y, rstd.y));
+    return RowNorm(x0, delta, rstd);
 }
 
 // Vec4 k of a row of x as staged: normalised when `norm` is 1 (zero in the padding columns, where gamma and
@@ -256,15 +247,12 @@ fn x_staged(at: u32, k: u32, n: RowNorm) -> vec4<f32> {
     return ((v - n.x0) - n.delta) * n.rstd * gamma[k] + beta[k];
 }
 
-// The step at vec4 k of x's rows at xa and xb (normalised as `norms` say) and w's rows at wa and wb; zeros past
-// k_end.
-fn load_step(k: u32, k_end: u32, xa: u32, xb: u32, wa: u32, wb: u32, norms: array<RowNorm, 2>) -> Staged {
+// The step at vec4 k of x's row at xa (normalised as `norm` says) and w's row at wa; zeros past k_end.
+fn load_step(k: u32, k_end: u32, xa: u32, wa: u32, norm: RowNorm) -> Staged {
     if (k >= k_end) {
         return Staged();
     }
-    let x0 = x_staged(xa, k, norms[0]);
-    let x1 = x_staged(xb, k, norms[1]);
-    return Staged(vec4<TileFloat>(x0), vec4<TileFloat>(x1), vec4<TileFloat>(w[wa + k]), vec4<TileFloat>(w[wb + k]));
+    return Staged(vec4<TileFloat>(x_staged(xa, k, norm)), vec4<TileFloat>(w[wa + k]));
 }
 
 @compute @workgroup_size(16, 16)
@@ -282,36 +270,31 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     }
     let k_begin = split * op_k_split4();
     let k_end = min(op_k4(), k_begin + op_k_split4());
-    let col0 = tile * TILE;
-    let r = li / TILE_K4;
     let kk = li % TILE_K4;
     // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed).
-    let xa = min(row0 + r, op_m() - 1u) * op_k4();
-    let xb = min(row0 + r + STAGE_STEP, op_m() - 1u) * op_k4();
-    let wa = min(col0 + r, op_n() - 1u) * op_w_ld4();
-    let wb = min(col0 + r + STAGE_STEP, op_n() - 1u) * op_w_ld4();
-    var norms = array<RowNorm, 2>(RowNorm(0.0, 0.0, 1.0), RowNorm(0.0, 0.0, 1.0));
+    let xa = min(row0 + li / TILE_K4, op_m() - 1u) * op_k4();
+    let wa = min(tile * TILE + li / TILE_K4, op_n() - 1u) * op_w_ld4();
+    var norm = RowNorm(0.0, 0.0, 1.0);
     if (op_norm() != 0u) {
-        norms = row_norms(li, kk, xa, xb);
+        norm = row_norm(li, kk, xa);
     }
-    var next = load_step(k_begin + kk, k_end, xa, xb, wa, wb, norms);
-    var acc = array<vec4<f32>, BLOCK>();
+    var next = load_step(k_begin + kk, k_end, xa, wa, norm);
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
-        stage_step(kk, r, next);
+        stage_step(li, next);
         workgroupBarrier();
-        next = load_step(k0 + TILE_K4 + kk, k_end, xa, xb, wa, wb, norms);
-        multiply_staged(lid.x, lid.y, &acc);
+        next = load_step(k0 + TILE_K4 + kk, k_end, xa, wa, norm);
+        multiply_staged(lid.x, lid.y);
         workgroupBarrier();
     }
     for (var i = 0u; i < TILE_ROWS; i++) {
-        let row = row0 + lid.y + 16u * i;
+        let row = row0 + block_row(lid.y, i);
         for (var j = 0u; j < TILE_COLS4; j++) {
-            let c4 = tile * (TILE / 4u) + 16u * j + lid.x;
+            let c4 = tile * (TILE / 4u) + block_col4(lid.x, j);
             if (row < op_m() && c4 < op_n4()) {
                 if (op_splits() == 1u) {
-                    store4(row, c4, acc[i * TILE_COLS4 + j]);
+                    store4(row, c4, sums[i * TILE_COLS4 + j]);
                 } else {
-                    out[(split * op_m() + row) * op_n4() + c4] = acc[i * TILE_COLS4 + j];
+                    out[(split * op_m() + row) * op_n4() + c4] = sums[i * TILE_COLS4 + j];
                 }
             }
         }

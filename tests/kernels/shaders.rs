@@ -9,13 +9,16 @@ fn all_shaders_validate() {
     }
 }
 
-/// `shaders/matmul_lanes.wgsl` is what `tools/codegen/gen_matmul_lanes.py` writes from the wrapper's sizes. Needs
-/// python3 (any version, no packages): a machine without it fails here, saying so, rather than skip the check.
+/// The generated shaders are what their scripts write from the wrappers' sizes: `shaders/matmul_lanes.wgsl`
+/// (`tools/codegen/gen_matmul_lanes.py`) and `shaders/tiles.wgsl` (`tools/codegen/gen_tiles.py`). Needs python3
+/// (any version, no packages): a machine without it fails here, saying so, rather than skip the check.
 #[test]
 fn generated_shaders_are_current() {
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/tools/codegen/gen_matmul_lanes.py");
-    let out = std::process::Command::new("python3").arg(root).arg("--check").output().unwrap_or_else(|e| {
-        panic!("python3 cannot be run ({e}): shaders/matmul_lanes.wgsl cannot be checked against tools/codegen/gen_matmul_lanes.py")
-    });
-    assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    for script in ["gen_matmul_lanes.py", "gen_tiles.py"] {
+        let path = format!("{}/tools/codegen/{script}", env!("CARGO_MANIFEST_DIR"));
+        let out = std::process::Command::new("python3").arg(&path).arg("--check").output().unwrap_or_else(|e| {
+            panic!("python3 cannot be run ({e}): the shader tools/codegen/{script} writes cannot be checked")
+        });
+        assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    }
 }

@@ -18,7 +18,7 @@ pub enum MatmulKernel {
     /// the fused `attention.attention`. Any adapter, f32 or f16 weights.
     #[default]
     Rows,
-    /// Workgroup-memory tiles, for GPUs: `matmul.linear_tiled` (64x64 tiles of out per 256 invocations),
+    /// Workgroup-memory tiles, for GPUs: `matmul.linear_tiled` (128x128 tiles of out per 256 invocations),
     /// `conv.conv_tiled` (the same tiling as an implicit GEMM) and flash attention (`attention_flash`). Any
     /// adapter, f32 or f16 weights.
     Tiled,
@@ -91,27 +91,29 @@ pub struct KernelChoice {
     pub pinned: bool,
 }
 
-/// The variant of a linear layer: `f32_weights` (f16 weights are read from buffers only), `lanes_fit`
-/// (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`) and `k_splits` (how many
-/// ranges `linear_tiled` would cut K into; asked only on `Tiled`).
+/// The variant of a linear layer with `cols` output columns: `f32_weights` (f16 weights are read from buffers
+/// only) and `lanes_fit` (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`).
 ///
-/// On `Tiled`, only layers whose K is split run `linear_tiled`: outputs with too few 64 x 64 tiles to fill the GPU
-/// (the 300-row layers of a Ray-Patch render or of an encode), which it spreads over split K. Where the output
-/// alone fills the GPU, `Rows`' register tiles are faster: on an H200, 5.4 against 2.8 TMAC/s for 4800x768x2304,
-/// and SRT's 120x160 render took 58 ms against 81 (tools/bench/gpu_bench.sh; docs/PERFORMANCE.md).
+/// On `Tiled`, outputs narrower than half a 128-column tile run on `Rows` (8-column tiles), which wastes no
+/// columns; every other linear layer runs `linear_tiled`, faster than `Rows` on every shape measured (on an H200:
+/// 14.8 against 5.9 TMAC/s on 4800x768x2304, 8.7 against 2.4 on 300x1536x1536 with K split; the GEMM lab of
+/// docs/PERFORMANCE.md).
 pub fn linear_variant(
     choice: &KernelChoice,
+    cols: usize,
     f32_weights: bool,
     lanes_fit: impl FnOnce() -> bool,
-    k_splits: impl FnOnce() -> usize,
 ) -> MatmulKernel {
     match choice.matmul {
         MatmulKernel::Lanes if f32_weights && lanes_fit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
-        MatmulKernel::Tiled if !choice.pinned && k_splits() == 1 => MatmulKernel::Rows,
+        MatmulKernel::Tiled if !choice.pinned && cols < TILED_MIN_COLS => MatmulKernel::Rows,
         other => other,
     }
 }
+
+/// Output columns below which a linear layer leaves `Tiled` for `Rows` ([`linear_variant`]).
+pub const TILED_MIN_COLS: usize = 64;
 
 /// The variant of a convolution: `lanes_suit` says whether `matmul_lanes` fits it and enough of its work is
 /// useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the register-blocked direct
@@ -125,7 +127,7 @@ pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) ->
 }
 
 /// What a linear layer running on `variant` with f16 or f32 weights stages in its workgroup tiles: f16 (inputs
-/// rounded, each step's products summed in f16) where the model asks for f16 activations and the layer runs on
+/// rounded to f16 as they are staged, the products summed in f32) where the model asks for f16 activations and the layer runs on
 /// `Tiled` with f16 weights (a layer kept f32 for its range stays f32 throughout); else f32.
 pub fn linear_tiles(choice: &KernelChoice, variant: MatmulKernel, f16_weights: bool) -> TileElement {
     if choice.f16_activations && variant == MatmulKernel::Tiled && f16_weights {

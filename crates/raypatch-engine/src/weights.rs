@@ -19,10 +19,9 @@ pub enum Precision {
     /// stays f32 and is listed in [`GpuWeights::kept_f32`].
     F16Weights,
     /// [`F16Weights`](Self::F16Weights), and where linear layers run on the GPUs' kernel (`MatmulKernel::Tiled`)
-    /// their inputs are rounded to f16 too as they are staged, and each K step's products (32 terms) are
-    /// summed in f16 before the steps are summed in f32 (`shaders/tiles.wgsl`): GPUs with packed f16 do that
-    /// arithmetic at twice f32's rate. Inputs beyond f16's range become infinite. Other kernels compute as under
-    /// `F16Weights`.
+    /// their inputs are rounded to f16 too as they are staged in workgroup memory (half its traffic), the
+    /// products summed in f32 (`shaders/tiles.wgsl`). Inputs beyond f16's range become infinite. Other kernels
+    /// compute as under `F16Weights`.
     F16Activations,
 }
 

@@ -18,7 +18,7 @@ const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
 /// Output pixels and channels per workgroup of `conv_tiled` (`TILE` in `shaders/tiles.wgsl`).
-const TILE: usize = 64;
+const TILE: usize = 128;
 
 /// Repacks a PyTorch conv weight [cout, cin, k, k] (row-major) into the kernel's layout, returned as a
 /// row-major [cout, k*k * padded_cols(cin)] matrix: for each output channel, the k*k taps (ky, kx row-major),

@@ -252,16 +252,9 @@ macro_rules! shaders {
 /// The replacement that makes `shaders/matmul.wgsl`'s weights f16 (widened to the tiles' type as they are loaded).
 const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias WeightVec = vec4<f16>;");
 
-/// The replacements that make `shaders/tiles.wgsl`'s tiles f16 and have `linear_tiled` sum each staged step's
-/// products in f16 before they join its f32 block (`Precision::F16Activations`).
-const F16_TILES: [(&str, &str); 2] = [
-    ("alias TileFloat = f32;", "alias TileFloat = f16;"),
-    (
-        "        multiply_staged(lid.x, lid.y, &acc);\n",
-        "        var step = array<vec4<TileFloat>, BLOCK>();\n        multiply_staged(lid.x, lid.y, &step);\n        \
-         for (var i = 0u; i < BLOCK; i++) {\n            acc[i] += vec4<f32>(step[i]);\n        }\n",
-    ),
-];
+/// The replacement that makes `shaders/tiles.wgsl`'s tiles f16: x and w rounded to f16 as they are staged, the
+/// products summed in f32 (`Precision::F16Activations`).
+const F16_TILES: (&str, &str) = ("alias TileFloat = f32;", "alias TileFloat = f16;");
 
 shaders! {
     shaders {
@@ -293,11 +286,11 @@ shaders! {
             replace: &[F16_WEIGHTS],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
-        /// `matmul_f16` whose `linear_tiled` stages x as f16 too and sums each step's products in f16.
+        /// `matmul_f16` whose `linear_tiled` stages x as f16 too (half the workgroup memory traffic).
         MATMUL_F16_ACT = MATMUL {
             name: "matmul_f16_act",
             prefix: "enable f16;\n",
-            replace: &[F16_WEIGHTS, F16_TILES[0], F16_TILES[1]],
+            replace: &[F16_WEIGHTS, F16_TILES],
             features: wgpu::Features::SHADER_F16,
         } => matmul::MatmulParams;
         /// `attention_flash` with registers for heads of up to 64 floats.
