@@ -102,6 +102,25 @@ fn psnr(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
     10.0 * (255.0f64 * 255.0 / mse).log10()
 }
 
+/// The highest PSNR against `image` that any 4:2:0 video can reach when its decoder repeats each chroma sample
+/// over its 2x2 pixels, as ffmpeg's conversion to RGB does: every pixel may take its own grey level (luma), but
+/// the four pixels of a block share their colour difference, so at best each keeps the block's mean in the two
+/// directions across grey (clamping to 0-255 and whole levels left out).
+fn chroma_420_ceiling(image: &image::RgbImage) -> f64 {
+    let (width, height) = image.dimensions();
+    let mut squares = 0.0;
+    for (bx, by) in (0..height / 2).flat_map(|y| (0..width / 2).map(move |x| (2 * x, 2 * y))) {
+        let block = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| image.get_pixel(bx + dx, by + dy).0.map(f64::from));
+        let mean = [0, 1, 2].map(|c| block.iter().map(|p| p[c]).sum::<f64>() / 4.0);
+        for pixel in block {
+            let off = [0, 1, 2].map(|c| pixel[c] - mean[c]);
+            let grey = off.iter().sum::<f64>() / 3.0;
+            squares += off.iter().map(|o| (o - grey).powi(2)).sum::<f64>();
+        }
+    }
+    10.0 * (255.0f64 * 255.0 * (width * height * 3) as f64 / squares).log10()
+}
+
 fn ok(d: &Path, args: &[&str]) -> Run {
     let r = run(d, args);
     assert_eq!(r.code, 0, "{args:?}: {}", r.stderr);
@@ -114,7 +133,7 @@ fn a_nerfstudio_path_renders_to_an_mp4_and_a_gif_whose_first_frame_is_the_pose()
     let d = dir.path();
     let poses = opengl_poses(6);
     let fov = 40.0;
-    for size in [(160, 120), (80, 60)] {
+    for size in [(160, 120), (128, 96), (80, 60)] {
         std::fs::write(d.join("camera_path.json"), nerfstudio_path(&poses, size, 12.0, fov).to_string()).unwrap();
         let r = ok(d, &["--camera-path", "camera_path.json", "--out", "path.mp4"]);
         // stderr is a pipe here: no progress bar, only the note that this is not a GPU.
@@ -126,9 +145,12 @@ fn a_nerfstudio_path_renders_to_an_mp4_and_a_gif_whose_first_frame_is_the_pose()
         std::fs::write(d.join("pose.json"), pose_file(&poses[0], size, fov).to_string()).unwrap();
         ok(d, &["--pose", "pose.json", "--out", "posed.png"]);
         let (video, posed) = (first_frame(&d.join("path.mp4"), d), png(&d.join("posed.png")));
-        // H.264's 4:2:0 halves the colour resolution: at 80x60 that alone caps this frame at 38.7 dB (README).
-        let least = if size.0 >= 160 { 40.0 } else { 37.0 };
-        assert!(psnr(&video, &posed) >= least, "{size:?}: {} dB", psnr(&video, &posed));
+        // 40 dB from 128x96 up (40.9 there, 42.6 at 160x120). 4:2:0 keeps one colour per 2x2 pixels: at 80x60
+        // no such video can pass 39.6 dB on this frame (chroma_420_ceiling), and this one is within 0.6 dB of
+        // that (39.0; the encoder's quantiser costs most of the rest).
+        let (db, ceiling) = (psnr(&video, &posed), chroma_420_ceiling(&posed));
+        let least = if size.0 >= 128 { 40.0 } else { ceiling - 0.8 };
+        assert!(db >= least, "{size:?}: {db:.2} dB, 4:2:0 allows {ceiling:.2} dB");
 
         ok(d, &["--camera-path", "camera_path.json", "--out", "path.gif"]);
         let gif = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
@@ -276,4 +298,30 @@ fn bad_sequences_are_one_line_errors_with_nothing_written() {
     std::fs::write(d.join("bad.json"), bad.to_string()).unwrap();
     fails(d, &["--camera-path", "bad.json", "--out", "x.mp4"], &["bad.json", "`camera_path` 1", "16 finite numbers"]);
     std::fs::remove_file(d.join("bad.json")).unwrap();
+}
+
+/// The figures in docs/CAMERA_PATHS.md: the MP4's first frame against the PNG of its pose, by size, with the
+/// 4:2:0 ceiling and the file's size (`cargo test --release -p raypatch-cli --test video -- --ignored
+/// --nocapture`).
+#[test]
+#[ignore = "measures; asserts nothing"]
+fn mp4_first_frame_psnr_by_size() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let poses = opengl_poses(6);
+    for size in [(64, 64), (80, 60), (96, 72), (128, 96), (160, 120), (320, 240)] {
+        std::fs::write(d.join("camera_path.json"), nerfstudio_path(&poses, size, 12.0, 40.0).to_string()).unwrap();
+        ok(d, &["--camera-path", "camera_path.json", "--out", "path.mp4"]);
+        std::fs::write(d.join("pose.json"), pose_file(&poses[0], size, 40.0).to_string()).unwrap();
+        ok(d, &["--pose", "pose.json", "--out", "posed.png"]);
+        let (video, posed) = (first_frame(&d.join("path.mp4"), d), png(&d.join("posed.png")));
+        let bytes = std::fs::metadata(d.join("path.mp4")).unwrap().len();
+        println!(
+            "{}x{}: {:.2} dB (4:2:0 ceiling {:.2} dB), {bytes} bytes for 6 frames",
+            size.0,
+            size.1,
+            psnr(&video, &posed),
+            chroma_420_ceiling(&posed)
+        );
+    }
 }
