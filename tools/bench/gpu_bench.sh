@@ -6,12 +6,14 @@
 #
 #     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
-# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 9.5 minutes
-# so that one device call of 10 minutes holds them all; a run that worked took 275 s):
+# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 10.5 minutes,
+# more than one device call of 10 minutes holds: run `info tests gemm lab` in one call and `rpsrt srt families
+# viewer` in another; the first took 90 s on an H200):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
 #     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)
 #     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
+#     lab       the GEMM lab: the engine's GEMM kernels beside outer-product tilings (tools/bench/gemm_lab.py)
 #     rpsrt     the official RP-SRT k=8 at every size, one view and 8 and 32 at once, the per-kernel breakdown,
 #               PyTorch CUDA eager and torch.compile on the same weights and inputs
 #     srt       the official SRT (k=1) likewise
@@ -21,15 +23,15 @@
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|rpsrt|srt|families|viewer ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|rpsrt|srt|families|viewer ...]}
 shift
 steps=("$@")
-[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm rpsrt srt families viewer)
+[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab rpsrt srt families viewer)
 for s in "${steps[@]}"; do
     case $s in
-        info | tests | gemm | rpsrt | srt | families | viewer) ;;
+        info | tests | gemm | lab | rpsrt | srt | families | viewer) ;;
         *)
-            echo "gpu_bench: unknown step $s: expected info, tests, gemm, rpsrt, srt, families or viewer" >&2
+            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, rpsrt, srt, families or viewer" >&2
             exit 2
             ;;
     esac
@@ -133,6 +135,10 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 done
                 ;;
             gemm) run gemm 45 "$bin/raypatch-bench" --gemm --repeats 50 --out "$work/results/gemm" ;;
+            lab)
+                run lab 10 python3 tools/bench/gemm_lab.py "$work/lab"
+                run lab 40 "$bin/raypatch-bench" --gemm-lab "$work/lab" --out "$work/results/lab"
+                ;;
             rpsrt) sweep rpsrt 90 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 60 0 --only official:1 ;;
             families) sweep families 75 25 --only official-osrt:8 --only official-define:16 ;;

@@ -22,7 +22,7 @@ use crate::pytorch::{source_file, Torch};
 use crate::report::write_file;
 
 /// (M, K, N, where): x `[M, K]`, weight `[N, K]`; the official srt_MDBN_32 / rpsrt_MDBN_8_32 at 120x160.
-const SHAPES: [(usize, usize, usize, &str); 6] = [
+pub(crate) const SHAPES: [(usize, usize, usize, &str); 6] = [
     (300, 180, 1536, "RP-SRT k=8 render: out_mlp.0 (300 patch queries)"),
     (300, 1536, 1536, "RP-SRT k=8 render: out_mlp.2, out_mlp.4"),
     (4800, 768, 2304, "encode: transformer to_qkv (4800 tokens)"),

@@ -6,6 +6,7 @@
 
 pub mod flops;
 pub mod gemm;
+pub mod gemm_lab;
 pub mod harness;
 pub mod kernels;
 pub mod measure;

@@ -67,6 +67,13 @@ struct Args {
     /// runs (or the --matmul-kernel one) and in PyTorch: gemm.json and gemm.md in --out.
     #[arg(long)]
     gemm: bool,
+    /// Time the WGSL GEMM kernels in this folder (tools/bench/gemm_lab.py writes it) on --gemm's shapes, with a
+    /// sampled float64 check: gemm-lab.md in --out
+    #[arg(long, value_name = "DIR")]
+    gemm_lab: Option<PathBuf>,
+    /// With --gemm-lab: only the kernels whose names contain one of these (comma-separated)
+    #[arg(long, value_name = "NAME,...", value_delimiter = ',', requires = "gemm_lab")]
+    lab_only: Vec<String>,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
     /// later files' configurations replace earlier ones' (and the merged results are written too).
     #[arg(long, value_name = "RESULTS_JSON")]
@@ -92,7 +99,7 @@ fn main() -> ExitCode {
             }
         };
     }
-    if args.gemm {
+    if args.gemm || args.gemm_lab.is_some() {
         return match gemm(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
@@ -132,6 +139,13 @@ fn gemm(args: &Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
+    if let Some(dir) = &args.gemm_lab {
+        println!("raypatch-bench --gemm-lab {} on {}", dir.display(), gpu.describe());
+        let table = raypatch_bench::gemm_lab::run(&gpu, dir, &args.lab_only)?;
+        raypatch_bench::report::write_file(&args.out.join("gemm-lab.md"), table.as_bytes())?;
+        println!("\n{table}");
+        return Ok(());
+    }
     println!("raypatch-bench --gemm on {}", gpu.describe());
     let on_gpu = gpu.info.device_type != wgpu::DeviceType::Cpu;
     // Probed only when wanted: importing torch takes seconds.

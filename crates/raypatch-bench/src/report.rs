@@ -39,7 +39,7 @@ pub struct Record {
     pub decoder: String,
     pub k: usize,
     /// `f32`; `f16`: f16 linear weights, f32 arithmetic; `f16-act`: f16 weights and, on GPUs' `Tiled` kernel,
-    /// linear layers' inputs staged as f16 with each K step's products summed in f16 (`Precision`).
+    /// linear layers' inputs staged as f16, the sums in f32 (`Precision`).
     pub precision: String,
     /// For the skips group: what is skipped or not.
     pub variant: String,
