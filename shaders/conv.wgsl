@@ -244,16 +244,198 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     let k4 = p.k * p.k * p.cin4;
     let wa = min(tile * TILE + li / TILE_K4, p.cout - 1u) * k4;
     var next = gather_step(kk, k4, win, wa);
+    // This invocation's block of out (tiles.wgsl), in registers: only ever indexed by constants (gen_tiles.py says why).
+    var sums = array<vec4<f32>, BLOCK>();
     for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
         stage_step(li, next);
         workgroupBarrier();
         next = gather_step(k0 + TILE_K4 + kk, k4, win, wa);
-        multiply_staged(lid.x, lid.y);
+        // BEGIN multiply_staged: written by tools/codegen/gen_tiles.py
+        {
+            let a0 = x_tile[0u + lid.y];
+            let a1 = x_tile[16u + lid.y];
+            let b0 = vec4<f32>(w_tile[0u + lid.x]);
+            let b1 = vec4<f32>(w_tile[16u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[32u + lid.y];
+            let a1 = x_tile[48u + lid.y];
+            let b0 = vec4<f32>(w_tile[32u + lid.x]);
+            let b1 = vec4<f32>(w_tile[48u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[64u + lid.y];
+            let a1 = x_tile[80u + lid.y];
+            let b0 = vec4<f32>(w_tile[64u + lid.x]);
+            let b1 = vec4<f32>(w_tile[80u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[96u + lid.y];
+            let a1 = x_tile[112u + lid.y];
+            let b0 = vec4<f32>(w_tile[96u + lid.x]);
+            let b1 = vec4<f32>(w_tile[112u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[128u + lid.y];
+            let a1 = x_tile[144u + lid.y];
+            let b0 = vec4<f32>(w_tile[128u + lid.x]);
+            let b1 = vec4<f32>(w_tile[144u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[160u + lid.y];
+            let a1 = x_tile[176u + lid.y];
+            let b0 = vec4<f32>(w_tile[160u + lid.x]);
+            let b1 = vec4<f32>(w_tile[176u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[192u + lid.y];
+            let a1 = x_tile[208u + lid.y];
+            let b0 = vec4<f32>(w_tile[192u + lid.x]);
+            let b1 = vec4<f32>(w_tile[208u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[224u + lid.y];
+            let a1 = x_tile[240u + lid.y];
+            let b0 = vec4<f32>(w_tile[224u + lid.x]);
+            let b1 = vec4<f32>(w_tile[240u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        // END multiply_staged
         workgroupBarrier();
     }
+    // BEGIN block: written by tools/codegen/gen_tiles.py
+    let block = array<vec4<f32>, BLOCK>(sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8], sums[9], sums[10], sums[11], sums[12], sums[13], sums[14], sums[15]);
+    // END block
     for (var i = 0u; i < TILE_ROWS; i++) {
         for (var j = 0u; j < TILE_COLS4; j++) {
-            store_one(sums[i * TILE_COLS4 + j], pix0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j));
+            store_one(block[i * TILE_COLS4 + j], pix0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j));
         }
     }
 }

@@ -255,6 +255,19 @@ fn load_step(k: u32, k_end: u32, xa: u32, wa: u32, norm: RowNorm) -> Staged {
     return Staged(vec4<TileFloat>(x_staged(xa, k, norm)), vec4<TileFloat>(w[wa + k]));
 }
 
+// Stores vec4 `v` of the block at row `row`, vec4 column `c4` of out: finished (store4), or raw into split's
+// range of the partials.
+fn store_sum(row: u32, c4: u32, split: u32, v: vec4<f32>) {
+    if (row >= op_m() || c4 >= op_n4()) {
+        return;
+    }
+    if (op_splits() == 1u) {
+        store4(row, c4, v);
+    } else {
+        out[(split * op_m() + row) * op_n4() + c4] = v;
+    }
+}
+
 @compute @workgroup_size(16, 16)
 fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -279,24 +292,198 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         norm = row_norm(li, kk, xa);
     }
     var next = load_step(k_begin + kk, k_end, xa, wa, norm);
+    // This invocation's block of out (tiles.wgsl), in registers: only ever indexed by constants (gen_tiles.py says why).
+    var sums = array<vec4<f32>, BLOCK>();
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
         stage_step(li, next);
         workgroupBarrier();
         next = load_step(k0 + TILE_K4 + kk, k_end, xa, wa, norm);
-        multiply_staged(lid.x, lid.y);
+        // BEGIN multiply_staged: written by tools/codegen/gen_tiles.py
+        {
+            let a0 = x_tile[0u + lid.y];
+            let a1 = x_tile[16u + lid.y];
+            let b0 = vec4<f32>(w_tile[0u + lid.x]);
+            let b1 = vec4<f32>(w_tile[16u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[32u + lid.y];
+            let a1 = x_tile[48u + lid.y];
+            let b0 = vec4<f32>(w_tile[32u + lid.x]);
+            let b1 = vec4<f32>(w_tile[48u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[64u + lid.y];
+            let a1 = x_tile[80u + lid.y];
+            let b0 = vec4<f32>(w_tile[64u + lid.x]);
+            let b1 = vec4<f32>(w_tile[80u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[96u + lid.y];
+            let a1 = x_tile[112u + lid.y];
+            let b0 = vec4<f32>(w_tile[96u + lid.x]);
+            let b1 = vec4<f32>(w_tile[112u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[128u + lid.y];
+            let a1 = x_tile[144u + lid.y];
+            let b0 = vec4<f32>(w_tile[128u + lid.x]);
+            let b1 = vec4<f32>(w_tile[144u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[160u + lid.y];
+            let a1 = x_tile[176u + lid.y];
+            let b0 = vec4<f32>(w_tile[160u + lid.x]);
+            let b1 = vec4<f32>(w_tile[176u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[192u + lid.y];
+            let a1 = x_tile[208u + lid.y];
+            let b0 = vec4<f32>(w_tile[192u + lid.x]);
+            let b1 = vec4<f32>(w_tile[208u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        {
+            let a0 = x_tile[224u + lid.y];
+            let a1 = x_tile[240u + lid.y];
+            let b0 = vec4<f32>(w_tile[224u + lid.x]);
+            let b1 = vec4<f32>(w_tile[240u + lid.x]);
+            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
+            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
+            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
+            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
+            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
+            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
+            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
+            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
+            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
+            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
+            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
+            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
+            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
+            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
+            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
+            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+        }
+        // END multiply_staged
         workgroupBarrier();
     }
+    // BEGIN block: written by tools/codegen/gen_tiles.py
+    let block = array<vec4<f32>, BLOCK>(sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8], sums[9], sums[10], sums[11], sums[12], sums[13], sums[14], sums[15]);
+    // END block
     for (var i = 0u; i < TILE_ROWS; i++) {
-        let row = row0 + block_row(lid.y, i);
         for (var j = 0u; j < TILE_COLS4; j++) {
-            let c4 = tile * (TILE / 4u) + block_col4(lid.x, j);
-            if (row < op_m() && c4 < op_n4()) {
-                if (op_splits() == 1u) {
-                    store4(row, c4, sums[i * TILE_COLS4 + j]);
-                } else {
-                    out[(split * op_m() + row) * op_n4() + c4] = sums[i * TILE_COLS4 + j];
-                }
-            }
+            store_sum(row0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j), split, block[i * TILE_COLS4 + j]);
         }
     }
 }

@@ -5,8 +5,9 @@
 // `conv_tiled`, which this prelude is prepended to. A workgroup of 16 x 16 invocations computes a TILE x TILE
 // block of out; per step of TILE_K4 vec4s along K it stages TILE rows of x (or of the gathered input pixels) and
 // TILE rows of w here, invocation li one vec4 of each (row li / TILE_K4, vec4 li % TILE_K4 of the step), and every
-// invocation adds the step's outer products to its 8 x 8 block of out (`sums`): per float of K it
-// reads 2 vec4s of x's column and 2 of w's and takes 16 vec4 multiply-adds.
+// invocation adds the step's outer products to its 8 x 8 block of out (`sums`, a local array of the
+// entry point, between its BEGIN/END multiply_staged lines): per float of K it reads 2 vec4s of x's column and
+// 2 of w's and takes 16 vec4 multiply-adds.
 //
 // Both tiles are stored K-major, transposed as they are staged: vec4 k * (TILE / 4) + r / 4, lane r % 4 holds
 // float k of the step of row r. Invocation (tx, ty) owns rows 64 q + 4 ty + l (q < 2, l < 4) and vec4
@@ -30,8 +31,6 @@ const BLOCK: u32 = TILE_ROWS * TILE_COLS4;
 alias TileFloat = f32;
 var<workgroup> x_tile: array<vec4<TileFloat>, 256>;
 var<workgroup> w_tile: array<vec4<TileFloat>, 256>;
-// The invocation's sums, private: registers, as multiply_staged indexes them with constants.
-var<private> sums: array<vec4<f32>, BLOCK>;
 
 // The row of out (within the tile) of invocation row ty's block row i.
 fn block_row(ty: u32, i: u32) -> u32 {
@@ -66,182 +65,3 @@ fn stage_step(li: u32, s: Staged) {
     w_tile[at + 96u][lane] = s.w.w;
 }
 
-// The staged step's products added to invocation (tx, ty)'s block, K row by K row.
-fn multiply_staged(tx: u32, ty: u32) {
-    {
-        let a0 = x_tile[0u + ty];
-        let a1 = x_tile[16u + ty];
-        let b0 = vec4<f32>(w_tile[0u + tx]);
-        let b1 = vec4<f32>(w_tile[16u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[32u + ty];
-        let a1 = x_tile[48u + ty];
-        let b0 = vec4<f32>(w_tile[32u + tx]);
-        let b1 = vec4<f32>(w_tile[48u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[64u + ty];
-        let a1 = x_tile[80u + ty];
-        let b0 = vec4<f32>(w_tile[64u + tx]);
-        let b1 = vec4<f32>(w_tile[80u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[96u + ty];
-        let a1 = x_tile[112u + ty];
-        let b0 = vec4<f32>(w_tile[96u + tx]);
-        let b1 = vec4<f32>(w_tile[112u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[128u + ty];
-        let a1 = x_tile[144u + ty];
-        let b0 = vec4<f32>(w_tile[128u + tx]);
-        let b1 = vec4<f32>(w_tile[144u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[160u + ty];
-        let a1 = x_tile[176u + ty];
-        let b0 = vec4<f32>(w_tile[160u + tx]);
-        let b1 = vec4<f32>(w_tile[176u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[192u + ty];
-        let a1 = x_tile[208u + ty];
-        let b0 = vec4<f32>(w_tile[192u + tx]);
-        let b1 = vec4<f32>(w_tile[208u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-    {
-        let a0 = x_tile[224u + ty];
-        let a1 = x_tile[240u + ty];
-        let b0 = vec4<f32>(w_tile[224u + tx]);
-        let b1 = vec4<f32>(w_tile[240u + tx]);
-        sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-        sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-        sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-        sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-        sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-        sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-        sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-        sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-        sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-        sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-        sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-        sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-        sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-        sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-        sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-        sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
-    }
-}

@@ -19,6 +19,11 @@ fn generated_shaders_are_current() {
         let out = std::process::Command::new("python3").arg(&path).arg("--check").output().unwrap_or_else(|e| {
             panic!("python3 cannot be run ({e}): the shader tools/codegen/{script} writes cannot be checked")
         });
-        assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
 }

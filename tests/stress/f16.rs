@@ -79,7 +79,7 @@ fn f16_weights_stay_close_to_the_reference() {
 }
 
 /// f16 activations on the kernel they change (`MatmulKernel::Tiled`, the GPUs' own; forced here): the linear
-/// layers' inputs rounded to f16 and each K step's products summed in f16 add to f16 weights' error.
+/// layers' inputs rounded to f16 as they are staged add to f16 weights' error.
 #[test]
 fn f16_activations_stay_close_to_the_reference() {
     let _memory = crate::sharing_memory();

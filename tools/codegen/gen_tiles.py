@@ -1,10 +1,13 @@
 #!/usr/bin/env python3
-"""Writes shaders/tiles.wgsl, the workgroup-memory tiles of the GPU GEMMs (`MatmulKernel::Tiled`), unrolled.
+"""Writes the GPU GEMMs' tiles (`MatmulKernel::Tiled`): shaders/tiles.wgsl, and the multiply of a staged step,
+written out, into `linear_tiled` (shaders/matmul.wgsl) and `conv_tiled` (shaders/conv.wgsl) between their
+`BEGIN/END multiply_staged` lines, and the copy of the sums their stores loop over between `BEGIN/END block`.
 
-`linear_tiled` (shaders/matmul.wgsl) and `conv_tiled` (shaders/conv.wgsl) stage each step of K of their x (or
-gathered pixels) and w rows here and multiply it with `multiply_staged`, whose K steps this script writes out:
-on an H200 the same kernel ran at 14.8 TMAC/s with its 8 K steps written out and 11.8 with them in a loop (the
-GEMM lab of docs/PERFORMANCE.md), and WGSL has no loop that unrolls at compile time. Its sizes are the
+Why written out, in each entry point: the sums must be indexed by constants only, everywhere, or they leave
+registers; the stores loop over a copy (`let block = array(sums[0], ...)`, as ae17c0f's fast `linear_tiled` did).
+On an H200 (NVIDIA's Vulkan driver, the GEMM lab of docs/PERFORMANCE.md) the kernel ran at 14.8 TMAC/s with its 8
+K steps written out, 11.8 with them in a loop, and 1.1 whenever the stores indexed the sums themselves in a loop
+(or the sums were a private array); WGSL has no loop that unrolls at compile time, nor includes. Its sizes are the
 wrappers': TILED_TILE and TILED_K4 in crates/raypatch-engine/src/kernels/matmul.rs (and TILE in kernels/conv.rs,
 which must equal TILED_TILE), read from there. Change them there, run this, and commit both; `cargo test --test
 kernels shaders` fails when the shader is not what this script writes (`--check`).
@@ -18,6 +21,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 SHADER = ROOT / "shaders" / "tiles.wgsl"
+KERNELS = [ROOT / "shaders" / "matmul.wgsl", ROOT / "shaders" / "conv.wgsl"]
 ENGINE = ROOT / "crates" / "raypatch-engine" / "src"
 
 
@@ -48,8 +52,9 @@ HEADER = f"""\
 // `conv_tiled`, which this prelude is prepended to. A workgroup of 16 x 16 invocations computes a TILE x TILE
 // block of out; per step of TILE_K4 vec4s along K it stages TILE rows of x (or of the gathered input pixels) and
 // TILE rows of w here, invocation li one vec4 of each (row li / TILE_K4, vec4 li % TILE_K4 of the step), and every
-// invocation adds the step's outer products to its {ROWS} x {4 * COLS4} block of out (`sums`): per float of K it
-// reads {QUADS} vec4s of x's column and {COLS4} of w's and takes {ROWS * COLS4} vec4 multiply-adds.
+// invocation adds the step's outer products to its {ROWS} x {4 * COLS4} block of out (`sums`, a local array of the
+// entry point, between its BEGIN/END multiply_staged lines): per float of K it reads {QUADS} vec4s of x's column and
+// {COLS4} of w's and takes {ROWS * COLS4} vec4 multiply-adds.
 //
 // Both tiles are stored K-major, transposed as they are staged: vec4 k * (TILE / 4) + r / 4, lane r % 4 holds
 // float k of the step of row r. Invocation (tx, ty) owns rows 64 q + 4 ty + l (q < {QUADS}, l < 4) and vec4
@@ -78,8 +83,6 @@ def generate():
     s.append("alias TileFloat = f32;")
     s.append(f"var<workgroup> x_tile: array<vec4<TileFloat>, {TILE * TILE_K // 4}>;")
     s.append(f"var<workgroup> w_tile: array<vec4<TileFloat>, {TILE * TILE_K // 4}>;")
-    s.append("// The invocation's sums, private: registers, as multiply_staged indexes them with constants.")
-    s.append("var<private> sums: array<vec4<f32>, BLOCK>;")
     s.append("")
     s.append("// The row of out (within the tile) of invocation row ty's block row i.")
     s.append("fn block_row(ty: u32, i: u32) -> u32 {")
@@ -110,32 +113,61 @@ def generate():
         s.append(f"    w_tile[at{off}][lane] = s.w.{comp};")
     s.append("}")
     s.append("")
-    s.append("// The staged step's products added to invocation (tx, ty)'s block, K row by K row.")
-    s.append("fn multiply_staged(tx: u32, ty: u32) {")
+    return "\n".join(s) + "\n"
+
+
+def multiply(indent):
+    """The staged step's products added to invocation (lid.x, lid.y)'s `sums`, K row by K row."""
+    s = []
     for k in range(TILE_K):
-        s.append("    {")
+        s.append("{")
         for q in range(QUADS):
-            s.append(f"        let a{q} = x_tile[{k * LINES + 16 * q}u + ty];")
+            s.append(f"    let a{q} = x_tile[{k * LINES + 16 * q}u + lid.y];")
         for j in range(COLS4):
-            s.append(f"        let b{j} = vec4<f32>(w_tile[{k * LINES + 16 * j}u + tx]);")
+            s.append(f"    let b{j} = vec4<f32>(w_tile[{k * LINES + 16 * j}u + lid.x]);")
         for q in range(QUADS):
             for lane, comp in enumerate("xyzw"):
                 for j in range(COLS4):
                     i = (4 * q + lane) * COLS4 + j
-                    s.append(f"        sums[{i}] = fma(vec4<f32>(f32(a{q}.{comp})), b{j}, sums[{i}]);")
-        s.append("    }")
-    s.append("}")
-    return "\n".join(s) + "\n"
+                    s.append(f"    sums[{i}] = fma(vec4<f32>(f32(a{q}.{comp})), b{j}, sums[{i}]);")
+        s.append("}")
+    return "".join(f"{indent}{line}\n" for line in s)
+
+
+def block(indent):
+    """The sums copied into `block`, by constant indices, for the stores' loops to index."""
+    values = ", ".join(f"sums[{k}]" for k in range(ROWS * COLS4))
+    return f"{indent}let block = array<vec4<f32>, BLOCK>({values});\n"
+
+
+def written_out(text, path, name, body):
+    """`text` (a kernel's source) with the lines between its BEGIN and END `name` lines replaced by body(indent)."""
+    begin_line = f"// BEGIN {name}: written by tools/codegen/gen_tiles.py"
+    begin, end = text.find(begin_line), text.find(f"// END {name}")
+    if begin < 0 or end < begin:
+        sys.exit(f"gen_tiles: {path} has no `{begin_line}` line followed by `// END {name}`")
+    indent = text[text.rfind("\n", 0, begin) + 1:begin]
+    body_start = text.index("\n", begin) + 1
+    return text[:body_start] + body(indent) + text[text.rfind("\n", 0, end) + 1:]
+
+
+def kernel(path):
+    text = written_out(path.read_text(), path, "multiply_staged", multiply)
+    return written_out(text, path, "block", block)
 
 
 def main():
-    text = generate()
+    files = {SHADER: generate()}
+    files.update({path: kernel(path) for path in KERNELS})
     if "--check" in sys.argv[1:]:
-        if SHADER.read_text() != text:
-            print(f"{SHADER} is not what tools/codegen/gen_tiles.py writes: run it and commit the shader")
+        stale = [path for path, text in files.items() if path.read_text() != text]
+        if stale:
+            names = ", ".join(str(p.relative_to(ROOT)) for p in stale)
+            print(f"{names}: not what tools/codegen/gen_tiles.py writes: run it and commit the shaders")
             sys.exit(1)
         return
-    SHADER.write_text(text)
+    for path, text in files.items():
+        path.write_text(text)
 
 
 if __name__ == "__main__":

@@ -129,7 +129,7 @@ struct Args {
         .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
     matmul_kernel: Option<MatmulKernel>,
     /// `f32` (default); `f16`: linear weights stored as f16; `f16-act`: and, on GPUs, the linear layers' inputs
-    /// staged as f16 with each step's products summed in f16 (faster; rgb within ~1e-2). f16 needs shader-f16.
+    /// staged as f16 (sums in f32; rgb within ~1e-2). f16 needs shader-f16.
     #[arg(long, value_name = "P", default_value = "f32", value_parser = PossibleValuesParser::new(Precision::ALL.map(Precision::name))
         .map(|name: String| Precision::from_name(&name).unwrap_or_default()))]
     precision: Precision,
