@@ -194,7 +194,11 @@ fn flash_split(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     out[at + dh + 1u] = row.l;
 }
 
-// `combine`: the partials at binding 1, the output at binding 2; one invocation per (query, head).
+// `combine`: the partials at binding 1, the output at binding 2; one invocation per float of the output (column c
+// of query row i: float c % dim_head of head c / dim_head, or row padding), so that a (query, head)'s floats merge
+// in parallel rather than one after another (300 queries x 12 heads are too few invocations to fill a GPU). Each
+// takes its head's max over the splits, then its float and the head's sum in one pass (the reads of m and l are
+// shared by the head's invocations through the cache).
 @group(0) @binding(1) var<storage, read> partials: array<f32>;
 @group(0) @binding(2) var<storage, read_write> combined: array<f32>;
 
@@ -202,34 +206,29 @@ fn flash_split(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
 fn combine(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
     let index = (wid.x + wid.y * nwg.x) * WG + lid;
-    if (index >= p.nq * p.heads) {
+    if (index >= p.nq * p.out_ld) {
         return;
     }
-    let i = index / p.heads;
-    let h = index % p.heads;
+    let i = index / p.out_ld;
+    let c = index % p.out_ld;
     let dh = p.dim_head;
-    let head = h * (dh + 2u);
+    if (c >= p.heads * dh) {
+        combined[index] = 0.0;
+        return;
+    }
+    let head = (c / dh) * (dh + 2u);
+    let d = c % dh;
     var m = NEG_BIG;
     for (var s = 0u; s < p.splits; s++) {
         m = max(m, partials[(s * p.nq + i) * p.partial_ld + head + dh]);
     }
     var l = 0.0;
+    var o = 0.0;
     for (var s = 0u; s < p.splits; s++) {
         let at = (s * p.nq + i) * p.partial_ld + head;
-        l += exp(partials[at + dh] - m) * partials[at + dh + 1u];
+        let weight = exp(partials[at + dh] - m);
+        l += weight * partials[at + dh + 1u];
+        o += weight * partials[at + d];
     }
-    let inv_l = 1.0 / l;
-    for (var d = 0u; d < dh; d++) {
-        var o = 0.0;
-        for (var s = 0u; s < p.splits; s++) {
-            let at = (s * p.nq + i) * p.partial_ld + head;
-            o += exp(partials[at + dh] - m) * partials[at + d];
-        }
-        combined[i * p.out_ld + h * dh + d] = o * inv_l;
-    }
-    if (h + 1u == p.heads) {
-        for (var c = p.heads * dh; c < p.out_ld; c++) {
-            combined[i * p.out_ld + c] = 0.0;
-        }
-    }
+    combined[index] = o / l;
 }

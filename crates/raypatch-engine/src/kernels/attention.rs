@@ -211,7 +211,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         params: params.words(),
         bindings: vec![(partials, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
-        workgroups: grid((q.rows * heads).div_ceil(FLASH_ROWS)),
+        workgroups: grid((q.rows * params.out_ld as usize).div_ceil(FLASH_ROWS)),
         constants: Vec::new(),
         multiply_adds: 0,
     });
