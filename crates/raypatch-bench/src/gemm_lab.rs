@@ -14,32 +14,12 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use raypatch_engine::kernels::matmul::MatmulParams;
 use raypatch_engine::Gpu;
 use raypatch_reference::Rng;
 use wgpu::util::DeviceExt;
 
 use crate::gemm::SHAPES;
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    m: u32,
-    n: u32,
-    k4: u32,
-    n4: u32,
-    act: u32,
-    slope: f32,
-    has_bias: u32,
-    accumulate: u32,
-    w_ld4: u32,
-    splits: u32,
-    k_split4: u32,
-    m_tiles: u32,
-    norm: u32,
-    norm_cols: u32,
-    eps: f32,
-    pad: u32,
-}
 
 struct Variant {
     name: String,
@@ -151,7 +131,7 @@ fn time_variant(
     let wanted = if v.auto_split { 264usize.div_ceil(tiles).clamp(1, (k4 / 32).max(1)) } else { 1 };
     let k_split4 = k4.div_ceil(wanted).div_ceil(8) * 8;
     let splits = k4.div_ceil(k_split4);
-    let params = Params {
+    let params = MatmulParams {
         m: m as u32,
         n: n as u32,
         k4: k4 as u32,
@@ -167,13 +147,12 @@ fn time_variant(
         norm: 0,
         norm_cols: k as u32,
         eps: 1e-5,
-        pad: 0,
     };
     let buffer = |label: &str, contents: &[u8], usage| {
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     };
     let storage = wgpu::BufferUsages::STORAGE;
-    let uniform = buffer("params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM);
+    let uniform = buffer("params", bytemuck::cast_slice(&params.words()), wgpu::BufferUsages::UNIFORM);
     let (xb, wb, bb) = (
         buffer("x", bytemuck::cast_slice(&x), storage),
         buffer("w", bytemuck::cast_slice(&w), storage),
