@@ -17,8 +17,8 @@
 // The tiles hold f32, or f16 in the f16-activation variant (`matmul_f16_act`, `Precision::F16Activations`, which
 // replaces TileFloat): x and w are rounded to f16 as they are staged; the products are summed in f32 either way.
 //
-// Measured on an H200 (the GEMM lab): 128 x 128 tiles with 8 x 8 outputs an invocation, 8 floats of K a step,
-// 14.8 TMAC/s on 4800x768x2304 (cuBLAS 19.7); 64 x 64 tiles with 4 x 4, 10.9.
+// This tiling in the GEMM lab on an H200 (docs/PERFORMANCE.md; not yet this file on a GPU): 128 x 128 tiles, 8 x 8
+// outputs an invocation, 8 floats of K a step: 14.8 TMAC/s on 4800x768x2304 (cuBLAS 19.7); 64 x 64 tiles, 4 x 4: 10.9.
 
 const TILE: u32 = 128u;
 // vec4s of K per step.
