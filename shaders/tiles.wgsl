@@ -26,7 +26,7 @@ const TILE_K4: u32 = 2u;
 // Rows and vec4 columns of out per invocation.
 const TILE_ROWS: u32 = 8u;
 const TILE_COLS4: u32 = 2u;
-// vec4s of out per invocation: sums[i * TILE_COLS4 + j] is row block_row(ty, i), vec4 column block_col4(tx, j).
+// vec4s of out per invocation: vec4 i * TILE_COLS4 + j of its sums is row block_row(ty, i), vec4 column block_col4(tx, j).
 const BLOCK: u32 = TILE_ROWS * TILE_COLS4;
 alias TileFloat = f32;
 var<workgroup> x_tile: array<vec4<TileFloat>, 256>;

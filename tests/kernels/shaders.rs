@@ -27,3 +27,20 @@ fn generated_shaders_are_current() {
         );
     }
 }
+
+/// The tiled GEMMs' sums are only ever indexed by constants: on NVIDIA's Vulkan driver one loop over them (the
+/// stores of an earlier `linear_tiled`) put them in memory, 13x slower on an H200 (docs/PERFORMANCE.md).
+#[test]
+fn tiled_sums_are_indexed_by_constants_only() {
+    for shader in [&raypatch_engine::kernels::MATMUL, &raypatch_engine::kernels::CONV] {
+        let source = shader.wgsl();
+        let mut uses = 0;
+        for (at, _) in source.match_indices("sums[") {
+            let index = &source[at + 5..];
+            let digits = index.bytes().take_while(u8::is_ascii_digit).count();
+            assert!(digits > 0 && index.as_bytes()[digits] == b']', "{}: sums[{}", shader.name, &index[..20]);
+            uses += 1;
+        }
+        assert!(uses > 0, "{}: no `sums[` found", shader.name);
+    }
+}

@@ -77,8 +77,8 @@ def generate():
     s.append("// Rows and vec4 columns of out per invocation.")
     s.append(f"const TILE_ROWS: u32 = {ROWS}u;")
     s.append(f"const TILE_COLS4: u32 = {COLS4}u;")
-    s.append("// vec4s of out per invocation: sums[i * TILE_COLS4 + j] is row block_row(ty, i), vec4 column "
-             "block_col4(tx, j).")
+    s.append("// vec4s of out per invocation: vec4 i * TILE_COLS4 + j of its sums is row block_row(ty, i), vec4 "
+             "column block_col4(tx, j).")
     s.append("const BLOCK: u32 = TILE_ROWS * TILE_COLS4;")
     s.append("alias TileFloat = f32;")
     s.append(f"var<workgroup> x_tile: array<vec4<TileFloat>, {TILE * TILE_K // 4}>;")
