@@ -21,6 +21,7 @@ use wgpu::util::DeviceExt;
 
 use crate::gemm::SHAPES;
 
+#[derive(Debug)]
 struct Variant {
     name: String,
     file: String,
