@@ -255,7 +255,7 @@ fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
 
 /// Workgroups that keep a large GPU busy, two per multiprocessor of an H100 or H200 (132): a `linear_tiled` with
 /// fewer output tiles than this has its K split among workgroups (on an H200, 300x1536x1536 in 8 ranges: 8.7
-/// TMAC/s against 2.4 unsplit; cuBLAS 9.3).
+/// TMAC/s against 3.3 unsplit; cuBLAS 9.3; the GEMM lab of docs/PERFORMANCE.md).
 const TILED_TARGET_GROUPS: usize = 264;
 /// vec4s of K per step of `linear_tiled` (`TILE_K4` in `shaders/tiles.wgsl`).
 const TILED_K4: usize = 2;
