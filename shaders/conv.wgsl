@@ -54,6 +54,10 @@ struct Params {
     cout_tiles: u32,
     // Pixel tiles: ceil(npix / (64 * PX)) for `conv2d`, ceil(npix / TILE) for `conv_tiled`.
     pixel_tiles: u32,
+    // `conv_tiled` only: the weight row (K) cut into `splits` ranges of k_split4 vec4s (a multiple of TILE_K4), one
+    // per workgroup, when the output's tiles are too few to fill a GPU; `conv_reduce` adds them up.
+    splits: u32,
+    k_split4: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -219,9 +223,9 @@ fn gather(win: Window, kk: u32) -> vec4<f32> {
     return x[((win.img + (u32(iy) >> p.up)) * p.w + (u32(ix) >> p.up)) * p.cin4 + kk % p.cin4];
 }
 
-// The step at vec4 `at` of the weight row for the pixel's window `win` and of w's row at `wa`; zeros past k4.
-fn gather_step(at: u32, k4: u32, win: Window, wa: u32) -> Staged {
-    if (at >= k4) {
+// The step at vec4 `at` of the weight row for the pixel's window `win` and of w's row at `wa`; zeros past k_end.
+fn gather_step(at: u32, k_end: u32, win: Window, wa: u32) -> Staged {
+    if (at >= k_end) {
         return Staged();
     }
     return Staged(gather(win, at), w[wa + at]);
@@ -232,9 +236,11 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
               @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let group = wid.x + wid.y * nwg.x;
     let tile = group % p.cout_tiles;
-    let pix0 = (group / p.cout_tiles) * TILE;
+    let rest = group / p.cout_tiles;
+    let pix0 = (rest % p.pixel_tiles) * TILE;
+    let split = rest / p.pixel_tiles;
     // The same for every invocation of the workgroup, so the barriers below stay in uniform control flow.
-    if (pix0 >= p.npix) {
+    if (split >= p.splits) {
         return;
     }
     // This invocation loads row li / TILE_K4 of both tiles (a pixel, and an output channel), at vec4 kk of each
@@ -242,14 +248,16 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     let kk = li % TILE_K4;
     let win = window_of(pix0 + li / TILE_K4);
     let k4 = p.k * p.k * p.cin4;
+    let k_begin = split * p.k_split4;
+    let k_end = min(k4, k_begin + p.k_split4);
     let wa = min(tile * TILE + li / TILE_K4, p.cout - 1u) * k4;
-    var next = gather_step(kk, k4, win, wa);
+    var next = gather_step(k_begin + kk, k_end, win, wa);
     // This invocation's block of out (tiles.wgsl), in registers: only ever indexed by constants (gen_tiles.py says why).
     var sums = array<vec4<f32>, BLOCK>();
-    for (var k0 = 0u; k0 < k4; k0 += TILE_K4) {
+    for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
         stage_step(li, next);
         workgroupBarrier();
-        next = gather_step(k0 + TILE_K4 + kk, k4, win, wa);
+        next = gather_step(k0 + TILE_K4 + kk, k_end, win, wa);
         // BEGIN multiply_staged: written by tools/codegen/gen_tiles.py
         {
             let a0 = x_tile[0u + lid.y];
@@ -435,7 +443,33 @@ fn conv_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
     // END block
     for (var i = 0u; i < TILE_ROWS; i++) {
         for (var j = 0u; j < TILE_COLS4; j++) {
-            store_one(block[i * TILE_COLS4 + j], pix0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j));
+            let pix = pix0 + block_row(lid.y, i);
+            let col = tile * (TILE / 4u) + block_col4(lid.x, j);
+            if (p.splits == 1u) {
+                store_one(block[i * TILE_COLS4 + j], pix, col);
+            } else if (pix < p.npix && col < p.cout4) {
+                out[(split * p.npix + pix) * p.cout4 + col] = block[i * TILE_COLS4 + j];
+            }
         }
     }
+}
+
+// `conv_reduce`: the K ranges of a split `conv_tiled` added up and finished into out (store_one: bias, residual,
+// activation, accumulation), an invocation per vec4 of out. Bindings as for the other entry points, the
+// partials ([splits * npix, cout4] vec4s) in place of x (w is not read).
+@compute @workgroup_size(64)
+fn conv_reduce(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_index) lid: u32) {
+    _ = w[0];
+    let index = (wid.x + wid.y * nwg.x) * WG + lid;
+    if (index >= p.npix * p.cout4) {
+        return;
+    }
+    let pix = index / p.cout4;
+    let col = index % p.cout4;
+    var sum = vec4<f32>(0.0);
+    for (var s = 0u; s < p.splits; s++) {
+        sum += x[(s * p.npix + pix) * p.cout4 + col];
+    }
+    store_one(sum, pix, col);
 }

@@ -350,3 +350,23 @@ fn conv3x3_grid_spills_into_y() {
     }
     .check(&mut rng);
 }
+
+/// On `Tiled`, a convolution whose output has too few 128x128 tiles to fill a GPU splits its weight row (K) among
+/// workgroups and adds the ranges up in `conv_reduce`, which finishes them (every mode: the random shapes and
+/// model channel counts above run split on `Tiled`); one whose tiles are enough runs in one dispatch.
+#[test]
+fn conv_tiled_splits_k_when_tiles_are_few() {
+    for (h, w, cin, cout, splits) in [(30, 40, 192, 384, true), (120, 160, 3, 96, false)] {
+        let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu().kernels };
+        let x = plan.transient("x", h * w, cin);
+        let weight = plan.transient("w", cout, 9 * padded_cols(cin));
+        let out = plan.transient("out", h * w, cout);
+        let (x, out) = (plan.all(x), plan.all(out));
+        let (act, mode, window) = (Activation::Relu, ConvMode::Overwrite, k3(1));
+        let args =
+            Conv2dArgs { x, n: 1, h, w, cin, weight, bias: None, out, cout, window, upsample_input: false, act, mode };
+        conv2d(&mut plan, "conv", args);
+        assert_eq!(plan.op_kernels().any(|k| k.ends_with(".conv_reduce")), splits, "{h}x{w}, {cin} -> {cout}");
+    }
+}

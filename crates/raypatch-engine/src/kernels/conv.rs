@@ -7,7 +7,7 @@
 //! `conv.wgsl`'s register-blocked `conv2d`.
 
 use crate::device::{conv_variant, MatmulKernel};
-use crate::kernels::matmul::{gemm_lanes, lanes_fit, LANES_COLS};
+use crate::kernels::matmul::{gemm_lanes, k_ranges, k_splits, lanes_fit, LANES_COLS};
 use crate::kernels::pack::Packing;
 use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder};
@@ -69,6 +69,10 @@ params! {
         cout_tiles: u32,
         /// Pixel tiles (per entry point: see the shader).
         pixel_tiles: u32,
+        /// `conv_tiled`: the weight row (K) cut into `splits` ranges of `k_split4` vec4s, one per workgroup, when
+        /// the output's tiles are too few to fill a GPU (`kernels::matmul::k_splits`); `conv_reduce` adds them.
+        splits: u32,
+        k_split4: u32,
     }
 }
 
@@ -128,6 +132,10 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
             (&CONV, "conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
         }
     };
+    // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).
+    let k4 = taps * padded_cols(cin) / 4;
+    let (splits, k_split4) =
+        if entry == "conv_tiled" { k_ranges(k_splits(pixel_tiles * cout_tiles, k4), k4) } else { (1, k4) };
     let (act_code, slope) = act.params();
     let params = ConvParams {
         h: h as u32,
@@ -148,23 +156,47 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
         npix: npix as u32,
         cout_tiles: cout_tiles as u32,
         pixel_tiles: pixel_tiles as u32,
+        splits: splits as u32,
+        k_split4: k_split4 as u32,
     };
     let weight_view = plan.all(weight);
     let bias_view = bias.map_or(weight_view, |b| plan.all(b));
+    let out_access = if mode.reads_out() { Access::ReadWrite } else { Access::Write };
+    let multiply_adds = (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64);
+    // Split K: each range's raw sums into the partials, then one pass adding them up and finishing into out.
+    let (written, op_label) = if splits == 1 {
+        ((out, out_access), label.to_string())
+    } else {
+        let partials = plan.transient(&format!("{label}.partials"), splits * npix, cout);
+        ((plan.all(partials), Access::Write), format!("{label}.split"))
+    };
     plan.push(Op {
-        label: label.to_string(),
+        label: op_label,
         shader,
         entry,
         params: params.words(),
-        bindings: vec![
-            (x, Access::Read),
-            (weight_view, Access::Read),
-            (bias_view, Access::Read),
-            (out, if mode.reads_out() { Access::ReadWrite } else { Access::Write }),
-        ],
+        bindings: vec![(x, Access::Read), (weight_view, Access::Read), (bias_view, Access::Read), written],
         textures: Vec::new(),
-        workgroups: grid(pixel_tiles * cout_tiles),
+        workgroups: grid(pixel_tiles * cout_tiles * splits),
         constants: Vec::new(),
-        multiply_adds: (npix as u64) * (cout as u64) * (taps as u64) * (cin as u64),
+        multiply_adds,
     });
+    if splits > 1 {
+        plan.push(Op {
+            label: format!("{label}.reduce"),
+            shader,
+            entry: "conv_reduce",
+            params: params.words(),
+            bindings: vec![
+                (written.0, Access::Read),
+                (weight_view, Access::Read),
+                (bias_view, Access::Read),
+                (out, out_access),
+            ],
+            textures: Vec::new(),
+            workgroups: grid((npix * cout4).div_ceil(64)),
+            constants: Vec::new(),
+            multiply_adds: 0,
+        });
+    }
 }

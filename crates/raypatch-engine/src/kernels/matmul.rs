@@ -198,8 +198,8 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let (written, op_label, op_groups) = if splits == 1 {
         ((out, out_access), label.to_string(), groups)
     } else {
-        params.k_split4 = (k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4) as u32;
-        params.splits = k4.div_ceil(params.k_split4 as usize) as u32;
+        let (splits, k_split4) = k_ranges(splits, k4);
+        (params.splits, params.k_split4) = (splits as u32, k_split4 as u32);
         let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
         ((plan.all(partials), Access::Write), format!("{label}.split"), groups * params.splits as usize)
     };
@@ -266,6 +266,13 @@ const TILED_MIN_SPLIT_K4: usize = 32;
 /// `TILED_TARGET_GROUPS` workgroups, each range at least `TILED_MIN_SPLIT_K4` vec4s long.
 pub fn k_splits(groups: usize, k4: usize) -> usize {
     splits_to_fill(groups, TILED_TARGET_GROUPS, k4 / TILED_MIN_SPLIT_K4)
+}
+
+/// K of `k4` vec4s cut into about `splits` ranges of whole steps: (ranges, vec4s a range), the last range possibly
+/// shorter. For `linear_tiled` and `conv_tiled`.
+pub fn k_ranges(splits: usize, k4: usize) -> (usize, usize) {
+    let k_split4 = k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4;
+    (k4.div_ceil(k_split4), k_split4)
 }
 
 params! {
