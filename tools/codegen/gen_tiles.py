@@ -8,8 +8,8 @@ registers; the stores loop over a copy (`let block = array(sums[0], ...)`, as ae
 On an H200 (NVIDIA's Vulkan driver, the GEMM lab of docs/PERFORMANCE.md) the kernel ran at 14.8 TMAC/s with its 8
 K steps written out, 11.8 with them in a loop, and 1.1 whenever the stores indexed the sums themselves in a loop
 (or the sums were a private array); WGSL has no loop that unrolls at compile time, nor includes. Its sizes are the
-wrappers': TILED_TILE and TILED_K4 in crates/raypatch-engine/src/kernels/matmul.rs (and TILE in kernels/conv.rs,
-which must equal TILED_TILE), read from there. Change them there, run this, and commit both; `cargo test --test
+wrappers': TILED_TILE and TILED_K4 in crates/raypatch-engine/src/kernels/matmul.rs (conv.rs uses them too), read
+from there. Change them there, run this, and commit both; `cargo test --test
 kernels shaders` fails when the shader is not what this script writes (`--check`).
 
     python3 tools/codegen/gen_tiles.py          # rewrite the shader
@@ -26,7 +26,7 @@ ENGINE = ROOT / "crates" / "raypatch-engine" / "src"
 
 
 def rust_const(file, name):
-    """The integer value of `const NAME: usize = N;` in the engine's source file `file`."""
+    """The integer value of `[pub(crate)] const NAME: usize = N;` in the engine's source file `file`."""
     match = re.search(rf"\bconst {name}: usize = (\d+);", (ENGINE / file).read_text())
     if not match:
         sys.exit(f"gen_tiles: no `const {name}: usize` with an integer value in {ENGINE / file}")
@@ -36,8 +36,6 @@ def rust_const(file, name):
 # Rows and columns of out per workgroup of 16 x 16 invocations; floats of K per step.
 TILE = rust_const("kernels/matmul.rs", "TILED_TILE")
 TILE_K = 4 * rust_const("kernels/matmul.rs", "TILED_K4")
-if rust_const("kernels/conv.rs", "TILE") != TILE:
-    sys.exit("gen_tiles: TILE in kernels/conv.rs differs from TILED_TILE in kernels/matmul.rs")
 # Rows and vec4 columns of out per invocation.
 ROWS = TILE // 16
 COLS4 = TILE // 64

@@ -5,8 +5,8 @@
 //! DIR holds the kernels and `manifest.txt` (written by `tools/bench/gemm_lab.py`), a line per variant:
 //! `name file entry tile_m tile_n bindings splits`. Every kernel takes `shaders/matmul.wgsl`'s uniform and its
 //! bindings 0-4 (and 5-6 when `bindings` is 7: gamma and beta, bound to the bias here), numbers its workgroups
-//! `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x ceil(n / tile_n) tiles times `splits` K ranges (`auto`: enough
-//! ranges for 264 workgroups, each at least 128 floats), and writes split s's sums to rows s·m.. of out (the
+//! `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x ceil(n / tile_n) tiles times `splits` K ranges (`auto`: as the
+//! engine splits them, `kernels::matmul::split_k`), and writes split s's sums to rows s·m.. of out (the
 //! engine's `linear_tiled` adds the bias in `linear_reduce`, so for it, named `engine*`, the check adds it).
 
 use std::fmt::Write as _;
@@ -14,7 +14,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use raypatch_engine::kernels::matmul::MatmulParams;
+use raypatch_engine::kernels::matmul::{split_k, MatmulParams};
 use raypatch_engine::Gpu;
 use raypatch_reference::Rng;
 use wgpu::util::DeviceExt;
@@ -129,9 +129,7 @@ fn time_variant(
     bias.resize(n4 * 4, 0.0);
     let m_tiles = m.div_ceil(v.tile.0);
     let tiles = m_tiles * n.div_ceil(v.tile.1);
-    let wanted = if v.auto_split { 264usize.div_ceil(tiles).clamp(1, (k4 / 32).max(1)) } else { 1 };
-    let k_split4 = k4.div_ceil(wanted).div_ceil(8) * 8;
-    let splits = k4.div_ceil(k_split4);
+    let (splits, k_split4) = if v.auto_split { split_k(tiles, k4) } else { (1, k4) };
     let params = MatmulParams {
         m: m as u32,
         n: n as u32,

@@ -127,8 +127,8 @@ pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) ->
 }
 
 /// What a linear layer running on `variant` with f16 or f32 weights stages in its workgroup tiles: f16 (inputs
-/// rounded to f16 as they are staged, the products summed in f32) where the model asks for f16 activations and the layer runs on
-/// `Tiled` with f16 weights (a layer kept f32 for its range stays f32 throughout); else f32.
+/// rounded to f16 as they are staged, the products summed in f32) where the model asks for f16 activations and
+/// the layer runs on `Tiled` with f16 weights (a layer kept f32 for its range stays f32 throughout); else f32.
 pub fn linear_tiles(choice: &KernelChoice, variant: MatmulKernel, f16_weights: bool) -> TileElement {
     if choice.f16_activations && variant == MatmulKernel::Tiled && f16_weights {
         TileElement::F16

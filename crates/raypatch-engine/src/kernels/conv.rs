@@ -7,7 +7,7 @@
 //! `conv.wgsl`'s register-blocked `conv2d`.
 
 use crate::device::{conv_variant, MatmulKernel};
-use crate::kernels::matmul::{gemm_lanes, k_ranges, k_splits, lanes_fit, LANES_COLS};
+use crate::kernels::matmul::{gemm_lanes, lanes_fit, split_k, LANES_COLS, TILED_TILE};
 use crate::kernels::pack::Packing;
 use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV};
 use crate::plan::{grid, Access, Op, PlanBuilder};
@@ -17,8 +17,6 @@ use crate::tensor::padded_cols;
 const PIXELS_PER_INVOCATION: usize = 8;
 /// Vec4s of output channels per invocation (`CV` in the shader).
 const COUT_VEC4S_PER_INVOCATION: usize = 2;
-/// Output pixels and channels per workgroup of `conv_tiled` (`TILE` in `shaders/tiles.wgsl`).
-const TILE: usize = 128;
 
 /// Repacks a PyTorch conv weight [cout, cin, k, k] (row-major) into the kernel's layout, returned as a
 /// row-major [cout, k*k * padded_cols(cin)] matrix: for each output channel, the k*k taps (ky, kx row-major),
@@ -70,7 +68,7 @@ params! {
         /// Pixel tiles (per entry point: see the shader).
         pixel_tiles: u32,
         /// `conv_tiled`: the weight row (K) cut into `splits` ranges of `k_split4` vec4s, one per workgroup, when
-        /// the output's tiles are too few to fill a GPU (`kernels::matmul::k_splits`); `conv_reduce` adds them.
+        /// the output's tiles are too few to fill a GPU (`kernels::matmul::split_k`); `conv_reduce` adds them.
         splits: u32,
         k_split4: u32,
     }
@@ -127,15 +125,14 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let cout4 = padded_cols(cout) / 4;
     let (shader, entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, || lanes_suit(plan, &args)) {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
-        MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILE / 4), npix.div_ceil(TILE)),
+        MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
         MatmulKernel::Rows => {
             (&CONV, "conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
         }
     };
     // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).
     let k4 = taps * padded_cols(cin) / 4;
-    let (splits, k_split4) =
-        if entry == "conv_tiled" { k_ranges(k_splits(pixel_tiles * cout_tiles, k4), k4) } else { (1, k4) };
+    let (splits, k_split4) = if entry == "conv_tiled" { split_k(pixel_tiles * cout_tiles, k4) } else { (1, k4) };
     let (act_code, slope) = act.params();
     let params = ConvParams {
         h: h as u32,

@@ -24,8 +24,9 @@ const LANES_BAND: usize = 8;
 /// Rows and columns of `out` one workgroup of `linear` computes: 64 invocations x 4 rows (`WG * ROWS` in
 /// the shader) by an 8-column tile of w.
 const ROWS_TILE: (usize, usize) = (256, 8);
-/// Rows and columns of `out` one workgroup of `linear_tiled` computes (`TILE` in `shaders/tiles.wgsl`).
-const TILED_TILE: usize = 128;
+/// Rows and columns of `out` one workgroup of `linear_tiled` or `conv_tiled` computes (`TILE` in
+/// `shaders/tiles.wgsl`).
+pub(crate) const TILED_TILE: usize = 128;
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -154,7 +155,6 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         act,
         mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
     };
-    let tiled_groups = m.div_ceil(TILED_TILE) * padded_cols(n).div_ceil(TILED_TILE);
     let variant = linear_variant(&plan.kernels, n, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
     // The norm in the prologue is linear_tiled's, with f32 tiles (it sums rows' statistics in them).
@@ -193,15 +193,14 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         bindings.extend([(gamma, Access::Read), (beta, Access::Read)]);
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
-    let splits = if variant == MatmulKernel::Tiled { k_splits(tiled_groups, k4) } else { 1 };
+    let (splits, k_split4) = if variant == MatmulKernel::Tiled { split_k(groups, k4) } else { (1, k4) };
+    (params.splits, params.k_split4) = (splits as u32, k_split4 as u32);
     // Split K: each range's raw sums into the partials, then one pass adding them up into out.
     let (written, op_label, op_groups) = if splits == 1 {
         ((out, out_access), label.to_string(), groups)
     } else {
-        let (splits, k_split4) = k_ranges(splits, k4);
-        (params.splits, params.k_split4) = (splits as u32, k_split4 as u32);
-        let partials = plan.transient(&format!("{label}.partials"), params.splits as usize * m, padded_cols(n));
-        ((plan.all(partials), Access::Write), format!("{label}.split"), groups * params.splits as usize)
+        let partials = plan.transient(&format!("{label}.partials"), splits * m, padded_cols(n));
+        ((plan.all(partials), Access::Write), format!("{label}.split"), groups * splits)
     };
     bindings.insert(3, written);
     let constants = if fixed_shapes(variant) { fixed_shape(&params) } else { Vec::new() };
@@ -268,10 +267,11 @@ pub fn k_splits(groups: usize, k4: usize) -> usize {
     splits_to_fill(groups, TILED_TARGET_GROUPS, k4 / TILED_MIN_SPLIT_K4)
 }
 
-/// K of `k4` vec4s cut into about `splits` ranges of whole steps: (ranges, vec4s a range), the last range possibly
-/// shorter. For `linear_tiled` and `conv_tiled`.
-pub fn k_ranges(splits: usize, k4: usize) -> (usize, usize) {
-    let k_split4 = k4.div_ceil(splits).div_ceil(TILED_K4) * TILED_K4;
+/// How a `Tiled` GEMM (`linear_tiled`, `conv_tiled`, the GEMM lab's kernels) with an output of `groups` tiles
+/// cuts a K of `k4` vec4s: ([`k_splits`] ranges of whole steps, vec4s a range), the last range possibly shorter;
+/// (1, k4) when the tiles are enough.
+pub fn split_k(groups: usize, k4: usize) -> (usize, usize) {
+    let k_split4 = k4.div_ceil(k_splits(groups, k4)).div_ceil(TILED_K4) * TILED_K4;
     (k4.div_ceil(k_split4), k_split4)
 }
 
