@@ -94,7 +94,10 @@ pub fn run(gpu: &Gpu, dir: &Path, only: &[String]) -> Result<String> {
             cache: None,
         });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            bail!("{}: entry point {}: {e}", path.display(), v.entry);
+            // wgpu's report spans lines (the cause, naga's diagnostic with the source): one line of it.
+            let report = e.to_string();
+            let detail: Vec<&str> = report.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+            bail!("{}: entry point {}: {}", path.display(), v.entry, detail.join("; "));
         }
         for &shape in &shapes {
             let (ms, splits, error) = time_variant(gpu, v, &pipeline, shape, runs)?;
