@@ -292,8 +292,25 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         norm = row_norm(li, kk, xa);
     }
     var next = load_step(k_begin + kk, k_end, xa, wa, norm);
-    // This invocation's block of out (tiles.wgsl), in registers: only ever indexed by constants (gen_tiles.py says why).
-    var sums = array<vec4<f32>, BLOCK>();
+    // This invocation's block of out (tiles.wgsl), in registers: named variables (gen_tiles.py says why).
+    // BEGIN sums: written by tools/codegen/gen_tiles.py
+    var sums_0 = vec4<f32>(0.0);
+    var sums_1 = vec4<f32>(0.0);
+    var sums_2 = vec4<f32>(0.0);
+    var sums_3 = vec4<f32>(0.0);
+    var sums_4 = vec4<f32>(0.0);
+    var sums_5 = vec4<f32>(0.0);
+    var sums_6 = vec4<f32>(0.0);
+    var sums_7 = vec4<f32>(0.0);
+    var sums_8 = vec4<f32>(0.0);
+    var sums_9 = vec4<f32>(0.0);
+    var sums_10 = vec4<f32>(0.0);
+    var sums_11 = vec4<f32>(0.0);
+    var sums_12 = vec4<f32>(0.0);
+    var sums_13 = vec4<f32>(0.0);
+    var sums_14 = vec4<f32>(0.0);
+    var sums_15 = vec4<f32>(0.0);
+    // END sums
     for (var k0 = k_begin; k0 < k_end; k0 += TILE_K4) {
         stage_step(li, next);
         workgroupBarrier();
@@ -304,188 +321,200 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
             let a1 = x_tile[16u + lid.y];
             let b0 = vec4<f32>(w_tile[0u + lid.x]);
             let b1 = vec4<f32>(w_tile[16u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[32u + lid.y];
             let a1 = x_tile[48u + lid.y];
             let b0 = vec4<f32>(w_tile[32u + lid.x]);
             let b1 = vec4<f32>(w_tile[48u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[64u + lid.y];
             let a1 = x_tile[80u + lid.y];
             let b0 = vec4<f32>(w_tile[64u + lid.x]);
             let b1 = vec4<f32>(w_tile[80u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[96u + lid.y];
             let a1 = x_tile[112u + lid.y];
             let b0 = vec4<f32>(w_tile[96u + lid.x]);
             let b1 = vec4<f32>(w_tile[112u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[128u + lid.y];
             let a1 = x_tile[144u + lid.y];
             let b0 = vec4<f32>(w_tile[128u + lid.x]);
             let b1 = vec4<f32>(w_tile[144u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[160u + lid.y];
             let a1 = x_tile[176u + lid.y];
             let b0 = vec4<f32>(w_tile[160u + lid.x]);
             let b1 = vec4<f32>(w_tile[176u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[192u + lid.y];
             let a1 = x_tile[208u + lid.y];
             let b0 = vec4<f32>(w_tile[192u + lid.x]);
             let b1 = vec4<f32>(w_tile[208u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         {
             let a0 = x_tile[224u + lid.y];
             let a1 = x_tile[240u + lid.y];
             let b0 = vec4<f32>(w_tile[224u + lid.x]);
             let b1 = vec4<f32>(w_tile[240u + lid.x]);
-            sums[0] = fma(vec4<f32>(f32(a0.x)), b0, sums[0]);
-            sums[1] = fma(vec4<f32>(f32(a0.x)), b1, sums[1]);
-            sums[2] = fma(vec4<f32>(f32(a0.y)), b0, sums[2]);
-            sums[3] = fma(vec4<f32>(f32(a0.y)), b1, sums[3]);
-            sums[4] = fma(vec4<f32>(f32(a0.z)), b0, sums[4]);
-            sums[5] = fma(vec4<f32>(f32(a0.z)), b1, sums[5]);
-            sums[6] = fma(vec4<f32>(f32(a0.w)), b0, sums[6]);
-            sums[7] = fma(vec4<f32>(f32(a0.w)), b1, sums[7]);
-            sums[8] = fma(vec4<f32>(f32(a1.x)), b0, sums[8]);
-            sums[9] = fma(vec4<f32>(f32(a1.x)), b1, sums[9]);
-            sums[10] = fma(vec4<f32>(f32(a1.y)), b0, sums[10]);
-            sums[11] = fma(vec4<f32>(f32(a1.y)), b1, sums[11]);
-            sums[12] = fma(vec4<f32>(f32(a1.z)), b0, sums[12]);
-            sums[13] = fma(vec4<f32>(f32(a1.z)), b1, sums[13]);
-            sums[14] = fma(vec4<f32>(f32(a1.w)), b0, sums[14]);
-            sums[15] = fma(vec4<f32>(f32(a1.w)), b1, sums[15]);
+            sums_0 = fma(vec4<f32>(f32(a0.x)), b0, sums_0);
+            sums_1 = fma(vec4<f32>(f32(a0.x)), b1, sums_1);
+            sums_2 = fma(vec4<f32>(f32(a0.y)), b0, sums_2);
+            sums_3 = fma(vec4<f32>(f32(a0.y)), b1, sums_3);
+            sums_4 = fma(vec4<f32>(f32(a0.z)), b0, sums_4);
+            sums_5 = fma(vec4<f32>(f32(a0.z)), b1, sums_5);
+            sums_6 = fma(vec4<f32>(f32(a0.w)), b0, sums_6);
+            sums_7 = fma(vec4<f32>(f32(a0.w)), b1, sums_7);
+            sums_8 = fma(vec4<f32>(f32(a1.x)), b0, sums_8);
+            sums_9 = fma(vec4<f32>(f32(a1.x)), b1, sums_9);
+            sums_10 = fma(vec4<f32>(f32(a1.y)), b0, sums_10);
+            sums_11 = fma(vec4<f32>(f32(a1.y)), b1, sums_11);
+            sums_12 = fma(vec4<f32>(f32(a1.z)), b0, sums_12);
+            sums_13 = fma(vec4<f32>(f32(a1.z)), b1, sums_13);
+            sums_14 = fma(vec4<f32>(f32(a1.w)), b0, sums_14);
+            sums_15 = fma(vec4<f32>(f32(a1.w)), b1, sums_15);
         }
         // END multiply_staged
         workgroupBarrier();
     }
-    // BEGIN block: written by tools/codegen/gen_tiles.py
-    let block = array<vec4<f32>, BLOCK>(sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8], sums[9], sums[10], sums[11], sums[12], sums[13], sums[14], sums[15]);
-    // END block
-    for (var i = 0u; i < TILE_ROWS; i++) {
-        for (var j = 0u; j < TILE_COLS4; j++) {
-            store_sum(row0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j), split, block[i * TILE_COLS4 + j]);
-        }
-    }
+    let first_row = row0;
+    let first_c4 = tile * (TILE / 4u);
+    // BEGIN stores: written by tools/codegen/gen_tiles.py
+    store_sum(first_row + block_row(lid.y, 0u), first_c4 + block_col4(lid.x, 0u), split, sums_0);
+    store_sum(first_row + block_row(lid.y, 0u), first_c4 + block_col4(lid.x, 1u), split, sums_1);
+    store_sum(first_row + block_row(lid.y, 1u), first_c4 + block_col4(lid.x, 0u), split, sums_2);
+    store_sum(first_row + block_row(lid.y, 1u), first_c4 + block_col4(lid.x, 1u), split, sums_3);
+    store_sum(first_row + block_row(lid.y, 2u), first_c4 + block_col4(lid.x, 0u), split, sums_4);
+    store_sum(first_row + block_row(lid.y, 2u), first_c4 + block_col4(lid.x, 1u), split, sums_5);
+    store_sum(first_row + block_row(lid.y, 3u), first_c4 + block_col4(lid.x, 0u), split, sums_6);
+    store_sum(first_row + block_row(lid.y, 3u), first_c4 + block_col4(lid.x, 1u), split, sums_7);
+    store_sum(first_row + block_row(lid.y, 4u), first_c4 + block_col4(lid.x, 0u), split, sums_8);
+    store_sum(first_row + block_row(lid.y, 4u), first_c4 + block_col4(lid.x, 1u), split, sums_9);
+    store_sum(first_row + block_row(lid.y, 5u), first_c4 + block_col4(lid.x, 0u), split, sums_10);
+    store_sum(first_row + block_row(lid.y, 5u), first_c4 + block_col4(lid.x, 1u), split, sums_11);
+    store_sum(first_row + block_row(lid.y, 6u), first_c4 + block_col4(lid.x, 0u), split, sums_12);
+    store_sum(first_row + block_row(lid.y, 6u), first_c4 + block_col4(lid.x, 1u), split, sums_13);
+    store_sum(first_row + block_row(lid.y, 7u), first_c4 + block_col4(lid.x, 0u), split, sums_14);
+    store_sum(first_row + block_row(lid.y, 7u), first_c4 + block_col4(lid.x, 1u), split, sums_15);
+    // END stores
 }
 
 // `linear_reduce`: the ranges of a split `linear_tiled` added up and finished into out, an invocation per vec4

@@ -5,8 +5,8 @@
 // `conv_tiled`, which this prelude is prepended to. A workgroup of 16 x 16 invocations computes a TILE x TILE
 // block of out; per step of TILE_K4 vec4s along K it stages TILE rows of x (or of the gathered input pixels) and
 // TILE rows of w here, invocation li one vec4 of each (row li / TILE_K4, vec4 li % TILE_K4 of the step), and every
-// invocation adds the step's outer products to its 8 x 8 block of out (`sums`, a local array of the
-// entry point, between its BEGIN/END multiply_staged lines): per float of K it reads 2 vec4s of x's column and
+// invocation adds the step's outer products to its 8 x 8 block of out (`sums_0` .. `sums_15`,
+// variables of the entry point, written out between its BEGIN/END lines by the script): per float of K it reads 2 vec4s of x's column and
 // 2 of w's and takes 16 vec4 multiply-adds.
 //
 // Both tiles are stored K-major, transposed as they are staged: vec4 k * (TILE / 4) + r / 4, lane r % 4 holds
@@ -17,17 +17,12 @@
 // The tiles hold f32, or f16 in the f16-activation variant (`matmul_f16_act`, `Precision::F16Activations`, which
 // replaces TileFloat): x and w are rounded to f16 as they are staged; the products are summed in f32 either way.
 //
-// This tiling in the GEMM lab on an H200 (docs/PERFORMANCE.md; not yet this file on a GPU): 128 x 128 tiles, 8 x 8
-// outputs an invocation, 8 floats of K a step: 14.8 TMAC/s on 4800x768x2304 (cuBLAS 19.7); 64 x 64 tiles, 4 x 4: 10.9.
+// This tiling in the GEMM lab (docs/PERFORMANCE.md), 128 x 128 tiles, 8 x 8 outputs an invocation, 8 floats of K a
+// step: 14.8 TMAC/s on 4800x768x2304 on an H200 (cuBLAS 19.7), 13.9 as `linear_tiled` on an H100; 64 x 64, 4 x 4: 10.9.
 
 const TILE: u32 = 128u;
 // vec4s of K per step.
 const TILE_K4: u32 = 2u;
-// Rows and vec4 columns of out per invocation.
-const TILE_ROWS: u32 = 8u;
-const TILE_COLS4: u32 = 2u;
-// vec4s of out per invocation: vec4 i * TILE_COLS4 + j of its sums is row block_row(ty, i), vec4 column block_col4(tx, j).
-const BLOCK: u32 = TILE_ROWS * TILE_COLS4;
 alias TileFloat = f32;
 var<workgroup> x_tile: array<vec4<TileFloat>, 256>;
 var<workgroup> w_tile: array<vec4<TileFloat>, 256>;

@@ -139,57 +139,16 @@ def outer(out, bm, bn, tm, tn, bk, arrays=False, unroll_k=False):
 
 
 
-def replace(text, old, new):
-    """`text` with its one `old` replaced by `new` (the engine's shader must still have it)."""
-    assert text.count(old) == 1, f"the engine's matmul.wgsl no longer has exactly one {old!r}"
-    return text.replace(old, new)
-
-
-BLOCK = 16  # vec4s of sums per invocation (tiles.wgsl's BLOCK)
-STORE_LOOP = """    for (var i = 0u; i < TILE_ROWS; i++) {
-        for (var j = 0u; j < TILE_COLS4; j++) {
-            store_sum(row0 + block_row(lid.y, i), tile * (TILE / 4u) + block_col4(lid.x, j), split, block[i * TILE_COLS4 + j]);
-        }
-    }
-"""
-
-
-def engine_edits(engine, named=False, stores=False, no_norm=False):
-    """The engine's `linear_tiled` changed one way at a time, to find what separates it from the fastest outer
-    product: its sums in named variables rather than a constant-indexed array (`named`), its stores written out
-    rather than a loop over a copy of the sums (`stores`), the layer-norm prologue compiled out (`no_norm`)."""
-    if stores:
-        engine = replace(engine, STORE_LOOP, "".join(
-            f"    store_sum(row0 + block_row(lid.y, {i}u), tile * (TILE / 4u) + block_col4(lid.x, {j}u), split, "
-            f"sums[{2 * i + j}]);\n" for i in range(BLOCK // 2) for j in range(2)))
-        start = engine.index("    // BEGIN block")
-        end = engine.index("    // END block\n") + len("    // END block\n")
-        engine = engine[:start] + engine[end:]
-    if named:
-        engine = replace(engine, "    var sums = array<vec4<f32>, BLOCK>();\n",
-                         "".join(f"    var sums_{i} = vec4<f32>(0.0);\n" for i in range(BLOCK)))
-        for i in reversed(range(BLOCK)):
-            engine = engine.replace(f"sums[{i}]", f"sums_{i}")
-    if no_norm:
-        engine = replace(engine, "fn op_norm() -> u32 { return select(p.norm, SHAPED_NORM, SHAPED); }",
-                         "fn op_norm() -> u32 { return 0u; }")
-    return engine
-
-
 def main():
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "target" / "gemm-lab"
     out.mkdir(parents=True, exist_ok=True)
     engine = "\n".join((ROOT / "shaders" / f"{name}.wgsl").read_text() for name in ["activation", "tiles", "matmul"])
     (out / "engine.wgsl").write_text(engine)
     manifest = [
-        "engine_tiled engine.wgsl linear_tiled 128 128 7 auto",
+        "engine_tiled engine.wgsl linear_tiled 128 128 7 auto shaped",
+        "engine_tiled_unshaped engine.wgsl linear_tiled 128 128 7 auto",
         "engine_rows engine.wgsl linear 256 8 5 1",
     ]
-    for name, edits in [("named", dict(named=True)), ("stores", dict(stores=True)),
-                        ("named_stores", dict(named=True, stores=True)), ("no_norm", dict(no_norm=True)),
-                        ("all", dict(named=True, stores=True, no_norm=True))]:
-        (out / f"engine_{name}.wgsl").write_text(engine_edits(engine, **edits))
-        manifest.append(f"engine_tiled_{name} engine_{name}.wgsl linear_tiled 128 128 7 auto")
     manifest += outer(out, 128, 128, 8, 8, 8, unroll_k=True)
     manifest += outer(out, 128, 128, 8, 8, 8)
     manifest += outer(out, 128, 128, 8, 8, 8, arrays=True)

@@ -1,36 +1,26 @@
 #!/usr/bin/env python3
-"""Writes the GPU GEMMs' tiles (`MatmulKernel::Tiled`): shaders/tiles.wgsl, and the multiply of a staged step,
-written out, into `linear_tiled` (shaders/matmul.wgsl) and `conv_tiled` (shaders/conv.wgsl) between their
-`BEGIN/END multiply_staged` lines, and the copy of the sums their stores loop over between `BEGIN/END block`.
+"""Writes the GPU GEMMs' tiles (`MatmulKernel::Tiled`): shaders/tiles.wgsl, and into `linear_tiled`
+(shaders/matmul.wgsl) and `conv_tiled` (shaders/conv.wgsl), between their BEGIN/END lines, everything that touches
+an invocation's block of sums: their declaration (`sums`), the multiply of a staged step (`multiply_staged`) and
+the stores (`stores`, one call of the kernel's `store_sum(row, c4, split, v)` per vec4 of the block).
 
-Why written out, in each entry point: the sums must be indexed by constants only, everywhere, or they leave
-registers; the stores loop over a copy (`let block = array(sums[0], ...)`, as ae17c0f's fast `linear_tiled` did).
-On an H200 (NVIDIA's Vulkan driver, the GEMM lab of docs/PERFORMANCE.md) the kernel ran at 14.8 TMAC/s with its 8
-K steps written out, 11.8 with them in a loop, and 1.1 whenever the stores indexed the sums themselves in a loop
-(or the sums were a private array); WGSL has no loop that unrolls at compile time, nor includes. Its sizes are the
-wrappers': TILED_TILE and TILED_K4 in crates/raypatch-engine/src/kernels/matmul.rs (conv.rs uses them too), read
-from there. Change them there, run this, and commit both; `cargo test --test
-kernels shaders` fails when the shader is not what this script writes (`--check`).
+Why written out, in each entry point: on NVIDIA's Vulkan driver the block leaves registers unless every access
+to it is by a constant: named variables, no loop over them, no array (WGSL has no loop that unrolls at compile
+time, nor includes). In the GEMM lab of docs/PERFORMANCE.md, on an H200 and an H100, the kernels that indexed the
+sums in any loop ran at 1.1-2.8 TMAC/s, those that did not at 8.5-14.8; on the H100, written-out stores and named
+sums took `linear_tiled` from 4.2 to 8.4 TMAC/s on 300x1536x1536 and from 11.8 to 13.9 on 4800x768x2304, with the
+layer-norm prologue compiled out as the engine's shaped pipelines do. Its sizes are the wrappers': TILED_TILE
+and TILED_K4 in crates/raypatch-engine/src/kernels/matmul.rs (conv.rs uses them too), read from there. Change
+them there, run this, and commit both; `cargo test --test kernels shaders` fails when the shaders are not what
+this script writes (`--check`).
 
     python3 tools/codegen/gen_tiles.py          # rewrite the shader
     python3 tools/codegen/gen_tiles.py --check  # exit 1 if the shader is not what this script writes
 """
-import re
-import sys
-from pathlib import Path
+from common import ROOT, rust_const, write_or_check, written_out
 
-ROOT = Path(__file__).resolve().parents[2]
 SHADER = ROOT / "shaders" / "tiles.wgsl"
 KERNELS = [ROOT / "shaders" / "matmul.wgsl", ROOT / "shaders" / "conv.wgsl"]
-ENGINE = ROOT / "crates" / "raypatch-engine" / "src"
-
-
-def rust_const(file, name):
-    """The integer value of `[pub(crate)] const NAME: usize = N;` in the engine's source file `file`."""
-    match = re.search(rf"\bconst {name}: usize = (\d+);", (ENGINE / file).read_text())
-    if not match:
-        sys.exit(f"gen_tiles: no `const {name}: usize` with an integer value in {ENGINE / file}")
-    return int(match.group(1))
 
 
 # Rows and columns of out per workgroup of 16 x 16 invocations; floats of K per step.
@@ -50,8 +40,8 @@ HEADER = f"""\
 // `conv_tiled`, which this prelude is prepended to. A workgroup of 16 x 16 invocations computes a TILE x TILE
 // block of out; per step of TILE_K4 vec4s along K it stages TILE rows of x (or of the gathered input pixels) and
 // TILE rows of w here, invocation li one vec4 of each (row li / TILE_K4, vec4 li % TILE_K4 of the step), and every
-// invocation adds the step's outer products to its {ROWS} x {4 * COLS4} block of out (`sums`, a local array of the
-// entry point, between its BEGIN/END multiply_staged lines): per float of K it reads {QUADS} vec4s of x's column and
+// invocation adds the step's outer products to its {ROWS} x {4 * COLS4} block of out (`sums_0` .. `sums_{ROWS * COLS4 - 1}`,
+// variables of the entry point, written out between its BEGIN/END lines by the script): per float of K it reads {QUADS} vec4s of x's column and
 // {COLS4} of w's and takes {ROWS * COLS4} vec4 multiply-adds.
 //
 // Both tiles are stored K-major, transposed as they are staged: vec4 k * (TILE / 4) + r / 4, lane r % 4 holds
@@ -62,8 +52,8 @@ HEADER = f"""\
 // The tiles hold f32, or f16 in the f16-activation variant (`matmul_f16_act`, `Precision::F16Activations`, which
 // replaces TileFloat): x and w are rounded to f16 as they are staged; the products are summed in f32 either way.
 //
-// This tiling in the GEMM lab on an H200 (docs/PERFORMANCE.md; not yet this file on a GPU): 128 x 128 tiles, 8 x 8
-// outputs an invocation, 8 floats of K a step: 14.8 TMAC/s on 4800x768x2304 (cuBLAS 19.7); 64 x 64 tiles, 4 x 4: 10.9.
+// This tiling in the GEMM lab (docs/PERFORMANCE.md), 128 x 128 tiles, 8 x 8 outputs an invocation, 8 floats of K a
+// step: 14.8 TMAC/s on 4800x768x2304 on an H200 (cuBLAS 19.7), 13.9 as `linear_tiled` on an H100; 64 x 64, 4 x 4: 10.9.
 """
 
 
@@ -72,12 +62,6 @@ def generate():
     s.append(f"const TILE: u32 = {TILE}u;")
     s.append("// vec4s of K per step.")
     s.append(f"const TILE_K4: u32 = {TILE_K // 4}u;")
-    s.append("// Rows and vec4 columns of out per invocation.")
-    s.append(f"const TILE_ROWS: u32 = {ROWS}u;")
-    s.append(f"const TILE_COLS4: u32 = {COLS4}u;")
-    s.append("// vec4s of out per invocation: vec4 i * TILE_COLS4 + j of its sums is row block_row(ty, i), vec4 "
-             "column block_col4(tx, j).")
-    s.append("const BLOCK: u32 = TILE_ROWS * TILE_COLS4;")
     s.append("alias TileFloat = f32;")
     s.append(f"var<workgroup> x_tile: array<vec4<TileFloat>, {TILE * TILE_K // 4}>;")
     s.append(f"var<workgroup> w_tile: array<vec4<TileFloat>, {TILE * TILE_K // 4}>;")
@@ -115,7 +99,7 @@ def generate():
 
 
 def multiply(indent):
-    """The staged step's products added to invocation (lid.x, lid.y)'s `sums`, K row by K row."""
+    """The staged step's products added to invocation (lid.x, lid.y)'s sums, K row by K row."""
     s = []
     for k in range(TILE_K):
         s.append("{")
@@ -127,46 +111,35 @@ def multiply(indent):
             for lane, comp in enumerate("xyzw"):
                 for j in range(COLS4):
                     i = (4 * q + lane) * COLS4 + j
-                    s.append(f"    sums[{i}] = fma(vec4<f32>(f32(a{q}.{comp})), b{j}, sums[{i}]);")
+                    s.append(f"    sums_{i} = fma(vec4<f32>(f32(a{q}.{comp})), b{j}, sums_{i});")
         s.append("}")
     return "".join(f"{indent}{line}\n" for line in s)
 
 
-def block(indent):
-    """The sums copied into `block`, by constant indices, for the stores' loops to index."""
-    values = ", ".join(f"sums[{k}]" for k in range(ROWS * COLS4))
-    return f"{indent}let block = array<vec4<f32>, BLOCK>({values});\n"
+def declare(indent):
+    """The invocation's block of sums, zeroed: `sums_<i * COLS4 + j>` is row block_row(ty, i), vec4 column
+    block_col4(tx, j) of the tile."""
+    return "".join(f"{indent}var sums_{v} = vec4<f32>(0.0);\n" for v in range(ROWS * COLS4))
 
 
-def written_out(text, path, name, body):
-    """`text` (a kernel's source) with the lines between its BEGIN and END `name` lines replaced by body(indent)."""
-    begin_line = f"// BEGIN {name}: written by tools/codegen/gen_tiles.py"
-    begin, end = text.find(begin_line), text.find(f"// END {name}")
-    if begin < 0 or end < begin:
-        sys.exit(f"gen_tiles: {path} has no `{begin_line}` line followed by `// END {name}`")
-    indent = text[text.rfind("\n", 0, begin) + 1:begin]
-    body_start = text.index("\n", begin) + 1
-    return text[:body_start] + body(indent) + text[text.rfind("\n", 0, end) + 1:]
+def stores(indent):
+    """The block handed to the kernel's store_sum, vec4 by vec4, from the tile's first row and vec4 column."""
+    return "".join(
+        f"{indent}store_sum(first_row + block_row(lid.y, {i}u), first_c4 + block_col4(lid.x, {j}u), split, "
+        f"sums_{i * COLS4 + j});\n" for i in range(ROWS) for j in range(COLS4))
 
 
 def kernel(path):
-    text = written_out(path.read_text(), path, "multiply_staged", multiply)
-    return written_out(text, path, "block", block)
+    text = path.read_text()
+    for name, body in [("sums", declare), ("multiply_staged", multiply), ("stores", stores)]:
+        text = written_out(text, path, name, body)
+    return text
 
 
 def main():
     files = {SHADER: generate()}
     files.update({path: kernel(path) for path in KERNELS})
-    if "--check" in sys.argv[1:]:
-        stale = [path for path, text in files.items() if path.read_text() != text]
-        if stale:
-            names = ", ".join(str(p.relative_to(ROOT)) for p in stale)
-            print(f"{names}: not what tools/codegen/gen_tiles.py writes: run it and commit the shaders")
-            sys.exit(1)
-        return
-    for path, text in files.items():
-        path.write_text(text)
-
+    write_or_check(files)
 
 if __name__ == "__main__":
     main()

@@ -3,18 +3,20 @@
 //! is tried on a lent GPU before it goes into `shaders/` (docs/PERFORMANCE.md, "The GEMM lab").
 //!
 //! DIR holds the kernels and `manifest.txt` (written by `tools/bench/gemm_lab.py`), a line per variant:
-//! `name file entry tile_m tile_n bindings splits`. Every kernel takes `shaders/matmul.wgsl`'s uniform and its
-//! bindings 0-4 (and 5-6 when `bindings` is 7: gamma and beta, bound to the bias here), numbers its workgroups
-//! `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x ceil(n / tile_n) tiles times `splits` K ranges (`auto`: as the
-//! engine splits them, `kernels::matmul::split_k`), and writes split s's sums to rows s·m.. of out (the
-//! engine's `linear_tiled` adds the bias in `linear_reduce`, so for it, named `engine*`, the check adds it).
+//! `name file entry tile_m tile_n bindings splits [shaped]`; `shaped`: compiled for each shape with the override
+//! constants the engine gives its shaped pipelines (`kernels::matmul::fixed_shape`), as it runs them on GPUs.
+//! Every kernel takes `shaders/matmul.wgsl`'s uniform and its bindings 0-4 (and 5-6 when `bindings` is 7: gamma
+//! and beta, bound to the bias here), numbers its workgroups `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x
+//! ceil(n / tile_n) tiles times `splits` K ranges (`auto`: as the engine splits them, `kernels::matmul::split_k`),
+//! and writes split s's sums to rows s·m.. of out (the engine's `linear_tiled` adds the bias in `linear_reduce`,
+//! so for it, named `engine*`, the check adds it).
 
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use raypatch_engine::kernels::matmul::{split_k, MatmulParams};
+use raypatch_engine::kernels::matmul::{fixed_shape, split_k, MatmulParams};
 use raypatch_engine::Gpu;
 use raypatch_reference::Rng;
 use wgpu::util::DeviceExt;
@@ -29,6 +31,7 @@ struct Variant {
     tile: (usize, usize),
     bindings: u32,
     auto_split: bool,
+    shaped: bool,
 }
 
 fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
@@ -37,7 +40,11 @@ fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
     for (number, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#')) {
         let f: Vec<&str> = line.split_whitespace().collect();
         let parsed = (|| -> Option<Variant> {
-            let [name, file, entry, tile_m, tile_n, bindings, splits] = f[..] else { return None };
+            let (fields, shaped) = match f[..] {
+                [ref fields @ .., "shaped"] => (fields, true),
+                ref fields => (fields, false),
+            };
+            let [name, file, entry, tile_m, tile_n, bindings, splits] = fields[..] else { return None };
             Some(Variant {
                 name: name.into(),
                 file: file.into(),
@@ -49,12 +56,13 @@ fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
                     "auto" => true,
                     _ => return None,
                 },
+                shaped,
             })
         })();
         match parsed {
             Some(v) => variants.push(v),
             None => bail!(
-                "{}:{}: expected `name file entry tile_m tile_n bindings(5|7) splits(1|auto)`",
+                "{}:{}: expected `name file entry tile_m tile_n bindings(5|7) splits(1|auto) [shaped]`",
                 path.display(),
                 number + 1
             ),
@@ -79,28 +87,12 @@ pub fn run(gpu: &Gpu, dir: &Path, only: &[String]) -> Result<String> {
     for v in variants.iter().filter(|v| only.is_empty() || only.iter().any(|o| v.name.contains(o.as_str()))) {
         let path = dir.join(&v.file);
         let source = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-        let device = &gpu.device;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(&v.name),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(&v.name),
-            layout: None,
-            module: &module,
-            entry_point: Some(&v.entry),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            // wgpu's report spans lines (the cause, naga's diagnostic with the source): one line of it.
-            let report = e.to_string();
-            let detail: Vec<&str> = report.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
-            bail!("{}: entry point {}: {}", path.display(), v.entry, detail.join("; "));
-        }
+        let unshaped = if v.shaped { None } else { Some(compile(gpu, v, &path, &source, &[])?) };
         for &shape in &shapes {
-            let (ms, splits, error) = time_variant(gpu, v, &pipeline, shape, runs)?;
+            let (ms, splits, error) = time_variant(gpu, v, shape, runs, |params| match &unshaped {
+                Some(pipeline) => Ok(pipeline.clone()),
+                None => compile(gpu, v, &path, &source, &fixed_shape(params)),
+            })?;
             let (m, k, n) = shape;
             let gmacs = (m * k * n) as f64 / (ms * 1e-3) / 1e9;
             writeln!(table, "| {} | {m}x{k}x{n} | {splits} | {ms:.3} | {gmacs:.0} | {error:.1e} |", v.name)?;
@@ -109,13 +101,45 @@ pub fn run(gpu: &Gpu, dir: &Path, only: &[String]) -> Result<String> {
     Ok(table)
 }
 
-/// (milliseconds per run, K ranges, max error against float64 on sampled outputs) of one variant on one shape.
+/// The pipeline of variant `v` from its `source` (read from `path`), with these override constants.
+fn compile(
+    gpu: &Gpu,
+    v: &Variant,
+    path: &Path,
+    source: &str,
+    constants: &[(&str, f64)],
+) -> Result<wgpu::ComputePipeline> {
+    let device = &gpu.device;
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(&v.name),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(&v.name),
+        layout: None,
+        module: &module,
+        entry_point: Some(&v.entry),
+        compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+        cache: None,
+    });
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        // wgpu's report spans lines (the cause, naga's diagnostic with the source): one line of it.
+        let report = e.to_string();
+        let detail: Vec<&str> = report.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+        bail!("{}: entry point {}: {}", path.display(), v.entry, detail.join("; "));
+    }
+    Ok(pipeline)
+}
+
+/// (milliseconds per run, K ranges, max error against float64 on sampled outputs) of one variant on one shape,
+/// its pipeline from `pipeline_for` given the shape's params.
 fn time_variant(
     gpu: &Gpu,
     v: &Variant,
-    pipeline: &wgpu::ComputePipeline,
     (m, k, n): (usize, usize, usize),
     runs: usize,
+    pipeline_for: impl Fn(&MatmulParams) -> Result<wgpu::ComputePipeline>,
 ) -> Result<(f64, usize, f64)> {
     let (device, queue) = (&gpu.device, &gpu.queue);
     let (k4, n4) = (k.div_ceil(4), n.div_ceil(4));
@@ -150,6 +174,7 @@ fn time_variant(
         norm_cols: k as u32,
         eps: 1e-5,
     };
+    let pipeline = &pipeline_for(&params)?;
     let buffer = |label: &str, contents: &[u8], usage| {
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     };
@@ -216,8 +241,8 @@ fn time_variant(
     // The four corners and 4092 random outputs against float64.
     let mut error = 0f64;
     let corners = [(0, 0), (m - 1, n - 1), (0, n - 1), (m - 1, 0)];
-    for s in 0..4096 {
-        let (i, j) = if s < 4 { corners[s] } else { (rng.range(0, m - 1), rng.range(0, n - 1)) };
+    let sampled: Vec<(usize, usize)> = (4..4096).map(|_| (rng.range(0, m - 1), rng.range(0, n - 1))).collect();
+    for &(i, j) in corners.iter().chain(&sampled) {
         let expected: f64 =
             bias[j] as f64 + (0..k).map(|c| x[i * k4 * 4 + c] as f64 * w[j * k4 * 4 + c] as f64).sum::<f64>();
         let mut sum: f64 = (0..splits).map(|s| got[(s * m + i) * n4 * 4 + j] as f64).sum();
@@ -242,13 +267,14 @@ mod tests {
 
     #[test]
     fn manifest_lines_parse_and_bad_ones_name_their_line() {
-        let v =
-            manifest("# comment\nengine_tiled engine.wgsl linear_tiled 128 128 7 auto\nrows e.wgsl linear 256 8 5 1\n")
-                .unwrap();
+        let v = manifest(
+            "# comment\nengine_tiled engine.wgsl linear_tiled 128 128 7 auto shaped\nrows e.wgsl linear 256 8 5 1\n",
+        )
+        .unwrap();
         assert_eq!(v.len(), 2);
-        assert_eq!((v[0].tile, v[0].bindings, v[0].auto_split), ((128, 128), 7, true));
-        assert_eq!((v[1].entry.as_str(), v[1].auto_split), ("linear", false));
-        for bad in ["a b c 0 64 5 1", "a b c 64 64 6 1", "a b c 64 64 5 2", "a b c 64 64 5"] {
+        assert_eq!((v[0].tile, v[0].bindings, v[0].auto_split, v[0].shaped), ((128, 128), 7, true, true));
+        assert_eq!((v[1].entry.as_str(), v[1].auto_split, v[1].shaped), ("linear", false, false));
+        for bad in ["a b c 0 64 5 1", "a b c 64 64 6 1", "a b c 64 64 5 2", "a b c 64 64 5", "a b c 64 64 5 1 fixed"] {
             let e = manifest(&format!("ok f.wgsl main 64 64 5 1\n{bad}\n")).unwrap_err().to_string();
             assert!(e.contains("manifest.txt:2: expected"), "{bad}: {e}");
         }

@@ -232,7 +232,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
 
 /// The override constants that fix `shaders/matmul.wgsl`'s op to `params` (`SHAPED`, and every field the shader
 /// reads through its `op_*` accessors; `slope` and `eps` stay in the params).
-fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
+pub fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
     let p = params;
     let fields = [
         ("SHAPED_M", p.m),
