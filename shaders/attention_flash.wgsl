@@ -2,18 +2,23 @@
 //
 // Work split (FlashAttention-2, with flash-decoding's split of the keys): a workgroup of 64 invocations serves
 // one (query tile of 64 rows, head, key split). Each invocation owns one query row: its scaled query and its
-// output accumulator stay in registers (CHUNKS vec4s each, CHUNKS fixed per variant so that every loop has a
-// constant trip count), with a running max m and sum l (online softmax: the nq x nkv scores never exist).
-// The keys and values of the split go through workgroup memory a tile of TILE_KEYS keys at a time, loaded
-// cooperatively (consecutive invocations read consecutive floats of a key row) and then read by every
-// invocation at the same address (a broadcast). Per tile an invocation computes its TILE_KEYS scores, takes
-// their max, rescales its accumulator once, and adds the weighted values.
+// output accumulator stay in registers (CHUNKS vec4s each, CHUNKS fixed per variant), with a running max m and
+// sum l (online softmax: the nq x nkv scores never exist). The keys and values of the split go through workgroup
+// memory a tile of TILE_KEYS keys at a time, loaded cooperatively (consecutive invocations read consecutive
+// floats of a key row) and then read by every invocation at the same address (a broadcast). An invocation takes
+// the tile's keys four at a time: their four scores, the new max, one rescale of its accumulator, and the four
+// weighted values.
+//
+// The query and the accumulator are named variables (`q_0`, `o_0`, ...), every use of them written out by
+// tools/codegen/gen_attention.py between the BEGIN/END lines below: on NVIDIA's Vulkan driver an array indexed
+// in a loop leaves registers (the GEMM lab of docs/PERFORMANCE.md), which is where the earlier version of this
+// kernel, with arrays, spent its time. The uses of chunks past CHUNKS sit in `if (CHUNKS > ..)` blocks that
+// compile away, so that the variants (32, 16 and 8 chunks) share this source.
 //
 // When queries x heads give too few workgroups to fill a GPU (a Ray-Patch render has 300 queries: 5 tiles a
 // head), the wrapper splits the keys: each split writes its unnormalised output with its m and l to the
-// partials (`flash_split`), and `combine` merges the splits of each (query, head) exactly as the online
-// softmax would: M = max m_s, out = Σ e^(m_s - M) o_s / Σ e^(m_s - M) l_s. With one split `flash` writes
-// the output itself.
+// partials, and `combine` merges the splits of each (query, head) exactly as the online softmax would:
+// M = max m_s, out = Σ e^(m_s - M) o_s / Σ e^(m_s - M) l_s. With one split `flash` writes the output itself.
 //
 // Operands are read as floats, so heads may start at any column (fused qkv tensors, odd dim_head); a head's
 // floats past dim_head are zeros in the tiles and registers. Output rows are written whole: the last head's
@@ -23,7 +28,7 @@
 @group(0) @binding(1) var<storage, read> q: array<f32>;
 @group(0) @binding(2) var<storage, read> k: array<f32>;
 @group(0) @binding(3) var<storage, read> v: array<f32>;
-// `flash`: the output [nq, out_ld]; `flash_split`: the partials [splits * nq, partial_ld], row s*nq + i holding
+// One split: the output [nq, out_ld]. Several: the partials [splits * nq, partial_ld], row s*nq + i holding
 // head h's unnormalised output at h*(dim_head + 2), then its m and l.
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
@@ -32,98 +37,17 @@ const WG: u32 = 64u;
 const CHUNKS: u32 = 32u;
 // vec4s of keys (and as many of values) per tile: 2 x 8 KiB, within WebGPU's guaranteed 16 KiB.
 const TILE_VEC4S: u32 = 512u;
+// Keys per tile: 16, 32 or 64, a multiple of the 4 an invocation takes at a time.
 const TILE_KEYS: u32 = TILE_VEC4S / CHUNKS;
 // Stands for -inf: the running max before the first key and the score of a key past the split. exp(NEG_BIG - m)
-// is 0 for any real m, and every tile holds at least one real key.
+// is 0 for any real m, and every group of four keys holds at least one real key.
 const NEG_BIG: f32 = -3.0e38;
 
 var<workgroup> k_tile: array<vec4<f32>, TILE_VEC4S>;
 var<workgroup> v_tile: array<vec4<f32>, TILE_VEC4S>;
 
-// One invocation's query row, its softmax state and its output.
-struct Row {
-    m: f32,
-    l: f32,
-    o: array<vec4<f32>, CHUNKS>,
-}
-
-// The attention of query row `i` (if `i < nq`) of head `h` over keys k0 .. k1, with the workgroup.
-fn attend(lid: u32, i: u32, h: u32, k0: u32, k1: u32) -> Row {
-    let dh = p.dim_head;
-    var qs: array<vec4<f32>, CHUNKS>;
-    var row: Row;
-    row.m = NEG_BIG;
-    row.l = 0.0;
-    let q_at = i * p.q_ld + p.q_col + h * dh;
-    for (var c = 0u; c < CHUNKS; c++) {
-        var chunk = vec4<f32>(0.0);
-        for (var e = 0u; e < 4u; e++) {
-            let d = 4u * c + e;
-            if (i < p.nq && d < dh) {
-                chunk[e] = q[q_at + d];
-            }
-        }
-        qs[c] = p.scale * chunk;
-        row.o[c] = vec4<f32>(0.0);
-    }
-    for (var base = k0; base < k1; base += TILE_KEYS) {
-        let n = min(TILE_KEYS, k1 - base);
-        // Slot s of a tile holds chunk s % CHUNKS of key s / CHUNKS (zeros past the head or the split).
-        for (var slot = lid; slot < TILE_VEC4S; slot += WG) {
-            let j = slot / CHUNKS;
-            let c = slot % CHUNKS;
-            var kc = vec4<f32>(0.0);
-            var vc = vec4<f32>(0.0);
-            if (j < n) {
-                let k_at = (base + j) * p.k_ld + p.k_col + h * dh;
-                let v_at = (base + j) * p.v_ld + p.v_col + h * dh;
-                for (var e = 0u; e < 4u; e++) {
-                    let d = 4u * c + e;
-                    if (d < dh) {
-                        kc[e] = k[k_at + d];
-                        vc[e] = v[v_at + d];
-                    }
-                }
-            }
-            k_tile[slot] = kc;
-            v_tile[slot] = vc;
-        }
-        workgroupBarrier();
-        var s: array<f32, TILE_KEYS>;
-        var m_tile = NEG_BIG;
-        for (var j = 0u; j < TILE_KEYS; j++) {
-            var score = NEG_BIG;
-            if (j < n) {
-                var acc = vec4<f32>(0.0);
-                for (var c = 0u; c < CHUNKS; c++) {
-                    acc += qs[c] * k_tile[j * CHUNKS + c];
-                }
-                score = (acc.x + acc.y) + (acc.z + acc.w);
-            }
-            s[j] = score;
-            m_tile = max(m_tile, score);
-        }
-        let m_new = max(row.m, m_tile);
-        let corr = exp(row.m - m_new);
-        row.l *= corr;
-        for (var c = 0u; c < CHUNKS; c++) {
-            row.o[c] *= corr;
-        }
-        for (var j = 0u; j < TILE_KEYS; j++) {
-            let weight = exp(s[j] - m_new);
-            row.l += weight;
-            for (var c = 0u; c < CHUNKS; c++) {
-                row.o[c] += weight * v_tile[j * CHUNKS + c];
-            }
-        }
-        row.m = m_new;
-        workgroupBarrier();
-    }
-    return row;
-}
-
 // The (query tile, head, key split) of a workgroup, and whether it has one (the grid may have more groups).
-// Uniform across the workgroup, as the barriers in `attend` need.
+// Uniform across the workgroup, as the barriers need.
 struct Tile {
     first_row: u32,
     h: u32,
@@ -137,23 +61,49 @@ fn tile_of(wid: vec3<u32>, nwg: vec3<u32>) -> Tile {
     return Tile((g % p.query_tiles) * WG, rest % p.heads, rest / p.heads, rest < p.heads * p.splits);
 }
 
-// Writes a head's dim_head floats of `o`, times `scale`, at `at` of `out`.
-fn store_head(at: u32, o: array<vec4<f32>, CHUNKS>, scale: f32) {
-    for (var c = 0u; c < CHUNKS; c++) {
-        for (var e = 0u; e < 4u; e++) {
-            let d = 4u * c + e;
-            if (d < p.dim_head) {
-                out[at + d] = o[c][e] * scale;
+// Chunk c of query row i's head at `at` of q, scaled (zeros past the head or the queries).
+fn query_chunk(i: u32, at: u32, c: u32) -> vec4<f32> {
+    var chunk = vec4<f32>(0.0);
+    for (var e = 0u; e < 4u; e++) {
+        let d = 4u * c + e;
+        if (i < p.nq && d < p.dim_head) {
+            chunk[e] = q[at + d];
+        }
+    }
+    return p.scale * chunk;
+}
+
+// Stages keys base .. base + n of head h into the tiles: slot s holds chunk s % CHUNKS of key s / CHUNKS (zeros
+// past the head or the split).
+fn stage_keys(lid: u32, h: u32, base: u32, n: u32) {
+    let dh = p.dim_head;
+    for (var slot = lid; slot < TILE_VEC4S; slot += WG) {
+        let j = slot / CHUNKS;
+        let c = slot % CHUNKS;
+        var kc = vec4<f32>(0.0);
+        var vc = vec4<f32>(0.0);
+        if (j < n) {
+            let k_at = (base + j) * p.k_ld + p.k_col + h * dh;
+            let v_at = (base + j) * p.v_ld + p.v_col + h * dh;
+            for (var e = 0u; e < 4u; e++) {
+                let d = 4u * c + e;
+                if (d < dh) {
+                    kc[e] = k[k_at + d];
+                    vc[e] = v[v_at + d];
+                }
             }
         }
+        k_tile[slot] = kc;
+        v_tile[slot] = vc;
     }
 }
 
-// Zeroes the padding of output row i (by the invocation of the last head).
-fn zero_padding(i: u32, h: u32) {
-    if (h + 1u == p.heads) {
-        for (var c = p.heads * p.dim_head; c < p.out_ld; c++) {
-            out[i * p.out_ld + c] = 0.0;
+// Stores chunk c of a head's output, `o` (scaled), at `at` of `out`: its floats before dim_head.
+fn store_chunk(at: u32, c: u32, o: vec4<f32>) {
+    for (var e = 0u; e < 4u; e++) {
+        let d = 4u * c + e;
+        if (d < p.dim_head) {
+            out[at + d] = o[e];
         }
     }
 }
@@ -166,32 +116,328 @@ fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         return; // the whole workgroup
     }
     let i = tile.first_row + lid;
-    let row = attend(lid, i, tile.h, 0u, p.nkv);
-    if (i >= p.nq) {
-        return;
-    }
-    store_head(i * p.out_ld + tile.h * p.dim_head, row.o, 1.0 / row.l);
-    zero_padding(i, tile.h);
-}
-
-@compute @workgroup_size(64)
-fn flash_split(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-               @builtin(local_invocation_index) lid: u32) {
-    let tile = tile_of(wid, nwg);
-    if (!tile.valid) {
-        return; // the whole workgroup
-    }
-    let i = tile.first_row + lid;
+    let h = tile.h;
     let k0 = tile.split * p.split_keys;
-    let row = attend(lid, i, tile.h, k0, min(p.nkv, k0 + p.split_keys));
+    let k1 = min(p.nkv, k0 + p.split_keys);
+    let q_at = i * p.q_ld + p.q_col + h * p.dim_head;
+    // BEGIN registers: written by tools/codegen/gen_attention.py
+    var q_0 = query_chunk(i, q_at, 0u);
+    var o_0 = vec4<f32>(0.0);
+    var q_1 = query_chunk(i, q_at, 1u);
+    var o_1 = vec4<f32>(0.0);
+    var q_2 = query_chunk(i, q_at, 2u);
+    var o_2 = vec4<f32>(0.0);
+    var q_3 = query_chunk(i, q_at, 3u);
+    var o_3 = vec4<f32>(0.0);
+    var q_4 = query_chunk(i, q_at, 4u);
+    var o_4 = vec4<f32>(0.0);
+    var q_5 = query_chunk(i, q_at, 5u);
+    var o_5 = vec4<f32>(0.0);
+    var q_6 = query_chunk(i, q_at, 6u);
+    var o_6 = vec4<f32>(0.0);
+    var q_7 = query_chunk(i, q_at, 7u);
+    var o_7 = vec4<f32>(0.0);
+    var q_8 = query_chunk(i, q_at, 8u);
+    var o_8 = vec4<f32>(0.0);
+    var q_9 = query_chunk(i, q_at, 9u);
+    var o_9 = vec4<f32>(0.0);
+    var q_10 = query_chunk(i, q_at, 10u);
+    var o_10 = vec4<f32>(0.0);
+    var q_11 = query_chunk(i, q_at, 11u);
+    var o_11 = vec4<f32>(0.0);
+    var q_12 = query_chunk(i, q_at, 12u);
+    var o_12 = vec4<f32>(0.0);
+    var q_13 = query_chunk(i, q_at, 13u);
+    var o_13 = vec4<f32>(0.0);
+    var q_14 = query_chunk(i, q_at, 14u);
+    var o_14 = vec4<f32>(0.0);
+    var q_15 = query_chunk(i, q_at, 15u);
+    var o_15 = vec4<f32>(0.0);
+    var q_16 = query_chunk(i, q_at, 16u);
+    var o_16 = vec4<f32>(0.0);
+    var q_17 = query_chunk(i, q_at, 17u);
+    var o_17 = vec4<f32>(0.0);
+    var q_18 = query_chunk(i, q_at, 18u);
+    var o_18 = vec4<f32>(0.0);
+    var q_19 = query_chunk(i, q_at, 19u);
+    var o_19 = vec4<f32>(0.0);
+    var q_20 = query_chunk(i, q_at, 20u);
+    var o_20 = vec4<f32>(0.0);
+    var q_21 = query_chunk(i, q_at, 21u);
+    var o_21 = vec4<f32>(0.0);
+    var q_22 = query_chunk(i, q_at, 22u);
+    var o_22 = vec4<f32>(0.0);
+    var q_23 = query_chunk(i, q_at, 23u);
+    var o_23 = vec4<f32>(0.0);
+    var q_24 = query_chunk(i, q_at, 24u);
+    var o_24 = vec4<f32>(0.0);
+    var q_25 = query_chunk(i, q_at, 25u);
+    var o_25 = vec4<f32>(0.0);
+    var q_26 = query_chunk(i, q_at, 26u);
+    var o_26 = vec4<f32>(0.0);
+    var q_27 = query_chunk(i, q_at, 27u);
+    var o_27 = vec4<f32>(0.0);
+    var q_28 = query_chunk(i, q_at, 28u);
+    var o_28 = vec4<f32>(0.0);
+    var q_29 = query_chunk(i, q_at, 29u);
+    var o_29 = vec4<f32>(0.0);
+    var q_30 = query_chunk(i, q_at, 30u);
+    var o_30 = vec4<f32>(0.0);
+    var q_31 = query_chunk(i, q_at, 31u);
+    var o_31 = vec4<f32>(0.0);
+    // END registers
+    var m = NEG_BIG;
+    var l = 0.0;
+    for (var base = k0; base < k1; base += TILE_KEYS) {
+        let n = min(TILE_KEYS, k1 - base);
+        stage_keys(lid, h, base, n);
+        workgroupBarrier();
+        for (var j = 0u; j < n; j += 4u) {
+            // Keys j .. j + 3 of the tile: their dot products with the query, a vec4 per key.
+            let kb = j * CHUNKS;
+            var dots_0 = vec4<f32>(0.0);
+            var dots_1 = vec4<f32>(0.0);
+            var dots_2 = vec4<f32>(0.0);
+            var dots_3 = vec4<f32>(0.0);
+            // BEGIN scores: written by tools/codegen/gen_attention.py
+            dots_0 = fma(q_0, k_tile[kb + 0u * CHUNKS + 0u], dots_0);
+            dots_1 = fma(q_0, k_tile[kb + 1u * CHUNKS + 0u], dots_1);
+            dots_2 = fma(q_0, k_tile[kb + 2u * CHUNKS + 0u], dots_2);
+            dots_3 = fma(q_0, k_tile[kb + 3u * CHUNKS + 0u], dots_3);
+            dots_0 = fma(q_1, k_tile[kb + 0u * CHUNKS + 1u], dots_0);
+            dots_1 = fma(q_1, k_tile[kb + 1u * CHUNKS + 1u], dots_1);
+            dots_2 = fma(q_1, k_tile[kb + 2u * CHUNKS + 1u], dots_2);
+            dots_3 = fma(q_1, k_tile[kb + 3u * CHUNKS + 1u], dots_3);
+            dots_0 = fma(q_2, k_tile[kb + 0u * CHUNKS + 2u], dots_0);
+            dots_1 = fma(q_2, k_tile[kb + 1u * CHUNKS + 2u], dots_1);
+            dots_2 = fma(q_2, k_tile[kb + 2u * CHUNKS + 2u], dots_2);
+            dots_3 = fma(q_2, k_tile[kb + 3u * CHUNKS + 2u], dots_3);
+            dots_0 = fma(q_3, k_tile[kb + 0u * CHUNKS + 3u], dots_0);
+            dots_1 = fma(q_3, k_tile[kb + 1u * CHUNKS + 3u], dots_1);
+            dots_2 = fma(q_3, k_tile[kb + 2u * CHUNKS + 3u], dots_2);
+            dots_3 = fma(q_3, k_tile[kb + 3u * CHUNKS + 3u], dots_3);
+            dots_0 = fma(q_4, k_tile[kb + 0u * CHUNKS + 4u], dots_0);
+            dots_1 = fma(q_4, k_tile[kb + 1u * CHUNKS + 4u], dots_1);
+            dots_2 = fma(q_4, k_tile[kb + 2u * CHUNKS + 4u], dots_2);
+            dots_3 = fma(q_4, k_tile[kb + 3u * CHUNKS + 4u], dots_3);
+            dots_0 = fma(q_5, k_tile[kb + 0u * CHUNKS + 5u], dots_0);
+            dots_1 = fma(q_5, k_tile[kb + 1u * CHUNKS + 5u], dots_1);
+            dots_2 = fma(q_5, k_tile[kb + 2u * CHUNKS + 5u], dots_2);
+            dots_3 = fma(q_5, k_tile[kb + 3u * CHUNKS + 5u], dots_3);
+            dots_0 = fma(q_6, k_tile[kb + 0u * CHUNKS + 6u], dots_0);
+            dots_1 = fma(q_6, k_tile[kb + 1u * CHUNKS + 6u], dots_1);
+            dots_2 = fma(q_6, k_tile[kb + 2u * CHUNKS + 6u], dots_2);
+            dots_3 = fma(q_6, k_tile[kb + 3u * CHUNKS + 6u], dots_3);
+            dots_0 = fma(q_7, k_tile[kb + 0u * CHUNKS + 7u], dots_0);
+            dots_1 = fma(q_7, k_tile[kb + 1u * CHUNKS + 7u], dots_1);
+            dots_2 = fma(q_7, k_tile[kb + 2u * CHUNKS + 7u], dots_2);
+            dots_3 = fma(q_7, k_tile[kb + 3u * CHUNKS + 7u], dots_3);
+            if (CHUNKS > 8u) {
+                dots_0 = fma(q_8, k_tile[kb + 0u * CHUNKS + 8u], dots_0);
+                dots_1 = fma(q_8, k_tile[kb + 1u * CHUNKS + 8u], dots_1);
+                dots_2 = fma(q_8, k_tile[kb + 2u * CHUNKS + 8u], dots_2);
+                dots_3 = fma(q_8, k_tile[kb + 3u * CHUNKS + 8u], dots_3);
+                dots_0 = fma(q_9, k_tile[kb + 0u * CHUNKS + 9u], dots_0);
+                dots_1 = fma(q_9, k_tile[kb + 1u * CHUNKS + 9u], dots_1);
+                dots_2 = fma(q_9, k_tile[kb + 2u * CHUNKS + 9u], dots_2);
+                dots_3 = fma(q_9, k_tile[kb + 3u * CHUNKS + 9u], dots_3);
+                dots_0 = fma(q_10, k_tile[kb + 0u * CHUNKS + 10u], dots_0);
+                dots_1 = fma(q_10, k_tile[kb + 1u * CHUNKS + 10u], dots_1);
+                dots_2 = fma(q_10, k_tile[kb + 2u * CHUNKS + 10u], dots_2);
+                dots_3 = fma(q_10, k_tile[kb + 3u * CHUNKS + 10u], dots_3);
+                dots_0 = fma(q_11, k_tile[kb + 0u * CHUNKS + 11u], dots_0);
+                dots_1 = fma(q_11, k_tile[kb + 1u * CHUNKS + 11u], dots_1);
+                dots_2 = fma(q_11, k_tile[kb + 2u * CHUNKS + 11u], dots_2);
+                dots_3 = fma(q_11, k_tile[kb + 3u * CHUNKS + 11u], dots_3);
+                dots_0 = fma(q_12, k_tile[kb + 0u * CHUNKS + 12u], dots_0);
+                dots_1 = fma(q_12, k_tile[kb + 1u * CHUNKS + 12u], dots_1);
+                dots_2 = fma(q_12, k_tile[kb + 2u * CHUNKS + 12u], dots_2);
+                dots_3 = fma(q_12, k_tile[kb + 3u * CHUNKS + 12u], dots_3);
+                dots_0 = fma(q_13, k_tile[kb + 0u * CHUNKS + 13u], dots_0);
+                dots_1 = fma(q_13, k_tile[kb + 1u * CHUNKS + 13u], dots_1);
+                dots_2 = fma(q_13, k_tile[kb + 2u * CHUNKS + 13u], dots_2);
+                dots_3 = fma(q_13, k_tile[kb + 3u * CHUNKS + 13u], dots_3);
+                dots_0 = fma(q_14, k_tile[kb + 0u * CHUNKS + 14u], dots_0);
+                dots_1 = fma(q_14, k_tile[kb + 1u * CHUNKS + 14u], dots_1);
+                dots_2 = fma(q_14, k_tile[kb + 2u * CHUNKS + 14u], dots_2);
+                dots_3 = fma(q_14, k_tile[kb + 3u * CHUNKS + 14u], dots_3);
+                dots_0 = fma(q_15, k_tile[kb + 0u * CHUNKS + 15u], dots_0);
+                dots_1 = fma(q_15, k_tile[kb + 1u * CHUNKS + 15u], dots_1);
+                dots_2 = fma(q_15, k_tile[kb + 2u * CHUNKS + 15u], dots_2);
+                dots_3 = fma(q_15, k_tile[kb + 3u * CHUNKS + 15u], dots_3);
+            }
+            if (CHUNKS > 16u) {
+                dots_0 = fma(q_16, k_tile[kb + 0u * CHUNKS + 16u], dots_0);
+                dots_1 = fma(q_16, k_tile[kb + 1u * CHUNKS + 16u], dots_1);
+                dots_2 = fma(q_16, k_tile[kb + 2u * CHUNKS + 16u], dots_2);
+                dots_3 = fma(q_16, k_tile[kb + 3u * CHUNKS + 16u], dots_3);
+                dots_0 = fma(q_17, k_tile[kb + 0u * CHUNKS + 17u], dots_0);
+                dots_1 = fma(q_17, k_tile[kb + 1u * CHUNKS + 17u], dots_1);
+                dots_2 = fma(q_17, k_tile[kb + 2u * CHUNKS + 17u], dots_2);
+                dots_3 = fma(q_17, k_tile[kb + 3u * CHUNKS + 17u], dots_3);
+                dots_0 = fma(q_18, k_tile[kb + 0u * CHUNKS + 18u], dots_0);
+                dots_1 = fma(q_18, k_tile[kb + 1u * CHUNKS + 18u], dots_1);
+                dots_2 = fma(q_18, k_tile[kb + 2u * CHUNKS + 18u], dots_2);
+                dots_3 = fma(q_18, k_tile[kb + 3u * CHUNKS + 18u], dots_3);
+                dots_0 = fma(q_19, k_tile[kb + 0u * CHUNKS + 19u], dots_0);
+                dots_1 = fma(q_19, k_tile[kb + 1u * CHUNKS + 19u], dots_1);
+                dots_2 = fma(q_19, k_tile[kb + 2u * CHUNKS + 19u], dots_2);
+                dots_3 = fma(q_19, k_tile[kb + 3u * CHUNKS + 19u], dots_3);
+                dots_0 = fma(q_20, k_tile[kb + 0u * CHUNKS + 20u], dots_0);
+                dots_1 = fma(q_20, k_tile[kb + 1u * CHUNKS + 20u], dots_1);
+                dots_2 = fma(q_20, k_tile[kb + 2u * CHUNKS + 20u], dots_2);
+                dots_3 = fma(q_20, k_tile[kb + 3u * CHUNKS + 20u], dots_3);
+                dots_0 = fma(q_21, k_tile[kb + 0u * CHUNKS + 21u], dots_0);
+                dots_1 = fma(q_21, k_tile[kb + 1u * CHUNKS + 21u], dots_1);
+                dots_2 = fma(q_21, k_tile[kb + 2u * CHUNKS + 21u], dots_2);
+                dots_3 = fma(q_21, k_tile[kb + 3u * CHUNKS + 21u], dots_3);
+                dots_0 = fma(q_22, k_tile[kb + 0u * CHUNKS + 22u], dots_0);
+                dots_1 = fma(q_22, k_tile[kb + 1u * CHUNKS + 22u], dots_1);
+                dots_2 = fma(q_22, k_tile[kb + 2u * CHUNKS + 22u], dots_2);
+                dots_3 = fma(q_22, k_tile[kb + 3u * CHUNKS + 22u], dots_3);
+                dots_0 = fma(q_23, k_tile[kb + 0u * CHUNKS + 23u], dots_0);
+                dots_1 = fma(q_23, k_tile[kb + 1u * CHUNKS + 23u], dots_1);
+                dots_2 = fma(q_23, k_tile[kb + 2u * CHUNKS + 23u], dots_2);
+                dots_3 = fma(q_23, k_tile[kb + 3u * CHUNKS + 23u], dots_3);
+                dots_0 = fma(q_24, k_tile[kb + 0u * CHUNKS + 24u], dots_0);
+                dots_1 = fma(q_24, k_tile[kb + 1u * CHUNKS + 24u], dots_1);
+                dots_2 = fma(q_24, k_tile[kb + 2u * CHUNKS + 24u], dots_2);
+                dots_3 = fma(q_24, k_tile[kb + 3u * CHUNKS + 24u], dots_3);
+                dots_0 = fma(q_25, k_tile[kb + 0u * CHUNKS + 25u], dots_0);
+                dots_1 = fma(q_25, k_tile[kb + 1u * CHUNKS + 25u], dots_1);
+                dots_2 = fma(q_25, k_tile[kb + 2u * CHUNKS + 25u], dots_2);
+                dots_3 = fma(q_25, k_tile[kb + 3u * CHUNKS + 25u], dots_3);
+                dots_0 = fma(q_26, k_tile[kb + 0u * CHUNKS + 26u], dots_0);
+                dots_1 = fma(q_26, k_tile[kb + 1u * CHUNKS + 26u], dots_1);
+                dots_2 = fma(q_26, k_tile[kb + 2u * CHUNKS + 26u], dots_2);
+                dots_3 = fma(q_26, k_tile[kb + 3u * CHUNKS + 26u], dots_3);
+                dots_0 = fma(q_27, k_tile[kb + 0u * CHUNKS + 27u], dots_0);
+                dots_1 = fma(q_27, k_tile[kb + 1u * CHUNKS + 27u], dots_1);
+                dots_2 = fma(q_27, k_tile[kb + 2u * CHUNKS + 27u], dots_2);
+                dots_3 = fma(q_27, k_tile[kb + 3u * CHUNKS + 27u], dots_3);
+                dots_0 = fma(q_28, k_tile[kb + 0u * CHUNKS + 28u], dots_0);
+                dots_1 = fma(q_28, k_tile[kb + 1u * CHUNKS + 28u], dots_1);
+                dots_2 = fma(q_28, k_tile[kb + 2u * CHUNKS + 28u], dots_2);
+                dots_3 = fma(q_28, k_tile[kb + 3u * CHUNKS + 28u], dots_3);
+                dots_0 = fma(q_29, k_tile[kb + 0u * CHUNKS + 29u], dots_0);
+                dots_1 = fma(q_29, k_tile[kb + 1u * CHUNKS + 29u], dots_1);
+                dots_2 = fma(q_29, k_tile[kb + 2u * CHUNKS + 29u], dots_2);
+                dots_3 = fma(q_29, k_tile[kb + 3u * CHUNKS + 29u], dots_3);
+                dots_0 = fma(q_30, k_tile[kb + 0u * CHUNKS + 30u], dots_0);
+                dots_1 = fma(q_30, k_tile[kb + 1u * CHUNKS + 30u], dots_1);
+                dots_2 = fma(q_30, k_tile[kb + 2u * CHUNKS + 30u], dots_2);
+                dots_3 = fma(q_30, k_tile[kb + 3u * CHUNKS + 30u], dots_3);
+                dots_0 = fma(q_31, k_tile[kb + 0u * CHUNKS + 31u], dots_0);
+                dots_1 = fma(q_31, k_tile[kb + 1u * CHUNKS + 31u], dots_1);
+                dots_2 = fma(q_31, k_tile[kb + 2u * CHUNKS + 31u], dots_2);
+                dots_3 = fma(q_31, k_tile[kb + 3u * CHUNKS + 31u], dots_3);
+            }
+            // END scores
+            let real = vec4<u32>(j) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(n);
+            let scores = select(vec4<f32>(NEG_BIG), vec4<f32>(
+                (dots_0.x + dots_0.y) + (dots_0.z + dots_0.w), (dots_1.x + dots_1.y) + (dots_1.z + dots_1.w),
+                (dots_2.x + dots_2.y) + (dots_2.z + dots_2.w), (dots_3.x + dots_3.y) + (dots_3.z + dots_3.w)), real);
+            let m_new = max(m, max(max(scores.x, scores.y), max(scores.z, scores.w)));
+            let corr = exp(m - m_new);
+            let weights = exp(scores - m_new);
+            l = l * corr + ((weights.x + weights.y) + (weights.z + weights.w));
+            m = m_new;
+            // BEGIN accumulate: written by tools/codegen/gen_attention.py
+            o_0 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 0u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 0u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 0u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 0u], o_0 * corr))));
+            o_1 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 1u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 1u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 1u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 1u], o_1 * corr))));
+            o_2 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 2u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 2u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 2u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 2u], o_2 * corr))));
+            o_3 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 3u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 3u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 3u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 3u], o_3 * corr))));
+            o_4 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 4u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 4u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 4u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 4u], o_4 * corr))));
+            o_5 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 5u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 5u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 5u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 5u], o_5 * corr))));
+            o_6 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 6u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 6u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 6u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 6u], o_6 * corr))));
+            o_7 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 7u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 7u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 7u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 7u], o_7 * corr))));
+            if (CHUNKS > 8u) {
+                o_8 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 8u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 8u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 8u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 8u], o_8 * corr))));
+                o_9 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 9u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 9u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 9u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 9u], o_9 * corr))));
+                o_10 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 10u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 10u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 10u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 10u], o_10 * corr))));
+                o_11 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 11u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 11u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 11u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 11u], o_11 * corr))));
+                o_12 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 12u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 12u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 12u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 12u], o_12 * corr))));
+                o_13 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 13u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 13u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 13u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 13u], o_13 * corr))));
+                o_14 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 14u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 14u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 14u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 14u], o_14 * corr))));
+                o_15 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 15u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 15u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 15u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 15u], o_15 * corr))));
+            }
+            if (CHUNKS > 16u) {
+                o_16 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 16u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 16u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 16u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 16u], o_16 * corr))));
+                o_17 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 17u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 17u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 17u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 17u], o_17 * corr))));
+                o_18 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 18u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 18u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 18u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 18u], o_18 * corr))));
+                o_19 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 19u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 19u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 19u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 19u], o_19 * corr))));
+                o_20 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 20u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 20u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 20u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 20u], o_20 * corr))));
+                o_21 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 21u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 21u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 21u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 21u], o_21 * corr))));
+                o_22 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 22u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 22u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 22u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 22u], o_22 * corr))));
+                o_23 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 23u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 23u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 23u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 23u], o_23 * corr))));
+                o_24 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 24u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 24u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 24u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 24u], o_24 * corr))));
+                o_25 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 25u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 25u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 25u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 25u], o_25 * corr))));
+                o_26 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 26u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 26u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 26u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 26u], o_26 * corr))));
+                o_27 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 27u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 27u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 27u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 27u], o_27 * corr))));
+                o_28 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 28u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 28u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 28u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 28u], o_28 * corr))));
+                o_29 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 29u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 29u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 29u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 29u], o_29 * corr))));
+                o_30 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 30u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 30u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 30u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 30u], o_30 * corr))));
+                o_31 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 31u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 31u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 31u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 31u], o_31 * corr))));
+            }
+            // END accumulate
+        }
+        workgroupBarrier();
+    }
     if (i >= p.nq) {
         return;
     }
     let dh = p.dim_head;
-    let at = (tile.split * p.nq + i) * p.partial_ld + tile.h * (dh + 2u);
-    store_head(at, row.o, 1.0);
-    out[at + dh] = row.m;
-    out[at + dh + 1u] = row.l;
+    var at = i * p.out_ld + h * dh;
+    var scale = 1.0 / l;
+    if (p.splits > 1u) {
+        at = (tile.split * p.nq + i) * p.partial_ld + h * (dh + 2u);
+        scale = 1.0;
+        out[at + dh] = m;
+        out[at + dh + 1u] = l;
+    } else if (h + 1u == p.heads) {
+        // The row's padding, by the invocation of the last head.
+        for (var c = p.heads * dh; c < p.out_ld; c++) {
+            out[i * p.out_ld + c] = 0.0;
+        }
+    }
+    // BEGIN store: written by tools/codegen/gen_attention.py
+    store_chunk(at, 0u, o_0 * scale);
+    store_chunk(at, 1u, o_1 * scale);
+    store_chunk(at, 2u, o_2 * scale);
+    store_chunk(at, 3u, o_3 * scale);
+    store_chunk(at, 4u, o_4 * scale);
+    store_chunk(at, 5u, o_5 * scale);
+    store_chunk(at, 6u, o_6 * scale);
+    store_chunk(at, 7u, o_7 * scale);
+    if (CHUNKS > 8u) {
+        store_chunk(at, 8u, o_8 * scale);
+        store_chunk(at, 9u, o_9 * scale);
+        store_chunk(at, 10u, o_10 * scale);
+        store_chunk(at, 11u, o_11 * scale);
+        store_chunk(at, 12u, o_12 * scale);
+        store_chunk(at, 13u, o_13 * scale);
+        store_chunk(at, 14u, o_14 * scale);
+        store_chunk(at, 15u, o_15 * scale);
+    }
+    if (CHUNKS > 16u) {
+        store_chunk(at, 16u, o_16 * scale);
+        store_chunk(at, 17u, o_17 * scale);
+        store_chunk(at, 18u, o_18 * scale);
+        store_chunk(at, 19u, o_19 * scale);
+        store_chunk(at, 20u, o_20 * scale);
+        store_chunk(at, 21u, o_21 * scale);
+        store_chunk(at, 22u, o_22 * scale);
+        store_chunk(at, 23u, o_23 * scale);
+        store_chunk(at, 24u, o_24 * scale);
+        store_chunk(at, 25u, o_25 * scale);
+        store_chunk(at, 26u, o_26 * scale);
+        store_chunk(at, 27u, o_27 * scale);
+        store_chunk(at, 28u, o_28 * scale);
+        store_chunk(at, 29u, o_29 * scale);
+        store_chunk(at, 30u, o_30 * scale);
+        store_chunk(at, 31u, o_31 * scale);
+    }
+    // END store
 }
 
 // `combine`: the partials at binding 1, the output at binding 2; one invocation per float of the output (column c

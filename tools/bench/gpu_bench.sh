@@ -6,14 +6,16 @@
 #
 #     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
-# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 10.5 minutes,
-# more than one device call of 10 minutes holds: run `info tests gemm lab` in one call and `rpsrt srt families
-# viewer` in another; the first took 90 s on an H200):
+# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 13 minutes,
+# more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 8 minutes;
+# `info tests gemm lab` took 61 s on an H100) and `rpsrt srt families viewer` in another (limits 5 minutes)):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
 #     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)
 #     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
 #     lab       the GEMM lab: the engine's GEMM kernels beside outer-product tilings (tools/bench/gemm_lab.py)
+#     breakdown the engine alone (no PyTorch, no float64 reference: about a minute) on the official RP-SRT k=8, SRT,
+#               RP-OSRT k=8 and RP-DeFiNe k=16: where each encode's and render's GPU time goes, by kernel and op
 #     rpsrt     the official RP-SRT k=8 at every size, one view and 8 and 32 at once, the per-kernel breakdown,
 #               PyTorch CUDA eager and torch.compile on the same weights and inputs
 #     srt       the official SRT (k=1) likewise
@@ -23,15 +25,15 @@
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|rpsrt|srt|families|viewer ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|breakdown|rpsrt|srt|families|viewer ...]}
 shift
 steps=("$@")
-[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab rpsrt srt families viewer)
+[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab breakdown rpsrt srt families viewer)
 for s in "${steps[@]}"; do
     case $s in
-        info | tests | gemm | lab | rpsrt | srt | families | viewer) ;;
+        info | tests | gemm | lab | breakdown | rpsrt | srt | families | viewer) ;;
         *)
-            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, rpsrt, srt, families or viewer" >&2
+            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, breakdown, rpsrt, srt, families or viewer" >&2
             exit 2
             ;;
     esac
@@ -87,6 +89,12 @@ sweep() {
     shift 3
     run "$name" "$seconds" "$bin/raypatch-bench" "$@" --pytorch-compile --repeats 20 --max-reference-gmac "$gmac" \
         --out "$work/results/$name"
+    shares "$name"
+}
+
+# shares NAME: where the GPU time of step NAME's sweep went (its kernels.csv), into the log.
+shares() {
+    [ -f "$work/results/$1/kernels.csv" ] && python3 tools/bench/kernel_shares.py "$work/results/$1/kernels.csv" 6
 }
 
 # The viewer's frames per second: render-frame --serve (bundled model and scene) on a free port, one page's
@@ -110,9 +118,10 @@ viewer() {
     wait "$server"
 }
 
-# The results so far, into OUT_DIR (after every step).
+# The results so far, into OUT_DIR (after every step); not the sweeps' scratch folders (model files, tens of MB).
 save() {
-    tar -czf "$out/gpu-bench.tar.gz.part" -C "$work/results" . && mv "$out/gpu-bench.tar.gz.part" "$out/gpu-bench.tar.gz"
+    tar -czf "$out/gpu-bench.tar.gz.part" --exclude=scratch -C "$work/results" . &&
+        mv "$out/gpu-bench.tar.gz.part" "$out/gpu-bench.tar.gz"
 }
 
 measure() {
@@ -139,7 +148,13 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 run lab 10 python3 tools/bench/gemm_lab.py "$work/lab"
                 run lab 40 "$bin/raypatch-bench" --gemm-lab "$work/lab" --out "$work/results/lab"
                 ;;
-            rpsrt) sweep rpsrt 90 25 --only official:8 --views 8,32 ;;
+            breakdown)
+                run breakdown 120 "$bin/raypatch-bench" --only official:8 --only official:1 --only official-osrt:8 \
+                    --only official-define:16 --no-pytorch --max-reference-gmac 0 --repeats 10 \
+                    --out "$work/results/breakdown"
+                shares breakdown
+                ;;
+            rpsrt) sweep rpsrt 150 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 60 0 --only official:1 ;;
             families) sweep families 75 25 --only official-osrt:8 --only official-define:16 ;;
             viewer) viewer ;;

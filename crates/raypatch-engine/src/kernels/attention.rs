@@ -14,7 +14,8 @@ use crate::tensor::padded_cols;
 /// Query rows per workgroup (`WG * QUERIES` in `shaders/attention.wgsl`); a workgroup serves one head.
 const ROWS_PER_GROUP: usize = 64 * 8;
 
-/// Largest `dim_head`: the kernel keeps a head of each query in private arrays of `MAX_CHUNKS * 4` floats.
+/// Largest `dim_head`: flash attention keeps a head of each query in 32 vec4 registers (tools/codegen/gen_attention.py
+/// reads this).
 pub const MAX_DIM_HEAD: usize = 128;
 
 params! {
@@ -196,7 +197,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     plan.push(Op {
         label: format!("{label}.split"),
         shader,
-        entry: "flash_split",
+        entry: "flash",
         params: params.words(),
         bindings: [&inputs[..], &[(partials, Access::Write)]].concat(),
         textures: Vec::new(),
