@@ -147,6 +147,8 @@ def main():
     manifest = [
         "engine_tiled engine.wgsl linear_tiled 128 128 7 auto shaped",
         "engine_tiled_unshaped engine.wgsl linear_tiled 128 128 7 auto",
+        # With a transformer's pre-norm in the prologue, as the engine's to_qkv, to_q and MLP-up layers run.
+        "engine_tiled_norm engine.wgsl linear_tiled 128 128 7 auto shaped norm",
         "engine_rows engine.wgsl linear 256 8 5 1",
     ]
     manifest += outer(out, 128, 128, 8, 8, 8, unroll_k=True)

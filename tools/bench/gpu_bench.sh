@@ -73,7 +73,7 @@ failed=0
 run() {
     local name=$1 seconds=$2
     shift 2
-    echo "== $name: $*"
+    echo "== $name: $* (at $(date +%T))"
     local started=$SECONDS
     timeout "$seconds" "$@" 2>&1 | tee -a "$work/results/$name.log"
     local code=${PIPESTATUS[0]}
@@ -124,7 +124,17 @@ save() {
         mv "$out/gpu-bench.tar.gz.part" "$out/gpu-bench.tar.gz"
 }
 
+# The GPU's clocks, power and load every 100 ms while the steps run (clocks.csv in the archive): a GPU that idles
+# between short submissions may not raise its clocks, which shows here beside the steps' start times in the log.
+monitor_clocks() {
+    command -v nvidia-smi >/dev/null || return 0
+    nvidia-smi --query-gpu=timestamp,clocks.sm,clocks.mem,power.draw,utilization.gpu,pstate --format=csv -lms 100 \
+        >"$work/results/clocks.csv" 2>&1 &
+    clocks=$!
+}
+
 measure() {
+    monitor_clocks
     for s in "${steps[@]}"; do
         case $s in
             info)
@@ -161,6 +171,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
         esac
         save
     done
+    [ -n "${clocks:-}" ] && kill "$clocks" 2>/dev/null && save
     echo "gpu_bench: ${#steps[@]} step(s), $failed command(s) failed; results in $out/gpu-bench.tar.gz"
     return "$failed"
 }

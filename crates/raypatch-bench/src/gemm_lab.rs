@@ -3,8 +3,10 @@
 //! is tried on a lent GPU before it goes into `shaders/` (docs/PERFORMANCE.md, "The GEMM lab").
 //!
 //! DIR holds the kernels and `manifest.txt` (written by `tools/bench/gemm_lab.py`), a line per variant:
-//! `name file entry tile_m tile_n bindings splits [shaped]`; `shaped`: compiled for each shape with the override
-//! constants the engine gives its shaped pipelines (`kernels::matmul::fixed_shape`), as it runs them on GPUs.
+//! `name file entry tile_m tile_n bindings splits [shaped] [norm]`; `shaped`: compiled for each shape with the
+//! override constants the engine gives its shaped pipelines (`kernels::matmul::fixed_shape`), as it runs them on
+//! GPUs; `norm` (7 bindings): x's rows layer-normalised in the prologue (`MatmulParams::norm`, a transformer's
+//! pre-norm), with random gamma and beta at bindings 5 and 6.
 //! Every kernel takes `shaders/matmul.wgsl`'s uniform and its bindings 0-4 (and 5-6 when `bindings` is 7: gamma
 //! and beta, bound to the bias here), numbers its workgroups `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x
 //! ceil(n / tile_n) tiles times `splits` K ranges (`auto`: as the engine splits them, `kernels::matmul::split_k`),
@@ -32,6 +34,7 @@ struct Variant {
     bindings: u32,
     auto_split: bool,
     shaped: bool,
+    norm: bool,
 }
 
 fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
@@ -40,29 +43,31 @@ fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
     for (number, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#')) {
         let f: Vec<&str> = line.split_whitespace().collect();
         let parsed = (|| -> Option<Variant> {
-            let (fields, shaped) = match f[..] {
-                [ref fields @ .., "shaped"] => (fields, true),
-                ref fields => (fields, false),
-            };
+            let flags = f.iter().rev().take_while(|w| ["shaped", "norm"].contains(w)).count();
+            let (fields, flags) = f.split_at(f.len() - flags);
             let [name, file, entry, tile_m, tile_n, bindings, splits] = fields[..] else { return None };
+            let norm = flags.contains(&"norm");
+            let bindings = bindings.parse().ok().filter(|&b| b == 7 || b == 5 && !norm)?;
             Some(Variant {
                 name: name.into(),
                 file: file.into(),
                 entry: entry.into(),
                 tile: (tile_m.parse().ok().filter(|&t| t > 0)?, tile_n.parse().ok().filter(|&t| t > 0)?),
-                bindings: bindings.parse().ok().filter(|b| [5, 7].contains(b))?,
+                bindings,
                 auto_split: match splits {
                     "1" => false,
                     "auto" => true,
                     _ => return None,
                 },
-                shaped,
+                shaped: flags.contains(&"shaped"),
+                norm,
             })
         })();
         match parsed {
             Some(v) => variants.push(v),
             None => bail!(
-                "{}:{}: expected `name file entry tile_m tile_n bindings(5|7) splits(1|auto) [shaped]`",
+                "{}:{}: expected `name file entry tile_m tile_n bindings(5|7) splits(1|auto) [shaped] [norm]` (norm: 7 \
+                 bindings)",
                 path.display(),
                 number + 1
             ),
@@ -152,6 +157,8 @@ fn time_variant(
         data
     };
     let (x, w) = (padded(m), padded(n));
+    // Layer norm's gamma and beta, zero in the padding columns (as the engine's are).
+    let (gamma, beta) = (padded(1), padded(1));
     let mut bias = rng.vec_f32(n, -1.0, 1.0);
     bias.resize(n4 * 4, 0.0);
     let m_tiles = m.div_ceil(v.tile.0);
@@ -170,7 +177,7 @@ fn time_variant(
         splits: splits as u32,
         k_split4: k_split4 as u32,
         m_tiles: m_tiles as u32,
-        norm: 0,
+        norm: u32::from(v.norm),
         norm_cols: k as u32,
         eps: 1e-5,
     };
@@ -180,10 +187,12 @@ fn time_variant(
     };
     let storage = wgpu::BufferUsages::STORAGE;
     let uniform = buffer("params", bytemuck::cast_slice(&params.words()), wgpu::BufferUsages::UNIFORM);
-    let (xb, wb, bb) = (
+    let (xb, wb, bb, gb, betab) = (
         buffer("x", bytemuck::cast_slice(&x), storage),
         buffer("w", bytemuck::cast_slice(&w), storage),
         buffer("bias", bytemuck::cast_slice(&bias), storage),
+        buffer("gamma", bytemuck::cast_slice(&gamma), storage),
+        buffer("beta", bytemuck::cast_slice(&beta), storage),
     );
     let out_bytes = (splits * m * n4 * 16) as u64;
     let out = device.create_buffer(&wgpu::BufferDescriptor {
@@ -198,7 +207,7 @@ fn time_variant(
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    let bound = [&uniform, &xb, &wb, &bb, &out, &bb, &bb];
+    let bound = [&uniform, &xb, &wb, &bb, &out, &gb, &betab];
     let entries: Vec<_> = (0..v.bindings)
         .map(|i| wgpu::BindGroupEntry { binding: i, resource: bound[i as usize].as_entire_binding() })
         .collect();
@@ -242,9 +251,19 @@ fn time_variant(
     let mut error = 0f64;
     let corners = [(0, 0), (m - 1, n - 1), (0, n - 1), (m - 1, 0)];
     let sampled: Vec<(usize, usize)> = (4..4096).map(|_| (rng.range(0, m - 1), rng.range(0, n - 1))).collect();
+    // Row i of x as the kernel multiplies it: layer-normalised (float64, eps 1e-5) with `norm`.
+    let row = |i: usize| -> Vec<f64> {
+        let r: Vec<f64> = x[i * k4 * 4..][..k].iter().map(|&v| f64::from(v)).collect();
+        if !v.norm {
+            return r;
+        }
+        let mean = r.iter().sum::<f64>() / k as f64;
+        let rstd = 1.0 / (r.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / k as f64 + 1e-5).sqrt();
+        r.iter().enumerate().map(|(c, v)| (v - mean) * rstd * f64::from(gamma[c]) + f64::from(beta[c])).collect()
+    };
     for &(i, j) in corners.iter().chain(&sampled) {
         let expected: f64 =
-            bias[j] as f64 + (0..k).map(|c| x[i * k4 * 4 + c] as f64 * w[j * k4 * 4 + c] as f64).sum::<f64>();
+            bias[j] as f64 + row(i).iter().enumerate().map(|(c, r)| r * w[j * k4 * 4 + c] as f64).sum::<f64>();
         let mut sum: f64 = (0..splits).map(|s| got[(s * m + i) * n4 * 4 + j] as f64).sum();
         if splits > 1 && v.name.starts_with("engine") {
             sum += bias[j] as f64;
@@ -274,7 +293,14 @@ mod tests {
         assert_eq!(v.len(), 2);
         assert_eq!((v[0].tile, v[0].bindings, v[0].auto_split, v[0].shaped), ((128, 128), 7, true, true));
         assert_eq!((v[1].entry.as_str(), v[1].auto_split, v[1].shaped), ("linear", false, false));
-        for bad in ["a b c 0 64 5 1", "a b c 64 64 6 1", "a b c 64 64 5 2", "a b c 64 64 5", "a b c 64 64 5 1 fixed"] {
+        for bad in [
+            "a b c 0 64 5 1",
+            "a b c 64 64 6 1",
+            "a b c 64 64 5 2",
+            "a b c 64 64 5",
+            "a b c 64 64 5 1 fixed",
+            "a b c 64 64 5 1 norm",
+        ] {
             let e = manifest(&format!("ok f.wgsl main 64 64 5 1\n{bad}\n")).unwrap_err().to_string();
             assert!(e.contains("manifest.txt:2: expected"), "{bad}: {e}");
         }
