@@ -66,10 +66,20 @@ def synchronize(device):
         torch.cuda.synchronize(device)
 
 
+# Seconds of unrecorded runs before timing on a GPU, as the engine's harness does (measure::warm_for): a GPU
+# idle between short runs holds its lowest clocks until it has been busy for a while.
+GPU_WARM_SECONDS = 0.25
+
+
 def timed(function, repeats, device=torch.device("cpu")):
-    """(result, [wall ms per run]) after one warm-up run, each run waited for on `device`."""
+    """(result, [wall ms per run]) after one warm-up run (on a GPU, as many as fill GPU_WARM_SECONDS), each run
+    waited for on `device`."""
+    warming = time.perf_counter()
     function()
     synchronize(device)
+    while device.type == "cuda" and time.perf_counter() - warming < GPU_WARM_SECONDS:
+        function()
+        synchronize(device)
     times, result = [], None
     for _ in range(repeats):
         start = time.perf_counter()

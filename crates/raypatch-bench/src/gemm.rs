@@ -17,7 +17,7 @@ use raypatch_engine::Gpu;
 use raypatch_reference::Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::measure::{repeat, Repeats, Sample, Stats};
+use crate::measure::{repeat, warm_for, Repeats, Sample, Stats};
 use crate::pytorch::{source_file, Torch};
 use crate::report::write_file;
 
@@ -63,7 +63,7 @@ fn time_linear(gpu: &Gpu, kernel: MatmulKernel, (m, k, n): (usize, usize, usize)
     let act = Activation::None;
     linear(&mut plan, "linear", LinearArgs { x, weight, bias: Some(bias), out, act, accumulate: false, norm: None });
     let plan = plan.build(gpu)?;
-    let repeats = Repeats { warmup: 1, runs, budget: Duration::MAX };
+    let repeats = Repeats { warmup: 1, warm_for: warm_for(gpu.info.device_type), runs, budget: Duration::MAX };
     let (wall, _) = repeat(repeats, || -> Result<Sample> {
         let start = Instant::now();
         plan.execute(gpu);

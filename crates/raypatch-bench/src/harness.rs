@@ -204,10 +204,11 @@ pub fn run(options: &Options) -> Result<()> {
         }
     };
     let runs = options.repeats.unwrap_or(if options.quick { 3 } else { 5 });
+    let warm_for = measure::warm_for(gpu.info.device_type);
     let bench = Bench {
         gpu,
         timestamps,
-        repeats: Repeats { warmup: 1, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
+        repeats: Repeats { warmup: 1, warm_for, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
         max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick {
             1.5
         } else {

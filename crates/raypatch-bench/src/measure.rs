@@ -30,9 +30,23 @@ impl Stats {
 #[derive(Clone, Copy, Debug)]
 pub struct Repeats {
     pub warmup: usize,
+    /// Keep warming up, unrecorded, until this long has passed: a GPU idle between short submissions holds its
+    /// lowest clocks (an H200's at 345 MHz of 1980 in tools/bench/gpu_bench.sh's clocks.csv) until it has been
+    /// busy for a while. Zero on CPU adapters.
+    pub warm_for: Duration,
     pub runs: usize,
     /// Stop repeating once the measured runs took this long (at least one run is always made).
     pub budget: Duration,
+}
+
+/// How long to warm an adapter up before timing it ([`Repeats::warm_for`]): a quarter second on GPUs (the
+/// H200's clocks rose from idle within 0.1 s of steady work), nothing on CPU adapters, which keep their clocks.
+pub fn warm_for(adapter: wgpu::DeviceType) -> Duration {
+    if adapter == wgpu::DeviceType::Cpu {
+        Duration::ZERO
+    } else {
+        Duration::from_millis(250)
+    }
 }
 
 /// One run's wall time and, when the GPU timed it, its GPU time.
@@ -41,11 +55,14 @@ pub struct Sample {
     pub gpu: Option<Duration>,
 }
 
-/// Runs `run` `warmup` times unrecorded, then up to `runs` times (within the budget); returns the wall-time
-/// and GPU-time statistics (the latter when every run had a GPU time).
+/// Runs `run` `warmup` times unrecorded, and on until `warm_for` has passed, then up to `runs` times (within the
+/// budget); returns the wall-time and GPU-time statistics (the latter when every run had a GPU time).
 pub fn repeat<E>(repeats: Repeats, mut run: impl FnMut() -> Result<Sample, E>) -> Result<(Stats, Option<Stats>), E> {
-    for _ in 0..repeats.warmup {
+    let warming = Instant::now();
+    let mut warmed = 0;
+    while warmed < repeats.warmup || warming.elapsed() < repeats.warm_for {
         run()?;
+        warmed += 1;
     }
     let (mut wall, mut gpu) = (Vec::new(), Vec::new());
     let start = Instant::now();

@@ -453,10 +453,25 @@ pub fn started() -> std::time::Instant {
     *START.get_or_init(std::time::Instant::now)
 }
 
-/// The progress line of a measured configuration.
+/// The progress line of a measured configuration: the engine's figures, then its render's wall time and
+/// PyTorch's where measured (so that a log cut short still holds every comparison made).
 pub fn print_row(r: &Record) {
+    let ms = |s: Option<Stats>| s.map_or("-".to_string(), |s| format!("{:.2}", s.median_ms));
+    let mut compared = String::new();
+    if let Some(wall) = r.render_wall_ms {
+        compared += &format!("; wall {:.2} ms", wall.median_ms);
+    }
+    if r.pytorch_render_ms.is_some() || r.pytorch_compiled_render_ms.is_some() {
+        compared += &format!(
+            "; PyTorch render {} ms (compiled {}), encode {} ms (compiled {})",
+            ms(r.pytorch_render_ms),
+            ms(r.pytorch_compiled_render_ms),
+            ms(r.pytorch_encode_ms),
+            ms(r.pytorch_compiled_encode_ms)
+        );
+    }
     println!(
-        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>2}x{:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}",
+        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>2}x{:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}{compared}",
         started().elapsed().as_secs_f64(),
         r.model,
         r.decoder,
