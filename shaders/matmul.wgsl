@@ -37,11 +37,9 @@ struct Params {
     splits: u32,
     k_split4: u32,
     m_tiles: u32,
-    // `linear_tiled` only: 1 when x's rows are layer-normalised as they are staged (over norm_cols columns,
-    // with eps; gamma and beta at bindings 5 and 6), else 0.
+    // `linear_tiled` only: 1 when x's rows are layer-normalised as they are staged (their statistics at binding
+    // 7, gamma and beta at 5 and 6), else 0.
     norm: u32,
-    norm_cols: u32,
-    eps: f32,
 }
 
 alias WeightVec = vec4<f32>;
@@ -64,7 +62,6 @@ override SHAPED_SPLITS: u32 = 0u;
 override SHAPED_K_SPLIT4: u32 = 0u;
 override SHAPED_M_TILES: u32 = 0u;
 override SHAPED_NORM: u32 = 0u;
-override SHAPED_NORM_COLS: u32 = 0u;
 fn op_m() -> u32 { return select(p.m, SHAPED_M, SHAPED); }
 fn op_n() -> u32 { return select(p.n, SHAPED_N, SHAPED); }
 fn op_k4() -> u32 { return select(p.k4, SHAPED_K4, SHAPED); }
@@ -77,7 +74,6 @@ fn op_splits() -> u32 { return select(p.splits, SHAPED_SPLITS, SHAPED); }
 fn op_k_split4() -> u32 { return select(p.k_split4, SHAPED_K_SPLIT4, SHAPED); }
 fn op_m_tiles() -> u32 { return select(p.m_tiles, SHAPED_M_TILES, SHAPED); }
 fn op_norm() -> u32 { return select(p.norm, SHAPED_NORM, SHAPED); }
-fn op_norm_cols() -> u32 { return select(p.norm_cols, SHAPED_NORM_COLS, SHAPED); }
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> w: array<WeightVec>;
@@ -186,10 +182,13 @@ fn linear(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 //
 // Layer norm in the prologue (`norm` = 1): x's rows are normalised as they are staged, out = act(LN(x) · wᵀ +
 // bias) with LN's gamma and beta bound at 5 and 6, so the normalised rows are never written (the pre-norm of
-// every transformer layer). Each workgroup first takes its TILE rows' statistics over all of K, in the two
-// passes of layernorm.wgsl (deviations from the row's first element, whose mean is never rounded on its own).
+// every transformer layer). The rows' statistics come from layernorm.wgsl's `row_stats`, run before (binding 7,
+// a vec4 per row: the deviations' reference x0, their mean delta and 1 / std), rather than being summed here by
+// every workgroup that stages the row: in the GEMM lab on an H200 that prologue made 300x1536x1536 3.4x slower
+// and 4800x768x2304 1.4x.
 @group(0) @binding(5) var<storage, read> gamma: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> beta: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read> stats: array<vec4<f32>>;
 
 // What normalises one row as it is staged: its first element, the mean of the deviations from it, 1 / std.
 struct RowNorm {
@@ -198,43 +197,13 @@ struct RowNorm {
     rstd: f32,
 }
 
-// The TILE_K4 invocations that stage a row (consecutive li) sum `part` over it: each leaves its part in
-// x_tile[li] and adds up its row's. x_tile is free before the first step.
-fn sum_over_row(li: u32, part: f32) -> f32 {
-    workgroupBarrier();
-    // (f16 tiles would round the sums: the f16-activation variant runs the norm as a dispatch of its own.)
-    x_tile[li] = vec4<TileFloat>(TileFloat(part));
-    workgroupBarrier();
-    var sum = 0.0;
-    let first = li - li % TILE_K4;
-    for (var t = 0u; t < TILE_K4; t++) {
-        sum += f32(x_tile[first + t].x);
+// Row `row`'s statistics when `norm` is 1, else the identity.
+fn row_norm(row: u32) -> RowNorm {
+    if (op_norm() == 0u) {
+        return RowNorm(0.0, 0.0, 1.0);
     }
-    return sum;
-}
-
-// Statistics of the row at x offset `at` (vec4s) over the norm_cols columns, each of the TILE_K4 invocations
-// sharing it taking every TILE_K4-th vec4 from kk.
-fn row_norm(li: u32, kk: u32, at: u32) -> RowNorm {
-    let x0 = x[at].x;
-    let cols = op_norm_cols();
-    let lanes = vec4<u32>(0u, 1u, 2u, 3u);
-    var s = 0.0;
-    for (var k = kk; k < op_k4(); k += TILE_K4) {
-        let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
-        let d = select(vec4<f32>(0.0), x[at + k] - x0, inside);
-        s += d.x + d.y + d.z + d.w;
-    }
-    let delta = sum_over_row(li, s) / f32(cols);
-    var v = 0.0;
-    for (var k = kk; k < op_k4(); k += TILE_K4) {
-        let inside = vec4<u32>(4u * k) + lanes < vec4<u32>(cols);
-        let d = select(vec4<f32>(0.0), (x[at + k] - x0) - delta, inside);
-        v += dot(d, d);
-    }
-    let rstd = 1.0 / sqrt(sum_over_row(li, v) / f32(cols) + p.eps);
-    workgroupBarrier();
-    return RowNorm(x0, delta, rstd);
+    let s = stats[row];
+    return RowNorm(s.x, s.y, s.z);
 }
 
 // Vec4 k of a row of x as staged: normalised when `norm` is 1 (zero in the padding columns, where gamma and
@@ -287,10 +256,7 @@ fn linear_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     // Rows past the end of x or w are clamped to the last one (their results are dropped or zeroed).
     let xa = min(row0 + li / TILE_K4, op_m() - 1u) * op_k4();
     let wa = min(tile * TILE + li / TILE_K4, op_n() - 1u) * op_w_ld4();
-    var norm = RowNorm(0.0, 0.0, 1.0);
-    if (op_norm() != 0u) {
-        norm = row_norm(li, kk, xa);
-    }
+    let norm = row_norm(min(row0 + li / TILE_K4, op_m() - 1u));
     var next = load_step(k_begin + kk, k_end, xa, wa, norm);
     // This invocation's block of out (tiles.wgsl), in registers: named variables (gen_tiles.py says why).
     // BEGIN sums: written by tools/codegen/gen_tiles.py

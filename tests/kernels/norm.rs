@@ -1,7 +1,9 @@
-//! LayerNorm against the float64 reference.
+//! LayerNorm against the float64 reference, on both kernels: an invocation per row (CPU adapters) and a
+//! workgroup per row (GPUs: `device::norm_per_workgroup`).
 
 use std::ops::Range;
 
+use raypatch_engine::device::{KernelChoice, MatmulKernel};
 use raypatch_engine::kernels::norm::{layernorm, LayerNormArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::GpuTensor;
@@ -13,17 +15,18 @@ const SENTINEL: f32 = 7.25;
 /// PyTorch's default.
 const EPS: f32 = 1e-5;
 
-/// Runs `layernorm` on rows `x_rows` of `x` into as many rows from `out_start` of an `out_total`-row output
-/// prefilled with SENTINEL (padding included). Checks that the view's padding is zero and every other row
-/// untouched; returns the view's rows, unpadded.
+/// The two ways a layer norm runs: the plan's kernel family that picks each (`device::norm_per_workgroup`).
+const KERNELS: [MatmulKernel; 2] = [MatmulKernel::Rows, MatmulKernel::Tiled];
+
+/// Runs `layernorm` as `kernel`'s family does on rows `x_rows` of `x` into as many rows from `out_start` of an
+/// `out_total`-row output (`out`: (out_total, out_start)) prefilled with SENTINEL (padding included). Checks that
+/// the view's padding is zero and every other row untouched; returns the view's rows, unpadded.
 fn run_layernorm(
+    kernel: MatmulKernel,
     x: &GpuTensor,
     x_rows: Range<usize>,
-    gamma: &[f32],
-    beta: &[f32],
-    eps: f32,
-    out_total: usize,
-    out_start: usize,
+    (gamma, beta, eps): (&[f32], &[f32], f32),
+    (out_total, out_start): (usize, usize),
 ) -> Vec<f32> {
     let gpu = gpu();
     let (cols, rows) = (x.cols, x_rows.len());
@@ -31,6 +34,7 @@ fn run_layernorm(
     let gamma = gpu.upload("gamma", 1, cols, gamma).unwrap();
     let beta = gpu.upload("beta", 1, cols, beta).unwrap();
     let mut b = PlanBuilder::new();
+    b.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
     let (xi, gi, bi, oi) =
         (b.external("x", x), b.external("gamma", &gamma), b.external("beta", &beta), b.external("out", &out));
     let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
@@ -64,7 +68,6 @@ fn layernorm_random_shapes_and_views() {
         let beta = normals(&mut rng, cols, 0.0, 1.0);
         let eps = [EPS, 1e-6, 1e-3][rng.range(0, 2)];
         let xt = gpu.upload("x", x_rows, cols, &x).unwrap();
-        let got = run_layernorm(&xt, x_start..x_start + rows, &gamma, &beta, eps, out_rows, out_start);
         let want = reference::layernorm(
             &f64s(&x[x_start * cols..(x_start + rows) * cols]),
             cols,
@@ -72,9 +75,13 @@ fn layernorm_random_shapes_and_views() {
             &f64s(&beta),
             eps as f64,
         );
-        // The normalised values are within ~√C·u of exact on random rows (f32 sums of C/4 terms); times
-        // |gamma| ≤ 3 and plus beta: 2e-6 absolute plus 2e-6 of the output's scale leaves a 5x margin.
-        assert_close(&format!("{rows}x{cols} from rows {x_start}/{out_start}, eps {eps}"), &got, &want, 2e-6, 2e-6);
+        for kernel in KERNELS {
+            let got = run_layernorm(kernel, &xt, x_start..x_start + rows, (&gamma, &beta, eps), (out_rows, out_start));
+            // The normalised values are within ~√C·u of exact on random rows (f32 sums of C/4 terms); times
+            // |gamma| ≤ 3 and plus beta: 2e-6 absolute plus 2e-6 of the output's scale leaves a 5x margin.
+            let case = format!("{kernel:?}: {rows}x{cols} from rows {x_start}/{out_start}, eps {eps}");
+            assert_close(&case, &got, &want, 2e-6, 2e-6);
+        }
     }
 }
 
@@ -88,7 +95,6 @@ fn layernorm_large_mean_small_spread() {
         let x = normals(&mut rng, rows * cols, mean, 1e-2);
         let (ones, zeros) = (vec![1.0; cols], vec![0.0; cols]);
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
-        let got = run_layernorm(&xt, 0..rows, &ones, &zeros, EPS, rows, 0);
         let want = reference::layernorm(&f64s(&x), cols, &vec![1.0; cols], &vec![0.0; cols], EPS as f64);
         // The kernel's error bound for the normalised value is (C/4 + 3)·u·(max - min)/std per row (see
         // `layernorm`); taken with the widest spread over the rows, plus 4 ulp of the largest value.
@@ -106,7 +112,10 @@ fn layernorm_large_mean_small_spread() {
             })
             .fold(0.0, f64::max);
         assert!(bound < 1e-3, "{cols} columns: bound {bound:e} above the 1e-3 that `layernorm` states");
-        assert_close(&format!("{cols} columns around {mean}"), &got, &want, bound, 0.0);
+        for kernel in KERNELS {
+            let got = run_layernorm(kernel, &xt, 0..rows, (&ones, &zeros, EPS), (rows, 0));
+            assert_close(&format!("{kernel:?}: {cols} columns around {mean}"), &got, &want, bound, 0.0);
+        }
     }
 }
 
@@ -125,25 +134,30 @@ fn layernorm_constant_rows_give_beta() {
         let beta = normals(&mut rng, cols, 0.0, 2.0);
         let rows = constants.len();
         let xt = gpu.upload("x", rows, cols, &x).unwrap();
-        let got = run_layernorm(&xt, 0..rows, &gamma, &beta, EPS, rows, 0);
-        for (r, row) in got.chunks(cols).enumerate() {
-            assert_eq!(row, &beta[..], "{cols} columns: constant row {} is not beta", constants[r]);
+        for kernel in KERNELS {
+            let got = run_layernorm(kernel, &xt, 0..rows, (&gamma, &beta, EPS), (rows, 0));
+            for (r, row) in got.chunks(cols).enumerate() {
+                assert_eq!(row, &beta[..], "{kernel:?}: {cols} columns: constant row {} is not beta", constants[r]);
+            }
         }
     }
 }
 
-/// The row count of a full-resolution decoder pass: the dispatch covers every row.
+/// The row count of a full-resolution decoder pass: the dispatch covers every row (a workgroup per row: more
+/// than 65535 workgroups, so the grid spills into y).
 #[test]
 fn layernorm_many_rows() {
     let gpu = gpu();
     let mut rng = Rng::new(14);
-    let (rows, cols) = (1_200_000, 3);
-    let x = rng.vec_f32(rows * cols, -2.0, 2.0);
-    let gamma = normals(&mut rng, cols, 1.0, 0.5);
-    let beta = normals(&mut rng, cols, 0.0, 1.0);
-    let xt = gpu.upload("x", rows, cols, &x).unwrap();
-    let got = run_layernorm(&xt, 0..rows, &gamma, &beta, EPS, rows, 0);
-    let want = reference::layernorm(&f64s(&x), cols, &f64s(&gamma), &f64s(&beta), EPS as f64);
-    // As in the random-shape test; 3 columns only, but rows with nearly equal values get large outputs.
-    assert_close("1.2M rows", &got, &want, 2e-6, 2e-6);
+    for (kernel, rows) in [(MatmulKernel::Rows, 1_200_000), (MatmulKernel::Tiled, 70_000)] {
+        let cols = 3;
+        let x = rng.vec_f32(rows * cols, -2.0, 2.0);
+        let gamma = normals(&mut rng, cols, 1.0, 0.5);
+        let beta = normals(&mut rng, cols, 0.0, 1.0);
+        let xt = gpu.upload("x", rows, cols, &x).unwrap();
+        let got = run_layernorm(kernel, &xt, 0..rows, (&gamma, &beta, EPS), (rows, 0));
+        let want = reference::layernorm(&f64s(&x), cols, &f64s(&gamma), &f64s(&beta), EPS as f64);
+        // As in the random-shape test; 3 columns only, but rows with nearly equal values get large outputs.
+        assert_close(&format!("{kernel:?}: {rows} rows"), &got, &want, 2e-6, 2e-6);
+    }
 }

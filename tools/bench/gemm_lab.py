@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PARAMS = """
 struct Params {
     m: u32, n: u32, k4: u32, n4: u32, act: u32, slope: f32, has_bias: u32, accumulate: u32, w_ld4: u32,
-    splits: u32, k_split4: u32, m_tiles: u32, norm: u32, norm_cols: u32, eps: f32,
+    splits: u32, k_split4: u32, m_tiles: u32, norm: u32,
 }
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;
@@ -145,10 +145,10 @@ def main():
     engine = "\n".join((ROOT / "shaders" / f"{name}.wgsl").read_text() for name in ["activation", "tiles", "matmul"])
     (out / "engine.wgsl").write_text(engine)
     manifest = [
-        "engine_tiled engine.wgsl linear_tiled 128 128 7 auto shaped",
-        "engine_tiled_unshaped engine.wgsl linear_tiled 128 128 7 auto",
+        "engine_tiled engine.wgsl linear_tiled 128 128 8 auto shaped",
+        "engine_tiled_unshaped engine.wgsl linear_tiled 128 128 8 auto",
         # With a transformer's pre-norm in the prologue, as the engine's to_qkv, to_q and MLP-up layers run.
-        "engine_tiled_norm engine.wgsl linear_tiled 128 128 7 auto shaped norm",
+        "engine_tiled_norm engine.wgsl linear_tiled 128 128 8 auto shaped norm",
         "engine_rows engine.wgsl linear 256 8 5 1",
     ]
     manifest += outer(out, 128, 128, 8, 8, 8, unroll_k=True)

@@ -5,10 +5,10 @@
 //! DIR holds the kernels and `manifest.txt` (written by `tools/bench/gemm_lab.py`), a line per variant:
 //! `name file entry tile_m tile_n bindings splits [shaped] [norm]`; `shaped`: compiled for each shape with the
 //! override constants the engine gives its shaped pipelines (`kernels::matmul::fixed_shape`), as it runs them on
-//! GPUs; `norm` (7 bindings): x's rows layer-normalised in the prologue (`MatmulParams::norm`, a transformer's
-//! pre-norm), with random gamma and beta at bindings 5 and 6.
-//! Every kernel takes `shaders/matmul.wgsl`'s uniform and its bindings 0-4 (and 5-6 when `bindings` is 7: gamma
-//! and beta, bound to the bias here), numbers its workgroups `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x
+//! GPUs; `norm` (8 bindings): x's rows layer-normalised in the prologue (`MatmulParams::norm`, a transformer's
+//! pre-norm), with random gamma and beta at bindings 5 and 6 and the rows' statistics at 7 (as layernorm.wgsl's
+//! `row_stats` writes them; taken here on the CPU, the kernel alone is timed).
+//! Every kernel takes `shaders/matmul.wgsl`'s uniform and its bindings 0-4 (and 5-7 when `bindings` is 8), numbers its workgroups `wid.x + wid.y * nwg.x` over ceil(m / tile_m) x
 //! ceil(n / tile_n) tiles times `splits` K ranges (`auto`: as the engine splits them, `kernels::matmul::split_k`),
 //! and writes split s's sums to rows s·m.. of out (the engine's `linear_tiled` adds the bias in `linear_reduce`,
 //! so for it, named `engine*`, the check adds it).
@@ -47,7 +47,7 @@ fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
             let (fields, flags) = f.split_at(f.len() - flags);
             let [name, file, entry, tile_m, tile_n, bindings, splits] = fields[..] else { return None };
             let norm = flags.contains(&"norm");
-            let bindings = bindings.parse().ok().filter(|&b| b == 7 || b == 5 && !norm)?;
+            let bindings = bindings.parse().ok().filter(|&b| b == 8 || b == 5 && !norm)?;
             Some(Variant {
                 name: name.into(),
                 file: file.into(),
@@ -66,7 +66,7 @@ fn parse_manifest(path: &Path) -> Result<Vec<Variant>> {
         match parsed {
             Some(v) => variants.push(v),
             None => bail!(
-                "{}:{}: expected `name file entry tile_m tile_n bindings(5|7) splits(1|auto) [shaped] [norm]` (norm: 7 \
+                "{}:{}: expected `name file entry tile_m tile_n bindings(5|8) splits(1|auto) [shaped] [norm]` (norm: 8 \
                  bindings)",
                 path.display(),
                 number + 1
@@ -178,21 +178,30 @@ fn time_variant(
         k_split4: k_split4 as u32,
         m_tiles: m_tiles as u32,
         norm: u32::from(v.norm),
-        norm_cols: k as u32,
-        eps: 1e-5,
     };
+    // Each row's statistics in `row_stats`'s form: x0, the mean of the deviations from it, 1 / std (taken in
+    // float64, so that the check measures the kernel).
+    let stats: Vec<f32> = (0..m)
+        .flat_map(|i| {
+            let r: Vec<f64> = x[i * k4 * 4..][..k].iter().map(|&v| f64::from(v)).collect();
+            let delta = r.iter().map(|v| v - r[0]).sum::<f64>() / k as f64;
+            let var = r.iter().map(|v| ((v - r[0]) - delta).powi(2)).sum::<f64>() / k as f64;
+            [r[0], delta, 1.0 / (var + 1e-5).sqrt(), 0.0].map(|v| v as f32)
+        })
+        .collect();
     let pipeline = &pipeline_for(&params)?;
     let buffer = |label: &str, contents: &[u8], usage| {
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     };
     let storage = wgpu::BufferUsages::STORAGE;
     let uniform = buffer("params", bytemuck::cast_slice(&params.words()), wgpu::BufferUsages::UNIFORM);
-    let (xb, wb, bb, gb, betab) = (
+    let (xb, wb, bb, gb, betab, sb) = (
         buffer("x", bytemuck::cast_slice(&x), storage),
         buffer("w", bytemuck::cast_slice(&w), storage),
         buffer("bias", bytemuck::cast_slice(&bias), storage),
         buffer("gamma", bytemuck::cast_slice(&gamma), storage),
         buffer("beta", bytemuck::cast_slice(&beta), storage),
+        buffer("stats", bytemuck::cast_slice(&stats), storage),
     );
     let out_bytes = (splits * m * n4 * 16) as u64;
     let out = device.create_buffer(&wgpu::BufferDescriptor {
@@ -207,7 +216,7 @@ fn time_variant(
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    let bound = [&uniform, &xb, &wb, &bb, &out, &gb, &betab];
+    let bound = [&uniform, &xb, &wb, &bb, &out, &gb, &betab, &sb];
     let entries: Vec<_> = (0..v.bindings)
         .map(|i| wgpu::BindGroupEntry { binding: i, resource: bound[i as usize].as_entire_binding() })
         .collect();
@@ -287,11 +296,11 @@ mod tests {
     #[test]
     fn manifest_lines_parse_and_bad_ones_name_their_line() {
         let v = manifest(
-            "# comment\nengine_tiled engine.wgsl linear_tiled 128 128 7 auto shaped\nrows e.wgsl linear 256 8 5 1\n",
+            "# comment\nengine_tiled engine.wgsl linear_tiled 128 128 8 auto shaped\nrows e.wgsl linear 256 8 5 1\n",
         )
         .unwrap();
         assert_eq!(v.len(), 2);
-        assert_eq!((v[0].tile, v[0].bindings, v[0].auto_split, v[0].shaped), ((128, 128), 7, true, true));
+        assert_eq!((v[0].tile, v[0].bindings, v[0].auto_split, v[0].shaped), ((128, 128), 8, true, true));
         assert_eq!((v[1].entry.as_str(), v[1].auto_split, v[1].shaped), ("linear", false, false));
         for bad in [
             "a b c 0 64 5 1",
@@ -300,6 +309,7 @@ mod tests {
             "a b c 64 64 5",
             "a b c 64 64 5 1 fixed",
             "a b c 64 64 5 1 norm",
+            "a b c 64 64 7 1",
         ] {
             let e = manifest(&format!("ok f.wgsl main 64 64 5 1\n{bad}\n")).unwrap_err().to_string();
             assert!(e.contains("manifest.txt:2: expected"), "{bad}: {e}");

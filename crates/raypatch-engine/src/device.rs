@@ -152,6 +152,14 @@ pub fn fixed_shapes(variant: MatmulKernel) -> bool {
     variant == MatmulKernel::Tiled
 }
 
+/// Whether a layer norm takes a workgroup per row (`shaders/layernorm.wgsl`'s `layernorm_wide`, its sums added up
+/// in parallel) rather than an invocation per row (`layernorm`): on `Tiled`, the GPUs' family, where 300 rows on
+/// as many invocations would leave a GPU idle while each walks its row; not on CPU adapters, whose invocations
+/// are SIMD lanes.
+pub fn norm_per_workgroup(choice: &KernelChoice) -> bool {
+    choice.matmul == MatmulKernel::Tiled
+}
+
 /// How attention runs ([`attention_variant`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AttentionVariant<L> {

@@ -6,7 +6,7 @@
 //! heads, `kernels::attention`).
 
 use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, MatmulKernel, TileElement};
-use crate::kernels::norm::{check_affine, layernorm, LayerNormArgs};
+use crate::kernels::norm::{check_affine, layernorm, row_stats, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES};
@@ -48,11 +48,9 @@ params! {
         splits: u32,
         k_split4: u32,
         m_tiles: u32,
-        /// `linear_tiled`: 1 when x's rows are layer-normalised as they are staged ([`RowNorm`]), over
-        /// `norm_cols` columns with `eps`.
+        /// `linear_tiled`: 1 when x's rows are layer-normalised as they are staged ([`RowNorm`]), with the
+        /// statistics `row_stats` took of them.
         norm: u32,
-        norm_cols: u32,
-        eps: f32,
     }
 }
 
@@ -95,8 +93,9 @@ pub struct RowNorm {
 /// Records `M·N·K` multiply-adds. Runs on the plan's [`MatmulKernel`] (`plan.kernels.matmul`); `Lanes`
 /// hands f16 weights and operands too large for its textures to `Rows`.
 ///
-/// With `norm`, x's rows are layer-normalised first: on `Tiled` with f32 tiles as `linear_tiled` stages them (the
-/// normalised rows are never written), elsewhere by a [`layernorm`] into a transient that the layer then reads.
+/// With `norm`, x's rows are layer-normalised first: on `Tiled` as `linear_tiled` stages them, from the statistics
+/// a [`row_stats`] took of them (the normalised rows are never written), elsewhere by a [`layernorm`] into a
+/// transient that the layer then reads.
 pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let LinearArgs { x, weight: w, bias, out, act, accumulate, norm } = args;
     let (m, k, n) = (x.rows, plan.cols(x.id), plan.rows(w));
@@ -133,8 +132,6 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         k_split4: k4 as u32,
         m_tiles: 1,
         norm: 0,
-        norm_cols: k as u32,
-        eps: 0.0,
     };
     assert!(
         plan.dtype(x.id) == Dtype::F32 && bias.is_none_or(|b| plan.dtype(b) == Dtype::F32),
@@ -157,9 +154,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     };
     let variant = linear_variant(&plan.kernels, n, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
-    // The norm in the prologue is linear_tiled's, with f32 tiles (it sums rows' statistics in them).
-    let fused_norm = variant == MatmulKernel::Tiled && tiles == TileElement::F32;
-    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, fused_norm) {
+    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, variant == MatmulKernel::Tiled) {
         let normed = plan.transient(&format!("{label}.norm"), m, k);
         let normed = plan.all(normed);
         layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
@@ -181,16 +176,20 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let (weight, bias) = (plan.all(w), plan.all(bias.unwrap_or(w)));
     let mut bindings = vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read)];
     if variant == MatmulKernel::Tiled {
-        // linear_tiled's layer norm: gamma and beta at 5 and 6 (w again when there is none, unread).
-        let (gamma, beta) = match norm {
+        // linear_tiled's layer norm: gamma and beta at 5 and 6, the rows' statistics at 7 (w again when there is
+        // no norm, unread).
+        let (gamma, beta, stats) = match norm {
             Some(RowNorm { gamma, beta, eps }) => {
                 check_affine(plan, &format!("linear {label}: layer norm"), k, gamma, beta, eps);
-                (params.norm, params.eps) = (1, eps);
-                (plan.all(gamma), plan.all(beta))
+                params.norm = 1;
+                let stats = plan.transient(&format!("{label}.stats"), m, 4);
+                let stats = plan.all(stats);
+                row_stats(plan, &format!("{label}.stats"), x, stats, eps);
+                (plan.all(gamma), plan.all(beta), stats)
             }
-            None => (weight, weight),
+            None => (weight, weight, weight),
         };
-        bindings.extend([(gamma, Access::Read), (beta, Access::Read)]);
+        bindings.extend([(gamma, Access::Read), (beta, Access::Read), (stats, Access::Read)]);
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
     let (splits, k_split4) = if variant == MatmulKernel::Tiled { split_k(groups, k4) } else { (1, k4) };
@@ -247,7 +246,6 @@ pub fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
         ("SHAPED_K_SPLIT4", p.k_split4),
         ("SHAPED_M_TILES", p.m_tiles),
         ("SHAPED_NORM", p.norm),
-        ("SHAPED_NORM_COLS", p.norm_cols),
     ];
     std::iter::once(("SHAPED", 1.0)).chain(fields.map(|(name, value)| (name, f64::from(value)))).collect()
 }

@@ -1,6 +1,7 @@
 //! Layer normalisation over the columns of each row (`shaders/layernorm.wgsl`).
 
 use super::LAYERNORM;
+use crate::device::norm_per_workgroup;
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 
 params! {
@@ -40,7 +41,8 @@ pub(crate) fn check_affine(plan: &PlanBuilder, what: &str, cols: usize, gamma: T
     assert!(eps > 0.0 && eps.is_finite(), "{what}: eps {eps} must be positive");
 }
 
-/// Rows per workgroup: one invocation per row.
+/// Rows per workgroup of `layernorm`: one invocation per row (`layernorm_wide` and `row_stats` take a
+/// workgroup per row).
 const ROWS_PER_GROUP: usize = 64;
 
 /// `out[r] = (x[r] - mean(x[r])) / sqrt(var(x[r]) + eps) * gamma + beta` for every row of `x`, as PyTorch's
@@ -51,7 +53,7 @@ const ROWS_PER_GROUP: usize = 64;
 /// mean to f32 on its own (the output uses `((x - x0) - δ)` with `δ = Σ(x - x0) / C`). Rows far from zero
 /// keep the precision of their deviations: with `u = 2^-24`, the error of the normalised value
 /// `(x - mean) / sqrt(var + eps)` is at most about `(C/4 + 3) · u · (max(x[r]) - min(x[r])) / std(x[r])`
-/// (four partial sums per row) plus its own rounding, so ≤ 1e-3 for any C ≤ 2048 and a spread ≤ 8 std,
+/// (four partial sums per row; the workgroup-per-row kernels of GPUs add 64 such in a tree) plus its own rounding, so ≤ 1e-3 for any C ≤ 2048 and a spread ≤ 8 std,
 /// whatever the row's mean (a row with mean 1e4 and std 1e-2 included), and ~1e-6 on typical rows. A
 /// constant row gives exactly `beta`.
 ///
@@ -72,14 +74,47 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
     let params = LayerNormParams { rows: x.rows as u32, cols: cols as u32, ld4: (plan.ld(x.id) / 4) as u32, eps };
     let bindings =
         vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
+    let (entry, groups) = if norm_per_workgroup(&plan.kernels) {
+        ("layernorm_wide", x.rows)
+    } else {
+        ("layernorm", x.rows.div_ceil(ROWS_PER_GROUP))
+    };
     plan.push(Op {
         label: label.to_string(),
         shader: &LAYERNORM,
-        entry: "layernorm",
+        entry,
         params: params.words(),
         bindings,
         textures: Vec::new(),
-        workgroups: grid(x.rows.div_ceil(ROWS_PER_GROUP)),
+        workgroups: grid(groups),
+        constants: Vec::new(),
+        multiply_adds: 0,
+    });
+}
+
+/// The statistics of each row of `x` that normalise it as [`layernorm`] does, into `stats` (`[rows(x), 4]`: the
+/// row's first element x0, the mean of its deviations from x0, 1 / sqrt(var + eps), 0), a workgroup per row:
+/// for `linear_tiled`, which normalises its rows as it stages them (`kernels::matmul::RowNorm`).
+pub fn row_stats(plan: &mut PlanBuilder, label: &str, x: View, stats: View, eps: f32) {
+    let cols = plan.cols(x.id);
+    assert!(cols > 0, "row_stats {label}: x has no columns");
+    assert!(
+        stats.rows == x.rows && plan.cols(stats.id) == 4,
+        "row_stats {label}: stats is {}x{}, expected {}x4",
+        stats.rows,
+        plan.cols(stats.id),
+        x.rows
+    );
+    let params = LayerNormParams { rows: x.rows as u32, cols: cols as u32, ld4: (plan.ld(x.id) / 4) as u32, eps };
+    plan.push(Op {
+        label: label.to_string(),
+        shader: &LAYERNORM,
+        entry: "row_stats",
+        params: params.words(),
+        // gamma and beta are not read: x again.
+        bindings: vec![(x, Access::Read), (x, Access::Read), (x, Access::Read), (stats, Access::Write)],
+        textures: Vec::new(),
+        workgroups: grid(x.rows),
         constants: Vec::new(),
         multiply_adds: 0,
     });
