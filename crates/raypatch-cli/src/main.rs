@@ -75,11 +75,11 @@ struct Args {
     /// sizes) or `.gif` (animated).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
-    /// How `--out NAME.mp4` is encoded: `compact` (OpenH264, 4:2:0: small, plays everywhere, within about
-    /// 40 dB of the renders from 128x96 up, less at small sizes), `lossless` (H.264 High 4:4:4 with every
-    /// pixel stored raw: exactly the renders, any size, about 3 bytes a pixel a frame; ffmpeg and Chromium
-    /// play it, Safari and hardware players do not), or `auto`: compact unless its first frame would be
-    /// below 40 dB PSNR against the render, then lossless [default: auto].
+    /// How `--out NAME.mp4` is encoded: `compact`: H.264 4:2:0 from OpenH264, small, plays everywhere, close
+    /// to the renders but not exact (each 2x2 pixels share one colour: small frames can fall below 40 dB PSNR);
+    /// `lossless`: H.264 High 4:4:4 with every pixel stored raw, exactly the renders at any size, 3 bytes a
+    /// pixel a frame, plays in ffmpeg and Chromium, not in many other players; `auto`: compact unless its first
+    /// frame would be below 40 dB PSNR against the render, then lossless [default: auto].
     #[arg(long, value_name = "MODE", value_parser = parse_mp4_mode)]
     mp4: Option<Mp4Mode>,
     /// Lay each --out image out side by side with labels: rgb, depth (turbo map, one range for the whole

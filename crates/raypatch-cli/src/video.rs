@@ -52,8 +52,8 @@ pub enum Mp4Mode {
     Auto,
     /// OpenH264's 4:2:0 (Constrained Baseline): small, every player plays it, close to the render but not exact.
     Compact,
-    /// High 4:4:4 Predictive with every sample stored raw ([`crate::h264_lossless`]): exact, about 3 bytes a
-    /// pixel a frame; ffmpeg and Chromium play it, players without H.264's 4:4:4 profiles do not.
+    /// High 4:4:4 Predictive with every sample stored raw ([`crate::h264_lossless`]): exact, 3 bytes a pixel a
+    /// frame; ffmpeg and Chromium play it, players without H.264's 4:4:4 profiles do not.
     Lossless,
 }
 
