@@ -357,7 +357,8 @@ impl Mp4Writer {
 /// leaves. In full range every Y level moves each decoded channel by exactly one level (255/219 in limited
 /// range). Against limited range with Y from each pixel's own colour, the first frame gains 0.5 dB at 80x60
 /// and 1.4 dB at 320x240 (docs/CAMERA_PATHS.md), most of it from the full range; at 80x60 the bundled scene
-/// stays under 40 dB, as 4:2:0 cannot do better there (tests/video.rs, `chroma_420_ceiling`).
+/// stays under 40 dB, as 4:2:0 cannot do better there (tests/video.rs, `chroma_420_ceiling`): `--mp4 auto` writes
+/// it lossless.
 fn bt601_yuv420(rgb: &[u8], width: usize, height: usize) -> Vec<u8> {
     let at = |x: usize, y: usize| {
         let i = 3 * (y * width + x);
