@@ -224,6 +224,9 @@ pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, output
     if args.fps.is_some() && video.is_none() {
         bail!("--fps: only for a video, --out NAME.mp4 or NAME.gif (--out {} is not one)", args.out.display());
     }
+    if args.mp4.is_some() && video != Some(VideoFormat::Mp4) {
+        bail!("--mp4: only for --out NAME.mp4 (--out {} is not one)", args.out.display());
+    }
     let png = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if video.is_none() && !png && args.out.extension().is_some() && !args.out.is_dir() {
         bail!(
@@ -253,7 +256,7 @@ pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, output
             let (width, height) = sizes[0];
             // Panels are laid out at even sizes.
             if args.panels.is_none() {
-                check_video_size(&args.out, format, width, height)?;
+                check_video_size(&args.out, format, args.mp4.unwrap_or_default(), width, height)?;
             }
             files.push(("--out", args.out.clone()));
             Some(OutDest::Video(args.out.clone(), format))

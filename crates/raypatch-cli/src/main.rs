@@ -3,6 +3,7 @@
 
 mod cameras;
 mod files;
+mod h264_lossless;
 mod panels;
 mod parse;
 mod report;
@@ -23,10 +24,10 @@ use raypatch::{
 
 use cameras::{check_patch_size, CameraArgs, Shot};
 use panels::Panel;
-use parse::{parse_count, parse_depth_range, parse_fps, parse_outputs, parse_panels, parse_region};
+use parse::{parse_count, parse_depth_range, parse_fps, parse_mp4_mode, parse_outputs, parse_panels, parse_region};
 use report::{ms, print_profile, summary, Truth};
 use sequence::Sequence;
-use video::DEFAULT_FPS;
+use video::{Mp4Mode, DEFAULT_FPS};
 
 /// The bundled model and scene rendered when none is given (see docs/QUALITY.md), embedded in the binary so
 /// that it renders them wherever it is installed.
@@ -74,6 +75,13 @@ struct Args {
     /// sizes) or `.gif` (animated).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
+    /// How `--out NAME.mp4` is encoded: `compact`: H.264 4:2:0 from OpenH264, small, plays everywhere, close
+    /// to the renders but not exact (each 2x2 pixels share one colour: small frames can fall below 40 dB PSNR);
+    /// `lossless`: H.264 High 4:4:4 with every pixel stored raw, exactly the renders at any size, 3 bytes a
+    /// pixel a frame, plays in ffmpeg and Chromium, not in many other players; `auto`: compact unless its first
+    /// frame would be below 40 dB PSNR against the render, then lossless [default: auto].
+    #[arg(long, value_name = "MODE", value_parser = parse_mp4_mode)]
+    mp4: Option<Mp4Mode>,
     /// Lay each --out image out side by side with labels: rgb, depth (turbo map, one range for the whole
     /// run: --depth-range, else a first pass over every frame's depth), segmentation (OSRT: masks in the fixed
     /// palette), input (the first input view); e.g. rgb,depth.
@@ -274,6 +282,7 @@ fn run(args: &Args) -> Result<()> {
         depth_range: args.depth_range,
         input: &inputs[0].image,
         fps: args.fps.unwrap_or_else(|| path_fps.unwrap_or(DEFAULT_FPS).clamp(1.0, 100.0)),
+        mp4: args.mp4.unwrap_or_default(),
         progress: !args.quiet,
         keep: args.metrics || args.out_raw.is_some(),
         batched: is_sequence(&args.cameras),

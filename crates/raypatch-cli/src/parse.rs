@@ -1,5 +1,5 @@
 //! The values of render-frame's flags that clap cannot check alone: counts, frame rates, output lists, depth
-//! ranges and regions, each refused with what was expected.
+//! ranges, regions, motions and MP4 encodings, each refused with what was expected.
 
 use raypatch::{Output, Outputs, Region};
 
@@ -76,6 +76,14 @@ pub fn parse_motion(text: &str) -> Result<raypatch::Motion, String> {
     raypatch::Motion::from_name(text.trim()).ok_or_else(|| {
         let names: Vec<&str> = raypatch::Motion::ALL.iter().map(|m| m.name()).collect();
         format!("unknown motion {text:?}: expected one of {}", names.join(", "))
+    })
+}
+
+pub fn parse_mp4_mode(text: &str) -> Result<crate::video::Mp4Mode, String> {
+    use crate::video::Mp4Mode;
+    Mp4Mode::from_name(text.trim()).ok_or_else(|| {
+        let names: Vec<&str> = Mp4Mode::ALL.iter().map(|m| m.name()).collect();
+        format!("unknown MP4 encoding {text:?}: expected one of {}", names.join(", "))
     })
 }
 

@@ -11,7 +11,7 @@ use raypatch::{Camera, Image, Output, Outputs, Rendered, Request, Scene};
 use crate::cameras::Shot;
 use crate::files::{raw_bytes, Destinations, OutDest, Writing};
 use crate::panels::{frame_picture, widen_range, Panel};
-use crate::video::FrameWriter;
+use crate::video::{FrameWriter, Mp4Mode};
 
 /// Frames a sequence renders per render call (one plan of this many target views): fewer submits and
 /// readbacks, and on GPUs fuller dispatches.
@@ -26,6 +26,8 @@ pub struct Sequence<'a> {
     /// The first input view, for the input panel.
     pub input: &'a Image,
     pub fps: f64,
+    /// How an MP4 is encoded.
+    pub mp4: Mp4Mode,
     /// Show a progress bar (on a terminal only).
     pub progress: bool,
     /// Keep every frame's outputs (for --metrics and --out-raw).
@@ -94,7 +96,9 @@ impl Sequence<'_> {
         let panel_range = self.panel_depth_range(scene, &cameras)?;
         let mut writing = destinations.files.begin()?;
         let mut writer = match &destinations.out {
-            Some(OutDest::Video(path, format)) => Some(FrameWriter::video(writing.staged(), *format, path, self.fps)?),
+            Some(OutDest::Video(path, format)) => {
+                Some(FrameWriter::video(writing.staged(), *format, path, self.fps, self.mp4)?)
+            }
             Some(OutDest::Pngs(paths)) => Some(FrameWriter::Pngs { paths: paths.clone(), next: 0 }),
             None => None,
         };

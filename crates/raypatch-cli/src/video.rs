@@ -1,16 +1,20 @@
 //! Where a sequence's frames go, one at a time as they are rendered (memory does not grow with the frame
-//! count): an MP4 (H.264 from the bundled OpenH264 encoder, muxed by the `mp4` crate), an animated GIF, or
-//! one PNG per frame; each file a temporary until the whole run succeeded ([`raypatch::Staged`]).
+//! count): an MP4 (H.264 from the bundled OpenH264 encoder, or lossless from [`crate::h264_lossless`], muxed
+//! by the `mp4` crate), an animated GIF, or one PNG per frame; each file a temporary until the whole run
+//! succeeded ([`raypatch::Staged`]).
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use openh264::decoder::{Decoder, DecoderConfig};
 use openh264::encoder::{BitRate, Encoder, EncoderConfig, FrameRate, IntraFramePeriod, QpRange, VuiConfig};
-use openh264::formats::YUVBuffer;
+use openh264::formats::{YUVBuffer, YUVSource};
 use openh264::OpenH264API;
 use raypatch::{GifWriter, Image, Staged};
+
+use crate::h264_lossless::LosslessH264;
 
 /// Frames per second of a video when neither --fps nor the camera path gives one.
 pub const DEFAULT_FPS: f64 = 24.0;
@@ -40,13 +44,46 @@ impl VideoFormat {
     }
 }
 
+/// How `--out NAME.mp4` encodes its frames (`--mp4`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mp4Mode {
+    /// Compact, unless its first frame decodes below [`AUTO_LEAST_PSNR`] against the render: then lossless.
+    #[default]
+    Auto,
+    /// OpenH264's 4:2:0 (Constrained Baseline): small, every player plays it, close to the render but not exact.
+    Compact,
+    /// High 4:4:4 Predictive with every sample stored raw ([`crate::h264_lossless`]): exact, 3 bytes a pixel a
+    /// frame; ffmpeg and Chromium play it, players without H.264's 4:4:4 profiles do not.
+    Lossless,
+}
+
+impl Mp4Mode {
+    pub const ALL: [Mp4Mode; 3] = [Mp4Mode::Auto, Mp4Mode::Compact, Mp4Mode::Lossless];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Mp4Mode::Auto => "auto",
+            Mp4Mode::Compact => "compact",
+            Mp4Mode::Lossless => "lossless",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Mp4Mode> {
+        Mp4Mode::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+/// The least PSNR against the render, in dB, of the compact encoding's first frame that `--mp4 auto` keeps
+/// it for (issue 30's bar for a video's first frame).
+pub const AUTO_LEAST_PSNR: f64 = 40.0;
+
 /// Checks that a video of `width` x `height` can be encoded: H.264 in 4:2:0 needs even sides (no padding is
-/// added, so that the video's frames are the rendered frames).
-pub fn check_video_size(out: &Path, format: VideoFormat, width: usize, height: usize) -> Result<()> {
-    if format == VideoFormat::Mp4 && (width % 2 == 1 || height % 2 == 1) {
+/// added, so that the video's frames are the rendered frames); 4:4:4 takes any.
+pub fn check_video_size(out: &Path, format: VideoFormat, mp4: Mp4Mode, width: usize, height: usize) -> Result<()> {
+    if format == VideoFormat::Mp4 && mp4 != Mp4Mode::Lossless && (width % 2 == 1 || height % 2 == 1) {
         bail!(
-            "--out {}: H.264 needs an even width and height, the frames are {width}x{height} (choose an even size, \
-             e.g. --size {}x{})",
+            "--out {}: H.264 in 4:2:0 needs an even width and height, the frames are {width}x{height} (choose an \
+             even size, e.g. --size {}x{}, or --mp4 lossless)",
             out.display(),
             width + width % 2,
             height + height % 2
@@ -71,12 +108,12 @@ pub enum FrameWriter {
 }
 
 impl FrameWriter {
-    /// A writer of `format` into `path` (created through `staged`), at `fps`.
-    pub fn video(staged: &mut Staged, format: VideoFormat, path: &Path, fps: f64) -> Result<FrameWriter> {
+    /// A writer of `format` into `path` (created through `staged`), at `fps`; an MP4 encoded as `mp4` says.
+    pub fn video(staged: &mut Staged, format: VideoFormat, path: &Path, fps: f64, mp4: Mp4Mode) -> Result<FrameWriter> {
         let file = BufWriter::new(staged.create(path)?);
         Ok(match format {
             VideoFormat::Gif => FrameWriter::Gif(GifWriter::new(file, fps)?),
-            VideoFormat::Mp4 => FrameWriter::Mp4(Box::new(Mp4Writer::new(file, fps)?)),
+            VideoFormat::Mp4 => FrameWriter::Mp4(Box::new(Mp4Writer::new(file, fps, mp4))),
         })
     }
 
@@ -103,10 +140,12 @@ impl FrameWriter {
     }
 }
 
-/// H.264 in an MP4, a frame at a time: OpenH264 encodes each frame (BT.601 full range, as [`bt601_yuv420`]
-/// makes it and the stream's VUI says), the `mp4` crate writes the samples and, at the end, the index.
+/// H.264 in an MP4, a frame at a time: the encoder that the mode picks at the first frame encodes each
+/// frame, the `mp4` crate writes the samples and, at the end, the index.
 pub struct Mp4Writer {
-    encoder: Encoder,
+    mode: Mp4Mode,
+    /// Chosen at the first frame.
+    encoder: Option<H264Encoder>,
     /// The muxer, made at the first frame (it needs the stream's parameter sets), or the file until then.
     mux: Mux,
     fps: f64,
@@ -120,6 +159,12 @@ enum Mux {
     Finished,
 }
 
+enum H264Encoder {
+    /// OpenH264, 4:2:0: BT.601 full range, as [`bt601_yuv420`] makes it and the stream's VUI says.
+    Compact(Box<Encoder>),
+    Lossless(LosslessH264),
+}
+
 /// The lowest quantisation parameter OpenH264's rate control takes (every rate-controlled mode raises lower
 /// ones to 12; only its rate-control-off mode takes a lower, fixed one, which the openh264 crate does not set).
 /// On the bundled model's frames it costs 0.4 dB of the first frame's PSNR at 80x60, 1.3 dB at 320x240
@@ -130,8 +175,8 @@ const LOWEST_QP: u8 = 12;
 /// has a whole frame duration.
 const TICKS_PER_FRAME: u32 = 1000;
 
-impl Mp4Writer {
-    fn new(file: BufWriter<File>, fps: f64) -> Result<Mp4Writer> {
+impl H264Encoder {
+    fn compact(fps: f64) -> Result<H264Encoder> {
         // As close to the rendered pixels as OpenH264 goes (a constant QP of 12; the buffer-based rate control
         // is the one that neither skips frames nor warns when told not to), a keyframe every two seconds for
         // seeking.
@@ -145,7 +190,79 @@ impl Mp4Writer {
             .vui(VuiConfig::bt601().full_range(true));
         let encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
             .map_err(|e| anyhow::anyhow!("cannot start the H.264 encoder: {e}"))?;
-        Ok(Mp4Writer { encoder, mux: Mux::Waiting(file), fps, frames: 0, size: None })
+        Ok(H264Encoder::Compact(Box::new(encoder)))
+    }
+
+    /// The frame's access unit: its NAL units without start codes, parameter sets among them where the
+    /// stream repeats them. `rgb` is the frame's 8-bit RGB.
+    fn encode(&mut self, rgb: &[u8], width: usize, height: usize) -> Result<Vec<Vec<u8>>> {
+        let encoder = match self {
+            H264Encoder::Lossless(lossless) => return Ok(lossless.encode(rgb)),
+            H264Encoder::Compact(encoder) => encoder,
+        };
+        let yuv = YUVBuffer::from_vec(bt601_yuv420(rgb, width, height), width, height);
+        let stream = encoder.encode(&yuv).map_err(|e| anyhow::anyhow!("H.264 encoding failed: {e}"))?;
+        let mut nals = Vec::new();
+        for layer in (0..stream.num_layers()).filter_map(|i| stream.layer(i)) {
+            nals.extend(
+                (0..layer.nal_count()).filter_map(|i| layer.nal_unit(i)).map(|n| without_start_code(n).to_vec()),
+            );
+        }
+        Ok(nals)
+    }
+}
+
+/// The encoder `mode` picks for a video whose first frame is `rgb`, and that frame's access unit: for `auto`
+/// the compact one when its frame decodes to at least [`AUTO_LEAST_PSNR`] against `rgb`, else the lossless one.
+fn first_encoding(
+    mode: Mp4Mode,
+    fps: f64,
+    rgb: &[u8],
+    width: usize,
+    height: usize,
+) -> Result<(H264Encoder, Vec<Vec<u8>>)> {
+    if mode != Mp4Mode::Lossless {
+        let mut compact = H264Encoder::compact(fps)?;
+        let nals = compact.encode(rgb, width, height)?;
+        if mode == Mp4Mode::Compact || decoded_psnr(&nals, rgb)? >= AUTO_LEAST_PSNR {
+            return Ok((compact, nals));
+        }
+    }
+    let mut lossless = H264Encoder::Lossless(LosslessH264::new(width, height, fps));
+    let nals = lossless.encode(rgb, width, height)?;
+    Ok((lossless, nals))
+}
+
+/// The PSNR against `rgb` of the compact encoder's first frame (`nals`) as ffmpeg shows it: decoded by
+/// OpenH264 (H.264 decoding is exact: every conforming decoder gives these planes) and turned into RGB with
+/// ffmpeg's arithmetic ([`decoded_chroma_offsets`]).
+fn decoded_psnr(nals: &[Vec<u8>], rgb: &[u8]) -> Result<f64> {
+    let annex_b: Vec<u8> = nals.iter().flat_map(|nal| [0, 0, 0, 1].iter().chain(nal)).copied().collect();
+    let mut decoder = Decoder::with_api_config(OpenH264API::from_source(), DecoderConfig::new())
+        .map_err(|e| anyhow::anyhow!("cannot start the H.264 decoder: {e}"))?;
+    let picture = decoder
+        .decode(&annex_b)
+        .map_err(|e| anyhow::anyhow!("H.264 decoding of the first frame failed: {e}"))?
+        .context("the H.264 decoder gave no picture for the first frame")?;
+    let (width, height) = picture.dimensions();
+    let (luma_stride, chroma_stride, _) = picture.strides();
+    let mut squares = 0u64;
+    for (y, x) in (0..height).flat_map(|y| (0..width).map(move |x| (y, x))) {
+        let luma = i32::from(picture.y()[y * luma_stride + x]);
+        let chroma = y / 2 * chroma_stride + x / 2;
+        let offsets = decoded_chroma_offsets(picture.u()[chroma], picture.v()[chroma]);
+        for (c, offset) in offsets.into_iter().enumerate() {
+            let error = (luma + offset).clamp(0, 255) - i32::from(rgb[3 * (y * width + x) + c]);
+            squares += (error * error) as u64;
+        }
+    }
+    let mse = squares as f64 / rgb.len() as f64;
+    Ok(10.0 * (255.0 * 255.0 / mse).log10())
+}
+
+impl Mp4Writer {
+    fn new(file: BufWriter<File>, fps: f64, mode: Mp4Mode) -> Mp4Writer {
+        Mp4Writer { mode, encoder: None, mux: Mux::Waiting(file), fps, frames: 0, size: None }
     }
 
     fn push(&mut self, frame: &Image) -> Result<()> {
@@ -153,23 +270,27 @@ impl Mp4Writer {
         if *self.size.get_or_insert((width, height)) != (width, height) {
             bail!("an MP4's frames have one size: a {width}x{height} frame follows {:?}", self.size);
         }
-        let yuv = YUVBuffer::from_vec(bt601_yuv420(frame), width, height);
-        let stream = self.encoder.encode(&yuv).map_err(|e| anyhow::anyhow!("H.264 encoding failed: {e}"))?;
+        let rgb = frame.to_rgb8();
+        let nals = match &mut self.encoder {
+            Some(encoder) => encoder.encode(&rgb, width, height)?,
+            None => {
+                let (encoder, nals) = first_encoding(self.mode, self.fps, &rgb, width, height)?;
+                self.encoder = Some(encoder);
+                nals
+            }
+        };
         let (mut sps, mut pps, mut sample, mut sync) = (None, None, Vec::new(), false);
-        for layer in (0..stream.num_layers()).filter_map(|i| stream.layer(i)) {
-            for nal in (0..layer.nal_count()).filter_map(|i| layer.nal_unit(i)) {
-                let nal = without_start_code(nal);
-                match nal.first().map(|b| b & 0x1f) {
-                    Some(7) => sps = Some(nal.to_vec()),
-                    Some(8) => pps = Some(nal.to_vec()),
-                    Some(kind) => {
-                        sync |= kind == 5;
-                        // MP4 samples hold length-prefixed NAL units (AVCC), not Annex B start codes.
-                        sample.extend_from_slice(&(nal.len() as u32).to_be_bytes());
-                        sample.extend_from_slice(nal);
-                    }
-                    None => {}
+        for nal in nals {
+            match nal.first().map(|b| b & 0x1f) {
+                Some(7) => sps = Some(nal),
+                Some(8) => pps = Some(nal),
+                Some(kind) => {
+                    sync |= kind == 5;
+                    // MP4 samples hold length-prefixed NAL units (AVCC), not Annex B start codes.
+                    sample.extend_from_slice(&(nal.len() as u32).to_be_bytes());
+                    sample.extend_from_slice(&nal);
                 }
+                None => {}
             }
         }
         if sample.is_empty() {
@@ -230,16 +351,15 @@ impl Mp4Writer {
     }
 }
 
-/// `frame` (even sides) as I420 planes, BT.601 full range (0-255, as the stream's VUI says): each chroma
+/// A frame's 8-bit RGB (`width` x `height`, even sides) as I420 planes, BT.601 full range (0-255, as the stream's VUI says): each chroma
 /// sample from the mean of its 2x2 pixels, then each pixel's Y the level whose decoded RGB is nearest its own
 /// ("luma adjustment", Ström et al. 2016), so that luma takes up what it can of the error the shared chroma
 /// leaves. In full range every Y level moves each decoded channel by exactly one level (255/219 in limited
 /// range). Against limited range with Y from each pixel's own colour, the first frame gains 0.5 dB at 80x60
 /// and 1.4 dB at 320x240 (docs/CAMERA_PATHS.md), most of it from the full range; at 80x60 the bundled scene
-/// stays under 40 dB, as 4:2:0 cannot do better there (tests/video.rs, `chroma_420_ceiling`).
-fn bt601_yuv420(frame: &Image) -> Vec<u8> {
-    let (width, height) = (frame.width(), frame.height());
-    let rgb = frame.to_rgb8();
+/// stays under 40 dB, as 4:2:0 cannot do better there (tests/video.rs, `chroma_420_ceiling`): `--mp4 auto` writes
+/// it lossless.
+fn bt601_yuv420(rgb: &[u8], width: usize, height: usize) -> Vec<u8> {
     let at = |x: usize, y: usize| {
         let i = 3 * (y * width + x);
         [rgb[i], rgb[i + 1], rgb[i + 2]].map(i32::from)
@@ -331,12 +451,27 @@ mod tests {
     }
 
     #[test]
+    fn auto_keeps_compact_for_smooth_frames_and_goes_lossless_for_noise() {
+        let (width, height) = (32, 32);
+        let smooth: Vec<u8> =
+            (0..width * height).flat_map(|i| [(4 * (i % width)) as u8, (4 * (i / width)) as u8, 128]).collect();
+        let noise: Vec<u8> = bytes(3).take(3 * width * height).collect();
+        let lossless = |rgb: &[u8]| {
+            let (encoder, _) = first_encoding(Mp4Mode::Auto, 24.0, rgb, width, height).unwrap();
+            matches!(encoder, H264Encoder::Lossless(_))
+        };
+        assert!(!lossless(&smooth));
+        assert!(lossless(&noise));
+        let (compact, _) = first_encoding(Mp4Mode::Compact, 24.0, &noise, width, height).unwrap();
+        assert!(matches!(compact, H264Encoder::Compact(_)), "compact is kept whatever its PSNR");
+    }
+
+    #[test]
     fn flat_colours_decode_to_themselves_within_a_level() {
         let mut next = bytes(2);
         for _ in 0..2_000 {
             let rgb = [0; 3].map(|_| next.next().unwrap());
-            let frame = Image::new(2, 2, rgb.iter().cycle().take(12).map(|&c| f32::from(c) / 255.0).collect()).unwrap();
-            let yuv = bt601_yuv420(&frame);
+            let yuv = bt601_yuv420(&rgb.repeat(4), 2, 2);
             let offsets = decoded_chroma_offsets(yuv[4], yuv[5]);
             let decoded = [0, 1, 2].map(|c| (i32::from(yuv[0]) + offsets[c]).clamp(0, 255));
             let worst = (0..3).map(|c| (decoded[c] - i32::from(rgb[c])).abs()).max().unwrap();
