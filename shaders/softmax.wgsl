@@ -1,5 +1,7 @@
 // Softmax and normalisation along one axis of x [rows, cols] (row stride ld floats), into out of the same shape:
-// - softmax_rows:    out[r, :] = softmax(scale · x[r, :]) + eps, one invocation per row;
+// - softmax_rows:    out[r, :] = softmax(scale · x[r, :]) + eps, one invocation per row (CPU adapters), or
+//   softmax_rows_wide, a workgroup per row (GPUs, device::reduce_rows_per_workgroup: DeFiNe's 1200 x 2048
+//   attention weights, one invocation walking each row, took 1.1 ms of an H200);
 // - softmax_columns: out[:, c] = softmax(scale · x[:, c]) + eps, one invocation per column of ld (columns past
 //   cols write the zero padding);
 // - normalize_rows:  out[r, :] = x[r, :] / Σ x[r, :], one invocation per row.
@@ -88,4 +90,53 @@ fn normalize_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups
         out[r * p.ld + j] = x[r * p.ld + j] / sum;
     }
     zero_row_padding(r);
+}
+
+// softmax_rows_wide: a workgroup per row, invocation lid taking columns lid, lid + 64, ...; the row's max and
+// sum through workgroup memory. The same formula as `softmax`: exp(scale·x - max) / Σ, then + eps.
+const WIDE: u32 = 64u;
+var<workgroup> partial: array<f32, WIDE>;
+
+// The workgroup's `part`s combined by `op` (0: max, 1: sum), tree order; every invocation gets the result.
+fn workgroup_reduce(lid: u32, part: f32, op: u32) -> f32 {
+    partial[lid] = part;
+    for (var half = WIDE / 2u; half > 0u; half /= 2u) {
+        workgroupBarrier();
+        if (lid < half) {
+            let other = partial[lid + half];
+            partial[lid] = select(partial[lid] + other, max(partial[lid], other), op == 0u);
+        }
+    }
+    workgroupBarrier();
+    let result = partial[0];
+    // Before the next reduction overwrites it.
+    workgroupBarrier();
+    return result;
+}
+
+@compute @workgroup_size(64)
+fn softmax_rows_wide(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                     @builtin(local_invocation_index) lid: u32) {
+    let r = wid.x + wid.y * nwg.x;
+    if (r >= p.rows) {
+        return; // the whole workgroup
+    }
+    let first = r * p.ld;
+    var m = -3.0e38;
+    for (var j = lid; j < p.cols; j += WIDE) {
+        m = max(m, x[first + j] * p.scale);
+    }
+    m = workgroup_reduce(lid, m, 0u);
+    var sum = 0.0;
+    for (var j = lid; j < p.cols; j += WIDE) {
+        sum += exp(x[first + j] * p.scale - m);
+    }
+    sum = workgroup_reduce(lid, sum, 1u);
+    for (var j = lid; j < p.ld; j += WIDE) {
+        var v = 0.0;
+        if (j < p.cols) {
+            v = exp(x[first + j] * p.scale - m) / sum + p.eps;
+        }
+        out[first + j] = v;
+    }
 }

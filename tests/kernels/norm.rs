@@ -1,5 +1,5 @@
 //! LayerNorm against the float64 reference, on both kernels: an invocation per row (CPU adapters) and a
-//! workgroup per row (GPUs: `device::norm_per_workgroup`).
+//! workgroup per row (GPUs: `device::reduce_rows_per_workgroup`).
 
 use std::ops::Range;
 
@@ -15,7 +15,7 @@ const SENTINEL: f32 = 7.25;
 /// PyTorch's default.
 const EPS: f32 = 1e-5;
 
-/// The two ways a layer norm runs: the plan's kernel family that picks each (`device::norm_per_workgroup`).
+/// The two ways a layer norm runs: the plan's kernel family that picks each (`device::reduce_rows_per_workgroup`).
 const KERNELS: [MatmulKernel; 2] = [MatmulKernel::Rows, MatmulKernel::Tiled];
 
 /// Runs `layernorm` as `kernel`'s family does on rows `x_rows` of `x` into as many rows from `out_start` of an

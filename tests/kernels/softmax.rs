@@ -1,10 +1,12 @@
-//! Softmax along rows and columns, and row normalisation, against the float64 reference.
+//! Softmax along rows and columns, and row normalisation, against the float64 reference, each as the CPU
+//! adapters' and the GPUs' kernel families run it (a row softmax: an invocation or a workgroup per row).
 //!
 //! The outputs are probabilities that slot attention renormalises over inputs, so errors are checked
 //! relative to each element, not to the largest.
 
 use std::ops::Range;
 
+use raypatch_engine::device::{KernelChoice, MatmulKernel};
 use raypatch_engine::kernels::softmax::{normalize_rows, softmax, Axis, SoftmaxArgs};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_reference::softmax as reference;
@@ -29,24 +31,38 @@ enum Which {
 }
 
 /// Runs `which` on rows `x_rows` of `x` (`[x.len() / cols, cols]`) into as many rows from `out_start` of an
-/// `out_total`-row output prefilled with SENTINEL (padding included). Checks that the view's padding is
-/// zero and every other row untouched; returns the view's rows, unpadded.
-fn run_op(x: &[f32], cols: usize, x_rows: Range<usize>, out_total: usize, out_start: usize, which: Which) -> Vec<f32> {
+/// `out_total`-row output prefilled with SENTINEL (padding included), as the CPU adapters' family (`Rows`) and
+/// the GPUs' (`Tiled`) run it. Checks that the view's padding is zero and every other row untouched; returns
+/// each family's view rows, unpadded.
+fn run_op(
+    x: &[f32],
+    cols: usize,
+    x_rows: Range<usize>,
+    out_total: usize,
+    out_start: usize,
+    which: Which,
+) -> Vec<(MatmulKernel, Vec<f32>)> {
     let gpu = gpu();
     let rows = x_rows.len();
     let xt = gpu.upload("x", x.len() / cols, cols, x).unwrap();
-    let out = sentinel_tensor(out_total, cols, SENTINEL);
-    let mut b = PlanBuilder::new();
-    let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
-    let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
-    match which {
-        Which::Softmax { axis, scale, eps } => {
-            softmax(&mut b, "softmax", SoftmaxArgs { x: xv, out: ov, axis, scale, eps })
-        }
-        Which::NormalizeRows => normalize_rows(&mut b, "normalize", xv, ov),
-    }
-    run(b);
-    read_written_rows(&out, out_start..out_start + rows, SENTINEL)
+    [MatmulKernel::Rows, MatmulKernel::Tiled]
+        .into_iter()
+        .map(|kernel| {
+            let out = sentinel_tensor(out_total, cols, SENTINEL);
+            let mut b = PlanBuilder::new();
+            b.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+            let (xi, oi) = (b.external("x", &xt), b.external("out", &out));
+            let (xv, ov) = (b.rows_of(xi, x_rows.start, rows), b.rows_of(oi, out_start, rows));
+            match which {
+                Which::Softmax { axis, scale, eps } => {
+                    softmax(&mut b, "softmax", SoftmaxArgs { x: xv, out: ov, axis, scale, eps })
+                }
+                Which::NormalizeRows => normalize_rows(&mut b, "normalize", xv, ov),
+            }
+            run(b);
+            (kernel, read_written_rows(&out, out_start..out_start + rows, SENTINEL))
+        })
+        .collect()
 }
 
 /// Asserts |got - want| <= atol + rtol·|want| element by element; returns the largest absolute and relative
@@ -107,14 +123,18 @@ fn softmax_random_shapes_and_views() {
         let scale = [1.0, 0.125, INV_SQRT_128, rng.uniform(0.05, 2.0) as f32][rng.range(0, 3)];
         let eps = if case % 3 == 0 { 0.0 } else { SLOT_EPS };
         let which = Which::Softmax { axis, scale, eps };
-        let got = run_op(&x, cols, x_start..x_start + rows, out_start + rows + rng.range(0, 30), out_start, which);
+        let out_total = out_start + rows + rng.range(0, 30);
         let view = &x[x_start * cols..(x_start + rows) * cols];
         let want = reference::softmax(&to_f64(view), cols, axis, scale as f64, eps as f64);
         let logit_max = view.iter().fold(0.0f64, |m, &v| m.max((v as f64 * scale as f64).abs()));
         let n = if axis == Axis::Rows { cols } else { rows };
-        let what = format!("softmax {axis:?} {rows}x{cols} scale {scale} eps {eps} from rows {x_start}/{out_start}");
-        let (abs, rel) = assert_close_each(&what, &got, &want, 0.0, rounded_logits_rtol(logit_max, n));
-        (worst_abs, worst_rel) = (worst_abs.max(abs), worst_rel.max(rel));
+        for (kernel, got) in run_op(&x, cols, x_start..x_start + rows, out_total, out_start, which) {
+            let what = format!(
+                "{kernel:?}: softmax {axis:?} {rows}x{cols} scale {scale} eps {eps} from rows {x_start}/{out_start}"
+            );
+            let (abs, rel) = assert_close_each(&what, &got, &want, 0.0, rounded_logits_rtol(logit_max, n));
+            (worst_abs, worst_rel) = (worst_abs.max(abs), worst_rel.max(rel));
+        }
     }
     eprintln!("softmax random: max abs error {worst_abs:e}, max relative error {worst_rel:e}");
 }
@@ -136,13 +156,14 @@ fn softmax_large_exact_logits() {
         for v in x.iter_mut().step_by(3) {
             *v = (1e4 - rng.range(0, 200) as f64) as f32;
         }
-        let got = run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale, eps });
         let want = reference::softmax(&to_f64(&x), cols, axis, scale as f64, eps as f64);
         let n = if axis == Axis::Rows { cols } else { rows };
-        // Exact logits and differences: only exp, the sum, the division and + eps.
-        let what = format!("softmax {axis:?} {rows}x{cols} of integers up to 1e4, scale {scale}");
-        let (_, rel) = assert_close_each(&what, &got, &want, UNDERFLOW, softmax_rtol(0.0, MAX_EXP_ARG, n));
-        worst_rel = worst_rel.max(rel);
+        for (kernel, got) in run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale, eps }) {
+            // Exact logits and differences: only exp, the sum, the division and + eps.
+            let what = format!("{kernel:?}: softmax {axis:?} {rows}x{cols} of integers up to 1e4, scale {scale}");
+            let (_, rel) = assert_close_each(&what, &got, &want, UNDERFLOW, softmax_rtol(0.0, MAX_EXP_ARG, n));
+            worst_rel = worst_rel.max(rel);
+        }
     }
     eprintln!("softmax exact large logits: max relative error {worst_rel:e}");
 }
@@ -160,17 +181,19 @@ fn softmax_large_rounded_logits() {
             *v = (1e4 - rng.uniform(0.0, 300.0)) as f32;
         }
         let eps = SLOT_EPS;
-        let got = run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale, eps });
         let want = reference::softmax(&to_f64(&x), cols, axis, scale as f64, eps as f64);
         let n = if axis == Axis::Rows { cols } else { rows };
-        let what = format!("softmax {axis:?} {rows}x{cols} of x up to 1e4, scale {scale}");
-        let (_, rel) = assert_close_each(&what, &got, &want, UNDERFLOW, rounded_logits_rtol(1e4 * scale as f64, n));
-        worst_rel = worst_rel.max(rel);
         // Against the f32 logits the kernel sees, only v − m's rounding (u·|v − m| where exp does not
         // underflow) and an fma the driver may fuse x·scale − m into (u·|v| off the f32 logit) remain.
         let want32 = reference::softmax(&f32_logits(&x, scale), cols, axis, 1.0, eps as f64);
         let rtol32 = softmax_rtol(U * (1e4 * scale as f64 + MAX_EXP_ARG), MAX_EXP_ARG, n);
-        assert_close_each(&format!("{what}, against the f32 logits"), &got, &want32, UNDERFLOW, rtol32);
+        for (kernel, got) in run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale, eps }) {
+            let what = format!("{kernel:?}: softmax {axis:?} {rows}x{cols} of x up to 1e4, scale {scale}");
+            let rtol = rounded_logits_rtol(1e4 * scale as f64, n);
+            let (_, rel) = assert_close_each(&what, &got, &want, UNDERFLOW, rtol);
+            worst_rel = worst_rel.max(rel);
+            assert_close_each(&format!("{what}, against the f32 logits"), &got, &want32, UNDERFLOW, rtol32);
+        }
     }
     eprintln!("softmax rounded large logits: max relative error {worst_rel:e}");
 }
@@ -184,21 +207,16 @@ fn softmax_one_column() {
         for (rows, x_start, out_start) in [(1, 0, 0), (5, 64, 0), (130, 0, 64)] {
             let x = rng.vec_f32(x_start + rows + 3, -5.0, 5.0);
             let (scale, eps) = (0.5, SLOT_EPS);
-            let got = run_op(
-                &x,
-                1,
-                x_start..x_start + rows,
-                out_start + rows + 2,
-                out_start,
-                Which::Softmax { axis, scale, eps },
-            );
+            let which = Which::Softmax { axis, scale, eps };
             let want = reference::softmax(&to_f64(&x[x_start..x_start + rows]), 1, axis, scale as f64, eps as f64);
-            let what = format!("softmax {axis:?} of {rows}x1 from rows {x_start}/{out_start}");
-            if axis == Axis::Rows {
-                // exp(0) / exp(0) = 1 exactly, and 1 + 1e-8 rounds to 1 in f32.
-                assert!(got.iter().all(|&v| v == 1.0), "{what}: {got:?}");
-            } else {
-                assert_close_each(&what, &got, &want, 0.0, rounded_logits_rtol(2.5, rows));
+            for (kernel, got) in run_op(&x, 1, x_start..x_start + rows, out_start + rows + 2, out_start, which) {
+                let what = format!("{kernel:?}: softmax {axis:?} of {rows}x1 from rows {x_start}/{out_start}");
+                if axis == Axis::Rows {
+                    // exp(0) / exp(0) = 1 exactly, and 1 + 1e-8 rounds to 1 in f32.
+                    assert!(got.iter().all(|&v| v == 1.0), "{what}: {got:?}");
+                } else {
+                    assert_close_each(&what, &got, &want, 0.0, rounded_logits_rtol(2.5, rows));
+                }
             }
         }
     }
@@ -209,8 +227,9 @@ fn softmax_one_column() {
 fn softmax_flat() {
     for (axis, rows, cols) in [(Axis::Rows, 3, 8), (Axis::Columns, 8, 6)] {
         let x = vec![123.25f32; rows * cols];
-        let got = run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale: 0.3, eps: 0.5 });
-        assert!(got.iter().all(|&v| v == 0.625), "softmax {axis:?} of a flat {rows}x{cols}: {got:?}");
+        for (kernel, got) in run_op(&x, cols, 0..rows, rows, 0, Which::Softmax { axis, scale: 0.3, eps: 0.5 }) {
+            assert!(got.iter().all(|&v| v == 0.625), "{kernel:?}: softmax {axis:?} of a flat {rows}x{cols}: {got:?}");
+        }
     }
 }
 
@@ -226,19 +245,14 @@ fn normalize_rows_random_shapes_and_views() {
         let x_rows = x_start + rows + rng.range(0, 30);
         // Positive, as slot attention's softmax + eps is, over many orders of magnitude.
         let x: Vec<f32> = (0..x_rows * cols).map(|_| rng.uniform(-18.0, 0.0).exp() as f32).collect();
-        let got = run_op(
-            &x,
-            cols,
-            x_start..x_start + rows,
-            out_start + rows + rng.range(0, 30),
-            out_start,
-            Which::NormalizeRows,
-        );
+        let out_total = out_start + rows + rng.range(0, 30);
         let want = reference::normalize_rows(&to_f64(&x[x_start * cols..(x_start + rows) * cols]), cols);
-        // The f32 sum of n positive terms is within (n − 1)·u relative, the division adds u.
-        let what = format!("normalize_rows {rows}x{cols} from rows {x_start}/{out_start}");
-        let (_, rel) = assert_close_each(&what, &got, &want, 0.0, U * (cols as f64 + 1.0));
-        worst_rel = worst_rel.max(rel);
+        for (kernel, got) in run_op(&x, cols, x_start..x_start + rows, out_total, out_start, Which::NormalizeRows) {
+            // The f32 sum of n positive terms is within (n − 1)·u relative, the division adds u.
+            let what = format!("{kernel:?}: normalize_rows {rows}x{cols} from rows {x_start}/{out_start}");
+            let (_, rel) = assert_close_each(&what, &got, &want, 0.0, U * (cols as f64 + 1.0));
+            worst_rel = worst_rel.max(rel);
+        }
     }
     eprintln!("normalize_rows: max relative error {worst_rel:e}");
 }

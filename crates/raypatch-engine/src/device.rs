@@ -152,11 +152,11 @@ pub fn fixed_shapes(variant: MatmulKernel) -> bool {
     variant == MatmulKernel::Tiled
 }
 
-/// Whether a layer norm takes a workgroup per row (`shaders/layernorm.wgsl`'s `layernorm_wide`, its sums added up
-/// in parallel) rather than an invocation per row (`layernorm`): on `Tiled`, the GPUs' family, where 300 rows on
-/// as many invocations would leave a GPU idle while each walks its row; not on CPU adapters, whose invocations
-/// are SIMD lanes.
-pub fn norm_per_workgroup(choice: &KernelChoice) -> bool {
+/// Whether the kernels that reduce along rows (layer norm: `shaders/layernorm.wgsl`'s `layernorm_wide`; a row
+/// softmax: `softmax.wgsl`'s `softmax_rows_wide`) take a workgroup per row, its max and sums combined in parallel,
+/// rather than an invocation per row: on `Tiled`, the GPUs' family, where 300 rows on as many invocations would
+/// leave a GPU idle while each walks its row; not on CPU adapters, whose invocations are SIMD lanes.
+pub fn reduce_rows_per_workgroup(choice: &KernelChoice) -> bool {
     choice.matmul == MatmulKernel::Tiled
 }
 

@@ -1,7 +1,7 @@
 //! Layer normalisation over the columns of each row (`shaders/layernorm.wgsl`).
 
 use super::LAYERNORM;
-use crate::device::norm_per_workgroup;
+use crate::device::reduce_rows_per_workgroup;
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, View};
 
 params! {
@@ -74,7 +74,7 @@ pub fn layernorm(plan: &mut PlanBuilder, label: &str, args: LayerNormArgs) {
     let params = LayerNormParams { rows: x.rows as u32, cols: cols as u32, ld4: (plan.ld(x.id) / 4) as u32, eps };
     let bindings =
         vec![(x, Access::Read), (plan.all(gamma), Access::Read), (plan.all(beta), Access::Read), (out, Access::Write)];
-    let (entry, groups) = if norm_per_workgroup(&plan.kernels) {
+    let (entry, groups) = if reduce_rows_per_workgroup(&plan.kernels) {
         ("layernorm_wide", x.rows)
     } else {
         ("layernorm", x.rows.div_ceil(ROWS_PER_GROUP))

@@ -2,6 +2,7 @@
 //! slot attention (over slots, then renormalised over inputs) and of the OSRT mixing block (over slots).
 
 use super::SOFTMAX;
+use crate::device::reduce_rows_per_workgroup;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
 
 params! {
@@ -39,28 +40,25 @@ pub struct SoftmaxArgs {
     pub eps: f32,
 }
 
-/// Invocations per workgroup: one per row or column.
+/// Invocations per workgroup: one per row or column (`softmax_rows_wide` takes a workgroup per row).
 const GROUP_SIZE: usize = 64;
 
 /// `out = softmax(scale · x) + eps` along `axis` (PyTorch's `(x * scale).softmax(dim) + eps`, max-subtracted).
 /// Writes every element of `out`, padding zeroed. Records no multiply-adds (elementwise work).
 pub fn softmax(plan: &mut PlanBuilder, label: &str, args: SoftmaxArgs) {
     let SoftmaxArgs { x, out, axis, scale, eps } = args;
-    let entry = match axis {
-        Axis::Rows => "softmax_rows",
-        Axis::Columns => "softmax_columns",
+    let (entry, groups) = match axis {
+        Axis::Rows if reduce_rows_per_workgroup(&plan.kernels) => ("softmax_rows_wide", x.rows),
+        Axis::Rows => ("softmax_rows", x.rows.div_ceil(GROUP_SIZE)),
+        Axis::Columns => ("softmax_columns", plan.ld(x.id).div_ceil(GROUP_SIZE)),
     };
-    let invocations = match axis {
-        Axis::Rows => x.rows,
-        Axis::Columns => plan.ld(x.id),
-    };
-    record(plan, label, entry, x, out, scale, eps, invocations);
+    record(plan, label, entry, x, out, scale, eps, groups);
 }
 
 /// `out[r, :] = x[r, :] / Σ x[r, :]` for every row (the official slot attention's renormalisation over
 /// inputs). Writes every element of `out`, padding zeroed.
 pub fn normalize_rows(plan: &mut PlanBuilder, label: &str, x: View, out: View) {
-    record(plan, label, "normalize_rows", x, out, 1.0, 0.0, x.rows);
+    record(plan, label, "normalize_rows", x, out, 1.0, 0.0, x.rows.div_ceil(GROUP_SIZE));
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -72,7 +70,7 @@ fn record(
     out: View,
     scale: f32,
     eps: f32,
-    invocations: usize,
+    groups: usize,
 ) {
     let cols = plan.cols(x.id);
     assert!(cols > 0 && x.rows > 0, "{entry} {label}: empty x");
@@ -92,7 +90,7 @@ fn record(
         params: params.words(),
         bindings: vec![(x, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
-        workgroups: grid(invocations.div_ceil(GROUP_SIZE)),
+        workgroups: grid(groups),
         constants: Vec::new(),
         multiply_adds: 0,
     });
