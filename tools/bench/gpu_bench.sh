@@ -9,9 +9,9 @@
 # STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 20 minutes,
 # more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 8
 # minutes; it took about 3 on an H200), `rpsrt srt families viewer` in another (limits 9 minutes; the sweeps time
-# PyTorch eager and compiled at every size and write their tables only at the end, so their limits are generous;
-# a sweep cut short still logs each configuration's line, PyTorch's times included), and `rows` in a third when
-# device time allows (limit 3 minutes)):
+# PyTorch eager and compiled at every size; a sweep cut short keeps the tables of the sizes it measured, and its
+# log has each configuration's line, PyTorch's times included), and `rows` in a third when device time allows
+# (limit 3 minutes)):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
 #     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)

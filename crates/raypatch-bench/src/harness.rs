@@ -244,31 +244,13 @@ pub fn run(options: &Options) -> Result<()> {
     if options.only.is_empty() {
         bench.golden(&mut records)?;
     }
-    bench.sweep(&mut records, &mut kernels)?;
+    // After each model, the results so far: a run cut short (a device call's time limit) keeps its tables.
+    let mut checkpoint = |records: &[Record], kernels: &[KernelTime]| bench.write_results(options, records, kernels);
+    bench.sweep(&mut records, &mut kernels, &mut checkpoint)?;
     bench.model_files(options, &mut records)?;
-    let comparison = paper::compare(&records);
-    let results = Results {
-        command: options.command.clone(),
-        date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
-        environment: bench.env.clone(),
-        timing: timing.to_string(),
-        pytorch: match &bench.torch {
-            Ok(torch) => torch.describe(),
-            Err(why) => format!("not timed: {why}"),
-        },
-        results: records,
-        kernels,
-        paper_comparison: comparison,
-    };
-    let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
-        + &paper::markdown(&results.paper_comparison);
+    let tables = bench.write_results(options, &records, &kernels)?;
     println!("\n{tables}");
-    let json = serde_json::to_string_pretty(&results)?;
-    report::write_file(&options.out.join("results.json"), json.as_bytes())?;
-    report::write_csv(&options.out.join("results.csv"), &results.results)?;
-    report::write_csv(&options.out.join("kernels.csv"), &results.kernels)?;
-    report::write_file(&options.out.join("tables.md"), tables.as_bytes())?;
-    plots::draw_all(&results.results, &options.out)?;
+    plots::draw_all(&records, &options.out)?;
     std::fs::remove_dir_all(&bench.scratch).ok();
     println!(
         "wrote results.json, results.csv, kernels.csv, tables.md and {} in {} ({:.0} s)",
@@ -283,7 +265,36 @@ fn size_text((h, w): (usize, usize)) -> String {
     format!("{h}x{w}")
 }
 
+/// What the sweep calls after each size with the records so far (it writes them out).
+type Checkpoint<'a> = dyn FnMut(&[Record], &[KernelTime]) -> Result<String> + 'a;
+
 impl Bench {
+    /// Writes results.json, results.csv, kernels.csv and tables.md of `records` and `kernels` into the output
+    /// folder; returns the tables.
+    fn write_results(&self, options: &Options, records: &[Record], kernels: &[KernelTime]) -> Result<String> {
+        let results = Results {
+            command: options.command.clone(),
+            date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
+            environment: self.env.clone(),
+            timing: if self.timestamps { "gpu timestamps" } else { "wall clock" }.to_string(),
+            pytorch: match &self.torch {
+                Ok(torch) => torch.describe(),
+                Err(why) => format!("not timed: {why}"),
+            },
+            results: records.to_vec(),
+            kernels: kernels.to_vec(),
+            paper_comparison: paper::compare(records),
+        };
+        let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
+            + &paper::markdown(&results.paper_comparison);
+        let json = serde_json::to_string_pretty(&results)?;
+        report::write_file(&options.out.join("results.json"), json.as_bytes())?;
+        report::write_csv(&options.out.join("results.csv"), &results.results)?;
+        report::write_csv(&options.out.join("kernels.csv"), &results.kernels)?;
+        report::write_file(&options.out.join("tables.md"), tables.as_bytes())?;
+        Ok(tables)
+    }
+
     /// A render's wall time and, with timestamps, its GPU time.
     fn render_sample(&self, encoded: &EncodedScene, targets: &TargetViews, request: Request) -> Result<Sample> {
         let start = Instant::now();

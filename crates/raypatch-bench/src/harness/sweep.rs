@@ -9,8 +9,8 @@ use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision};
 use raypatch_model::TargetViews;
 
 use super::{
-    model_outputs, scene, size_text, Bench, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED,
-    SMALL_WIDTH,
+    model_outputs, scene, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
+    QUICK_SIZES, SEED, SMALL_WIDTH,
 };
 use crate::report::{KernelTime, Record};
 use crate::synthetic;
@@ -39,7 +39,14 @@ impl Bench {
     /// Random-weight models: small and official size, SRT and RP-SRT k ∈ {2, 4, 8, 16}, over target sizes; the
     /// official OSRT (`osrt_MDBN_64`) and RP-OSRT k=8 (`rposrt_MDBN_8_64`) at the official 120x160 (not in the
     /// quick run unless asked for with `--only official-osrt:K`: an OSRT render is minutes on lavapipe).
-    pub(super) fn sweep(&self, records: &mut Vec<Record>, kernels: &mut Vec<KernelTime>) -> Result<()> {
+    /// Measures every model of the sweep (those `--only` names), calling `checkpoint` with the records so far
+    /// after each size.
+    pub(super) fn sweep(
+        &self,
+        records: &mut Vec<Record>,
+        kernels: &mut Vec<KernelTime>,
+        checkpoint: &mut Checkpoint,
+    ) -> Result<()> {
         let (small_sizes, official): (&[Size], Vec<(usize, &[Size])>) = if self.quick {
             (&QUICK_SIZES, vec![(8, &[(120, 160)])])
         } else {
@@ -102,7 +109,7 @@ impl Bench {
                     &inputs,
                     references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
-                let measured = self.sweep_sizes(&subject, (views, input_size), &sizes, records, kernels)?;
+                let measured = self.sweep_sizes(&subject, (views, input_size), &sizes, records, kernels, checkpoint)?;
                 // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
                 let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
                 sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
@@ -112,7 +119,7 @@ impl Bench {
     }
 
     /// One subject over target sizes (ascending): sizes predicted to render slower than the limit are skipped.
-    /// Returns the sizes rendered.
+    /// Calls `checkpoint` after each size measured. Returns the sizes rendered.
     fn sweep_sizes(
         &self,
         s: &Subject,
@@ -120,6 +127,7 @@ impl Bench {
         sizes: &[(usize, usize)],
         records: &mut Vec<Record>,
         kernels: &mut Vec<KernelTime>,
+        checkpoint: &mut Checkpoint,
     ) -> Result<Vec<(usize, usize)>> {
         let mut measured = Vec::new();
         let (name, k, f32_weights) = (s.name.as_str(), s.loaded.config.patch_size(), s.precision == Precision::F32);
@@ -180,6 +188,7 @@ impl Bench {
             }
             // Free this size's plan (its buffers) before the next, larger one.
             s.encoded.clear_render_plans();
+            checkpoint(records, kernels)?;
         }
         Ok(measured)
     }
