@@ -77,26 +77,6 @@ fn layernorm(
     }
 }
 
-// The workgroup-per-row entries: invocations per workgroup, and their partial sums.
-const WIDE: u32 = 64u;
-var<workgroup> partial: array<f32, WIDE>;
-
-// The sum of the workgroup's `part`s (every invocation gets it). Tree order: 64 -> 1 in 6 halvings.
-fn workgroup_sum(lid: u32, part: f32) -> f32 {
-    partial[lid] = part;
-    for (var half = WIDE / 2u; half > 0u; half /= 2u) {
-        workgroupBarrier();
-        if (lid < half) {
-            partial[lid] += partial[lid + half];
-        }
-    }
-    workgroupBarrier();
-    let sum = partial[0];
-    // Before the next sum overwrites it.
-    workgroupBarrier();
-    return sum;
-}
-
 // A row's statistics as the single-invocation kernel takes them: its first element, the mean of the
 // deviations from it, and 1 / std.
 struct RowStats {
@@ -114,13 +94,13 @@ fn wide_stats(r: u32, lid: u32) -> RowStats {
     for (var k = lid; 4u * k < p.cols; k += WIDE) {
         s += select(vec4<f32>(0.0), x[row + k] - x0, vec4<u32>(4u * k) + lanes < vec4<u32>(p.cols));
     }
-    let delta = workgroup_sum(lid, (s.x + s.y) + (s.z + s.w)) / f32(p.cols);
+    let delta = workgroup_reduce(lid, (s.x + s.y) + (s.z + s.w), REDUCE_SUM) / f32(p.cols);
     var v = vec4<f32>(0.0);
     for (var k = lid; 4u * k < p.cols; k += WIDE) {
         let d = select(vec4<f32>(0.0), (x[row + k] - x0) - delta, vec4<u32>(4u * k) + lanes < vec4<u32>(p.cols));
         v += d * d;
     }
-    let rstd = 1.0 / sqrt(workgroup_sum(lid, (v.x + v.y) + (v.z + v.w)) / f32(p.cols) + p.eps);
+    let rstd = 1.0 / sqrt(workgroup_reduce(lid, (v.x + v.y) + (v.z + v.w), REDUCE_SUM) / f32(p.cols) + p.eps);
     return RowStats(x0, delta, rstd);
 }
 

@@ -93,27 +93,8 @@ fn normalize_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups
 }
 
 // softmax_rows_wide: a workgroup per row, invocation lid taking columns lid, lid + 64, ...; the row's max and
-// sum through workgroup memory. The same formula as `softmax`: exp(scale·x - max) / Σ, then + eps.
-const WIDE: u32 = 64u;
-var<workgroup> partial: array<f32, WIDE>;
-
-// The workgroup's `part`s combined by `op` (0: max, 1: sum), tree order; every invocation gets the result.
-fn workgroup_reduce(lid: u32, part: f32, op: u32) -> f32 {
-    partial[lid] = part;
-    for (var half = WIDE / 2u; half > 0u; half /= 2u) {
-        workgroupBarrier();
-        if (lid < half) {
-            let other = partial[lid + half];
-            partial[lid] = select(partial[lid] + other, max(partial[lid], other), op == 0u);
-        }
-    }
-    workgroupBarrier();
-    let result = partial[0];
-    // Before the next reduction overwrites it.
-    workgroupBarrier();
-    return result;
-}
-
+// sum through workgroup memory (row_reduce.wgsl). The same formula as `softmax`: exp(scale·x - max) / Σ, then
+// + eps.
 @compute @workgroup_size(64)
 fn softmax_rows_wide(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                      @builtin(local_invocation_index) lid: u32) {
@@ -126,12 +107,12 @@ fn softmax_rows_wide(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgro
     for (var j = lid; j < p.cols; j += WIDE) {
         m = max(m, x[first + j] * p.scale);
     }
-    m = workgroup_reduce(lid, m, 0u);
+    m = workgroup_reduce(lid, m, REDUCE_MAX);
     var sum = 0.0;
     for (var j = lid; j < p.cols; j += WIDE) {
         sum += exp(x[first + j] * p.scale - m);
     }
-    sum = workgroup_reduce(lid, sum, 1u);
+    sum = workgroup_reduce(lid, sum, REDUCE_SUM);
     for (var j = lid; j < p.ld; j += WIDE) {
         var v = 0.0;
         if (j < p.cols) {

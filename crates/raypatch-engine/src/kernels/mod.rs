@@ -266,13 +266,13 @@ shaders! {
         ATTENTION = "attention" ["attention_params"] => attention::AttentionParams;
         /// Attention for GPUs, heads of up to 128 floats: see `kernels::attention`.
         ATTENTION_FLASH = "attention_flash" ["attention_params"] => attention::AttentionParams;
-        LAYERNORM = "layernorm" [] => norm::LayerNormParams;
+        LAYERNORM = "layernorm" ["row_reduce"] => norm::LayerNormParams;
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
         CONV = "conv" ["activation", "tiles"] => conv::ConvParams;
         POOL = "pool" [] => pool::PoolParams;
         ELEMENTWISE = "elementwise" ["activation"] => elementwise::ElementwiseParams;
-        SOFTMAX = "softmax" [] => softmax::SoftmaxParams;
+        SOFTMAX = "softmax" ["row_reduce"] => softmax::SoftmaxParams;
         MIX = "mix" [] => mix::MixParams;
         CONCAT = "concat" [] => concat::ConcatParams;
         COPY = "copy" [] => copy::CopyParams;
