@@ -222,7 +222,7 @@ pub fn run(options: &Options) -> Result<()> {
         views: options.views.clone(),
         env,
     };
-    let timing = if bench.timestamps { "gpu timestamps" } else { "wall clock" };
+    let timing = bench.timing();
     println!(
         "raypatch-bench{} on {} ({}, {})",
         if options.quick { " --quick" } else { "" },
@@ -269,6 +269,15 @@ fn size_text((h, w): (usize, usize)) -> String {
 type Checkpoint<'a> = dyn FnMut(&[Record], &[KernelTime]) -> Result<String> + 'a;
 
 impl Bench {
+    /// How times are taken: GPU timestamps where the adapter has them, else the wall clock.
+    fn timing(&self) -> &'static str {
+        if self.timestamps {
+            "gpu timestamps"
+        } else {
+            "wall clock"
+        }
+    }
+
     /// Writes results.json, results.csv, kernels.csv and tables.md of `records` and `kernels` into the output
     /// folder; returns the tables.
     fn write_results(&self, options: &Options, records: &[Record], kernels: &[KernelTime]) -> Result<String> {
@@ -276,7 +285,7 @@ impl Bench {
             command: options.command.clone(),
             date_unix: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
             environment: self.env.clone(),
-            timing: if self.timestamps { "gpu timestamps" } else { "wall clock" }.to_string(),
+            timing: self.timing().to_string(),
             pytorch: match &self.torch {
                 Ok(torch) => torch.describe(),
                 Err(why) => format!("not timed: {why}"),
@@ -377,7 +386,7 @@ impl Bench {
             pixels: views * size.0 * size.1,
             queries,
             tokens,
-            timing: if self.timestamps { "gpu timestamps" } else { "wall clock" }.into(),
+            timing: self.timing().into(),
             encode_ms: s.encode.1.or(Some(s.encode.0)),
             encode_wall_ms: Some(s.encode.0),
             encode_peak_bytes: Some(s.encoded.encode_peak_bytes),
