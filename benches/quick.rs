@@ -11,6 +11,7 @@ fn main() -> ExitCode {
         out,
         adapter: None,
         matmul: None,
+        without_subgroups: false,
         repeats: None,
         max_render_seconds: None,
         max_reference_gmac: None,

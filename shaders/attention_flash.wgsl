@@ -1,19 +1,21 @@
 // Multi-head attention for GPUs, flash-attention style: out[i, h*dh ..] = Σ_j softmax_j(scale · q_i,h · k_j,h) · v_j,h.
 //
-// Work split (FlashAttention-2, with flash-decoding's split of the keys): a workgroup of 64 invocations serves
-// one (query tile of 64 rows, head, key split). Each invocation owns one query row: its scaled query and its
-// output accumulator stay in registers (CHUNKS vec4s each, CHUNKS fixed per variant), with a running max m and
-// sum l (online softmax: the nq x nkv scores never exist). The keys and values of the split go through workgroup
-// memory a tile of TILE_KEYS keys at a time, loaded cooperatively (consecutive invocations read consecutive
-// floats of a key row) and then read by every invocation at the same address (a broadcast). An invocation takes
-// the tile's keys four at a time: their four scores, the new max, one rescale of its accumulator, and the four
-// weighted values.
+// Work split (FlashAttention-2, with flash-decoding's split of the keys): a workgroup serves one (query tile of
+// ROWS = 64 rows, head, key split). LANES invocations own one query row (a prelude sets it: one, or four lanes
+// of a subgroup, flash_one_lane.wgsl / flash_subgroup_lanes.wgsl): the row's scaled query and output accumulator
+// stay in registers (CHUNKS vec4s a head, CHUNKS fixed per variant; REGS = CHUNKS / LANES of them in each lane,
+// lane r holding chunks r, r + LANES, ...), with a running max m and sum l (online softmax: the nq x nkv scores
+// never exist). The keys and values of the split go through workgroup memory a tile of TILE_KEYS keys at a
+// time, loaded cooperatively (consecutive invocations read consecutive floats of a key row) and then read by
+// every row at the same addresses (a broadcast). A row takes the tile's keys four at a time: their four scores
+// (each lane's share summed by `lanes_sum`), the new max, one rescale of its accumulator, and the four weighted
+// values.
 //
 // The query and the accumulator are named variables (`q_0`, `o_0`, ...), every use of them written out by
 // tools/codegen/gen_attention.py between the BEGIN/END lines below: on NVIDIA's Vulkan driver an array indexed
 // in a loop leaves registers (the GEMM lab of docs/PERFORMANCE.md), which is where the earlier version of this
 // kernel, with arrays, spent its time. The uses of chunks past CHUNKS sit in `if (CHUNKS > ..)` blocks that
-// compile away, so that the variants (32, 16 and 8 chunks) share this source.
+// compile away, so that the variants (32, 16 and 8 chunks, one or four lanes) share this source.
 //
 // When queries x heads give too few workgroups to fill a GPU (a Ray-Patch render has 300 queries: 5 tiles a
 // head), the wrapper splits the keys: each split writes its unnormalised output with its m and l to the
@@ -32,9 +34,13 @@
 // head h's unnormalised output at h*(dim_head + 2), then its m and l.
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
-const WG: u32 = 64u;
+// Query rows per workgroup (kernels::attention::FLASH_ROWS) and invocations per workgroup.
+const ROWS: u32 = 64u;
+const WG: u32 = ROWS * LANES;
 // vec4s per head in registers: dim_head <= 4 * CHUNKS. 32 here; the wrapper's variants replace it by 16 and 8.
 const CHUNKS: u32 = 32u;
+// vec4s of the head in each lane's registers.
+const REGS: u32 = CHUNKS / LANES;
 // vec4s of keys (and as many of values) per tile: 2 x 8 KiB, within WebGPU's guaranteed 16 KiB.
 const TILE_VEC4S: u32 = 512u;
 // Keys per tile: 16, 32 or 64, a multiple of the 4 an invocation takes at a time.
@@ -58,7 +64,7 @@ struct Tile {
 fn tile_of(wid: vec3<u32>, nwg: vec3<u32>) -> Tile {
     let g = wid.x + wid.y * nwg.x;
     let rest = g / p.query_tiles;
-    return Tile((g % p.query_tiles) * WG, rest % p.heads, rest / p.heads, rest < p.heads * p.splits);
+    return Tile((g % p.query_tiles) * ROWS, rest % p.heads, rest / p.heads, rest < p.heads * p.splits);
 }
 
 // Chunk c of query row i's head at `at` of q, scaled (zeros past the head or the queries).
@@ -108,82 +114,83 @@ fn store_chunk(at: u32, c: u32, o: vec4<f32>) {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
          @builtin(local_invocation_index) lid: u32) {
     let tile = tile_of(wid, nwg);
     if (!tile.valid) {
         return; // the whole workgroup
     }
-    let i = tile.first_row + lid;
+    let i = tile.first_row + lid / LANES;
+    let lane = lid % LANES;
     let h = tile.h;
     let k0 = tile.split * p.split_keys;
     let k1 = min(p.nkv, k0 + p.split_keys);
     let q_at = i * p.q_ld + p.q_col + h * p.dim_head;
     // BEGIN registers: written by tools/codegen/gen_attention.py
-    var q_0 = query_chunk(i, q_at, 0u);
+    var q_0 = query_chunk(i, q_at, 0u * LANES + lane);
     var o_0 = vec4<f32>(0.0);
-    var q_1 = query_chunk(i, q_at, 1u);
+    var q_1 = query_chunk(i, q_at, 1u * LANES + lane);
     var o_1 = vec4<f32>(0.0);
-    var q_2 = query_chunk(i, q_at, 2u);
+    var q_2 = query_chunk(i, q_at, 2u * LANES + lane);
     var o_2 = vec4<f32>(0.0);
-    var q_3 = query_chunk(i, q_at, 3u);
+    var q_3 = query_chunk(i, q_at, 3u * LANES + lane);
     var o_3 = vec4<f32>(0.0);
-    var q_4 = query_chunk(i, q_at, 4u);
+    var q_4 = query_chunk(i, q_at, 4u * LANES + lane);
     var o_4 = vec4<f32>(0.0);
-    var q_5 = query_chunk(i, q_at, 5u);
+    var q_5 = query_chunk(i, q_at, 5u * LANES + lane);
     var o_5 = vec4<f32>(0.0);
-    var q_6 = query_chunk(i, q_at, 6u);
+    var q_6 = query_chunk(i, q_at, 6u * LANES + lane);
     var o_6 = vec4<f32>(0.0);
-    var q_7 = query_chunk(i, q_at, 7u);
+    var q_7 = query_chunk(i, q_at, 7u * LANES + lane);
     var o_7 = vec4<f32>(0.0);
-    var q_8 = query_chunk(i, q_at, 8u);
+    var q_8 = query_chunk(i, q_at, 8u * LANES + lane);
     var o_8 = vec4<f32>(0.0);
-    var q_9 = query_chunk(i, q_at, 9u);
+    var q_9 = query_chunk(i, q_at, 9u * LANES + lane);
     var o_9 = vec4<f32>(0.0);
-    var q_10 = query_chunk(i, q_at, 10u);
+    var q_10 = query_chunk(i, q_at, 10u * LANES + lane);
     var o_10 = vec4<f32>(0.0);
-    var q_11 = query_chunk(i, q_at, 11u);
+    var q_11 = query_chunk(i, q_at, 11u * LANES + lane);
     var o_11 = vec4<f32>(0.0);
-    var q_12 = query_chunk(i, q_at, 12u);
+    var q_12 = query_chunk(i, q_at, 12u * LANES + lane);
     var o_12 = vec4<f32>(0.0);
-    var q_13 = query_chunk(i, q_at, 13u);
+    var q_13 = query_chunk(i, q_at, 13u * LANES + lane);
     var o_13 = vec4<f32>(0.0);
-    var q_14 = query_chunk(i, q_at, 14u);
+    var q_14 = query_chunk(i, q_at, 14u * LANES + lane);
     var o_14 = vec4<f32>(0.0);
-    var q_15 = query_chunk(i, q_at, 15u);
+    var q_15 = query_chunk(i, q_at, 15u * LANES + lane);
     var o_15 = vec4<f32>(0.0);
-    var q_16 = query_chunk(i, q_at, 16u);
+    var q_16 = query_chunk(i, q_at, 16u * LANES + lane);
     var o_16 = vec4<f32>(0.0);
-    var q_17 = query_chunk(i, q_at, 17u);
+    var q_17 = query_chunk(i, q_at, 17u * LANES + lane);
     var o_17 = vec4<f32>(0.0);
-    var q_18 = query_chunk(i, q_at, 18u);
+    var q_18 = query_chunk(i, q_at, 18u * LANES + lane);
     var o_18 = vec4<f32>(0.0);
-    var q_19 = query_chunk(i, q_at, 19u);
+    var q_19 = query_chunk(i, q_at, 19u * LANES + lane);
     var o_19 = vec4<f32>(0.0);
-    var q_20 = query_chunk(i, q_at, 20u);
+    var q_20 = query_chunk(i, q_at, 20u * LANES + lane);
     var o_20 = vec4<f32>(0.0);
-    var q_21 = query_chunk(i, q_at, 21u);
+    var q_21 = query_chunk(i, q_at, 21u * LANES + lane);
     var o_21 = vec4<f32>(0.0);
-    var q_22 = query_chunk(i, q_at, 22u);
+    var q_22 = query_chunk(i, q_at, 22u * LANES + lane);
     var o_22 = vec4<f32>(0.0);
-    var q_23 = query_chunk(i, q_at, 23u);
+    var q_23 = query_chunk(i, q_at, 23u * LANES + lane);
     var o_23 = vec4<f32>(0.0);
-    var q_24 = query_chunk(i, q_at, 24u);
+    var q_24 = query_chunk(i, q_at, 24u * LANES + lane);
     var o_24 = vec4<f32>(0.0);
-    var q_25 = query_chunk(i, q_at, 25u);
+    var q_25 = query_chunk(i, q_at, 25u * LANES + lane);
     var o_25 = vec4<f32>(0.0);
-    var q_26 = query_chunk(i, q_at, 26u);
+    var q_26 = query_chunk(i, q_at, 26u * LANES + lane);
     var o_26 = vec4<f32>(0.0);
-    var q_27 = query_chunk(i, q_at, 27u);
+    var q_27 = query_chunk(i, q_at, 27u * LANES + lane);
     var o_27 = vec4<f32>(0.0);
-    var q_28 = query_chunk(i, q_at, 28u);
+    var q_28 = query_chunk(i, q_at, 28u * LANES + lane);
     var o_28 = vec4<f32>(0.0);
-    var q_29 = query_chunk(i, q_at, 29u);
+    var q_29 = query_chunk(i, q_at, 29u * LANES + lane);
     var o_29 = vec4<f32>(0.0);
-    var q_30 = query_chunk(i, q_at, 30u);
+    var q_30 = query_chunk(i, q_at, 30u * LANES + lane);
     var o_30 = vec4<f32>(0.0);
-    var q_31 = query_chunk(i, q_at, 31u);
+    var q_31 = query_chunk(i, q_at, 31u * LANES + lane);
     var o_31 = vec4<f32>(0.0);
     // END registers
     var m = NEG_BIG;
@@ -193,191 +200,200 @@ fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         stage_keys(lid, h, base, n);
         workgroupBarrier();
         for (var j = 0u; j < n; j += 4u) {
-            // Keys j .. j + 3 of the tile: their dot products with the query, a vec4 per key.
-            let kb = j * CHUNKS;
+            // Keys j .. j + 3 of the tile: their dot products with this lane's share of the query, a vec4 per
+            // key; kb + g * CHUNKS + c is chunk c of key j + g.
+            let kb = j * CHUNKS + lane;
             var dots_0 = vec4<f32>(0.0);
             var dots_1 = vec4<f32>(0.0);
             var dots_2 = vec4<f32>(0.0);
             var dots_3 = vec4<f32>(0.0);
             // BEGIN scores: written by tools/codegen/gen_attention.py
-            dots_0 = fma(q_0, k_tile[kb + 0u * CHUNKS + 0u], dots_0);
-            dots_1 = fma(q_0, k_tile[kb + 1u * CHUNKS + 0u], dots_1);
-            dots_2 = fma(q_0, k_tile[kb + 2u * CHUNKS + 0u], dots_2);
-            dots_3 = fma(q_0, k_tile[kb + 3u * CHUNKS + 0u], dots_3);
-            dots_0 = fma(q_1, k_tile[kb + 0u * CHUNKS + 1u], dots_0);
-            dots_1 = fma(q_1, k_tile[kb + 1u * CHUNKS + 1u], dots_1);
-            dots_2 = fma(q_1, k_tile[kb + 2u * CHUNKS + 1u], dots_2);
-            dots_3 = fma(q_1, k_tile[kb + 3u * CHUNKS + 1u], dots_3);
-            dots_0 = fma(q_2, k_tile[kb + 0u * CHUNKS + 2u], dots_0);
-            dots_1 = fma(q_2, k_tile[kb + 1u * CHUNKS + 2u], dots_1);
-            dots_2 = fma(q_2, k_tile[kb + 2u * CHUNKS + 2u], dots_2);
-            dots_3 = fma(q_2, k_tile[kb + 3u * CHUNKS + 2u], dots_3);
-            dots_0 = fma(q_3, k_tile[kb + 0u * CHUNKS + 3u], dots_0);
-            dots_1 = fma(q_3, k_tile[kb + 1u * CHUNKS + 3u], dots_1);
-            dots_2 = fma(q_3, k_tile[kb + 2u * CHUNKS + 3u], dots_2);
-            dots_3 = fma(q_3, k_tile[kb + 3u * CHUNKS + 3u], dots_3);
-            dots_0 = fma(q_4, k_tile[kb + 0u * CHUNKS + 4u], dots_0);
-            dots_1 = fma(q_4, k_tile[kb + 1u * CHUNKS + 4u], dots_1);
-            dots_2 = fma(q_4, k_tile[kb + 2u * CHUNKS + 4u], dots_2);
-            dots_3 = fma(q_4, k_tile[kb + 3u * CHUNKS + 4u], dots_3);
-            dots_0 = fma(q_5, k_tile[kb + 0u * CHUNKS + 5u], dots_0);
-            dots_1 = fma(q_5, k_tile[kb + 1u * CHUNKS + 5u], dots_1);
-            dots_2 = fma(q_5, k_tile[kb + 2u * CHUNKS + 5u], dots_2);
-            dots_3 = fma(q_5, k_tile[kb + 3u * CHUNKS + 5u], dots_3);
-            dots_0 = fma(q_6, k_tile[kb + 0u * CHUNKS + 6u], dots_0);
-            dots_1 = fma(q_6, k_tile[kb + 1u * CHUNKS + 6u], dots_1);
-            dots_2 = fma(q_6, k_tile[kb + 2u * CHUNKS + 6u], dots_2);
-            dots_3 = fma(q_6, k_tile[kb + 3u * CHUNKS + 6u], dots_3);
-            dots_0 = fma(q_7, k_tile[kb + 0u * CHUNKS + 7u], dots_0);
-            dots_1 = fma(q_7, k_tile[kb + 1u * CHUNKS + 7u], dots_1);
-            dots_2 = fma(q_7, k_tile[kb + 2u * CHUNKS + 7u], dots_2);
-            dots_3 = fma(q_7, k_tile[kb + 3u * CHUNKS + 7u], dots_3);
-            if (CHUNKS > 8u) {
-                dots_0 = fma(q_8, k_tile[kb + 0u * CHUNKS + 8u], dots_0);
-                dots_1 = fma(q_8, k_tile[kb + 1u * CHUNKS + 8u], dots_1);
-                dots_2 = fma(q_8, k_tile[kb + 2u * CHUNKS + 8u], dots_2);
-                dots_3 = fma(q_8, k_tile[kb + 3u * CHUNKS + 8u], dots_3);
-                dots_0 = fma(q_9, k_tile[kb + 0u * CHUNKS + 9u], dots_0);
-                dots_1 = fma(q_9, k_tile[kb + 1u * CHUNKS + 9u], dots_1);
-                dots_2 = fma(q_9, k_tile[kb + 2u * CHUNKS + 9u], dots_2);
-                dots_3 = fma(q_9, k_tile[kb + 3u * CHUNKS + 9u], dots_3);
-                dots_0 = fma(q_10, k_tile[kb + 0u * CHUNKS + 10u], dots_0);
-                dots_1 = fma(q_10, k_tile[kb + 1u * CHUNKS + 10u], dots_1);
-                dots_2 = fma(q_10, k_tile[kb + 2u * CHUNKS + 10u], dots_2);
-                dots_3 = fma(q_10, k_tile[kb + 3u * CHUNKS + 10u], dots_3);
-                dots_0 = fma(q_11, k_tile[kb + 0u * CHUNKS + 11u], dots_0);
-                dots_1 = fma(q_11, k_tile[kb + 1u * CHUNKS + 11u], dots_1);
-                dots_2 = fma(q_11, k_tile[kb + 2u * CHUNKS + 11u], dots_2);
-                dots_3 = fma(q_11, k_tile[kb + 3u * CHUNKS + 11u], dots_3);
-                dots_0 = fma(q_12, k_tile[kb + 0u * CHUNKS + 12u], dots_0);
-                dots_1 = fma(q_12, k_tile[kb + 1u * CHUNKS + 12u], dots_1);
-                dots_2 = fma(q_12, k_tile[kb + 2u * CHUNKS + 12u], dots_2);
-                dots_3 = fma(q_12, k_tile[kb + 3u * CHUNKS + 12u], dots_3);
-                dots_0 = fma(q_13, k_tile[kb + 0u * CHUNKS + 13u], dots_0);
-                dots_1 = fma(q_13, k_tile[kb + 1u * CHUNKS + 13u], dots_1);
-                dots_2 = fma(q_13, k_tile[kb + 2u * CHUNKS + 13u], dots_2);
-                dots_3 = fma(q_13, k_tile[kb + 3u * CHUNKS + 13u], dots_3);
-                dots_0 = fma(q_14, k_tile[kb + 0u * CHUNKS + 14u], dots_0);
-                dots_1 = fma(q_14, k_tile[kb + 1u * CHUNKS + 14u], dots_1);
-                dots_2 = fma(q_14, k_tile[kb + 2u * CHUNKS + 14u], dots_2);
-                dots_3 = fma(q_14, k_tile[kb + 3u * CHUNKS + 14u], dots_3);
-                dots_0 = fma(q_15, k_tile[kb + 0u * CHUNKS + 15u], dots_0);
-                dots_1 = fma(q_15, k_tile[kb + 1u * CHUNKS + 15u], dots_1);
-                dots_2 = fma(q_15, k_tile[kb + 2u * CHUNKS + 15u], dots_2);
-                dots_3 = fma(q_15, k_tile[kb + 3u * CHUNKS + 15u], dots_3);
+            dots_0 = fma(q_0, k_tile[kb + 0u * CHUNKS + 0u * LANES], dots_0);
+            dots_1 = fma(q_0, k_tile[kb + 1u * CHUNKS + 0u * LANES], dots_1);
+            dots_2 = fma(q_0, k_tile[kb + 2u * CHUNKS + 0u * LANES], dots_2);
+            dots_3 = fma(q_0, k_tile[kb + 3u * CHUNKS + 0u * LANES], dots_3);
+            dots_0 = fma(q_1, k_tile[kb + 0u * CHUNKS + 1u * LANES], dots_0);
+            dots_1 = fma(q_1, k_tile[kb + 1u * CHUNKS + 1u * LANES], dots_1);
+            dots_2 = fma(q_1, k_tile[kb + 2u * CHUNKS + 1u * LANES], dots_2);
+            dots_3 = fma(q_1, k_tile[kb + 3u * CHUNKS + 1u * LANES], dots_3);
+            if (REGS > 2u) {
+                dots_0 = fma(q_2, k_tile[kb + 0u * CHUNKS + 2u * LANES], dots_0);
+                dots_1 = fma(q_2, k_tile[kb + 1u * CHUNKS + 2u * LANES], dots_1);
+                dots_2 = fma(q_2, k_tile[kb + 2u * CHUNKS + 2u * LANES], dots_2);
+                dots_3 = fma(q_2, k_tile[kb + 3u * CHUNKS + 2u * LANES], dots_3);
+                dots_0 = fma(q_3, k_tile[kb + 0u * CHUNKS + 3u * LANES], dots_0);
+                dots_1 = fma(q_3, k_tile[kb + 1u * CHUNKS + 3u * LANES], dots_1);
+                dots_2 = fma(q_3, k_tile[kb + 2u * CHUNKS + 3u * LANES], dots_2);
+                dots_3 = fma(q_3, k_tile[kb + 3u * CHUNKS + 3u * LANES], dots_3);
             }
-            if (CHUNKS > 16u) {
-                dots_0 = fma(q_16, k_tile[kb + 0u * CHUNKS + 16u], dots_0);
-                dots_1 = fma(q_16, k_tile[kb + 1u * CHUNKS + 16u], dots_1);
-                dots_2 = fma(q_16, k_tile[kb + 2u * CHUNKS + 16u], dots_2);
-                dots_3 = fma(q_16, k_tile[kb + 3u * CHUNKS + 16u], dots_3);
-                dots_0 = fma(q_17, k_tile[kb + 0u * CHUNKS + 17u], dots_0);
-                dots_1 = fma(q_17, k_tile[kb + 1u * CHUNKS + 17u], dots_1);
-                dots_2 = fma(q_17, k_tile[kb + 2u * CHUNKS + 17u], dots_2);
-                dots_3 = fma(q_17, k_tile[kb + 3u * CHUNKS + 17u], dots_3);
-                dots_0 = fma(q_18, k_tile[kb + 0u * CHUNKS + 18u], dots_0);
-                dots_1 = fma(q_18, k_tile[kb + 1u * CHUNKS + 18u], dots_1);
-                dots_2 = fma(q_18, k_tile[kb + 2u * CHUNKS + 18u], dots_2);
-                dots_3 = fma(q_18, k_tile[kb + 3u * CHUNKS + 18u], dots_3);
-                dots_0 = fma(q_19, k_tile[kb + 0u * CHUNKS + 19u], dots_0);
-                dots_1 = fma(q_19, k_tile[kb + 1u * CHUNKS + 19u], dots_1);
-                dots_2 = fma(q_19, k_tile[kb + 2u * CHUNKS + 19u], dots_2);
-                dots_3 = fma(q_19, k_tile[kb + 3u * CHUNKS + 19u], dots_3);
-                dots_0 = fma(q_20, k_tile[kb + 0u * CHUNKS + 20u], dots_0);
-                dots_1 = fma(q_20, k_tile[kb + 1u * CHUNKS + 20u], dots_1);
-                dots_2 = fma(q_20, k_tile[kb + 2u * CHUNKS + 20u], dots_2);
-                dots_3 = fma(q_20, k_tile[kb + 3u * CHUNKS + 20u], dots_3);
-                dots_0 = fma(q_21, k_tile[kb + 0u * CHUNKS + 21u], dots_0);
-                dots_1 = fma(q_21, k_tile[kb + 1u * CHUNKS + 21u], dots_1);
-                dots_2 = fma(q_21, k_tile[kb + 2u * CHUNKS + 21u], dots_2);
-                dots_3 = fma(q_21, k_tile[kb + 3u * CHUNKS + 21u], dots_3);
-                dots_0 = fma(q_22, k_tile[kb + 0u * CHUNKS + 22u], dots_0);
-                dots_1 = fma(q_22, k_tile[kb + 1u * CHUNKS + 22u], dots_1);
-                dots_2 = fma(q_22, k_tile[kb + 2u * CHUNKS + 22u], dots_2);
-                dots_3 = fma(q_22, k_tile[kb + 3u * CHUNKS + 22u], dots_3);
-                dots_0 = fma(q_23, k_tile[kb + 0u * CHUNKS + 23u], dots_0);
-                dots_1 = fma(q_23, k_tile[kb + 1u * CHUNKS + 23u], dots_1);
-                dots_2 = fma(q_23, k_tile[kb + 2u * CHUNKS + 23u], dots_2);
-                dots_3 = fma(q_23, k_tile[kb + 3u * CHUNKS + 23u], dots_3);
-                dots_0 = fma(q_24, k_tile[kb + 0u * CHUNKS + 24u], dots_0);
-                dots_1 = fma(q_24, k_tile[kb + 1u * CHUNKS + 24u], dots_1);
-                dots_2 = fma(q_24, k_tile[kb + 2u * CHUNKS + 24u], dots_2);
-                dots_3 = fma(q_24, k_tile[kb + 3u * CHUNKS + 24u], dots_3);
-                dots_0 = fma(q_25, k_tile[kb + 0u * CHUNKS + 25u], dots_0);
-                dots_1 = fma(q_25, k_tile[kb + 1u * CHUNKS + 25u], dots_1);
-                dots_2 = fma(q_25, k_tile[kb + 2u * CHUNKS + 25u], dots_2);
-                dots_3 = fma(q_25, k_tile[kb + 3u * CHUNKS + 25u], dots_3);
-                dots_0 = fma(q_26, k_tile[kb + 0u * CHUNKS + 26u], dots_0);
-                dots_1 = fma(q_26, k_tile[kb + 1u * CHUNKS + 26u], dots_1);
-                dots_2 = fma(q_26, k_tile[kb + 2u * CHUNKS + 26u], dots_2);
-                dots_3 = fma(q_26, k_tile[kb + 3u * CHUNKS + 26u], dots_3);
-                dots_0 = fma(q_27, k_tile[kb + 0u * CHUNKS + 27u], dots_0);
-                dots_1 = fma(q_27, k_tile[kb + 1u * CHUNKS + 27u], dots_1);
-                dots_2 = fma(q_27, k_tile[kb + 2u * CHUNKS + 27u], dots_2);
-                dots_3 = fma(q_27, k_tile[kb + 3u * CHUNKS + 27u], dots_3);
-                dots_0 = fma(q_28, k_tile[kb + 0u * CHUNKS + 28u], dots_0);
-                dots_1 = fma(q_28, k_tile[kb + 1u * CHUNKS + 28u], dots_1);
-                dots_2 = fma(q_28, k_tile[kb + 2u * CHUNKS + 28u], dots_2);
-                dots_3 = fma(q_28, k_tile[kb + 3u * CHUNKS + 28u], dots_3);
-                dots_0 = fma(q_29, k_tile[kb + 0u * CHUNKS + 29u], dots_0);
-                dots_1 = fma(q_29, k_tile[kb + 1u * CHUNKS + 29u], dots_1);
-                dots_2 = fma(q_29, k_tile[kb + 2u * CHUNKS + 29u], dots_2);
-                dots_3 = fma(q_29, k_tile[kb + 3u * CHUNKS + 29u], dots_3);
-                dots_0 = fma(q_30, k_tile[kb + 0u * CHUNKS + 30u], dots_0);
-                dots_1 = fma(q_30, k_tile[kb + 1u * CHUNKS + 30u], dots_1);
-                dots_2 = fma(q_30, k_tile[kb + 2u * CHUNKS + 30u], dots_2);
-                dots_3 = fma(q_30, k_tile[kb + 3u * CHUNKS + 30u], dots_3);
-                dots_0 = fma(q_31, k_tile[kb + 0u * CHUNKS + 31u], dots_0);
-                dots_1 = fma(q_31, k_tile[kb + 1u * CHUNKS + 31u], dots_1);
-                dots_2 = fma(q_31, k_tile[kb + 2u * CHUNKS + 31u], dots_2);
-                dots_3 = fma(q_31, k_tile[kb + 3u * CHUNKS + 31u], dots_3);
+            if (REGS > 4u) {
+                dots_0 = fma(q_4, k_tile[kb + 0u * CHUNKS + 4u * LANES], dots_0);
+                dots_1 = fma(q_4, k_tile[kb + 1u * CHUNKS + 4u * LANES], dots_1);
+                dots_2 = fma(q_4, k_tile[kb + 2u * CHUNKS + 4u * LANES], dots_2);
+                dots_3 = fma(q_4, k_tile[kb + 3u * CHUNKS + 4u * LANES], dots_3);
+                dots_0 = fma(q_5, k_tile[kb + 0u * CHUNKS + 5u * LANES], dots_0);
+                dots_1 = fma(q_5, k_tile[kb + 1u * CHUNKS + 5u * LANES], dots_1);
+                dots_2 = fma(q_5, k_tile[kb + 2u * CHUNKS + 5u * LANES], dots_2);
+                dots_3 = fma(q_5, k_tile[kb + 3u * CHUNKS + 5u * LANES], dots_3);
+                dots_0 = fma(q_6, k_tile[kb + 0u * CHUNKS + 6u * LANES], dots_0);
+                dots_1 = fma(q_6, k_tile[kb + 1u * CHUNKS + 6u * LANES], dots_1);
+                dots_2 = fma(q_6, k_tile[kb + 2u * CHUNKS + 6u * LANES], dots_2);
+                dots_3 = fma(q_6, k_tile[kb + 3u * CHUNKS + 6u * LANES], dots_3);
+                dots_0 = fma(q_7, k_tile[kb + 0u * CHUNKS + 7u * LANES], dots_0);
+                dots_1 = fma(q_7, k_tile[kb + 1u * CHUNKS + 7u * LANES], dots_1);
+                dots_2 = fma(q_7, k_tile[kb + 2u * CHUNKS + 7u * LANES], dots_2);
+                dots_3 = fma(q_7, k_tile[kb + 3u * CHUNKS + 7u * LANES], dots_3);
+            }
+            if (REGS > 8u) {
+                dots_0 = fma(q_8, k_tile[kb + 0u * CHUNKS + 8u * LANES], dots_0);
+                dots_1 = fma(q_8, k_tile[kb + 1u * CHUNKS + 8u * LANES], dots_1);
+                dots_2 = fma(q_8, k_tile[kb + 2u * CHUNKS + 8u * LANES], dots_2);
+                dots_3 = fma(q_8, k_tile[kb + 3u * CHUNKS + 8u * LANES], dots_3);
+                dots_0 = fma(q_9, k_tile[kb + 0u * CHUNKS + 9u * LANES], dots_0);
+                dots_1 = fma(q_9, k_tile[kb + 1u * CHUNKS + 9u * LANES], dots_1);
+                dots_2 = fma(q_9, k_tile[kb + 2u * CHUNKS + 9u * LANES], dots_2);
+                dots_3 = fma(q_9, k_tile[kb + 3u * CHUNKS + 9u * LANES], dots_3);
+                dots_0 = fma(q_10, k_tile[kb + 0u * CHUNKS + 10u * LANES], dots_0);
+                dots_1 = fma(q_10, k_tile[kb + 1u * CHUNKS + 10u * LANES], dots_1);
+                dots_2 = fma(q_10, k_tile[kb + 2u * CHUNKS + 10u * LANES], dots_2);
+                dots_3 = fma(q_10, k_tile[kb + 3u * CHUNKS + 10u * LANES], dots_3);
+                dots_0 = fma(q_11, k_tile[kb + 0u * CHUNKS + 11u * LANES], dots_0);
+                dots_1 = fma(q_11, k_tile[kb + 1u * CHUNKS + 11u * LANES], dots_1);
+                dots_2 = fma(q_11, k_tile[kb + 2u * CHUNKS + 11u * LANES], dots_2);
+                dots_3 = fma(q_11, k_tile[kb + 3u * CHUNKS + 11u * LANES], dots_3);
+                dots_0 = fma(q_12, k_tile[kb + 0u * CHUNKS + 12u * LANES], dots_0);
+                dots_1 = fma(q_12, k_tile[kb + 1u * CHUNKS + 12u * LANES], dots_1);
+                dots_2 = fma(q_12, k_tile[kb + 2u * CHUNKS + 12u * LANES], dots_2);
+                dots_3 = fma(q_12, k_tile[kb + 3u * CHUNKS + 12u * LANES], dots_3);
+                dots_0 = fma(q_13, k_tile[kb + 0u * CHUNKS + 13u * LANES], dots_0);
+                dots_1 = fma(q_13, k_tile[kb + 1u * CHUNKS + 13u * LANES], dots_1);
+                dots_2 = fma(q_13, k_tile[kb + 2u * CHUNKS + 13u * LANES], dots_2);
+                dots_3 = fma(q_13, k_tile[kb + 3u * CHUNKS + 13u * LANES], dots_3);
+                dots_0 = fma(q_14, k_tile[kb + 0u * CHUNKS + 14u * LANES], dots_0);
+                dots_1 = fma(q_14, k_tile[kb + 1u * CHUNKS + 14u * LANES], dots_1);
+                dots_2 = fma(q_14, k_tile[kb + 2u * CHUNKS + 14u * LANES], dots_2);
+                dots_3 = fma(q_14, k_tile[kb + 3u * CHUNKS + 14u * LANES], dots_3);
+                dots_0 = fma(q_15, k_tile[kb + 0u * CHUNKS + 15u * LANES], dots_0);
+                dots_1 = fma(q_15, k_tile[kb + 1u * CHUNKS + 15u * LANES], dots_1);
+                dots_2 = fma(q_15, k_tile[kb + 2u * CHUNKS + 15u * LANES], dots_2);
+                dots_3 = fma(q_15, k_tile[kb + 3u * CHUNKS + 15u * LANES], dots_3);
+            }
+            if (REGS > 16u) {
+                dots_0 = fma(q_16, k_tile[kb + 0u * CHUNKS + 16u * LANES], dots_0);
+                dots_1 = fma(q_16, k_tile[kb + 1u * CHUNKS + 16u * LANES], dots_1);
+                dots_2 = fma(q_16, k_tile[kb + 2u * CHUNKS + 16u * LANES], dots_2);
+                dots_3 = fma(q_16, k_tile[kb + 3u * CHUNKS + 16u * LANES], dots_3);
+                dots_0 = fma(q_17, k_tile[kb + 0u * CHUNKS + 17u * LANES], dots_0);
+                dots_1 = fma(q_17, k_tile[kb + 1u * CHUNKS + 17u * LANES], dots_1);
+                dots_2 = fma(q_17, k_tile[kb + 2u * CHUNKS + 17u * LANES], dots_2);
+                dots_3 = fma(q_17, k_tile[kb + 3u * CHUNKS + 17u * LANES], dots_3);
+                dots_0 = fma(q_18, k_tile[kb + 0u * CHUNKS + 18u * LANES], dots_0);
+                dots_1 = fma(q_18, k_tile[kb + 1u * CHUNKS + 18u * LANES], dots_1);
+                dots_2 = fma(q_18, k_tile[kb + 2u * CHUNKS + 18u * LANES], dots_2);
+                dots_3 = fma(q_18, k_tile[kb + 3u * CHUNKS + 18u * LANES], dots_3);
+                dots_0 = fma(q_19, k_tile[kb + 0u * CHUNKS + 19u * LANES], dots_0);
+                dots_1 = fma(q_19, k_tile[kb + 1u * CHUNKS + 19u * LANES], dots_1);
+                dots_2 = fma(q_19, k_tile[kb + 2u * CHUNKS + 19u * LANES], dots_2);
+                dots_3 = fma(q_19, k_tile[kb + 3u * CHUNKS + 19u * LANES], dots_3);
+                dots_0 = fma(q_20, k_tile[kb + 0u * CHUNKS + 20u * LANES], dots_0);
+                dots_1 = fma(q_20, k_tile[kb + 1u * CHUNKS + 20u * LANES], dots_1);
+                dots_2 = fma(q_20, k_tile[kb + 2u * CHUNKS + 20u * LANES], dots_2);
+                dots_3 = fma(q_20, k_tile[kb + 3u * CHUNKS + 20u * LANES], dots_3);
+                dots_0 = fma(q_21, k_tile[kb + 0u * CHUNKS + 21u * LANES], dots_0);
+                dots_1 = fma(q_21, k_tile[kb + 1u * CHUNKS + 21u * LANES], dots_1);
+                dots_2 = fma(q_21, k_tile[kb + 2u * CHUNKS + 21u * LANES], dots_2);
+                dots_3 = fma(q_21, k_tile[kb + 3u * CHUNKS + 21u * LANES], dots_3);
+                dots_0 = fma(q_22, k_tile[kb + 0u * CHUNKS + 22u * LANES], dots_0);
+                dots_1 = fma(q_22, k_tile[kb + 1u * CHUNKS + 22u * LANES], dots_1);
+                dots_2 = fma(q_22, k_tile[kb + 2u * CHUNKS + 22u * LANES], dots_2);
+                dots_3 = fma(q_22, k_tile[kb + 3u * CHUNKS + 22u * LANES], dots_3);
+                dots_0 = fma(q_23, k_tile[kb + 0u * CHUNKS + 23u * LANES], dots_0);
+                dots_1 = fma(q_23, k_tile[kb + 1u * CHUNKS + 23u * LANES], dots_1);
+                dots_2 = fma(q_23, k_tile[kb + 2u * CHUNKS + 23u * LANES], dots_2);
+                dots_3 = fma(q_23, k_tile[kb + 3u * CHUNKS + 23u * LANES], dots_3);
+                dots_0 = fma(q_24, k_tile[kb + 0u * CHUNKS + 24u * LANES], dots_0);
+                dots_1 = fma(q_24, k_tile[kb + 1u * CHUNKS + 24u * LANES], dots_1);
+                dots_2 = fma(q_24, k_tile[kb + 2u * CHUNKS + 24u * LANES], dots_2);
+                dots_3 = fma(q_24, k_tile[kb + 3u * CHUNKS + 24u * LANES], dots_3);
+                dots_0 = fma(q_25, k_tile[kb + 0u * CHUNKS + 25u * LANES], dots_0);
+                dots_1 = fma(q_25, k_tile[kb + 1u * CHUNKS + 25u * LANES], dots_1);
+                dots_2 = fma(q_25, k_tile[kb + 2u * CHUNKS + 25u * LANES], dots_2);
+                dots_3 = fma(q_25, k_tile[kb + 3u * CHUNKS + 25u * LANES], dots_3);
+                dots_0 = fma(q_26, k_tile[kb + 0u * CHUNKS + 26u * LANES], dots_0);
+                dots_1 = fma(q_26, k_tile[kb + 1u * CHUNKS + 26u * LANES], dots_1);
+                dots_2 = fma(q_26, k_tile[kb + 2u * CHUNKS + 26u * LANES], dots_2);
+                dots_3 = fma(q_26, k_tile[kb + 3u * CHUNKS + 26u * LANES], dots_3);
+                dots_0 = fma(q_27, k_tile[kb + 0u * CHUNKS + 27u * LANES], dots_0);
+                dots_1 = fma(q_27, k_tile[kb + 1u * CHUNKS + 27u * LANES], dots_1);
+                dots_2 = fma(q_27, k_tile[kb + 2u * CHUNKS + 27u * LANES], dots_2);
+                dots_3 = fma(q_27, k_tile[kb + 3u * CHUNKS + 27u * LANES], dots_3);
+                dots_0 = fma(q_28, k_tile[kb + 0u * CHUNKS + 28u * LANES], dots_0);
+                dots_1 = fma(q_28, k_tile[kb + 1u * CHUNKS + 28u * LANES], dots_1);
+                dots_2 = fma(q_28, k_tile[kb + 2u * CHUNKS + 28u * LANES], dots_2);
+                dots_3 = fma(q_28, k_tile[kb + 3u * CHUNKS + 28u * LANES], dots_3);
+                dots_0 = fma(q_29, k_tile[kb + 0u * CHUNKS + 29u * LANES], dots_0);
+                dots_1 = fma(q_29, k_tile[kb + 1u * CHUNKS + 29u * LANES], dots_1);
+                dots_2 = fma(q_29, k_tile[kb + 2u * CHUNKS + 29u * LANES], dots_2);
+                dots_3 = fma(q_29, k_tile[kb + 3u * CHUNKS + 29u * LANES], dots_3);
+                dots_0 = fma(q_30, k_tile[kb + 0u * CHUNKS + 30u * LANES], dots_0);
+                dots_1 = fma(q_30, k_tile[kb + 1u * CHUNKS + 30u * LANES], dots_1);
+                dots_2 = fma(q_30, k_tile[kb + 2u * CHUNKS + 30u * LANES], dots_2);
+                dots_3 = fma(q_30, k_tile[kb + 3u * CHUNKS + 30u * LANES], dots_3);
+                dots_0 = fma(q_31, k_tile[kb + 0u * CHUNKS + 31u * LANES], dots_0);
+                dots_1 = fma(q_31, k_tile[kb + 1u * CHUNKS + 31u * LANES], dots_1);
+                dots_2 = fma(q_31, k_tile[kb + 2u * CHUNKS + 31u * LANES], dots_2);
+                dots_3 = fma(q_31, k_tile[kb + 3u * CHUNKS + 31u * LANES], dots_3);
             }
             // END scores
             let real = vec4<u32>(j) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(n);
-            let scores = select(vec4<f32>(NEG_BIG), vec4<f32>(
+            let scores = select(vec4<f32>(NEG_BIG), lanes_sum(vec4<f32>(
                 (dots_0.x + dots_0.y) + (dots_0.z + dots_0.w), (dots_1.x + dots_1.y) + (dots_1.z + dots_1.w),
-                (dots_2.x + dots_2.y) + (dots_2.z + dots_2.w), (dots_3.x + dots_3.y) + (dots_3.z + dots_3.w)), real);
+                (dots_2.x + dots_2.y) + (dots_2.z + dots_2.w), (dots_3.x + dots_3.y) + (dots_3.z + dots_3.w))), real);
             let m_new = max(m, max(max(scores.x, scores.y), max(scores.z, scores.w)));
             let corr = exp(m - m_new);
             let weights = exp(scores - m_new);
             l = l * corr + ((weights.x + weights.y) + (weights.z + weights.w));
             m = m_new;
             // BEGIN accumulate: written by tools/codegen/gen_attention.py
-            o_0 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 0u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 0u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 0u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 0u], o_0 * corr))));
-            o_1 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 1u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 1u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 1u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 1u], o_1 * corr))));
-            o_2 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 2u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 2u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 2u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 2u], o_2 * corr))));
-            o_3 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 3u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 3u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 3u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 3u], o_3 * corr))));
-            o_4 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 4u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 4u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 4u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 4u], o_4 * corr))));
-            o_5 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 5u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 5u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 5u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 5u], o_5 * corr))));
-            o_6 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 6u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 6u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 6u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 6u], o_6 * corr))));
-            o_7 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 7u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 7u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 7u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 7u], o_7 * corr))));
-            if (CHUNKS > 8u) {
-                o_8 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 8u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 8u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 8u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 8u], o_8 * corr))));
-                o_9 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 9u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 9u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 9u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 9u], o_9 * corr))));
-                o_10 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 10u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 10u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 10u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 10u], o_10 * corr))));
-                o_11 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 11u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 11u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 11u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 11u], o_11 * corr))));
-                o_12 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 12u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 12u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 12u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 12u], o_12 * corr))));
-                o_13 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 13u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 13u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 13u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 13u], o_13 * corr))));
-                o_14 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 14u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 14u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 14u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 14u], o_14 * corr))));
-                o_15 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 15u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 15u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 15u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 15u], o_15 * corr))));
+            o_0 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 0u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 0u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 0u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 0u * LANES], o_0 * corr))));
+            o_1 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 1u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 1u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 1u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 1u * LANES], o_1 * corr))));
+            if (REGS > 2u) {
+                o_2 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 2u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 2u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 2u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 2u * LANES], o_2 * corr))));
+                o_3 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 3u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 3u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 3u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 3u * LANES], o_3 * corr))));
             }
-            if (CHUNKS > 16u) {
-                o_16 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 16u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 16u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 16u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 16u], o_16 * corr))));
-                o_17 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 17u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 17u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 17u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 17u], o_17 * corr))));
-                o_18 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 18u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 18u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 18u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 18u], o_18 * corr))));
-                o_19 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 19u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 19u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 19u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 19u], o_19 * corr))));
-                o_20 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 20u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 20u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 20u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 20u], o_20 * corr))));
-                o_21 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 21u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 21u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 21u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 21u], o_21 * corr))));
-                o_22 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 22u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 22u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 22u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 22u], o_22 * corr))));
-                o_23 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 23u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 23u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 23u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 23u], o_23 * corr))));
-                o_24 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 24u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 24u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 24u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 24u], o_24 * corr))));
-                o_25 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 25u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 25u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 25u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 25u], o_25 * corr))));
-                o_26 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 26u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 26u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 26u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 26u], o_26 * corr))));
-                o_27 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 27u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 27u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 27u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 27u], o_27 * corr))));
-                o_28 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 28u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 28u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 28u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 28u], o_28 * corr))));
-                o_29 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 29u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 29u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 29u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 29u], o_29 * corr))));
-                o_30 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 30u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 30u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 30u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 30u], o_30 * corr))));
-                o_31 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 31u], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 31u], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 31u], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 31u], o_31 * corr))));
+            if (REGS > 4u) {
+                o_4 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 4u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 4u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 4u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 4u * LANES], o_4 * corr))));
+                o_5 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 5u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 5u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 5u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 5u * LANES], o_5 * corr))));
+                o_6 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 6u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 6u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 6u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 6u * LANES], o_6 * corr))));
+                o_7 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 7u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 7u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 7u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 7u * LANES], o_7 * corr))));
+            }
+            if (REGS > 8u) {
+                o_8 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 8u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 8u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 8u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 8u * LANES], o_8 * corr))));
+                o_9 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 9u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 9u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 9u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 9u * LANES], o_9 * corr))));
+                o_10 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 10u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 10u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 10u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 10u * LANES], o_10 * corr))));
+                o_11 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 11u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 11u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 11u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 11u * LANES], o_11 * corr))));
+                o_12 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 12u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 12u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 12u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 12u * LANES], o_12 * corr))));
+                o_13 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 13u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 13u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 13u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 13u * LANES], o_13 * corr))));
+                o_14 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 14u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 14u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 14u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 14u * LANES], o_14 * corr))));
+                o_15 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 15u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 15u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 15u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 15u * LANES], o_15 * corr))));
+            }
+            if (REGS > 16u) {
+                o_16 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 16u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 16u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 16u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 16u * LANES], o_16 * corr))));
+                o_17 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 17u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 17u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 17u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 17u * LANES], o_17 * corr))));
+                o_18 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 18u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 18u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 18u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 18u * LANES], o_18 * corr))));
+                o_19 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 19u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 19u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 19u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 19u * LANES], o_19 * corr))));
+                o_20 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 20u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 20u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 20u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 20u * LANES], o_20 * corr))));
+                o_21 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 21u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 21u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 21u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 21u * LANES], o_21 * corr))));
+                o_22 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 22u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 22u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 22u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 22u * LANES], o_22 * corr))));
+                o_23 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 23u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 23u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 23u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 23u * LANES], o_23 * corr))));
+                o_24 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 24u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 24u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 24u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 24u * LANES], o_24 * corr))));
+                o_25 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 25u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 25u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 25u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 25u * LANES], o_25 * corr))));
+                o_26 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 26u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 26u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 26u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 26u * LANES], o_26 * corr))));
+                o_27 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 27u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 27u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 27u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 27u * LANES], o_27 * corr))));
+                o_28 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 28u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 28u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 28u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 28u * LANES], o_28 * corr))));
+                o_29 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 29u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 29u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 29u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 29u * LANES], o_29 * corr))));
+                o_30 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 30u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 30u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 30u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 30u * LANES], o_30 * corr))));
+                o_31 = fma(vec4<f32>(weights.w), v_tile[kb + 3u * CHUNKS + 31u * LANES], fma(vec4<f32>(weights.z), v_tile[kb + 2u * CHUNKS + 31u * LANES], fma(vec4<f32>(weights.y), v_tile[kb + 1u * CHUNKS + 31u * LANES], fma(vec4<f32>(weights.x), v_tile[kb + 0u * CHUNKS + 31u * LANES], o_31 * corr))));
             }
             // END accumulate
         }
@@ -387,55 +403,62 @@ fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         return;
     }
     let dh = p.dim_head;
+    // The row's m and l, and its padding, by its first lane.
     var at = i * p.out_ld + h * dh;
     var scale = 1.0 / l;
     if (p.splits > 1u) {
         at = (tile.split * p.nq + i) * p.partial_ld + h * (dh + 2u);
         scale = 1.0;
-        out[at + dh] = m;
-        out[at + dh + 1u] = l;
-    } else if (h + 1u == p.heads) {
+        if (lane == 0u) {
+            out[at + dh] = m;
+            out[at + dh + 1u] = l;
+        }
+    } else if (h + 1u == p.heads && lane == 0u) {
         // The row's padding, by the invocation of the last head.
         for (var c = p.heads * dh; c < p.out_ld; c++) {
             out[i * p.out_ld + c] = 0.0;
         }
     }
     // BEGIN store: written by tools/codegen/gen_attention.py
-    store_chunk(at, 0u, o_0 * scale);
-    store_chunk(at, 1u, o_1 * scale);
-    store_chunk(at, 2u, o_2 * scale);
-    store_chunk(at, 3u, o_3 * scale);
-    store_chunk(at, 4u, o_4 * scale);
-    store_chunk(at, 5u, o_5 * scale);
-    store_chunk(at, 6u, o_6 * scale);
-    store_chunk(at, 7u, o_7 * scale);
-    if (CHUNKS > 8u) {
-        store_chunk(at, 8u, o_8 * scale);
-        store_chunk(at, 9u, o_9 * scale);
-        store_chunk(at, 10u, o_10 * scale);
-        store_chunk(at, 11u, o_11 * scale);
-        store_chunk(at, 12u, o_12 * scale);
-        store_chunk(at, 13u, o_13 * scale);
-        store_chunk(at, 14u, o_14 * scale);
-        store_chunk(at, 15u, o_15 * scale);
+    store_chunk(at, 0u * LANES + lane, o_0 * scale);
+    store_chunk(at, 1u * LANES + lane, o_1 * scale);
+    if (REGS > 2u) {
+        store_chunk(at, 2u * LANES + lane, o_2 * scale);
+        store_chunk(at, 3u * LANES + lane, o_3 * scale);
     }
-    if (CHUNKS > 16u) {
-        store_chunk(at, 16u, o_16 * scale);
-        store_chunk(at, 17u, o_17 * scale);
-        store_chunk(at, 18u, o_18 * scale);
-        store_chunk(at, 19u, o_19 * scale);
-        store_chunk(at, 20u, o_20 * scale);
-        store_chunk(at, 21u, o_21 * scale);
-        store_chunk(at, 22u, o_22 * scale);
-        store_chunk(at, 23u, o_23 * scale);
-        store_chunk(at, 24u, o_24 * scale);
-        store_chunk(at, 25u, o_25 * scale);
-        store_chunk(at, 26u, o_26 * scale);
-        store_chunk(at, 27u, o_27 * scale);
-        store_chunk(at, 28u, o_28 * scale);
-        store_chunk(at, 29u, o_29 * scale);
-        store_chunk(at, 30u, o_30 * scale);
-        store_chunk(at, 31u, o_31 * scale);
+    if (REGS > 4u) {
+        store_chunk(at, 4u * LANES + lane, o_4 * scale);
+        store_chunk(at, 5u * LANES + lane, o_5 * scale);
+        store_chunk(at, 6u * LANES + lane, o_6 * scale);
+        store_chunk(at, 7u * LANES + lane, o_7 * scale);
+    }
+    if (REGS > 8u) {
+        store_chunk(at, 8u * LANES + lane, o_8 * scale);
+        store_chunk(at, 9u * LANES + lane, o_9 * scale);
+        store_chunk(at, 10u * LANES + lane, o_10 * scale);
+        store_chunk(at, 11u * LANES + lane, o_11 * scale);
+        store_chunk(at, 12u * LANES + lane, o_12 * scale);
+        store_chunk(at, 13u * LANES + lane, o_13 * scale);
+        store_chunk(at, 14u * LANES + lane, o_14 * scale);
+        store_chunk(at, 15u * LANES + lane, o_15 * scale);
+    }
+    if (REGS > 16u) {
+        store_chunk(at, 16u * LANES + lane, o_16 * scale);
+        store_chunk(at, 17u * LANES + lane, o_17 * scale);
+        store_chunk(at, 18u * LANES + lane, o_18 * scale);
+        store_chunk(at, 19u * LANES + lane, o_19 * scale);
+        store_chunk(at, 20u * LANES + lane, o_20 * scale);
+        store_chunk(at, 21u * LANES + lane, o_21 * scale);
+        store_chunk(at, 22u * LANES + lane, o_22 * scale);
+        store_chunk(at, 23u * LANES + lane, o_23 * scale);
+        store_chunk(at, 24u * LANES + lane, o_24 * scale);
+        store_chunk(at, 25u * LANES + lane, o_25 * scale);
+        store_chunk(at, 26u * LANES + lane, o_26 * scale);
+        store_chunk(at, 27u * LANES + lane, o_27 * scale);
+        store_chunk(at, 28u * LANES + lane, o_28 * scale);
+        store_chunk(at, 29u * LANES + lane, o_29 * scale);
+        store_chunk(at, 30u * LANES + lane, o_30 * scale);
+        store_chunk(at, 31u * LANES + lane, o_31 * scale);
     }
     // END store
 }
@@ -448,10 +471,13 @@ fn flash(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
 @group(0) @binding(1) var<storage, read> partials: array<f32>;
 @group(0) @binding(2) var<storage, read_write> combined: array<f32>;
 
-@compute @workgroup_size(64)
+// Invocations per workgroup of `combine` (kernels::attention::COMBINE_WG).
+const COMBINE_WG: u32 = 64u;
+
+@compute @workgroup_size(COMBINE_WG)
 fn combine(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
-    let index = (wid.x + wid.y * nwg.x) * WG + lid;
+    let index = (wid.x + wid.y * nwg.x) * COMBINE_WG + lid;
     if (index >= p.nq * p.out_ld) {
         return;
     }

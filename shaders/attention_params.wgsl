@@ -18,7 +18,7 @@ struct Params {
     // Keys per split (a multiple of the key tile) and the number of splits.
     split_keys: u32,
     splits: u32,
-    // ceil(nq / WG): the fastest-varying part of the group index, so that neighbouring groups share keys.
+    // ceil(nq / ROWS): the fastest-varying part of the group index, so that neighbouring groups share keys.
     query_tiles: u32,
     // Floats per row of the partials: heads * (dim_head + 2).
     partial_ld: u32,

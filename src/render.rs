@@ -98,6 +98,7 @@ impl Engine {
                 max_buffer_bytes: options.max_buffer_bytes,
                 matmul: options.matmul,
                 pipeline_cache: options.pipeline_cache,
+                without_subgroups: false,
             })?),
             load: LoadOptions { precision: options.precision },
         })

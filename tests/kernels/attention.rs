@@ -1,5 +1,6 @@
 //! Attention against the float64 reference, on the fused kernel, on flash attention (GPUs' `Tiled`, keys split
-//! or not) and (where the adapter runs it) on `matmul_lanes`: self-attention from one fused qkv tensor, cross-attention onto a cached kv tensor,
+//! or not, a query row per invocation or, where the adapter has subgroups, over four lanes) and (where the adapter
+//! runs it) on `matmul_lanes`: self-attention from one fused qkv tensor, cross-attention onto a cached kv tensor,
 //! separate q/k/v at odd columns, row-range views, and the numerically hard cases (logits of ±1e4, one
 //! dominant key, flat rows, 16384 keys).
 //!
@@ -69,10 +70,11 @@ impl Case {
         self.dim_head.is_multiple_of(32) && [self.q, self.k, self.v].iter().all(|s| s.col.is_multiple_of(4))
     }
 
-    /// Runs attention with linear layers on `kernel`, checks that it zeroed the output row padding and left
-    /// the rows around the view alone and that it ran on `matmul_lanes` where it should, and returns the
-    /// view's rows (unpadded) and the bytes the plan allocated.
-    fn run_gpu(&self, kernel: MatmulKernel) -> (Vec<f32>, u64) {
+    /// Runs attention with the kernel choice `choice`, checks that it zeroed the output row padding and left
+    /// the rows around the view alone and that it ran on `matmul_lanes` or flash attention's subgroup variant
+    /// where it should, and returns the view's rows (unpadded) and the bytes the plan allocated.
+    fn run_gpu(&self, choice: KernelChoice) -> (Vec<f32>, u64) {
+        let kernel = choice.matmul;
         let gpu = gpu();
         let inner = self.heads * self.dim_head;
         let ld = padded_cols(inner);
@@ -81,7 +83,7 @@ impl Case {
         let out_tensor = GpuTensor { rows: out_rows, cols: inner, ..padded_out.clone() };
 
         let mut plan = PlanBuilder::new();
-        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+        plan.kernels = choice;
         let ids: Vec<_> = self
             .tensors
             .iter()
@@ -118,6 +120,8 @@ impl Case {
         assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
         let on_flash = plan.op_kernels().any(|k| k.starts_with("attention_flash"));
         assert_eq!(on_flash, kernel == MatmulKernel::Tiled, "{kernel:?}: {}", self.describe());
+        let on_subgroups = plan.op_kernels().any(|k| k.starts_with("attention_flash_lanes"));
+        assert_eq!(on_subgroups, on_flash && choice.subgroups, "{choice:?}: {}", self.describe());
         let plan = run(plan);
         // A constant kv tensor bound whole has its keys and values packed outside the plan, once.
         let kept = self.constant.is_some_and(|t| self.k.tensor == t && self.v.tensor == t && self.kv_whole());
@@ -219,8 +223,9 @@ impl Case {
         let want = self.reference();
         let v_max = self.v_max();
         let dh = self.dim_head;
-        for kernel in attention_kernels() {
-            let (got, _) = self.run_gpu(kernel);
+        for choice in attention_choices() {
+            let kernel = (choice.matmul, choice.subgroups);
+            let (got, _) = self.run_gpu(choice);
             for (n, (&g, &w)) in got.iter().zip(&want).enumerate() {
                 let (i, h) = (n / (self.heads * dh), n % (self.heads * dh) / dh);
                 let tol = (TOL_V + extra[i * self.heads + h]) * v_max;
@@ -239,10 +244,26 @@ impl Case {
     }
 }
 
-/// The matmul kernels attention runs differently on: `Rows` (the fused kernel), `Tiled` (flash attention,
-/// as on GPUs) and `Lanes` where the adapter has it.
-fn attention_kernels() -> Vec<MatmulKernel> {
-    matmul_kernels()
+/// The kernel choices attention runs differently on: `Rows` (the fused kernel), `Tiled` (flash attention, as on
+/// GPUs) a query row per invocation and, where the adapter has subgroups that suit, over four lanes, and
+/// `Lanes` where the adapter has it.
+fn attention_choices() -> Vec<KernelChoice> {
+    let gpu = gpu();
+    let subgroups = KernelChoice::subgroups_suit(&gpu.info, gpu.features);
+    if !subgroups {
+        eprintln!("flash attention's subgroup variant not tested on {}: no subgroups of 4+ lanes", gpu.describe());
+    }
+    let choice = |matmul, subgroups| KernelChoice { matmul, subgroups, ..gpu.kernels };
+    let mut choices: Vec<_> = matmul_kernels().into_iter().map(|kernel| choice(kernel, false)).collect();
+    if subgroups {
+        choices.push(choice(MatmulKernel::Tiled, true));
+    }
+    choices
+}
+
+/// The choice of `kernel` without subgroup variants.
+fn plain(kernel: MatmulKernel) -> KernelChoice {
+    KernelChoice { matmul: kernel, subgroups: false, ..gpu().kernels }
 }
 
 /// How q, k and v are laid out.
@@ -401,7 +422,7 @@ fn attention_dominant_key_and_flat_rows() {
 fn attention_long_kv() {
     let mut rng = Rng::new(0x4000);
     let case = random_case(&mut rng, Layout::CachedKv, 5, 16384, 2, 64);
-    let (_, peak_bytes) = case.run_gpu(MatmulKernel::Rows);
+    let (_, peak_bytes) = case.run_gpu(plain(MatmulKernel::Rows));
     assert!(peak_bytes <= 256, "attention plan allocated {peak_bytes} bytes");
     case.check();
 }
@@ -447,8 +468,8 @@ fn flash_attention_splits_keys_when_queries_are_few() {
 fn attention_lanes_query_passes() {
     let mut rng = Rng::new(0x4002);
     let case = random_case(&mut rng, Layout::CachedKv, 300, 8192, 4, 32);
-    if attention_kernels().contains(&MatmulKernel::Lanes) {
-        let (_, peak_bytes) = case.run_gpu(MatmulKernel::Lanes);
+    if matmul_kernels().contains(&MatmulKernel::Lanes) {
+        let (_, peak_bytes) = case.run_gpu(plain(MatmulKernel::Lanes));
         let bound = 2 * LANES_SCORES_BYTES as u64 + (9 << 20);
         assert!(peak_bytes <= bound, "attention plan allocated {peak_bytes} bytes, more than {bound}");
     }
@@ -503,7 +524,7 @@ fn attention_kept_scene_keys_values() {
 
     // Two plans on one constant kv tensor: the first makes scratch texture 0 and the two kept packings, the
     // second only its scratch texture, and both give the same output.
-    if attention_kernels().contains(&MatmulKernel::Lanes) {
+    if matmul_kernels().contains(&MatmulKernel::Lanes) {
         let gpu = gpu();
         let host = &case.tensors[kv];
         let kv_tensor = gpu.upload("kv", host.rows, host.cols, &host.data).unwrap();

@@ -41,3 +41,17 @@ fn tiled_sums_are_named_variables() {
         assert!(source.contains("var sums_0 = vec4<f32>(0.0);"), "{}: no named sums", shader.name);
     }
 }
+
+/// Every shader and variant has its own name: pipelines are cached by (name, entry point), so two sources under
+/// one name would run each other's code.
+#[test]
+fn shader_names_are_unique() {
+    let mut names: Vec<&str> = raypatch_engine::kernels::ALL_SHADERS
+        .iter()
+        .chain(&raypatch_engine::kernels::VARIANTS)
+        .map(|s| s.name)
+        .collect();
+    names.sort_unstable();
+    let repeated: Vec<_> = names.windows(2).filter(|pair| pair[0] == pair[1]).map(|pair| pair[0]).collect();
+    assert!(repeated.is_empty(), "shader names used twice: {repeated:?}");
+}

@@ -10,8 +10,8 @@
 # more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 8
 # minutes; it took about 3 on an H200), `rpsrt srt families viewer` in another (limits 9 minutes; the sweeps time
 # PyTorch eager and compiled at every size; a sweep cut short keeps the tables of the sizes it measured, and its
-# log has each configuration's line, PyTorch's times included), and `rows` in a third when device time allows
-# (limit 3 minutes)):
+# log has each configuration's line, PyTorch's times included), and `variants` in a third when device time
+# allows (limits 4.5 minutes)):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
 #     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)
@@ -19,8 +19,9 @@
 #     lab       the GEMM lab: the engine's GEMM kernels beside outer-product tilings (tools/bench/gemm_lab.py)
 #     breakdown the engine alone (no PyTorch, no float64 reference: about a minute) on the official RP-SRT k=8, SRT,
 #               RP-OSRT k=8 and RP-DeFiNe k=16: where each encode's and render's GPU time goes, by kernel and op
-#     rows      the same with every op on the `Rows` family (--matmul-kernel rows): per op, the time the other
-#               family would take, to decide which variant runs where (device.rs) from measurements
+#     variants  the same with every op on the `Rows` family (--matmul-kernel rows), then with no subgroup variant
+#               (--no-subgroups: flash attention a query row per invocation): per op, the time the other variant
+#               would take, to decide which runs where (device.rs) from measurements
 #     rpsrt     the official RP-SRT k=8 at every size, one view and 8 and 32 at once, the per-kernel breakdown,
 #               PyTorch CUDA eager and torch.compile on the same weights and inputs
 #     srt       the official SRT (k=1) likewise
@@ -30,15 +31,15 @@
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|breakdown|rows|rpsrt|srt|families|viewer ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|breakdown|variants|rpsrt|srt|families|viewer ...]}
 shift
 steps=("$@")
-[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab breakdown rows rpsrt srt families viewer)
+[ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab breakdown variants rpsrt srt families viewer)
 for s in "${steps[@]}"; do
     case $s in
-        info | tests | gemm | lab | breakdown | rows | rpsrt | srt | families | viewer) ;;
+        info | tests | gemm | lab | breakdown | variants | rpsrt | srt | families | viewer) ;;
         *)
-            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, breakdown, rows, rpsrt, srt, families or viewer" >&2
+            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, breakdown, variants, rpsrt, srt, families or viewer" >&2
             exit 2
             ;;
     esac
@@ -174,7 +175,10 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 run lab 40 "$bin/raypatch-bench" --gemm-lab "$work/lab" --out "$work/results/lab"
                 ;;
             breakdown) engine_only breakdown 120 ;;
-            rows) engine_only rows 180 --matmul-kernel rows ;;
+            variants)
+                engine_only rows 180 --matmul-kernel rows
+                engine_only no-subgroups 90 --no-subgroups
+                ;;
             rpsrt) sweep rpsrt 240 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 120 0 --only official:1 ;;
             families) sweep families 150 25 --only official-osrt:8 --only official-define:16 ;;

@@ -34,6 +34,8 @@ pub struct Options {
     pub adapter: Option<String>,
     /// The matmul kernel to force (`None`: the adapter's fastest).
     pub matmul: Option<MatmulKernel>,
+    /// Leave the adapter's subgroup operations unused (`GpuOptions::without_subgroups`).
+    pub without_subgroups: bool,
     /// Measured runs per configuration (default 5, quick 3).
     pub repeats: Option<usize>,
     /// Skip configurations whose render is predicted (from its multiply-adds, counted from the ops its plan
@@ -186,7 +188,13 @@ pub fn run(options: &Options) -> Result<()> {
     let scratch = options.out.join("scratch");
     std::fs::create_dir_all(&scratch).with_context(|| format!("{}: cannot create", scratch.display()))?;
     let adapter = options.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
-    let gpu = Arc::new(Gpu::new(&GpuOptions { adapter, matmul: options.matmul, ..Default::default() })?);
+    let gpu_options = GpuOptions {
+        adapter,
+        matmul: options.matmul,
+        without_subgroups: options.without_subgroups,
+        ..Default::default()
+    };
+    let gpu = Arc::new(Gpu::new(&gpu_options)?);
     let timestamps = gpu.set_timestamps(TimestampMode::Plan).is_ok();
     let env = Environment {
         adapter: gpu.info.name.clone(),
@@ -194,6 +202,7 @@ pub fn run(options: &Options) -> Result<()> {
         driver: format!("{} {}", gpu.info.driver, gpu.info.driver_info).trim().to_string(),
         machine: measure::machine(),
         matmul_kernel: format!("{:?}", gpu.kernels.matmul),
+        subgroups: gpu.kernels.subgroups,
     };
     let torch = match options.pytorch.then(pytorch::probe) {
         None => Err("--no-pytorch".to_string()),
@@ -230,7 +239,10 @@ pub fn run(options: &Options) -> Result<()> {
         bench.env.backend,
         bench.env.driver
     );
-    println!("machine: {}; timing: {timing}; matmul kernel: {}", bench.env.machine, bench.env.matmul_kernel);
+    println!(
+        "machine: {}; timing: {timing}; matmul kernel: {}; subgroup variants: {}",
+        bench.env.machine, bench.env.matmul_kernel, bench.env.subgroups
+    );
     match &bench.torch {
         Ok(torch) => {
             println!("PyTorch: timing tools/reference/raypatch_reference.py on the same inputs, {}", torch.describe())

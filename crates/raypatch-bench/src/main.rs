@@ -36,6 +36,10 @@ struct Args {
     #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
         .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
     matmul_kernel: Option<MatmulKernel>,
+    /// Leave the adapter's subgroup operations unused: kernels run their variants without them (flash attention
+    /// a query row per invocation; no `lanes` kernel), to compare the two.
+    #[arg(long)]
+    no_subgroups: bool,
     /// Do not time PyTorch even if it is installed.
     #[arg(long)]
     no_pytorch: bool,
@@ -113,6 +117,7 @@ fn main() -> ExitCode {
         out: args.out,
         adapter: args.adapter,
         matmul: args.matmul_kernel,
+        without_subgroups: args.no_subgroups,
         repeats: args.repeats,
         max_render_seconds: args.max_render_seconds,
         max_reference_gmac: args.max_reference_gmac,

@@ -20,6 +20,10 @@ pub struct Environment {
     /// The kernel of the linear layers (`Rows`, `Lanes`); absent in results from before it had a choice.
     #[serde(default = "rows_kernel")]
     pub matmul_kernel: String,
+    /// Whether kernels with a subgroup variant used it (`device::KernelChoice::subgroups`); absent (false) in
+    /// results from before there was one.
+    #[serde(default)]
+    pub subgroups: bool,
 }
 
 fn rows_kernel() -> String {
@@ -236,8 +240,13 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
     let mut out = String::new();
     if let Some(env) = records.iter().find_map(|r| r.env.as_ref()) {
         out += &format!(
-            "Adapter: {} ({}, {}). Machine: {}. Matmul kernel: {}. PyTorch: {pytorch}.\n\n",
-            env.adapter, env.backend, env.driver, env.machine, env.matmul_kernel
+            "Adapter: {} ({}, {}). Machine: {}. Matmul kernel: {}. Subgroup variants: {}. PyTorch: {pytorch}.\n\n",
+            env.adapter,
+            env.backend,
+            env.driver,
+            env.machine,
+            env.matmul_kernel,
+            if env.subgroups { "yes" } else { "no" }
         );
     }
     let timing = records.first().map_or("", |r| r.timing.as_str());

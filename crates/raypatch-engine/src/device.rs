@@ -11,6 +11,10 @@
 /// Lanes of a subgroup `matmul_lanes` needs, exactly.
 pub const LANES: u32 = 8;
 
+/// Lanes of a subgroup that share a query row in flash attention's subgroup variant
+/// (`shaders/flash_subgroup_lanes.wgsl`; tools/codegen/gen_attention.py reads this).
+pub const FLASH_LANES: usize = 4;
+
 /// The kernel family linear layers, convolutions and attention run on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum MatmulKernel {
@@ -89,6 +93,19 @@ pub struct KernelChoice {
     /// Linear layers run on `matmul` wherever it can run them, rather than where another family measured faster
     /// for their shape ([`linear_variant`]): how the kernel tests and `raypatch-bench --gemm` check each family.
     pub pinned: bool,
+    /// Kernels with a subgroup variant may use it: the adapter has subgroup operations, in subgroups of at least
+    /// [`FLASH_LANES`] lanes ([`KernelChoice::subgroups_suit`]), and they were not turned off
+    /// (`GpuOptions::subgroups`, `--no-subgroups`). Flash attention then splits each query row over
+    /// `FLASH_LANES` lanes ([`attention_variant`]).
+    pub subgroups: bool,
+}
+
+impl KernelChoice {
+    /// Whether an adapter's subgroups suit the kernels' subgroup variants: it has subgroup operations, in
+    /// subgroups of at least [`FLASH_LANES`] lanes.
+    pub fn subgroups_suit(info: &wgpu::AdapterInfo, features: wgpu::Features) -> bool {
+        features.contains(wgpu::Features::SUBGROUP) && info.subgroup_min_size as usize >= FLASH_LANES
+    }
 }
 
 /// The variant of a linear layer with `cols` output columns: `f32_weights` (f16 weights are read from buffers
@@ -165,8 +182,9 @@ pub fn reduce_rows_per_workgroup(choice: &KernelChoice) -> bool {
 pub enum AttentionVariant<L> {
     /// `attention.attention`: one fused dispatch, a head's 512 queries a workgroup.
     Fused,
-    /// `attention_flash`: a workgroup per (64 queries, head, key split).
-    Flash,
+    /// `attention_flash`: a workgroup per (64 queries, head, key split), each query row on `lanes` invocations
+    /// (1, or [`FLASH_LANES`] lanes of a subgroup).
+    Flash { lanes: usize },
     /// Scores, softmax and weighted values as batched `matmul_lanes` GEMMs, laid out as `L` says.
     Lanes(L),
 }
@@ -180,7 +198,7 @@ pub fn attention_variant<L>(
 ) -> AttentionVariant<L> {
     match choice.matmul {
         _ if queries == 0 => AttentionVariant::Fused,
-        MatmulKernel::Tiled => AttentionVariant::Flash,
+        MatmulKernel::Tiled => AttentionVariant::Flash { lanes: if choice.subgroups { FLASH_LANES } else { 1 } },
         MatmulKernel::Lanes => lanes_layout().map_or(AttentionVariant::Fused, AttentionVariant::Lanes),
         MatmulKernel::Rows => AttentionVariant::Fused,
     }

@@ -69,6 +69,9 @@ pub struct GpuOptions {
     pub max_buffer_bytes: Option<u64>,
     /// The matmul kernel of linear layers; `None`: the adapter's best ([`MatmulKernel::best_for`]).
     pub matmul: Option<MatmulKernel>,
+    /// Leave the adapter's subgroup operations unused: the kernels run their variants without them (flash
+    /// attention a query row per invocation; no `matmul_lanes`), to compare the two on one adapter.
+    pub without_subgroups: bool,
     /// Where compiled pipelines are kept between runs, on backends with a pipeline cache (Vulkan); see
     /// [`pipeline_cache`].
     pub pipeline_cache: PipelineCacheDir,
@@ -125,7 +128,8 @@ pub struct Gpu {
 }
 
 /// Features the engine uses when the adapter has them: GPU timestamps around plans and between their ops,
-/// f16 in shaders (weights stored as f16), and subgroup operations (`matmul_lanes`).
+/// f16 in shaders (weights stored as f16), and subgroup operations (`matmul_lanes`, flash attention's subgroup
+/// variant).
 pub const OPTIONAL_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY
     .union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES)
     .union(wgpu::Features::SHADER_F16)
@@ -187,7 +191,10 @@ impl Gpu {
         })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let features = adapter.features() & OPTIONAL_FEATURES;
+        let mut features = adapter.features() & OPTIONAL_FEATURES;
+        if options.without_subgroups {
+            features.remove(wgpu::Features::SUBGROUP);
+        }
         let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("raypatch"),
@@ -209,6 +216,7 @@ impl Gpu {
         };
         let max_texels = TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
         let pipeline_cache = DiskCache::open(&device, cache_file);
+        let subgroups = KernelChoice::subgroups_suit(&info, features);
         Ok(Gpu {
             device,
             queue,
@@ -216,7 +224,7 @@ impl Gpu {
             limits,
             features,
             max_buffer_bytes,
-            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false },
+            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false, subgroups },
             pipelines: Mutex::new(HashMap::new()),
             pipeline_cache,
             kept_textures: Mutex::new(Vec::new()),

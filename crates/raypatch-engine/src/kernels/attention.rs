@@ -4,7 +4,10 @@
 //! of every head as one batched GEMM on it, their softmax, and the weighted sum of values as another; else
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
-use super::{ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8};
+use super::{
+    ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8, ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16,
+    ATTENTION_FLASH_LANES_8,
+};
 use crate::device::{attention_variant, splits_to_fill, AttentionVariant};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
@@ -122,7 +125,7 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
     match attention_variant(&plan.kernels, q.rows, || LanesLayout::of(plan, &args)) {
         AttentionVariant::Lanes(layout) => return attention_on_lanes(plan, label, args, layout),
-        AttentionVariant::Flash => return flash_attention(plan, label, args),
+        AttentionVariant::Flash { lanes } => return flash_attention(plan, label, args, lanes),
         AttentionVariant::Fused => {}
     }
 
@@ -140,8 +143,10 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
     });
 }
 
-/// Query rows per workgroup of `attention_flash.wgsl` (one per invocation).
+/// Query rows per workgroup of `attention_flash.wgsl` (`ROWS`).
 const FLASH_ROWS: usize = 64;
+/// Invocations per workgroup of `attention_flash.wgsl`'s `combine` (`COMBINE_WG`).
+const COMBINE_WG: usize = 64;
 /// vec4s of keys (and of values) per tile in `attention_flash.wgsl`'s workgroup memory.
 const FLASH_TILE_VEC4S: usize = 512;
 /// Workgroups that keep a large GPU busy (an H100 has 132 multiprocessors, each running several 64-invocation
@@ -157,12 +162,18 @@ pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usi
     (split_keys, nkv.div_ceil(split_keys))
 }
 
-/// Flash attention on GPUs (`shaders/attention_flash.wgsl`): one dispatch, or with the keys split, one
+/// Flash attention on GPUs (`shaders/attention_flash.wgsl`), each query row on `lanes` invocations (1, or
+/// [`FLASH_LANES`](crate::device::FLASH_LANES) lanes of a subgroup): one dispatch, or with the keys split, one
 /// dispatch writing each split's partial output and one merging them.
-fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
+fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, lanes: usize) {
     let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
     // The variant whose registers hold a head (vec4s per head: 8, 16 or 32).
-    let (chunks, shader) = [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)]
+    let variants = if lanes == 1 {
+        [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)]
+    } else {
+        [(8, &ATTENTION_FLASH_LANES_8), (16, &ATTENTION_FLASH_LANES_16), (32, &ATTENTION_FLASH_LANES)]
+    };
+    let (chunks, shader) = variants
         .into_iter()
         .find(|(chunks, _)| 4 * chunks >= dim_head)
         .expect("dim_head is at most MAX_DIM_HEAD = 128");
@@ -212,7 +223,7 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         params: params.words(),
         bindings: vec![(partials, Access::Read), (out, Access::Write)],
         textures: Vec::new(),
-        workgroups: grid((q.rows * params.out_ld as usize).div_ceil(FLASH_ROWS)),
+        workgroups: grid((q.rows * params.out_ld as usize).div_ceil(COMBINE_WG)),
         constants: Vec::new(),
         multiply_adds: 0,
     });

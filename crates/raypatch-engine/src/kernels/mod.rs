@@ -190,14 +190,15 @@ pub fn conv_output_size(h: usize, w: usize, window: Window, upsample_input: bool
     Some((window.output(h << up)?, window.output(w << up)?))
 }
 
-/// A shader from `shaders/NAME.wgsl`, optionally preceded by shared WGSL files (WGSL has no includes).
+/// A shader from `shaders/FILE.wgsl`, optionally preceded by shared WGSL files (WGSL has no includes), called
+/// NAME (pipelines are cached by name: one name per source).
 macro_rules! shader {
-    ($name:literal, $features:expr $(, $prelude:literal)*) => {
+    ($name:expr, $file:literal, $features:expr $(, $prelude:literal)*) => {
         Shader {
             name: $name,
             source: concat!(
                 $(include_str!(concat!("../../../../shaders/", $prelude, ".wgsl")), "\n",)*
-                include_str!(concat!("../../../../shaders/", $name, ".wgsl"))
+                include_str!(concat!("../../../../shaders/", $file, ".wgsl"))
             ),
             prefix: "",
             replace: &[],
@@ -206,16 +207,27 @@ macro_rules! shader {
     };
 }
 
+/// A `shaders!` entry's name: its `as` name where it has one, else its file's.
+macro_rules! shader_name {
+    ($file:literal) => {
+        $file
+    };
+    ($file:literal, $alias:literal) => {
+        $alias
+    };
+}
+
 /// The one list of shaders: each line declares a `pub static` [`Shader`] and pairs it with the Rust
 /// struct of its uniform; [`ALL_SHADERS`], [`VARIANTS`] and [`UNIFORMS`] are made from it.
-/// - under `shaders`, `NAME = "file" ["prelude", ...] [needs FEATURES] => Params`: `shaders/file.wgsl` after
-///   the preludes, needing optional wgpu features;
+/// - under `shaders`, `NAME = "file" [as "name"] ["prelude", ...] [needs FEATURES] => Params`: `shaders/file.wgsl`
+///   after the preludes, needing optional wgpu features, called `file` or, where two entries share the file
+///   with other preludes, `name`;
 /// - under `variants`, `NAME = BASE { name, prefix, replace, features } => Params`: BASE's source
 ///   compiled with a prefix and text replacements, for optional features or fixed sizes.
 macro_rules! shaders {
     (
         shaders {
-            $($(#[$meta:meta])* $name:ident = $file:literal [$($prelude:literal),*]
+            $($(#[$meta:meta])* $name:ident = $file:literal $(as $alias:literal)? [$($prelude:literal),*]
                 $(needs $needs:expr)? => $params:ty;)*
         }
         variants {
@@ -224,8 +236,12 @@ macro_rules! shaders {
             } => $vparams:ty;)*
         }
     ) => {
-        $($(#[$meta])* pub static $name: Shader =
-            shader!($file, wgpu::Features::empty() $(.union($needs))? $(, $prelude)*);)*
+        $($(#[$meta])* pub static $name: Shader = shader!(
+            shader_name!($file $(, $alias)?),
+            $file,
+            wgpu::Features::empty() $(.union($needs))?
+            $(, $prelude)*
+        );)*
         $($(#[$vmeta])* pub static $vname: Shader = Shader {
             name: $vfile,
             source: $base.source,
@@ -256,6 +272,10 @@ const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias Weight
 /// products summed in f32 (`Precision::F16Activations`).
 const F16_TILES: (&str, &str) = ("alias TileFloat = f32;", "alias TileFloat = f16;");
 
+/// The replacements that size `shaders/attention_flash.wgsl`'s registers for heads of up to 64 and 32 floats.
+const CHUNKS_16: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 16u;");
+const CHUNKS_8: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 8u;");
+
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
@@ -264,8 +284,11 @@ shaders! {
             => matmul::MatmulLanesParams;
         PACK = "pack" ["texels"] => pack::PackParams;
         ATTENTION = "attention" ["attention_params"] => attention::AttentionParams;
-        /// Attention for GPUs, heads of up to 128 floats: see `kernels::attention`.
-        ATTENTION_FLASH = "attention_flash" ["attention_params"] => attention::AttentionParams;
+        /// Attention for GPUs, heads of up to 128 floats, a query row per invocation: see `kernels::attention`.
+        ATTENTION_FLASH = "attention_flash" ["attention_params", "flash_one_lane"] => attention::AttentionParams;
+        /// `attention_flash` with a query row over four lanes of a subgroup.
+        ATTENTION_FLASH_LANES = "attention_flash" as "attention_flash_lanes" ["attention_params", "flash_subgroup_lanes"]
+            needs wgpu::Features::SUBGROUP => attention::AttentionParams;
         LAYERNORM = "layernorm" ["row_reduce"] => norm::LayerNormParams;
         POSENC = "posenc" [] => posenc::PosencParams;
         RESIZE = "resize" [] => resize::ResizeParams;
@@ -297,15 +320,29 @@ shaders! {
         ATTENTION_FLASH_16 = ATTENTION_FLASH {
             name: "attention_flash_16",
             prefix: "",
-            replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 16u;")],
+            replace: &[CHUNKS_16],
             features: wgpu::Features::empty(),
         } => attention::AttentionParams;
         /// `attention_flash` with registers for heads of up to 32 floats.
         ATTENTION_FLASH_8 = ATTENTION_FLASH {
             name: "attention_flash_8",
             prefix: "",
-            replace: &[("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 8u;")],
+            replace: &[CHUNKS_8],
             features: wgpu::Features::empty(),
+        } => attention::AttentionParams;
+        /// `attention_flash_lanes` for heads of up to 64 floats.
+        ATTENTION_FLASH_LANES_16 = ATTENTION_FLASH_LANES {
+            name: "attention_flash_lanes_16",
+            prefix: "",
+            replace: &[CHUNKS_16],
+            features: wgpu::Features::SUBGROUP,
+        } => attention::AttentionParams;
+        /// `attention_flash_lanes` for heads of up to 32 floats.
+        ATTENTION_FLASH_LANES_8 = ATTENTION_FLASH_LANES {
+            name: "attention_flash_lanes_8",
+            prefix: "",
+            replace: &[CHUNKS_8],
+            features: wgpu::Features::SUBGROUP,
         } => attention::AttentionParams;
     }
 }
