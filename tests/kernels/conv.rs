@@ -104,7 +104,8 @@ impl Case {
         let bt = bias_data.as_ref().map(|b| gpu.upload("b", 1, cout, b).expect("upload"));
 
         let mut plan = PlanBuilder::new();
-        plan.kernels = KernelChoice { matmul: kernel, ..gpu.kernels };
+        // Pinned: every case on the family under test, narrow outputs on `Tiled` too.
+        plan.kernels = KernelChoice { matmul: kernel, pinned: true, ..gpu.kernels };
         let xv = xp.view(&mut plan, "x");
         let ov = op.view(&mut plan, "out");
         // A model weight, as the models bind it (matmul_lanes keeps its packing).
@@ -368,5 +369,32 @@ fn conv_tiled_splits_k_when_tiles_are_few() {
             Conv2dArgs { x, n: 1, h, w, cin, weight, bias: None, out, cout, window, upsample_input: false, act, mode };
         conv2d(&mut plan, "conv", args);
         assert_eq!(plan.op_kernels().any(|k| k.ends_with(".conv_reduce")), splits, "{h}x{w}, {cin} -> {cout}");
+    }
+}
+
+/// On the GPU profile (not pinned), `Tiled` runs convolutions of 64 output channels or more on `conv_tiled`;
+/// narrower ones (the Ray-Patch decoders' feature and image convolutions) on `Rows`, whose 8-channel tiles
+/// waste little where a 128-channel tile would waste most of its work.
+#[test]
+fn tiled_profile_leaves_narrow_convolutions_to_rows() {
+    let gpu_profile = KernelChoice { matmul: MatmulKernel::Tiled, pinned: false, ..gpu().kernels };
+    let entry = |cout: usize| {
+        let mut plan = PlanBuilder::new();
+        plan.kernels = gpu_profile;
+        let (h, w, cin) = (30, 40, 32);
+        let x = plan.transient("x", h * w, cin);
+        let weight = plan.transient("w", cout, 9 * padded_cols(cin));
+        let out = plan.transient("out", 4 * h * w, cout);
+        let (x, out) = (plan.all(x), plan.all(out));
+        let (act, mode, window) = (Activation::None, ConvMode::Overwrite, k3(1));
+        let args =
+            Conv2dArgs { x, n: 1, h, w, cin, weight, bias: None, out, cout, window, upsample_input: true, act, mode };
+        conv2d(&mut plan, "conv", args);
+        let first = plan.op_kernels().next().expect("one op");
+        first
+    };
+    assert_eq!(entry(64), "conv.conv_tiled");
+    for cout in [32, 16, 3, 1] {
+        assert_eq!(entry(cout), "conv.conv2d", "{cout} output channels");
     }
 }

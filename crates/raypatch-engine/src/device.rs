@@ -90,8 +90,9 @@ pub struct KernelChoice {
     /// The model's precision is `Precision::F16Activations`: `Tiled` linear layers with f16 weights stage their
     /// inputs as f16 ([`linear_tiles`]). Set per model, not by the adapter.
     pub f16_activations: bool,
-    /// Linear layers run on `matmul` wherever it can run them, rather than where another family measured faster
-    /// for their shape ([`linear_variant`]): how the kernel tests and `raypatch-bench --gemm` check each family.
+    /// Linear layers and convolutions run on `matmul` wherever it can run them, rather than on another family
+    /// where that suits their shape better ([`linear_variant`], [`conv_variant`]): how the kernel tests and
+    /// `raypatch-bench --gemm` check each family.
     pub pinned: bool,
     /// Kernels with a subgroup variant may use it: the adapter has subgroup operations, in subgroups of at least
     /// [`FLASH_LANES`] lanes ([`KernelChoice::subgroups_suit`]), and they were not turned off
@@ -129,16 +130,24 @@ pub fn linear_variant(
     }
 }
 
-/// Output columns below which a linear layer leaves `Tiled` for `Rows` ([`linear_variant`]).
+/// Output columns (channels) below which a linear layer or a convolution leaves `Tiled` for `Rows`
+/// ([`linear_variant`], [`conv_variant`]).
 pub const TILED_MIN_COLS: usize = 64;
 
-/// The variant of a convolution: `lanes_suit` says whether `matmul_lanes` fits it and enough of its work is
-/// useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the register-blocked direct
-/// kernel.
-pub fn conv_variant(choice: &KernelChoice, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
+/// The variant of a convolution with `cout` output channels: `lanes_suit` says whether `matmul_lanes` fits it
+/// and enough of its work is useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the
+/// register-blocked direct kernel.
+///
+/// On `Tiled`, as for linear layers, outputs under [`TILED_MIN_COLS`] channels run on `Rows`, whose tiles are
+/// 8 channels wide: a `conv_tiled` tile is 128 channels wide, so the Ray-Patch decoders' convolutions (32, 16 and
+/// 8 feature channels, 3 and 1 for the image) would multiply their work 4x to 43x. On an H200 (the breakdown
+/// in docs/PERFORMANCE.md, all on `conv_tiled`) the decoders' convolutions took 1.15 of RP-SRT k=8's 4.27 ms
+/// and 4.97 of RP-DeFiNe k=16's 8.95 ms, for 0.28 and 3.1 GMAC: 0.02 and 0.2 ms at the GEMM lab's rates.
+pub fn conv_variant(choice: &KernelChoice, cout: usize, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
     match choice.matmul {
         MatmulKernel::Lanes if lanes_suit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
+        MatmulKernel::Tiled if !choice.pinned && cout < TILED_MIN_COLS => MatmulKernel::Rows,
         other => other,
     }
 }

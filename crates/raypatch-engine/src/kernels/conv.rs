@@ -123,7 +123,7 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
 
     let cout4 = padded_cols(cout) / 4;
-    let (shader, entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, || lanes_suit(plan, &args)) {
+    let (shader, entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, cout, || lanes_suit(plan, &args)) {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
         MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
         MatmulKernel::Rows => {
