@@ -96,7 +96,7 @@ pub struct KernelChoice {
     pub pinned: bool,
     /// Kernels with a subgroup variant may use it: the adapter has subgroup operations, in subgroups of at least
     /// [`FLASH_LANES`] lanes ([`KernelChoice::subgroups_suit`]), and they were not turned off
-    /// (`GpuOptions::subgroups`, `--no-subgroups`). Flash attention then splits each query row over
+    /// (`GpuOptions::without_subgroups`, `--no-subgroups`). Flash attention then splits each query row over
     /// `FLASH_LANES` lanes ([`attention_variant`]).
     pub subgroups: bool,
 }

@@ -1,6 +1,6 @@
 //! Multi-head attention (self and cross), following the adapter's matmul kernel: on GPUs (`Tiled`) flash
-//! attention (`shaders/attention_flash.wgsl`: a workgroup per query tile and head, keys split across
-//! workgroups when those are too few); where linear layers run on `matmul_lanes` (CPU adapters), the scores
+//! attention (`shaders/attention_flash.wgsl`: a workgroup per query tile and head, a query row per invocation or,
+//! with subgroups, over four lanes; keys split across workgroups when those are too few); where linear layers run on `matmul_lanes` (CPU adapters), the scores
 //! of every head as one batched GEMM on it, their softmax, and the weighted sum of values as another; else
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
@@ -8,7 +8,7 @@ use super::{
     ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8, ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16,
     ATTENTION_FLASH_LANES_8,
 };
-use crate::device::{attention_variant, splits_to_fill, AttentionVariant};
+use crate::device::{attention_variant, splits_to_fill, AttentionVariant, FLASH_LANES};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
@@ -163,15 +163,15 @@ pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usi
 }
 
 /// Flash attention on GPUs (`shaders/attention_flash.wgsl`), each query row on `lanes` invocations (1, or
-/// [`FLASH_LANES`](crate::device::FLASH_LANES) lanes of a subgroup): one dispatch, or with the keys split, one
+/// [`FLASH_LANES`] lanes of a subgroup): one dispatch, or with the keys split, one
 /// dispatch writing each split's partial output and one merging them.
 fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, lanes: usize) {
     let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
     // The variant whose registers hold a head (vec4s per head: 8, 16 or 32).
-    let variants = if lanes == 1 {
-        [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)]
-    } else {
-        [(8, &ATTENTION_FLASH_LANES_8), (16, &ATTENTION_FLASH_LANES_16), (32, &ATTENTION_FLASH_LANES)]
+    let variants = match lanes {
+        1 => [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)],
+        FLASH_LANES => [(8, &ATTENTION_FLASH_LANES_8), (16, &ATTENTION_FLASH_LANES_16), (32, &ATTENTION_FLASH_LANES)],
+        _ => unreachable!("flash attention runs a query row on 1 or {FLASH_LANES} lanes, not {lanes}"),
     };
     let (chunks, shader) = variants
         .into_iter()
