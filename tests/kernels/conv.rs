@@ -373,15 +373,16 @@ fn conv_tiled_splits_k_when_tiles_are_few() {
 }
 
 /// On the GPU profile (not pinned), `Tiled` runs convolutions of 64 output channels or more on `conv_tiled`;
-/// narrower ones (the Ray-Patch decoders' feature and image convolutions) on `Rows`, whose 8-channel tiles
-/// waste little where a 128-channel tile would waste most of its work.
+/// narrower ones over many pixels (the Ray-Patch decoders' last feature and image convolutions at 480x640) on
+/// `Rows`, whose 8-channel tiles waste little where a 128-channel tile would waste most of its work; narrow ones
+/// over few pixels stay on `conv_tiled`, whose K split keeps them from being a few long chains.
 #[test]
 fn tiled_profile_leaves_narrow_convolutions_to_rows() {
     let gpu_profile = KernelChoice { matmul: MatmulKernel::Tiled, pinned: false, ..gpu().kernels };
-    let entry = |cout: usize| {
+    let entry = |(h, w): (usize, usize), cout: usize| {
         let mut plan = PlanBuilder::new();
         plan.kernels = gpu_profile;
-        let (h, w, cin) = (30, 40, 32);
+        let cin = 32;
         let x = plan.transient("x", h * w, cin);
         let weight = plan.transient("w", cout, 9 * padded_cols(cin));
         let out = plan.transient("out", 4 * h * w, cout);
@@ -393,8 +394,10 @@ fn tiled_profile_leaves_narrow_convolutions_to_rows() {
         let first = plan.op_kernels().next().expect("one op");
         first
     };
-    assert_eq!(entry(64), "conv.conv_tiled");
+    // Inputs upsampled 2x: 240x320 and 30x40 give 480x640 and 60x80 outputs.
+    assert_eq!(entry((240, 320), 64), "conv.conv_tiled");
     for cout in [32, 16, 3, 1] {
-        assert_eq!(entry(cout), "conv.conv2d", "{cout} output channels");
+        assert_eq!(entry((240, 320), cout), "conv.conv2d", "{cout} output channels at 480x640");
+        assert_eq!(entry((30, 40), cout), "conv.conv_tiled", "{cout} output channels at 60x80");
     }
 }

@@ -325,14 +325,39 @@ fn linear_tiled_splits_k_when_tiles_are_few() {
 }
 
 /// On the GPU profile (not pinned), `Tiled` runs every linear layer of 64 columns or more; narrower ones run on
-/// `Rows`, whose 8-column tiles waste none.
+/// `Rows`, whose 8-column tiles waste none, where its grid fills a GPU, and on `Tiled` (K split) where it would be a
+/// few long chains.
 #[test]
 fn tiled_profile_leaves_narrow_outputs_to_rows() {
     let gpu_profile = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu().kernels };
-    let variant = |cols| linear_variant(&gpu_profile, cols, true, || false);
-    assert_eq!((variant(64), variant(63), variant(3)), (MatmulKernel::Tiled, MatmulKernel::Rows, MatmulKernel::Rows));
+    let variant = |cols, groups| linear_variant(&gpu_profile, cols, groups, true, || false);
+    let (tiled, rows) = (MatmulKernel::Tiled, MatmulKernel::Rows);
+    assert_eq!((variant(64, 500), variant(63, 500), variant(3, 132)), (tiled, rows, rows));
+    assert_eq!((variant(63, 131), variant(3, 2)), (tiled, tiled));
     let pinned = KernelChoice { pinned: true, ..gpu_profile };
-    assert_eq!(linear_variant(&pinned, 3, true, || false), MatmulKernel::Tiled);
+    assert_eq!(linear_variant(&pinned, 3, 500, true, || false), tiled);
+}
+
+/// The `Rows` grid `linear` measures for that choice: SRT's 4800-row chunks of out_mlp.8 (1536 to 3) and
+/// RP-OSRT's mixing dots (300 rows, 6 slots) stay on `Tiled`, with K split; 76800 rows of 3 go to `Rows`.
+#[test]
+fn narrow_linear_layers_leave_tiled_only_over_many_rows() {
+    let gpu_profile = KernelChoice { matmul: MatmulKernel::Tiled, ..gpu().kernels };
+    let first_kernel = |m: usize, k: usize, n: usize| {
+        let mut plan = PlanBuilder::new();
+        plan.kernels = gpu_profile;
+        let x = plan.transient("x", m, k);
+        let w = plan.transient("w", n, k);
+        let out = plan.transient("out", m, n);
+        let (x, out) = (plan.all(x), plan.all(out));
+        let args = LinearArgs { x, weight: w, bias: None, out, act: Activation::None, accumulate: false, norm: None };
+        linear(&mut plan, "linear", args);
+        let first = plan.op_kernels().next().expect("one op");
+        first
+    };
+    assert_eq!(first_kernel(4800, 1536, 3), "matmul.linear_tiled");
+    assert_eq!(first_kernel(300, 1536, 6), "matmul.linear_tiled");
+    assert_eq!(first_kernel(76800, 64, 3), "matmul.linear");
 }
 
 #[test]

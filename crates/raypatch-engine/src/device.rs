@@ -109,45 +109,66 @@ impl KernelChoice {
     }
 }
 
-/// The variant of a linear layer with `cols` output columns: `f32_weights` (f16 weights are read from buffers
-/// only) and `lanes_fit` (whether its operands fit `matmul_lanes`' textures and grid; asked only on `Lanes`).
+/// The variant of a linear layer with `cols` output columns that would take `rows_groups` workgroups on `Rows`:
+/// `f32_weights` (f16 weights are read from buffers only) and `lanes_fit` (whether its operands fit
+/// `matmul_lanes`' textures and grid; asked only on `Lanes`).
 ///
-/// On `Tiled`, outputs narrower than half a 128-column tile run on `Rows` (8-column tiles), which wastes no
-/// columns; every other linear layer runs `linear_tiled`, faster than `Rows` on every shape measured (on an H200:
-/// 14.8 against 5.9 TMAC/s on 4800x768x2304, 8.7 against 2.4 on 300x1536x1536 with K split; the GEMM lab of
-/// docs/PERFORMANCE.md).
+/// On `Tiled`, `linear_tiled`, faster than `Rows` on every shape measured (on an H200: 14.8 against 5.9 TMAC/s on
+/// 4800x768x2304, 8.7 against 2.4 on 300x1536x1536 with K split; the GEMM lab of docs/PERFORMANCE.md), except
+/// narrow outputs with many rows ([`narrow_on_rows`]).
 pub fn linear_variant(
     choice: &KernelChoice,
     cols: usize,
+    rows_groups: usize,
     f32_weights: bool,
     lanes_fit: impl FnOnce() -> bool,
 ) -> MatmulKernel {
     match choice.matmul {
         MatmulKernel::Lanes if f32_weights && lanes_fit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
-        MatmulKernel::Tiled if !choice.pinned && cols < TILED_MIN_COLS => MatmulKernel::Rows,
+        MatmulKernel::Tiled if narrow_on_rows(choice, cols, rows_groups) => MatmulKernel::Rows,
         other => other,
     }
 }
 
-/// Output columns (channels) below which a linear layer or a convolution leaves `Tiled` for `Rows`
-/// ([`linear_variant`], [`conv_variant`]).
+/// Output columns (channels) below which a linear layer or a convolution may leave `Tiled` for `Rows`
+/// ([`narrow_on_rows`]).
 pub const TILED_MIN_COLS: usize = 64;
 
-/// The variant of a convolution with `cout` output channels: `lanes_suit` says whether `matmul_lanes` fits it
-/// and enough of its work is useful (asked only on `Lanes`). On `Rows`, and where `Lanes` does not suit, the
-/// register-blocked direct kernel.
+/// Workgroups an op's `Rows` grid needs to leave `Tiled` ([`narrow_on_rows`]): one per multiprocessor of an H100 or
+/// H200 (132).
+pub const ROWS_MIN_GROUPS: usize = 132;
+
+/// Whether an op on `Tiled` with `cols` output columns (or channels), which would take `rows_groups` workgroups on
+/// `Rows`, runs on `Rows` instead: outputs under [`TILED_MIN_COLS`] whose `Rows` grid fills a GPU
+/// ([`ROWS_MIN_GROUPS`]); never when the choice is pinned.
 ///
-/// On `Tiled`, as for linear layers, outputs under [`TILED_MIN_COLS`] channels run on `Rows`, whose tiles are
-/// 8 channels wide: a `conv_tiled` tile is 128 channels wide, so the Ray-Patch decoders' convolutions (32, 16 and
-/// 8 feature channels, 3 and 1 for the image) would multiply their work 4x to 43x. On an H200 (the breakdown
-/// in docs/PERFORMANCE.md, all on `conv_tiled`) the decoders' convolutions took 1.15 of RP-SRT k=8's 4.27 ms
-/// and 4.97 of RP-DeFiNe k=16's 8.95 ms, for 0.28 and 3.1 GMAC: 0.02 and 0.2 ms at the GEMM lab's rates.
-pub fn conv_variant(choice: &KernelChoice, cout: usize, lanes_suit: impl FnOnce() -> bool) -> MatmulKernel {
+/// A `Tiled` tile is 128 columns wide, so narrow outputs throw most of its work away: the Ray-Patch decoders'
+/// convolutions (32, 16 and 8 feature channels, 3 or 1 image channels) took 1.15 of RP-SRT k=8's 4.27 ms and 4.97
+/// of RP-DeFiNe k=16's 8.95 ms in the H200 breakdown of docs/PERFORMANCE.md, all on `conv_tiled`, for 0.28 and
+/// 3.1 GMAC of useful work. `Rows` (8-column tiles) wastes little, but each of its invocations walks the whole of
+/// K: with few workgroups the op is one chain of dependent loads, where `Tiled` splits K to fill the GPU. In the
+/// same breakdown SRT's out_mlp.8 (4800x1536 to 3 a query chunk: 19 workgroups on `Rows`) took 0.44 ms a chunk
+/// and RP-OSRT's mixing dots (300x1536 to 6: 2 workgroups) 0.81 ms, where `linear_tiled` with K split ran
+/// 300x180x1536 at cuBLAS's rate.
+pub fn narrow_on_rows(choice: &KernelChoice, cols: usize, rows_groups: usize) -> bool {
+    !choice.pinned && cols < TILED_MIN_COLS && rows_groups >= ROWS_MIN_GROUPS
+}
+
+/// The variant of a convolution with `cout` output channels that would take `rows_groups` workgroups on `Rows`:
+/// `lanes_suit` says whether `matmul_lanes` fits it and enough of its work is useful (asked only on `Lanes`). On
+/// `Rows`, and where `Lanes` does not suit, the register-blocked direct kernel; on `Tiled`, `conv_tiled` except
+/// narrow outputs over many pixels ([`narrow_on_rows`]: the Ray-Patch decoders' last, widest layers).
+pub fn conv_variant(
+    choice: &KernelChoice,
+    cout: usize,
+    rows_groups: usize,
+    lanes_suit: impl FnOnce() -> bool,
+) -> MatmulKernel {
     match choice.matmul {
         MatmulKernel::Lanes if lanes_suit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
-        MatmulKernel::Tiled if !choice.pinned && cout < TILED_MIN_COLS => MatmulKernel::Rows,
+        MatmulKernel::Tiled if narrow_on_rows(choice, cout, rows_groups) => MatmulKernel::Rows,
         other => other,
     }
 }

@@ -123,12 +123,12 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     assert_eq!(plan.cols(out.id), cout, "{label}: out has {} columns, not cout = {cout}", plan.cols(out.id));
 
     let cout4 = padded_cols(cout) / 4;
-    let (shader, entry, cout_tiles, pixel_tiles) = match conv_variant(&plan.kernels, cout, || lanes_suit(plan, &args)) {
+    let rows_grid = (cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION));
+    let variant = conv_variant(&plan.kernels, cout, rows_grid.0 * rows_grid.1, || lanes_suit(plan, &args));
+    let (shader, entry, cout_tiles, pixel_tiles) = match variant {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
         MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
-        MatmulKernel::Rows => {
-            (&CONV, "conv2d", cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION))
-        }
+        MatmulKernel::Rows => (&CONV, "conv2d", rows_grid.0, rows_grid.1),
     };
     // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).
     let k4 = taps * padded_cols(cin) / 4;

@@ -152,7 +152,9 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         act,
         mode: if accumulate { ConvMode::Accumulate } else { ConvMode::Overwrite },
     };
-    let variant = linear_variant(&plan.kernels, n, plan.dtype(w) == Dtype::F32, || lanes_fit(plan, &as_conv));
+    let rows_groups = m.div_ceil(ROWS_TILE.0) * padded_cols(n).div_ceil(ROWS_TILE.1);
+    let f32_weights = plan.dtype(w) == Dtype::F32;
+    let variant = linear_variant(&plan.kernels, n, rows_groups, f32_weights, || lanes_fit(plan, &as_conv));
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
     if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, variant == MatmulKernel::Tiled) {
         let normed = plan.transient(&format!("{label}.norm"), m, k);
