@@ -108,7 +108,8 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
     for kernel in kernels {
         gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
         let mut plan = PlanBuilder::new();
-        plan.kernels = KernelChoice { matmul: kernel, f16_activations, pinned: true, ..gpu.kernels };
+        // Pinned, and on shaped pipelines as on GPUs (lavapipe's own profile compiles one for every shape).
+        plan.kernels = KernelChoice { matmul: kernel, f16_activations, pinned: true, shaped: true, ..gpu.kernels };
         let x_id = plan.external("x", &x_t);
         let w_id = plan.external("w", &w_t);
         let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));

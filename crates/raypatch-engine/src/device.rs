@@ -99,6 +99,12 @@ pub struct KernelChoice {
     /// (`GpuOptions::without_subgroups`, `--no-subgroups`). Flash attention then splits each query row over
     /// `FLASH_LANES` lanes ([`attention_variant`]).
     pub subgroups: bool,
+    /// `Tiled` linear layers run on pipelines compiled for their shape ([`fixed_shapes`]): on GPUs. Not on CPU
+    /// adapters, where `Tiled` runs only when forced (tests): llvmpipe takes seconds to compile each shape's
+    /// `linear_tiled` (the golden tests on `Tiled` took 20 minutes instead of 6 from a cold shader cache once
+    /// narrow layers ran there), so one pipeline serves every shape; the kernel tests set it there to check the
+    /// shaped pipelines.
+    pub shaped: bool,
 }
 
 impl KernelChoice {
@@ -192,11 +198,11 @@ pub enum TileElement {
 }
 
 /// Whether ops of this variant run on pipelines compiled for their own shape (override constants: `SHAPED` in
-/// `shaders/matmul.wgsl`): on `Tiled`, the GPUs' variant, whose drivers compile a pipeline in milliseconds (once,
-/// then from the pipeline cache) and, given the dimensions as constants, unroll and fold the K loop's bounds and
-/// strides. Not on the CPU kernels: llvmpipe takes longer to compile a pipeline than to run most ops.
-pub fn fixed_shapes(variant: MatmulKernel) -> bool {
-    variant == MatmulKernel::Tiled
+/// `shaders/matmul.wgsl`): on `Tiled` where the profile says so ([`KernelChoice::shaped`]: GPUs, whose drivers
+/// compile a pipeline in milliseconds, once, then from the pipeline cache, and given the dimensions as constants
+/// unroll and fold the K loop's bounds and strides).
+pub fn fixed_shapes(choice: &KernelChoice, variant: MatmulKernel) -> bool {
+    variant == MatmulKernel::Tiled && choice.shaped
 }
 
 /// Whether the kernels that reduce along rows (layer norm: `shaders/layernorm.wgsl`'s `layernorm_wide`; a row

@@ -217,6 +217,7 @@ impl Gpu {
         let max_texels = TEXTURE_WIDTH * limits.max_texture_dimension_2d as usize;
         let pipeline_cache = DiskCache::open(&device, cache_file);
         let subgroups = KernelChoice::subgroups_suit(&info, features);
+        let shaped = info.device_type != wgpu::DeviceType::Cpu;
         Ok(Gpu {
             device,
             queue,
@@ -224,7 +225,7 @@ impl Gpu {
             limits,
             features,
             max_buffer_bytes,
-            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false, subgroups },
+            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false, subgroups, shaped },
             pipelines: Mutex::new(HashMap::new()),
             pipeline_cache,
             kept_textures: Mutex::new(Vec::new()),

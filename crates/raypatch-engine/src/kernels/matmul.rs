@@ -204,7 +204,7 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         ((plan.all(partials), Access::Write), format!("{label}.split"), groups * splits)
     };
     bindings.insert(3, written);
-    let constants = if fixed_shapes(variant) { fixed_shape(&params) } else { Vec::new() };
+    let constants = if fixed_shapes(&plan.kernels, variant) { fixed_shape(&params) } else { Vec::new() };
     plan.push(Op {
         label: op_label,
         shader,
