@@ -25,6 +25,10 @@ struct Case {
     view: bool,
     /// Layer-normalise x's rows first (`LinearArgs::norm`); x's rows then lie around means up to ±4.
     norm: bool,
+    /// `Tiled` on a pipeline compiled for this shape, as on GPUs (`KernelChoice::shaped`), rather than the one
+    /// pipeline lavapipe's own profile runs for every shape: each shape is a pipeline that llvmpipe takes seconds to
+    /// compile from a cold shader cache, so the random shapes take turns and the tile edges are all shaped.
+    shaped: bool,
 }
 
 const NORM_EPS: f32 = 1e-5;
@@ -108,8 +112,8 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
     for kernel in kernels {
         gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
         let mut plan = PlanBuilder::new();
-        // Pinned, and on shaped pipelines as on GPUs (lavapipe's own profile compiles one for every shape).
-        plan.kernels = KernelChoice { matmul: kernel, f16_activations, pinned: true, shaped: true, ..gpu.kernels };
+        plan.kernels =
+            KernelChoice { matmul: kernel, f16_activations, pinned: true, shaped: case.shaped, ..gpu.kernels };
         let x_id = plan.external("x", &x_t);
         let w_id = plan.external("w", &w_t);
         let bias_id = bias_t.as_ref().map(|b| plan.external("bias", b));
@@ -202,6 +206,7 @@ fn linear_random_shapes() {
             accumulate: (i / 8) % 2 == 1,
             view: rng.range(0, 1) == 1,
             norm: i % 3 == 1,
+            shaped: i % 3 == 0,
         };
         check(&case, &mut rng);
     }
@@ -227,6 +232,7 @@ fn linear_f16_weights() {
             accumulate: (i / 8) % 2 == 1,
             view: i % 3 == 0,
             norm: false,
+            shaped: i % 4 == 0,
         };
         check_with(&case, &mut rng, Precision::F16Weights);
     }
@@ -252,6 +258,7 @@ fn linear_f16_activations() {
             accumulate: i % 5 == 2,
             view: i % 3 == 0,
             norm: i % 4 == 1,
+            shaped: i % 3 == 0,
         };
         check_with(&case, &mut rng, Precision::F16Activations);
     }
@@ -296,6 +303,7 @@ fn linear_tile_edges() {
             accumulate: i % 3 == 0,
             view: i % 2 == 1,
             norm: i % 4 == 3,
+            shaped: true,
         };
         check(&case, &mut rng);
     }
@@ -374,8 +382,19 @@ fn linear_big_shapes() {
             accumulate: false,
             view: false,
             norm: false,
+            shaped: true,
         },
-        Case { m: 777, k: 1536, n: 97, act: Activation::None, bias: true, accumulate: true, view: true, norm: false },
+        Case {
+            m: 777,
+            k: 1536,
+            n: 97,
+            act: Activation::None,
+            bias: true,
+            accumulate: true,
+            view: true,
+            norm: false,
+            shaped: true,
+        },
         // A transformer layer's pre-norm and to_qkv at the official render's 300 rows (K split on `Tiled`).
         Case {
             m: 300,
@@ -386,9 +405,20 @@ fn linear_big_shapes() {
             accumulate: false,
             view: false,
             norm: true,
+            shaped: true,
         },
         // Outputs of many tiles, with K shorter than a step or two.
-        Case { m: 2000, k: 40, n: 1100, act: Activation::Relu, bias: true, accumulate: true, view: true, norm: true },
+        Case {
+            m: 2000,
+            k: 40,
+            n: 1100,
+            act: Activation::Relu,
+            bias: true,
+            accumulate: true,
+            view: true,
+            norm: true,
+            shaped: true,
+        },
         Case {
             m: 2100,
             k: 70,
@@ -398,6 +428,7 @@ fn linear_big_shapes() {
             accumulate: false,
             view: false,
             norm: false,
+            shaped: true,
         },
     ];
     for case in &cases {
