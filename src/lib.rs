@@ -33,6 +33,7 @@
 
 mod camera;
 mod camera_path;
+mod checkpoint;
 mod dataset;
 mod error;
 mod font;
@@ -51,6 +52,7 @@ pub use camera::{
     MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
 };
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
+pub use checkpoint::save_checkpoint_model;
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
 pub use error::{Error, Result};
 pub use gif::GifWriter;

@@ -127,7 +127,8 @@ impl Engine {
     }
 
     /// Loads a model file (safetensors with the official key names and the config in its metadata, see
-    /// docs/FORMATS.md) and uploads its weights. Every tensor is checked by name, shape and dtype.
+    /// docs/FORMATS.md, or an official Lightning `.ckpt` checkpoint, told apart by content) and uploads its
+    /// weights. Every tensor is checked by name, shape and dtype.
     ///
     /// ```
     /// # let engine = raypatch::Engine::new(Default::default())?;
@@ -144,7 +145,7 @@ impl Engine {
     /// Loads a model from the bytes of a model file (e.g. one embedded in a program); `name` stands for the
     /// file in messages.
     pub fn load_bytes(&self, name: &str, bytes: &[u8]) -> Result<Model> {
-        let loaded = raypatch_model::weights::model_from_file(raypatch_model::TensorFile::parse(name, bytes)?)?;
+        let loaded = raypatch_model::weights::model_from_bytes(name, bytes)?;
         Ok(Model { inner: raypatch_engine::Model::from_loaded_with(self.gpu.clone(), &loaded, &self.load)? })
     }
 

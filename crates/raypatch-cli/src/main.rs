@@ -48,10 +48,15 @@ const DEFAULT_OUT: &str = "render.png";
                   `render-frame --serve` serves a live viewer in the browser (its flags: `render-frame --serve --help`)."
 )]
 struct Args {
-    /// Model file (safetensors with the official key names and the config in its metadata) [default: the
+    /// Model file: safetensors with the official key names and the config in its metadata, or an official
+    /// Lightning .ckpt checkpoint (told apart by content) [default: the
     /// bundled assets/models/fitted_scene-2000000_rpsrt_k4.safetensors (fitted to the bundled scene), built into this binary].
     #[arg(long, value_name = "FILE")]
     model: Option<PathBuf>,
+    /// Save the --model checkpoint (an official Lightning .ckpt) as a model .safetensors FILE, the file
+    /// tools/conversion/convert_checkpoint.py writes, and exit without rendering (no GPU needed).
+    #[arg(long, value_name = "FILE", requires = "model")]
+    save_model: Option<PathBuf>,
     /// Scene: a scene safetensors file (docs/FORMATS.md), or a folder of PNGs with a NeRF-style transforms.json
     /// [default: the bundled assets/scenes/scene-2000000.safetensors, built into this binary].
     #[arg(long, value_name = "PATH")]
@@ -218,6 +223,11 @@ fn run(args: &Args) -> Result<()> {
         for (i, adapter) in Engine::adapters().iter().enumerate() {
             println!("{adapter}{}", if i == 0 { "  [default]" } else { "" });
         }
+        return Ok(());
+    }
+    if let (Some(out), Some(model)) = (&args.save_model, &args.model) {
+        let count = raypatch::save_checkpoint_model(model, out)?;
+        println!("wrote {}: {count} tensors", out.display());
         return Ok(());
     }
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);

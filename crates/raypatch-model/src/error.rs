@@ -8,6 +8,8 @@ pub enum ModelError {
     Io { path: String, source: std::io::Error },
     #[error("{path}: not a valid safetensors file: {reason}")]
     Format { path: String, reason: String },
+    #[error("{path}: checkpoint: {reason}")]
+    Checkpoint { path: String, reason: String },
     #[error("{path}: config: {reason}")]
     Config { path: String, reason: String },
     #[error("{path}: missing tensor `{key}` (expected shape {expected:?})")]

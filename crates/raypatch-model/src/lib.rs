@@ -1,6 +1,7 @@
 //! raypatch-model: what a model and a scene are, independent of the GPU: the config (official keys and
 //! defaults), the official state_dict names and shapes, and the safetensors model and scene files.
 
+pub mod checkpoint;
 pub mod config;
 pub mod error;
 pub mod files;

@@ -20,8 +20,8 @@ fn sniff(bytes: &[u8]) -> Option<&'static str> {
     let kinds: [(&[u8], &str); 5] = [
         (b"\x89PNG", "a PNG image"),
         (b"\xff\xd8\xff", "a JPEG image"),
-        (b"PK\x03\x04", "a zip archive (a PyTorch checkpoint? convert it with tools/conversion/convert_checkpoint.py)"),
-        (b"\x80", "a pickle (a PyTorch checkpoint? convert it with tools/conversion/convert_checkpoint.py)"),
+        (b"PK\x03\x04", "a zip archive (a PyTorch checkpoint? only models are read from checkpoints)"),
+        (b"\x80", "a pickle (a legacy PyTorch checkpoint? only torch.save zip archives, PyTorch >= 1.6, are read)"),
         (b"{", "a JSON file"),
     ];
     kinds.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, kind)| *kind)
@@ -109,10 +109,23 @@ impl TensorFile {
 
     /// Parses file contents held in memory; `path` names the file in errors.
     pub fn parse(path: &str, bytes: &[u8]) -> Result<TensorFile, ModelError> {
+        Self::from_bytes(path, bytes.to_vec())
+    }
+
+    /// [`parse`](Self::parse), keeping `bytes` (a checkpoint made into a model file) without a copy.
+    pub fn from_bytes(path: &str, bytes: Vec<u8>) -> Result<TensorFile, ModelError> {
         let format_err = |reason: String| ModelError::Format { path: path.to_string(), reason };
-        let (layout, data_start) = crate::layout::read_layout(bytes).map_err(format_err)?;
-        let contents = Contents::Memory { bytes: bytes.to_vec(), data_start: data_start as u64 };
+        let (layout, data_start) = crate::layout::read_layout(&bytes).map_err(format_err)?;
+        let contents = Contents::Memory { bytes, data_start: data_start as u64 };
         Ok(Self::new(path.to_string(), layout, contents))
+    }
+
+    /// The whole file's bytes, where they are held in memory (a file given as bytes or read from a checkpoint).
+    pub fn memory_bytes(&self) -> Option<&[u8]> {
+        match &self.contents {
+            Contents::Memory { bytes, .. } => Some(bytes),
+            Contents::File { .. } => None,
+        }
     }
 
     fn new(path: String, layout: Layout, contents: Contents) -> TensorFile {

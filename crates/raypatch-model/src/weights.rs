@@ -46,6 +46,16 @@ impl LoadedModel {
         }
     }
 
+    /// The model file's bytes where they are in memory: for a checkpoint, the model file made of it.
+    pub fn file_bytes(&self) -> Option<&[u8]> {
+        self.file.memory_bytes()
+    }
+
+    /// The number of tensors in the file.
+    pub fn tensor_count(&self) -> usize {
+        self.file.keys().count()
+    }
+
     /// Total number of parameters (BatchNorm running statistics included, `num_batches_tracked` not).
     pub fn parameter_count(&self) -> usize {
         self.file
@@ -57,8 +67,22 @@ impl LoadedModel {
     }
 }
 
+/// Loads a model file: a raypatch model .safetensors file, or an official Lightning checkpoint (told apart by
+/// their first bytes, not their names), read as the model file the Python converter makes of it.
 pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
-    model_from_file(TensorFile::open_as(path.as_ref(), "a model .safetensors file (docs/FORMATS.md)")?)
+    let path = path.as_ref();
+    match crate::checkpoint::open_if_checkpoint(path)? {
+        Some(file) => model_from_file(file),
+        None => model_from_file(TensorFile::open_as(path, "a model .safetensors file (docs/FORMATS.md)")?),
+    }
+}
+
+/// [`load_model`] of a file's bytes; `name` names it in messages.
+pub fn model_from_bytes(name: &str, bytes: &[u8]) -> Result<LoadedModel, ModelError> {
+    match crate::checkpoint::parse_if_checkpoint(name, bytes)? {
+        Some(file) => model_from_file(file),
+        None => model_from_file(TensorFile::parse(name, bytes)?),
+    }
 }
 
 /// Reads the config of a parsed model file (its tensors are checked when the model is built).
