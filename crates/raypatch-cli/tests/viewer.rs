@@ -1,6 +1,7 @@
 //! `render-frame --serve` as a process: hostile requests get one-line errors and the server keeps serving,
-//! 20 clients at once get their frames, a flood gets errors without the server's memory growing, Ctrl-C stops
-//! it cleanly, and the endpoint renders exactly what `render-frame --pose` renders.
+//! 20 clients at once get their frames, a flood gets errors without the server's memory growing, hundreds of
+//! slow clients do not keep a request waiting, Ctrl-C stops it cleanly, and the endpoint renders exactly what
+//! `render-frame --pose` renders.
 #![cfg(unix)]
 
 mod common;
@@ -8,6 +9,8 @@ mod common;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::{fails, golden, root};
@@ -249,6 +252,98 @@ fn twenty_clients_get_their_frames_and_floods_get_errors_without_memory_growing(
     std::thread::sleep(Duration::from_millis(1100));
     let reply = get(address, "/render.png");
     assert_eq!(reply.status, 200, "after the floods: {}", reply.text());
+    assert_eq!(viewer.stop().0, 0);
+}
+
+/// The soft limit on open files, raised towards `wanted` as far as the hard limit allows (a viewer started
+/// after inherits it).
+fn open_files_for(wanted: u64) -> u64 {
+    let mut limit = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
+    assert_eq!(unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) }, 0);
+    if limit.rlim_cur < wanted {
+        limit.rlim_cur = wanted.min(limit.rlim_max);
+        assert_eq!(unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &limit) }, 0);
+    }
+    limit.rlim_cur
+}
+
+/// `target` is answered 200 within 2 s (a bound on starvation, not a timing: a worker lent to each slow
+/// connection made it wait for their 10 s head deadline).
+fn answered_promptly(address: SocketAddr, target: &str, beside: &str) {
+    let start = Instant::now();
+    let reply = get(address, target);
+    assert_eq!(reply.status, 200, "{target} beside {beside}: {}", reply.text());
+    assert!(start.elapsed() < Duration::from_secs(2), "{target} took {:?} beside {beside}", start.elapsed());
+}
+
+/// What the viewer sends on `stream` until it closes, or until `wait`.
+fn read_reply(mut stream: TcpStream, wait: Duration) -> String {
+    stream.set_read_timeout(Some(wait)).unwrap();
+    let mut bytes = Vec::new();
+    let _ = stream.read_to_end(&mut bytes);
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+#[test]
+fn slow_idle_and_non_reading_clients_do_not_keep_a_request_waiting() {
+    // This process and the viewer each hold a file per connection, past the viewer's 1024 at the end.
+    let files = open_files_for(2048);
+    assert!(files >= 2048, "ulimit -n allows {files} open files: this test holds over 1024 connections");
+    let viewer = Viewer::start(&[]);
+    let address = viewer.address;
+    let info: serde_json::Value = serde_json::from_slice(&get(address, "/api/info").body).unwrap();
+    let limit = info["limits"]["max_connections"].as_u64().unwrap() as usize;
+    assert_eq!(limit, 1024);
+    let connect = |sent: &[u8]| {
+        let mut stream = TcpStream::connect(address).unwrap();
+        stream.write_all(sent).unwrap();
+        stream
+    };
+    // 100 idle, 100 sending a head a few bytes a second that never ends, 100 that never read their response.
+    let idle: Vec<_> = (0..100).map(|_| connect(b"")).collect();
+    let slow: Vec<_> = (0..100).map(|_| connect(b"GET /render.png?pose=")).collect();
+    let readers: Vec<_> = (0..100).map(|_| connect(b"GET /viewer.js HTTP/1.1\r\n\r\n")).collect();
+    let dripping = Arc::new(AtomicBool::new(true));
+    let drip = {
+        let dripping = dripping.clone();
+        std::thread::spawn(move || {
+            while dripping.load(Ordering::SeqCst) {
+                for mut stream in &slow {
+                    // Once answered (the head deadline), the viewer may close: later bytes fail, as they may.
+                    let _ = stream.write_all(b"0,");
+                }
+                std::thread::sleep(Duration::from_millis(500));
+            }
+            slow
+        })
+    };
+    std::thread::sleep(Duration::from_millis(1000));
+    let beside = "300 slow, idle and non-reading connections";
+    for target in ["/", "/api/info", "/input.png?scene=0&view=0"] {
+        answered_promptly(address, target, beside);
+    }
+    let frame = get(address, "/render.png?size=40x28");
+    assert_eq!(frame.status, 200, "{}", frame.text());
+    // The slow heads still get their deadline: one line saying so.
+    dripping.store(false, Ordering::SeqCst);
+    let slow = drip.join().unwrap();
+    for stream in slow.into_iter().chain(idle) {
+        let late = read_reply(stream, Duration::from_secs(20));
+        assert!(late.starts_with("HTTP/1.1 400") && late.ends_with("the head did not arrive in time\n"), "{late}");
+    }
+    for stream in readers {
+        let script = read_reply(stream, Duration::from_secs(20));
+        assert!(script.starts_with("HTTP/1.1 200") && script.contains("javascript"), "{}", &script[..80]);
+    }
+    // Past the limit, the oldest connection still sending its head makes room for the newest.
+    std::thread::sleep(Duration::from_millis(1000));
+    let crowd: Vec<_> = (0..limit + 24).map(|_| connect(b"")).collect();
+    answered_promptly(address, "/", &format!("{} idle connections", crowd.len()));
+    let mut crowd = crowd.into_iter();
+    let oldest = read_reply(crowd.next().unwrap(), Duration::from_secs(20));
+    assert!(oldest.starts_with("HTTP/1.1 503") && oldest.contains("made room"), "{oldest}");
+    assert_eq!(read_reply(crowd.next_back().unwrap(), Duration::from_millis(200)), "", "the newest is kept");
+    drop(crowd);
     assert_eq!(viewer.stop().0, 0);
 }
 

@@ -1,9 +1,6 @@
 //! Just enough HTTP/1.1 for the viewer: GET requests with a bounded head and no body, one response per
-//! connection (`Connection: close`), every error a status with one line of text.
-
-use std::io::{Read, Write};
-use std::net::TcpStream;
-use std::time::{Duration, Instant};
+//! connection (`Connection: close`), every error a status with one line of text. The sockets themselves are
+//! `conn.rs`'s.
 
 /// The longest request head (request line and headers) read; a longer one is answered 431.
 pub const MAX_HEAD_BYTES: usize = 8 * 1024;
@@ -11,8 +8,6 @@ pub const MAX_HEAD_BYTES: usize = 8 * 1024;
 pub const MAX_TARGET_BYTES: usize = 2 * 1024;
 /// The most headers a request may have.
 const MAX_HEADERS: usize = 64;
-/// How long a client has to send its whole request head (slow clients must not hold a worker).
-const HEAD_DEADLINE: Duration = Duration::from_secs(10);
 
 /// A request the viewer serves: its path and its query parameters, percent-decoded.
 #[derive(Debug, PartialEq)]
@@ -62,8 +57,8 @@ impl Response {
         Response::new(200, content_type, body.into())
     }
 
-    /// Writes the response and closes the sending side.
-    pub fn write_to(&self, stream: &mut TcpStream) -> std::io::Result<()> {
+    /// The response as sent: head and body.
+    pub fn into_bytes(self) -> Vec<u8> {
         let mut head = format!(
             "HTTP/1.1 {} {}\r\nContent-Type: {}\r\nContent-Length: {}\r\nConnection: close\r\n\
              Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\n",
@@ -76,10 +71,9 @@ impl Response {
             head.push_str(&format!("{name}: {value}\r\n"));
         }
         head.push_str("\r\n");
-        stream.write_all(head.as_bytes())?;
-        stream.write_all(&self.body)?;
-        stream.flush()?;
-        stream.shutdown(std::net::Shutdown::Write)
+        let mut bytes = head.into_bytes();
+        bytes.extend_from_slice(&self.body);
+        bytes
     }
 }
 
@@ -100,30 +94,11 @@ fn reason(status: u16) -> &'static str {
     }
 }
 
-/// Reads one request head from `stream` (at most [`MAX_HEAD_BYTES`], within [`HEAD_DEADLINE`]) and parses it.
-pub fn read_request(stream: &mut TcpStream) -> Result<Request, HttpError> {
-    let start = Instant::now();
-    let mut head = Vec::with_capacity(1024);
-    let mut chunk = [0u8; 1024];
-    loop {
-        let left = HEAD_DEADLINE.checked_sub(start.elapsed()).filter(|d| !d.is_zero());
-        let left = left.ok_or_else(|| HttpError::new(400, "request: the head did not arrive in time"))?;
-        stream.set_read_timeout(Some(left)).map_err(|e| HttpError::new(500, format!("socket: {e}")))?;
-        let n = match stream.read(&mut chunk) {
-            Ok(0) => return Err(HttpError::bad("request: the connection closed before the head ended")),
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(_) => return Err(HttpError::bad("request: the head did not arrive in time")),
-        };
-        head.extend_from_slice(&chunk[..n]);
-        if let Some(end) = head.windows(4).position(|w| w == b"\r\n\r\n") {
-            head.truncate(end);
-            return parse_head(&head);
-        }
-        if head.len() > MAX_HEAD_BYTES {
-            return Err(HttpError::new(431, format!("request: the head is over {MAX_HEAD_BYTES} bytes")));
-        }
-    }
+/// Where the head in `bytes` ends (the index of its final blank line), looking only at what follows `from`
+/// and the three bytes before it (the bytes before were searched already).
+pub fn head_end(bytes: &[u8], from: usize) -> Option<usize> {
+    let start = from.saturating_sub(3);
+    bytes[start..].windows(4).position(|w| w == b"\r\n\r\n").map(|i| start + i)
 }
 
 /// Parses a request head (without its final blank line): a GET with no body.
@@ -220,6 +195,16 @@ mod tests {
         let request = parse_head(b"GET /render.png?pose=1%2C2+3&size=8x4 HTTP/1.1\r\nHost: x").unwrap();
         assert_eq!(request.path, "/render.png");
         assert_eq!(request.query, vec![("pose".into(), "1,2 3".into()), ("size".into(), "8x4".into())]);
+    }
+
+    #[test]
+    fn a_heads_end_is_found_across_reads() {
+        let bytes = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n";
+        let end = bytes.len() - 4;
+        assert_eq!(head_end(bytes, 0), Some(end));
+        // The blank line split between two reads is still found from where the second read began.
+        assert_eq!(head_end(bytes, end + 2), Some(end));
+        assert_eq!(head_end(&bytes[..end + 3], 0), None);
     }
 
     #[test]

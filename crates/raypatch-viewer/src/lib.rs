@@ -2,10 +2,12 @@
 //! names them only by index), encodes each scene once per model, and serves a page that flies a camera around
 //! them while one engine renders: a lower resolution while the camera moves, the full size when it stops.
 //!
-//! Threads: the caller's thread owns the engine and renders (`queue.rs`: the newest camera per client); an
-//! acceptor and a fixed pool of HTTP workers (`server.rs`) parse requests and encode PNGs.
+//! Threads: the caller's thread owns the engine and renders (`queue.rs`: the newest camera per client); one
+//! I/O thread owns every connection, collecting request heads and writing responses on non-blocking sockets
+//! (`conn.rs`); a fixed pool of HTTP workers (`server.rs`) answers complete heads and encodes PNGs.
 
 mod catalog;
+mod conn;
 mod http;
 mod query;
 mod queue;

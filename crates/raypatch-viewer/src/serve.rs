@@ -14,6 +14,7 @@ use raypatch::{AdapterChoice, Engine, EngineOptions, Model, Outputs, Request, Sc
 use serde_json::json;
 
 use crate::catalog::{info_json, ModelEntry, SceneEntry, MAX_PIXELS, MAX_SIDE};
+use crate::conn::Limits;
 use crate::http::HttpError;
 use crate::queue::{Frame, Job, Reply};
 use crate::server::{Http, Shared, CLIENT_FRAMES_PER_SECOND};
@@ -98,15 +99,17 @@ fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Resu
         scene_data.iter().map(|(name, data)| SceneEntry::of(name, data)).collect::<raypatch::Result<Vec<_>>>()?;
     let details = engine.adapter_details();
     let adapter = format!("{} ({})", details.name, details.backend);
+    let connections = Limits::new();
     let limits = json!({
         "max_side": MAX_SIDE,
         "max_pixels": MAX_PIXELS,
         "client_frames_per_second": CLIENT_FRAMES_PER_SECOND,
+        "max_connections": connections.connections,
     });
     let info = info_json(&model_entries, &scene_entries, &adapter, limits);
     let shared = Arc::new(Shared::new(model_entries, scene_entries, info));
     let url = format!("http://{}/", listener.local_addr()?);
-    let http = Http::start(listener, shared.clone()).context("cannot start the server threads")?;
+    let http = Http::start(listener, shared.clone(), connections).context("cannot start the server threads")?;
     let stopper = shared.clone();
     ctrlc::set_handler(move || stopper.queue.stop()).context("cannot catch Ctrl-C")?;
     println!(
