@@ -53,12 +53,12 @@ pub use camera::{
 };
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
 pub use checkpoint::save_checkpoint_model;
-pub use dataset::{load_pose, SceneData, SceneSource, TargetView};
+pub use dataset::{load_pose, SceneData, SceneSource, TargetView, MAX_SCENE_PIXELS};
 pub use error::{Error, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
-pub use output::{check_output_path, folder_of, write_all_atomic, write_atomic, Staged};
+pub use output::{check_output_path, clean_up_on_signals, folder_of, write_all_atomic, write_atomic, Staged};
 pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::{
     AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Precision, Region,

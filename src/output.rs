@@ -2,11 +2,14 @@
 //! written to temporaries in their own folders, and only when every write succeeded are they moved into
 //! place, all or none: an existing file is first moved aside, and when any move fails every move done is
 //! undone. A path that exists must be a regular file: a symlink, FIFO, device or folder there is refused,
-//! never replaced. Temporaries are unique per process; ones left by a killed run are removed later.
+//! never replaced. Temporaries are unique per process and listed in one registry of the process
+//! ([`PENDING`]), which [`clean_up_on_signals`] empties when the process is interrupted; ones left by a killed
+//! run (SIGKILL, a power cut) are removed later, and files it had moved aside are put back.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard};
 
 use raypatch_model::files::file_kind;
 
@@ -67,11 +70,47 @@ pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
 
 /// Outputs being written, all or none, as they are made (a video's frames stream into its file): each is a
 /// temporary in its own folder until [`commit`](Self::commit) moves them all into place as
-/// [`write_all_atomic`] does; dropped without a commit (an error, a panic), the temporaries are removed.
+/// [`write_all_atomic`] does; dropped without a commit (an error, a panic), the temporaries and the folders
+/// made for them are removed. While they exist they are in the process's registry ([`PENDING`]), so that an
+/// interrupted run removes them too ([`clean_up_on_signals`]).
 #[derive(Default)]
 pub struct Staged {
     /// (temporary, destination), in the order they were created.
     files: Vec<(PathBuf, PathBuf)>,
+    /// Folders made for the outputs, in the order they were made.
+    folders: Vec<PathBuf>,
+}
+
+/// What the process has on disk that is not yet an output: temporaries and the new folders made for
+/// outputs. Whoever holds the lock may change the disk: [`Staged`] creates, removes and commits its files under
+/// it, so a signal's clean-up ([`clean_up_on_signals`]) never runs half-way through a commit and nothing is
+/// created after it.
+struct Pending {
+    temporaries: Vec<PathBuf>,
+    folders: Vec<PathBuf>,
+}
+
+static PENDING: Mutex<Pending> = Mutex::new(Pending { temporaries: Vec::new(), folders: Vec::new() });
+
+fn pending() -> MutexGuard<'static, Pending> {
+    // A panic while the lock was held leaves the lists as they were: still right to use.
+    PENDING.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+impl Pending {
+    fn forget(&mut self, tmp: &Path) {
+        self.temporaries.retain(|t| t != tmp);
+    }
+
+    /// Removes every temporary, then every folder made for outputs (the newest first; only if empty).
+    fn remove_all(&mut self) {
+        for tmp in self.temporaries.drain(..) {
+            let _ = std::fs::remove_file(tmp);
+        }
+        for folder in self.folders.drain(..).rev() {
+            let _ = std::fs::remove_dir(folder);
+        }
+    }
 }
 
 impl Staged {
@@ -83,11 +122,23 @@ impl Staged {
             remove_stale_temporaries(folder);
         }
         let tmp = temporary_for(path);
+        let mut pending = pending();
         // create_new: never follows or reuses anything already at the temporary's name.
         let file = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp);
         let file = file.map_err(|e| Error::io(path, "cannot write", e))?;
+        pending.temporaries.push(tmp.clone());
         self.files.push((tmp, path.to_path_buf()));
         Ok(file)
+    }
+
+    /// Makes a new folder for outputs (its parent must exist); it is removed again, when empty, if the outputs
+    /// are not committed.
+    pub fn create_folder(&mut self, folder: &Path) -> Result<()> {
+        let mut pending = pending();
+        std::fs::create_dir(folder).map_err(|e| Error::io(folder, "cannot create the folder", e))?;
+        pending.folders.push(folder.to_path_buf());
+        self.folders.push(folder.to_path_buf());
+        Ok(())
     }
 
     /// Flushes every temporary to disk and moves them all into place, all or none.
@@ -97,9 +148,17 @@ impl Staged {
             std::fs::File::open(tmp).and_then(|f| f.sync_all()).map_err(|e| Error::io(dest, "cannot write", e))
         });
         let moves: Vec<(&Path, &Path)> = files.iter().map(|(t, d)| (t.as_path(), d.as_path())).collect();
+        let mut pending = pending();
         let placed = synced.and_then(|()| move_all_into_place(&moves));
-        if placed.is_err() {
-            self.files = files;
+        match placed {
+            Ok(()) => {
+                for (tmp, _) in &files {
+                    pending.forget(tmp);
+                }
+                let folders = std::mem::take(&mut self.folders);
+                pending.folders.retain(|f| !folders.contains(f));
+            }
+            Err(_) => self.files = files,
         }
         placed
     }
@@ -107,10 +166,47 @@ impl Staged {
 
 impl Drop for Staged {
     fn drop(&mut self) {
+        let mut pending = pending();
         for (tmp, _) in &self.files {
             let _ = std::fs::remove_file(tmp);
+            pending.forget(tmp);
+        }
+        for folder in self.folders.iter().rev() {
+            let _ = std::fs::remove_dir(folder);
+            pending.folders.retain(|f| f != folder);
         }
     }
+}
+
+/// From now on, SIGINT and SIGTERM (and SIGHUP: a closed terminal) end the process at once with 128 + the
+/// signal's number (130, 143, 129), as a shell reports a process the signal killed, after removing every
+/// temporary and new folder of [`Staged`] outputs not yet committed: a stopped run leaves nothing behind and
+/// never a half-written output. A commit under way is finished first (its renames are all or none), and
+/// nothing is created afterwards. For programs like `render-frame`; a library's caller keeps its own handling.
+#[cfg(unix)]
+pub fn clean_up_on_signals() -> Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])
+        .map_err(|e| Error::io(Path::new("signals"), "cannot handle", e))?;
+    std::thread::Builder::new()
+        .name("raypatch-signals".into())
+        .spawn(move || {
+            if let Some(signal) = signals.forever().next() {
+                // Held until the process ends: nothing is created or moved into place after the clean-up.
+                let mut pending = pending();
+                pending.remove_all();
+                // _exit: no atexit handlers, which could wait on the GPU driver the other threads are in.
+                unsafe { libc::_exit(128 + signal) }
+            }
+        })
+        .map_err(|e| Error::io(Path::new("signals"), "cannot handle", e))?;
+    Ok(())
+}
+
+/// Elsewhere the platform's default (the process ends); temporaries are removed by a later run.
+#[cfg(not(unix))]
+pub fn clean_up_on_signals() -> Result<()> {
+    Ok(())
 }
 
 /// One step of [`move_all_into_place`], to undo if a later one fails.
@@ -199,31 +295,58 @@ fn sibling(path: &Path, ext: &str) -> PathBuf {
     path.with_file_name(format!(".{}{tail}", &name[..keep]))
 }
 
-/// The process id in one of our temporaries' names.
-fn temporary_owner(name: &str) -> Option<u32> {
-    let rest = name.strip_suffix(".tmp")?;
+/// The process id in the name of one of our temporaries (`.tmp`) or files moved aside (`.bak`), and which.
+fn temporary_owner(name: &str) -> Option<(u32, &'static str)> {
+    let (rest, ext) = match name.strip_suffix(".tmp") {
+        Some(rest) => (rest, "tmp"),
+        None => (name.strip_suffix(".bak")?, "bak"),
+    };
     let (_, tail) = rest.rsplit_once(TEMP_MARK)?;
     let (pid, n) = tail.split_once('-')?;
     n.parse::<u64>().ok()?;
-    pid.parse().ok()
+    Some((pid.parse().ok()?, ext))
 }
 
-/// Removes temporaries of ours in `folder` whose process is gone (a run that was killed); where process ids
-/// cannot be checked (no /proc), those older than a day.
+/// The output a file moved aside by [`sibling`] belongs to, `.NAME.raypatch-PID-N.bak` → `NAME`; `None` where
+/// NAME may have been shortened to fit (the name is at the length limit).
+fn moved_aside_from(bak: &Path) -> Option<PathBuf> {
+    let name = bak.file_name()?.to_str()?;
+    // sibling() shortens NAME only to keep the whole within MAX_NAME_BYTES; a char boundary may cost 3 bytes.
+    if name.len() + 3 >= MAX_NAME_BYTES {
+        return None;
+    }
+    let (dotted, _) = name.rsplit_once(TEMP_MARK)?;
+    let original = dotted.strip_prefix('.').filter(|n| !n.is_empty())?;
+    Some(bak.with_file_name(original))
+}
+
+/// Cleans up after runs of ours in `folder` whose process is gone (killed without a chance to clean up):
+/// removes their temporaries, and puts each file they had moved aside back in place where nothing took its
+/// place (a commit interrupted between its two renames), else removes it (the commit had placed the new
+/// file). Where process ids cannot be checked (no /proc), files older than a day count as stale.
 fn remove_stale_temporaries(folder: &Path) {
     let Ok(entries) = std::fs::read_dir(folder) else { return };
     let proc = Path::new("/proc/self").exists();
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = temporary_owner(&name) else { continue };
+        let Some((pid, ext)) = temporary_owner(&name) else { continue };
         let Ok(meta) = std::fs::symlink_metadata(entry.path()) else { continue };
         let stale = if proc {
             pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists()
         } else {
             meta.modified().ok().and_then(|t| t.elapsed().ok()).is_some_and(|age| age.as_secs() > 24 * 3600)
         };
-        if stale && meta.is_file() {
+        if !stale || !meta.is_file() {
+            continue;
+        }
+        if ext == "tmp" {
             let _ = std::fs::remove_file(entry.path());
+        } else if let Some(original) = moved_aside_from(&entry.path()) {
+            if file_exists(&original) {
+                let _ = std::fs::remove_file(entry.path());
+            } else {
+                let _ = std::fs::rename(entry.path(), original);
+            }
         }
     }
 }
@@ -335,6 +458,47 @@ mod tests {
             assert!(!stale.exists());
         }
         assert!(other.exists(), "not ours: kept");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A run killed between a commit's two renames left the user's file moved aside: the next run in the
+    /// folder puts it back, or removes it where the new file was already placed.
+    #[test]
+    fn files_moved_aside_by_dead_runs_are_put_back() {
+        let dir = temp_dir("aside");
+        let aside = |name: &str| dir.join(format!(".{name}{TEMP_MARK}4294967294-3.bak"));
+        std::fs::write(aside("lost.png"), b"user's").unwrap();
+        std::fs::write(aside("placed.png"), b"old").unwrap();
+        std::fs::write(dir.join("placed.png"), b"new").unwrap();
+        write_atomic(&dir.join("other.png"), b"png").unwrap();
+        if Path::new("/proc/self").exists() {
+            assert_eq!(std::fs::read(dir.join("lost.png")).unwrap(), b"user's");
+            assert_eq!(std::fs::read(dir.join("placed.png")).unwrap(), b"new");
+            assert!(!aside("lost.png").exists() && !aside("placed.png").exists());
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// What a signal's clean-up removes: every temporary and new folder of outputs not yet committed, and
+    /// nothing of a commit that is done.
+    #[test]
+    fn the_registry_holds_exactly_what_is_not_yet_committed() {
+        let dir = temp_dir("registry");
+        let registered = |path: &Path| pending().temporaries.iter().any(|t| t.starts_with(path));
+        let folder = dir.join("new");
+        let mut staged = Staged::default();
+        staged.create_folder(&folder).unwrap();
+        staged.create(&folder.join("a.png")).unwrap().write_all(b"a").unwrap();
+        assert!(registered(&folder) && pending().folders.contains(&folder));
+        staged.commit().unwrap();
+        assert!(!registered(&folder) && !pending().folders.contains(&folder));
+        assert_eq!(std::fs::read(folder.join("a.png")).unwrap(), b"a");
+        let mut staged = Staged::default();
+        let other = dir.join("other");
+        staged.create_folder(&other).unwrap();
+        staged.create(&other.join("b.png")).unwrap();
+        drop(staged);
+        assert!(!registered(&other) && !other.exists());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

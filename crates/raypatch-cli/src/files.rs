@@ -103,11 +103,9 @@ impl OutputFiles {
 
     /// Starts writing: creates the new folders; each output is then a temporary until [`Writing::commit`].
     pub fn begin(&self) -> Result<Writing<'_>> {
-        let mut writing = Writing { files: self, staged: Staged::default(), created: Vec::new() };
+        let mut writing = Writing { files: self, staged: Staged::default() };
         for (flag, folder) in &self.new_folders {
-            std::fs::create_dir(folder)
-                .with_context(|| format!("{flag} {}: cannot create the folder", folder.display()))?;
-            writing.created.push(folder.clone());
+            writing.staged.create_folder(folder).with_context(|| flag.to_string())?;
         }
         Ok(writing)
     }
@@ -118,11 +116,10 @@ impl OutputFiles {
 }
 
 /// A run's outputs being written: temporaries beside each output until [`commit`](Self::commit); dropped
-/// without a commit, the temporaries and the folders the run created are removed.
+/// without a commit (or the run interrupted), the temporaries and the folders the run created are removed.
 pub struct Writing<'a> {
     files: &'a OutputFiles,
     staged: Staged,
-    created: Vec<PathBuf>,
 }
 
 impl Writing<'_> {
@@ -137,20 +134,8 @@ impl Writing<'_> {
     }
 
     /// Moves every output into place, all or none.
-    pub fn commit(mut self) -> Result<()> {
-        std::mem::take(&mut self.staged).commit()?;
-        self.created.clear();
-        Ok(())
-    }
-}
-
-impl Drop for Writing<'_> {
-    fn drop(&mut self) {
-        // The temporaries first: a created folder is removed only when empty.
-        drop(std::mem::take(&mut self.staged));
-        for folder in self.created.iter().rev() {
-            let _ = std::fs::remove_dir(folder);
-        }
+    pub fn commit(self) -> Result<()> {
+        Ok(self.staged.commit()?)
     }
 }
 
