@@ -4,6 +4,7 @@
 //! that describe the same view give the same rays.
 
 use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
+use raypatch_model::error::Quoted;
 
 use crate::error::{Error, Result};
 pub use raypatch_model::RayKind;
@@ -200,7 +201,10 @@ impl Camera {
         intrinsics.check()?;
         let m = camera_to_world;
         if !m.is_finite() {
-            return Err(Error::Camera(format!("pose {:?} holds NaN or infinity", m.to_cols_array_2d())));
+            return Err(Error::Camera(format!(
+                "pose {} holds NaN or infinity",
+                Quoted(format_args!("{:?}", m.to_cols_array_2d()))
+            )));
         }
         if (m.row(3) - DVec4::W).abs().max_element() > ROTATION_TOLERANCE {
             return Err(Error::Camera(format!("pose bottom row is {}, expected 0 0 0 1", m.row(3))));

@@ -15,6 +15,7 @@
 use std::path::Path;
 
 use glam::DMat4;
+use raypatch_model::error::Quoted;
 use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics};
@@ -75,14 +76,16 @@ pub fn load_camera_path(path: impl AsRef<Path>) -> Result<CameraPath> {
         None | Some(Value::Null) => None,
         Some(v) => match v.as_f64() {
             Some(f) if f.is_finite() && f > 0.0 => Some(f),
-            _ => return Err(err(format!("`fps` is {v}, expected a positive number"))),
+            _ => return Err(err(format!("`fps` is {}, expected a positive number", Quoted(v)))),
         },
     };
     let axes = match root.get("convention").and_then(Value::as_str) {
         _ if nerfstudio => CameraAxes::OpenGl,
         None | Some("opengl") => CameraAxes::OpenGl,
         Some("opencv") => CameraAxes::OpenCv,
-        Some(other) => return Err(err(format!("`convention` is {other:?}, expected \"opengl\" or \"opencv\""))),
+        Some(other) => {
+            return Err(err(format!("`convention` is {}, expected \"opengl\" or \"opencv\"", Quoted(other))))
+        }
     };
     let frames = root
         .get(list_key)
@@ -112,11 +115,14 @@ fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
             rows.iter().flat_map(|r| r.as_array().map(|r| r.iter().collect::<Vec<_>>()).unwrap_or_default()).collect()
         }
         Some(flat) => flat.iter().collect(),
-        None => return Err(format!("`camera_to_world` is {value}, expected a 4x4 matrix")),
+        None => return Err(format!("`camera_to_world` is {}, expected a 4x4 matrix", Quoted(value))),
     };
     let values: Vec<f64> = numbers.iter().filter_map(|v| v.as_f64()).filter(|v| v.is_finite()).collect();
     if numbers.len() != 16 || values.len() != 16 {
-        return Err(format!("`camera_to_world` must hold 16 finite numbers (a 4x4 matrix), it holds {value}"));
+        return Err(format!(
+            "`camera_to_world` must hold 16 finite numbers (a 4x4 matrix), it holds {}",
+            Quoted(value)
+        ));
     }
     Ok(DMat4::from_cols_array(&values.try_into().expect("16 values")).transpose())
 }

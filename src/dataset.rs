@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::{DMat4, Vec3};
+use raypatch_model::error::Quoted;
 use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics, RayGrid, RayKind};
@@ -236,9 +237,9 @@ impl SceneData {
             depths.push(match frame.get("depth_file_path") {
                 None | Some(Value::Null) => None,
                 Some(value) => {
-                    let depth_name = value
-                        .as_str()
-                        .ok_or_else(|| err(format!("frame {i}: `depth_file_path` is {value}, expected a file name")))?;
+                    let depth_name = value.as_str().ok_or_else(|| {
+                        err(format!("frame {i}: `depth_file_path` is {}, expected a file name", Quoted(value)))
+                    })?;
                     let depth_file = frame_image_path(dir, depth_name)
                         .map_err(|reason| err(format!("frame {i}: `depth_file_path` {reason}")))?;
                     let depth = load_depth_png(&depth_file, image.width(), image.height())?;
@@ -365,7 +366,7 @@ pub(crate) fn number(root: &Value, frame: &Value, key: &str) -> std::result::Res
         None | Some(Value::Null) => Ok(None),
         Some(v) => match v.as_f64() {
             Some(x) if x.is_finite() => Ok(Some(x)),
-            _ => Err(format!("`{key}` is {v}, expected a finite number")),
+            _ => Err(format!("`{key}` is {}, expected a finite number", Quoted(v))),
         },
     }
 }

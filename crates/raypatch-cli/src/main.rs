@@ -17,6 +17,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
+use raypatch::raypatch_model::error::MAX_MESSAGE_CHARS;
 use raypatch::{
     AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Precision, Region, Request, SceneData,
     SceneSource,
@@ -24,7 +25,9 @@ use raypatch::{
 
 use cameras::{check_patch_size, CameraArgs, Shot};
 use panels::Panel;
-use parse::{parse_count, parse_depth_range, parse_fps, parse_mp4_mode, parse_outputs, parse_panels, parse_region};
+use parse::{
+    parse_count, parse_depth_range, parse_fps, parse_mp4_mode, parse_outputs, parse_panels, parse_region, quote,
+};
 use report::{ms, print_profile, summary, Truth};
 use sequence::Sequence;
 use video::{Mp4Mode, DEFAULT_FPS};
@@ -76,15 +79,16 @@ struct Args {
     fps: Option<f64>,
     /// Where to write the colour images: a `.png` file (several images become NAME_000.png, ...), or a folder:
     /// a name without extension or an existing folder (view_000.png per target view, frame_000.png per
-    /// sequence frame, render.png for one novel view); or a video, every image a frame: `.mp4` (H.264, even
-    /// sizes) or `.gif` (animated).
+    /// sequence frame, render.png for one novel view); or a video, every image a frame: `.mp4` (H.264) or
+    /// `.gif` (animated).
     #[arg(long, default_value = DEFAULT_OUT)]
     out: PathBuf,
     /// How `--out NAME.mp4` is encoded: `compact`: H.264 4:2:0 from OpenH264, small, plays everywhere, close
     /// to the renders but not exact (each 2x2 pixels share one colour: small frames can fall below 40 dB PSNR);
     /// `lossless`: H.264 High 4:4:4 with every pixel stored raw, exactly the renders at any size, 3 bytes a
     /// pixel a frame, plays in ffmpeg and Chromium, not in many other players; `auto`: compact unless its first
-    /// frame would be below 40 dB PSNR against the render, then lossless [default: auto].
+    /// frame would be below 40 dB PSNR against the render or compact cannot encode the size (odd sides, under
+    /// 16 pixels), then lossless [default: auto].
     #[arg(long, value_name = "MODE", value_parser = parse_mp4_mode)]
     mp4: Option<Mp4Mode>,
     /// Lay each --out image out side by side with labels: rgb, depth (turbo map, one range for the whole
@@ -165,7 +169,14 @@ fn main() -> ExitCode {
     if raypatch_viewer::requested() {
         return raypatch_viewer::main(DEFAULT_MODEL, DEFAULT_SCENE);
     }
-    let args = Args::parse();
+    let args = match Args::try_parse() {
+        Ok(args) => args,
+        Err(e) => return flag_error(e),
+    };
+    if let Err(e) = raypatch::clean_up_on_signals() {
+        eprintln!("render-frame: error: {e}");
+        return ExitCode::from(2);
+    }
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -184,7 +195,18 @@ fn main() -> ExitCode {
     }
 }
 
-/// The error and its causes on one line, leaving out causes that an outer message already quotes.
+/// A flag clap refused (or --help, --version): clap's own message, with a long value it quotes left out.
+fn flag_error(e: clap::Error) -> ExitCode {
+    let text = e.render().to_string();
+    if !e.use_stderr() || text.chars().count() <= MAX_MESSAGE_CHARS {
+        e.exit()
+    }
+    eprintln!("{}", raypatch::raypatch_model::error::one_line(text.trim_end()));
+    ExitCode::from(2)
+}
+
+/// The error and its causes on one line, leaving out causes that an outer message already quotes; at most
+/// [`MAX_MESSAGE_CHARS`] characters, whatever they quote.
 fn one_line(e: &anyhow::Error) -> String {
     let mut line = String::new();
     for cause in e.chain() {
@@ -196,7 +218,7 @@ fn one_line(e: &anyhow::Error) -> String {
             line.push_str(&text);
         }
     }
-    line
+    raypatch::raypatch_model::error::one_line(&line)
 }
 
 /// Indices picked by `--FLAG LIST` among `count` items (`all`, or comma-separated indices).
@@ -206,14 +228,16 @@ fn pick(flag: &str, list: &str, count: usize, what: &str) -> Result<Vec<usize>> 
     }
     let mut picked = Vec::new();
     for part in list.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let i: usize = part.parse().with_context(|| format!("--{flag} {list:?}: {part:?} is not an index or `all`"))?;
+        let i: usize = part
+            .parse()
+            .with_context(|| format!("--{flag} {}: {} is not an index or `all`", quote(list), quote(part)))?;
         if i >= count {
             bail!("--{flag} {i}: the scene has {count} {what} (0 to {})", count.saturating_sub(1));
         }
         picked.push(i);
     }
     if picked.is_empty() {
-        bail!("--{flag} {list:?}: no {what} selected");
+        bail!("--{flag} {}: no {what} selected", quote(list));
     }
     Ok(picked)
 }
@@ -345,7 +369,7 @@ fn run(args: &Args) -> Result<()> {
         rendering.frames,
         region.width,
         region.height,
-        sequence.batch(),
+        rendering.batch,
         written(&destinations.files)
     );
     for line in &metric_lines {

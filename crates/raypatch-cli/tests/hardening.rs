@@ -480,3 +480,29 @@ fn a_rename_that_fails_half_way_loses_nothing() {
     assert_eq!(std::fs::read(&theirs).unwrap(), b"theirs");
     assert_eq!(files(&shared), ["mine.png", "theirs.safetensors"]);
 }
+
+/// A huge value (a camera matrix of a million numbers, a flag of 100 kB) is quoted as a bounded excerpt: the
+/// message still names the file or flag and what was expected, in at most a few kB.
+#[test]
+fn messages_quote_bounded_excerpts_of_huge_inputs() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let huge: Vec<f64> = (0..1_000_000).map(|i| i as f64 + 0.25).collect();
+    let path = serde_json::json!({
+        "render_width": 80, "render_height": 60, "fps": 24, "camera_type": "perspective",
+        "camera_path": [{"camera_to_world": huge, "fov": 40}],
+    });
+    std::fs::write(d.join("path.json"), path.to_string()).unwrap();
+    let long = "9,".repeat(50_000);
+    let cases: [(&[&str], &[&str]); 4] = [
+        (&["--camera-path", "path.json", "--out", "x.mp4"], &["path.json", "camera_to_world", "characters)"]),
+        (&["--region", &long], &["--region", "X,Y,W,H"]),
+        (&["--view", &long], &["--view", "characters)"]),
+        (&["--motion", "orbit", "--centre", &long], &["--centre", "X,Y,Z"]),
+    ];
+    for (args, expected) in cases {
+        fails(d, args, expected);
+        let r = run(d, args);
+        assert!(r.stderr.len() < 4000, "{:.80}: {} bytes of stderr", args.join(" "), r.stderr.len());
+    }
+}

@@ -13,7 +13,7 @@ use super::{
     check_octaves, check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, RayPatchConfig,
     Section,
 };
-use crate::error::ModelError;
+use crate::error::{ModelError, Quoted};
 
 /// The official depth range: logdepth = log(sigmoid(x)·(d_max − d_min) + d_min).
 pub const DEPTH_MIN: f32 = 0.1;
@@ -153,7 +153,8 @@ impl DefineConfig {
                 return Err(config_err(
                     path,
                     format!(
-                        "`decoder` must be \"lightfield\" (DeFiNe) or \"featurefield\" (RP-DeFiNe), found {other:?}"
+                        "`decoder` must be \"lightfield\" (DeFiNe) or \"featurefield\" (RP-DeFiNe), found {:?}",
+                        Quoted(other)
                     ),
                 ))
             }

@@ -10,7 +10,7 @@ pub mod srt;
 
 use serde_json::Value;
 
-use crate::error::ModelError;
+use crate::error::{ModelError, Quoted};
 pub use define::{DefineConfig, DefineDecoderConfig, DefineEncoderConfig, RayFeatures};
 pub use osrt::{OsrtConfig, SlotAttentionConfig, SlotMixerConfig};
 pub use srt::{DecoderConfig, EncoderConfig, RayPatchConfig, RayPredictorConfig, SrtConfig};
@@ -297,7 +297,7 @@ impl<'a> Section<'a> {
         let value = root.get(name).filter(|v| !v.is_null());
         if let Some(v) = value {
             if !v.is_object() {
-                return Err(config_err(path, format!("`{name}` must be a mapping, found {v}")));
+                return Err(config_err(path, format!("`{name}` must be a mapping, found {}", Quoted(v))));
             }
         }
         Ok(Section { path, name, value })
@@ -311,7 +311,7 @@ impl<'a> Section<'a> {
     pub(crate) fn usize(&self, key: &str, default: usize, count: Count) -> Result<usize, ModelError> {
         let Some(v) = self.get(key) else { return Ok(default) };
         let value = v.as_u64().ok_or_else(|| {
-            config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {v}", self.name))
+            config_err(self.path, format!("`{}.{key}` must be a non-negative integer, found {}", self.name, Quoted(v)))
         })?;
         let (max, what) = count.max();
         if value > max as u64 {
@@ -330,10 +330,9 @@ impl<'a> Section<'a> {
     pub(crate) fn opt_f64(&self, key: &str) -> Result<Option<f64>, ModelError> {
         match self.get(key) {
             None => Ok(None),
-            Some(v) => v
-                .as_f64()
-                .map(Some)
-                .ok_or_else(|| config_err(self.path, format!("`{}.{key}` must be a number, found {v}", self.name))),
+            Some(v) => v.as_f64().map(Some).ok_or_else(|| {
+                config_err(self.path, format!("`{}.{key}` must be a number, found {}", self.name, Quoted(v)))
+            }),
         }
     }
 
@@ -341,7 +340,7 @@ impl<'a> Section<'a> {
         match self.get(key) {
             None => Ok(default),
             Some(v) => v.as_bool().ok_or_else(|| {
-                config_err(self.path, format!("`{}.{key}` must be true or false, found {v}", self.name))
+                config_err(self.path, format!("`{}.{key}` must be true or false, found {}", self.name, Quoted(v)))
             }),
         }
     }
@@ -351,7 +350,10 @@ impl<'a> Section<'a> {
         match self.get("norm") {
             None => Ok(false),
             Some(Value::String(s)) if s == "Batch" => Ok(true),
-            Some(v) => Err(config_err(self.path, format!("`{}.norm` must be \"Batch\" or null, found {v}", self.name))),
+            Some(v) => Err(config_err(
+                self.path,
+                format!("`{}.norm` must be \"Batch\" or null, found {}", self.name, Quoted(v)),
+            )),
         }
     }
 

@@ -11,7 +11,7 @@ use serde_json::Value;
 use super::srt::{check_image_channels, layer_counts};
 use super::{check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, Section};
 use super::{EncoderConfig, RayPatchConfig, RayPredictorConfig};
-use crate::error::ModelError;
+use crate::error::{ModelError, Quoted};
 
 /// `SlotAttention` inside `OSRTEncoder`.
 #[derive(Clone, Debug, PartialEq)]
@@ -92,7 +92,10 @@ impl OsrtConfig {
             other => {
                 return Err(config_err(
                     path,
-                    format!("`decoder` must be \"lightfield\" (OSRT) or \"featurefield\" (RP-OSRT), found {other:?}"),
+                    format!(
+                        "`decoder` must be \"lightfield\" (OSRT) or \"featurefield\" (RP-OSRT), found {:?}",
+                        Quoted(other)
+                    ),
                 ))
             }
         };

@@ -7,7 +7,7 @@ use super::{
     check_octaves, check_positive, check_widths, config_err, Count, FamilyConfig, Octaves, RayKind, Section,
     MAX_CONV_BLOCKS,
 };
-use crate::error::ModelError;
+use crate::error::{ModelError, Quoted};
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct EncoderConfig {
@@ -309,7 +309,10 @@ impl SrtConfig {
             other => {
                 return Err(config_err(
                     path,
-                    format!("`decoder` must be \"lightfield\" (SRT) or \"featurefield\" (RP-SRT), found {other:?}"),
+                    format!(
+                        "`decoder` must be \"lightfield\" (SRT) or \"featurefield\" (RP-SRT), found {:?}",
+                        Quoted(other)
+                    ),
                 ))
             }
         };
