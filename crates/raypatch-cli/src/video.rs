@@ -27,20 +27,26 @@ pub enum VideoFormat {
 }
 
 impl VideoFormat {
-    /// The format `path`'s extension names: `.mp4` or `.gif`; `.webp` and other video extensions are an
-    /// error naming what is supported.
+    /// The format `path`'s extension names: `.mp4` or `.gif`; other video extensions are an error naming why
+    /// that one is not written and what is supported.
     pub fn of(path: &Path) -> Result<Option<VideoFormat>> {
         let extension = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
-        match extension.as_deref() {
-            Some("mp4") => Ok(Some(VideoFormat::Mp4)),
-            Some("gif") => Ok(Some(VideoFormat::Gif)),
-            Some(other @ ("webp" | "webm" | "mkv" | "mov" | "avi" | "apng")) => bail!(
-                "--out {}: .{other} videos are not written (the image crate encodes only still, lossless WebP); use \
-                 .mp4 (H.264), .gif, or a folder of PNGs",
-                path.display()
-            ),
-            _ => Ok(None),
-        }
+        let why = match extension.as_deref() {
+            Some("mp4") => return Ok(Some(VideoFormat::Mp4)),
+            Some("gif") => return Ok(Some(VideoFormat::Gif)),
+            Some("webp") => "animated WebP is not written (the image crate encodes only still, lossless WebP)",
+            Some("apng") => "animated PNG is not written",
+            Some("webm") => "WebM needs a VP8, VP9 or AV1 encoder, which render-frame does not carry",
+            Some(container @ ("mkv" | "mov" | "avi" | "m4v" | "ogv")) => {
+                return Err(anyhow::anyhow!(
+                    "--out {}: .{container} files are not written (the H.264 video goes into an .mp4); use .mp4, \
+                     .gif, or a folder of PNGs",
+                    path.display()
+                ))
+            }
+            _ => return Ok(None),
+        };
+        bail!("--out {}: {why}; use .mp4 (H.264), .gif, or a folder of PNGs", path.display())
     }
 }
 
@@ -77,23 +83,42 @@ impl Mp4Mode {
 /// it for (issue 30's bar for a video's first frame).
 pub const AUTO_LEAST_PSNR: f64 = 40.0;
 
-/// Checks that a video of `width` x `height` can be encoded: H.264 in 4:2:0 needs even sides (no padding is
-/// added, so that the video's frames are the rendered frames); 4:4:4 takes any.
+/// OpenH264 refuses pictures with a side under 16 pixels (one macroblock).
+const COMPACT_LEAST_SIDE: usize = 16;
+
+/// Whether the compact encoding (OpenH264, 4:2:0) takes frames of `width` x `height`: even sides (4:2:0
+/// halves them; no padding is added, so that the video's frames are the rendered frames), each at least
+/// [`COMPACT_LEAST_SIDE`].
+fn compact_takes(width: usize, height: usize) -> bool {
+    width % 2 == 0 && height % 2 == 0 && width.min(height) >= COMPACT_LEAST_SIDE
+}
+
+/// Checks, before anything is rendered, that a video of `width` x `height` can be encoded as `mp4` asks:
+/// `compact` needs a size OpenH264 takes ([`compact_takes`]); `auto` and `lossless` take any size (auto is
+/// lossless where compact cannot be), up to H.264's largest.
 pub fn check_video_size(out: &Path, format: VideoFormat, mp4: Mp4Mode, width: usize, height: usize) -> Result<()> {
-    if format == VideoFormat::Mp4 && mp4 != Mp4Mode::Lossless && (width % 2 == 1 || height % 2 == 1) {
-        bail!(
-            "--out {}: H.264 in 4:2:0 needs an even width and height, the frames are {width}x{height} (choose an \
-             even size, e.g. --size {}x{}, or --mp4 lossless)",
-            out.display(),
-            width + width % 2,
-            height + height % 2
-        );
+    if format != VideoFormat::Mp4 {
+        return Ok(());
     }
-    // OpenH264 encodes up to level 5.2: 3840x2160, either way round.
-    if format == VideoFormat::Mp4 && (width.max(height) > 3840 || width.min(height) > 2160) {
+    if mp4 == Mp4Mode::Compact && !compact_takes(width, height) {
+        bail!("--out {}: {}", out.display(), compact_refusal(width, height));
+    }
+    // OpenH264 encodes up to level 5.2: 3840x2160, either way round; the lossless writer keeps to the same.
+    if width.max(height) > 3840 || width.min(height) > 2160 {
         bail!("--out {}: frames of {width}x{height} are larger than H.264 here takes (3840x2160)", out.display());
     }
     Ok(())
+}
+
+/// Why `--mp4 compact` cannot encode `width` x `height`, with the nearest size it takes.
+fn compact_refusal(width: usize, height: usize) -> String {
+    let fit = |side: usize| (side + side % 2).max(COMPACT_LEAST_SIDE);
+    format!(
+        "--mp4 compact (H.264 4:2:0) needs an even width and height of at least {COMPACT_LEAST_SIDE} pixels, the \
+         frames are {width}x{height} (choose e.g. --size {}x{}, or --mp4 lossless or auto, which take any size)",
+        fit(width),
+        fit(height)
+    )
 }
 
 /// One destination of a sequence's colour frames.
@@ -213,7 +238,8 @@ impl H264Encoder {
 }
 
 /// The encoder `mode` picks for a video whose first frame is `rgb`, and that frame's access unit: for `auto`
-/// the compact one when its frame decodes to at least [`AUTO_LEAST_PSNR`] against `rgb`, else the lossless one.
+/// the compact one when it takes the size and its frame decodes to at least [`AUTO_LEAST_PSNR`] against `rgb`,
+/// else the lossless one.
 fn first_encoding(
     mode: Mp4Mode,
     fps: f64,
@@ -221,7 +247,10 @@ fn first_encoding(
     width: usize,
     height: usize,
 ) -> Result<(H264Encoder, Vec<Vec<u8>>)> {
-    if mode != Mp4Mode::Lossless {
+    if mode == Mp4Mode::Compact && !compact_takes(width, height) {
+        bail!("{}", compact_refusal(width, height));
+    }
+    if mode != Mp4Mode::Lossless && compact_takes(width, height) {
         let mut compact = H264Encoder::compact(fps)?;
         let nals = compact.encode(rgb, width, height)?;
         if mode == Mp4Mode::Compact || decoded_psnr(&nals, rgb)? >= AUTO_LEAST_PSNR {

@@ -198,10 +198,16 @@ fn mp4_encodings_lossless_is_exact_at_any_size_and_compact_stays_4_2_0() {
     // 72x40 and 81x61 are not multiples of 16: the stream crops its last macroblocks.
     let srt = |f: &str| golden("srt_k1", f);
     let odd: &[&str] = &["--model", &srt("model.safetensors"), "--scene", &srt("scene.safetensors"), "--size", "81x61"];
-    for (model, size) in [(&["--size", "72x40"][..], (72, 40)), (odd, (81, 61))] {
+    // Auto is lossless where compact cannot encode the size at all: odd sides, or under OpenH264's 16 pixels.
+    let cases = [
+        (&["--size", "72x40"][..], (72, 40), "lossless"),
+        (odd, (81, 61), "auto"),
+        (&["--size", "12x8"], (12, 8), "auto"),
+    ];
+    for (model, size, mode) in cases {
         let orbit = |more: &[&str]| ok(d, &[model, &["--motion", "orbit", "--frames", "2"], more].concat());
         orbit(&["--out", "frames"]);
-        orbit(&["--mp4", "lossless", "--out", "lossless.mp4"]);
+        orbit(&["--mp4", mode, "--out", "lossless.mp4"]);
         let video = probe(&d.join("lossless.mp4"));
         assert_eq!((video.frames, video.width, video.height), (2, size.0, size.1));
         assert_eq!((video.profile.as_str(), video.pix_fmt.as_str()), (LOSSLESS, "gbrp"));
@@ -314,7 +320,17 @@ fn bad_sequences_are_one_line_errors_with_nothing_written() {
         &["--motion", "orbit", "--size", "81x60", "--out", "x.mp4"],
         &["--size", "81x60", "k=4", "nearest valid sizes: 80x60, 84x60"],
     );
-    fails(d, &["--motion", "orbit", "--out", "x.webp"], &["x.webp", ".mp4"]);
+    // Each refused extension with its own reason.
+    fails(d, &["--motion", "orbit", "--out", "x.webp"], &["x.webp", "animated WebP", ".mp4"]);
+    fails(d, &["--motion", "orbit", "--out", "x.webm"], &["x.webm", "VP8", ".mp4"]);
+    fails(d, &["--motion", "orbit", "--out", "x.mkv"], &["x.mkv", ".mkv files are not written", ".mp4"]);
+    for (size, text) in [("12x8", "12x8"), ("16x12", "16x12")] {
+        fails(
+            d,
+            &["--motion", "orbit", "--size", size, "--mp4", "compact", "--out", "x.mp4"],
+            &["x.mp4", text, "at least 16 pixels", "--size 16x16", "--mp4 lossless"],
+        );
+    }
     fails(d, &["--motion", "orbit", "--size", "4000x2000", "--out", "x.mp4"], &["x.mp4", "3840x2160"]);
     fails(d, &["--frames", "3", "--out", "x.mp4"], &["--frames", "--motion"]);
     fails(d, &["--motion", "twirl"], &["twirl", "orbit, spiral, zoom, closeup, eyeroll"]);
@@ -341,6 +357,8 @@ fn bad_sequences_are_one_line_errors_with_nothing_written() {
             "orbit",
             "--size",
             "81x61",
+            "--mp4",
+            "compact",
             "--out",
             "odd.mp4",
         ],
