@@ -62,4 +62,3 @@ fn is_dtype(item: &str) -> bool {
 pub fn dict_like(name: &str) -> bool {
     DICT_LIKE.contains(&name)
 }
-

@@ -11,6 +11,9 @@ pub mod pyjson;
 pub mod torch;
 pub mod zip;
 
+#[cfg(test)]
+mod tests;
+
 use std::collections::BTreeMap;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;

@@ -6,6 +6,9 @@ use std::fmt::Write;
 
 use super::pickle::{Id, Node, Pickle, MAX_DEPTH};
 
+/// The most values a config may have (an official run's model section has about 60).
+pub const MAX_CONFIG_VALUES: usize = 100_000;
+
 /// `s` as a JSON string with `ensure_ascii`: quotes, backslashes and everything outside space..tilde escaped.
 pub fn string(s: &str, out: &mut String) {
     out.push('"');
@@ -77,11 +80,17 @@ fn key_text(p: &Pickle, id: Id) -> Option<String> {
 /// The config value `id` (at `key`, `depth` levels down) as `json.dumps` of the converter's plain value:
 /// dicts (Lightning's AttributeDict and argparse.Namespace read as dicts) with string keys, lists and tuples
 /// as lists, strings, numbers, booleans and None; anything else is an error naming its key.
-pub fn config(p: &Pickle, id: Id, key: &str, depth: usize, out: &mut String) -> Result<(), String> {
+/// `budget` is the number of values left to write: values shared through the pickle's memo are written once
+/// per reference, as Python writes them, so a few bytes can stand for exponentially many.
+pub fn config(p: &Pickle, id: Id, key: &str, depth: usize, budget: &mut usize, out: &mut String) -> Result<(), String> {
     let at = || if key.is_empty() { "the config".to_string() } else { format!("config value {key}") };
     if depth > MAX_DEPTH {
         return Err(format!("{} is nested more than {MAX_DEPTH} levels deep", at()));
     }
+    if *budget == 0 {
+        return Err(format!("the config has more than {MAX_CONFIG_VALUES} values"));
+    }
+    *budget -= 1;
     match p.node(id) {
         Node::None => out.push_str("null"),
         Node::Bool(b) => out.push_str(if *b { "true" } else { "false" }),
@@ -101,7 +110,7 @@ pub fn config(p: &Pickle, id: Id, key: &str, depth: usize, out: &mut String) -> 
                 string(&name, out);
                 out.push_str(": ");
                 let inner = if key.is_empty() { name } else { format!("{key}.{name}") };
-                config(p, v, &inner, depth + 1, out)?;
+                config(p, v, &inner, depth + 1, budget, out)?;
             }
             out.push('}');
         }
@@ -111,7 +120,7 @@ pub fn config(p: &Pickle, id: Id, key: &str, depth: usize, out: &mut String) -> 
                 if i > 0 {
                     out.push_str(", ");
                 }
-                config(p, item, &format!("{key}[{i}]"), depth + 1, out)?;
+                config(p, item, &format!("{key}[{i}]"), depth + 1, budget, out)?;
             }
             out.push(']');
         }

@@ -278,7 +278,7 @@ pub fn model_config(p: &Pickle) -> Result<String, String> {
     if !matches!(p.node(section), Node::Dict(_)) {
         return Err(missing());
     }
-    let mut text = String::new();
-    pyjson::config(p, section, "", 0, &mut text)?;
+    let (mut text, mut budget) = (String::new(), pyjson::MAX_CONFIG_VALUES);
+    pyjson::config(p, section, "", 0, &mut budget, &mut text)?;
     Ok(text)
 }
