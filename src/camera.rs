@@ -3,6 +3,8 @@
 //! top) of the model's [`RayKind`]: a unit direction (SRT, OSRT) or the point at unit depth (DeFiNe); cameras
 //! that describe the same view give the same rays.
 
+use std::sync::Arc;
+
 use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
 use raypatch_model::error::Quoted;
 
@@ -133,8 +135,10 @@ pub struct RayGrid {
 enum Projection {
     /// Rotation camera → world with OpenCV axes (columns: right, down, forward).
     Pinhole { intrinsics: Intrinsics, rotation: DMat3 },
-    /// Rays given as such: one per pixel, or one per `per_ray` × `per_ray` patch.
-    Rays { grid: RayGrid, per_ray: usize },
+    /// Rays given as such: one per pixel, or one per `per_ray` × `per_ray` patch, turned by `turn` (a camera
+    /// [`orbited`](Camera::orbited) shares its grid with the camera it came from: a turntable of N frames keeps
+    /// one grid, not N).
+    Rays { grid: Arc<RayGrid>, per_ray: usize, turn: DMat3 },
 }
 
 /// A camera: where it is, the image it sees (`width` × `height`), and the rays through that image's pixels.
@@ -161,6 +165,15 @@ pub struct Camera {
     width: usize,
     height: usize,
     projection: Projection,
+}
+
+/// `grid`'s rays turned by `turn` (in f64, rounded to f32), or the grid itself when it is not turned.
+fn turned(grid: &RayGrid, turn: DMat3) -> RayGrid {
+    if turn == DMat3::IDENTITY {
+        return grid.clone();
+    }
+    let rays = grid.rays.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
+    RayGrid { rays, ..*grid }
 }
 
 fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
@@ -293,7 +306,8 @@ impl Camera {
         }
         let (width, height) = (grid.width.saturating_mul(k), grid.height.saturating_mul(k));
         crate::image::check_image_size(width, height).map_err(Error::Camera)?;
-        Ok(Camera { position, width, height, projection: Projection::Rays { grid, per_ray: k } })
+        let projection = Projection::Rays { grid: Arc::new(grid), per_ray: k, turn: DMat3::IDENTITY };
+        Ok(Camera { position, width, height, projection })
     }
 
     /// The camera centre in the world frame.
@@ -363,7 +377,7 @@ impl Camera {
     /// ```
     pub fn rays_of(&self, kind: RayKind) -> RayGrid {
         match &self.projection {
-            Projection::Rays { grid, .. } => grid.clone(),
+            Projection::Rays { grid, turn, .. } => turned(grid, *turn),
             Projection::Pinhole { intrinsics: k, rotation } => {
                 let mut directions = Vec::with_capacity(self.width * self.height);
                 for i in 0..self.height {
@@ -403,11 +417,12 @@ impl Camera {
         raypatch_model::rays::check_ray_kind(kind, position, grid.width, grid.height, |i| grid.rays[i].to_array())
     }
 
-    /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays));
-    /// `None` for a pinhole camera, whose rays [`rays_of`](Self::rays_of) computes.
-    pub fn given_rays(&self) -> Option<&RayGrid> {
+    /// The rays the camera was built from ([`from_rays`](Self::from_rays), [`from_patch_rays`](Self::from_patch_rays)),
+    /// turned as the camera was ([`orbited`](Self::orbited)); `None` for a pinhole camera, whose rays
+    /// [`rays_of`](Self::rays_of) computes.
+    pub fn given_rays(&self) -> Option<RayGrid> {
         match &self.projection {
-            Projection::Rays { grid, .. } => Some(grid),
+            Projection::Rays { grid, turn, .. } => Some(turned(grid, *turn)),
             Projection::Pinhole { .. } => None,
         }
     }
@@ -434,9 +449,8 @@ impl Camera {
             Projection::Pinhole { intrinsics, rotation } => {
                 Projection::Pinhole { intrinsics: *intrinsics, rotation: turn * *rotation }
             }
-            Projection::Rays { grid, per_ray } => {
-                let directions = grid.rays.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
-                Projection::Rays { grid: RayGrid { rays: directions, ..*grid }, per_ray: *per_ray }
+            Projection::Rays { grid, per_ray, turn: before } => {
+                Projection::Rays { grid: Arc::clone(grid), per_ray: *per_ray, turn: turn * *before }
             }
         };
         Camera { position: turn * self.position, projection, ..*self }
