@@ -17,6 +17,7 @@ Arrays in: anything numpy can read (numpy arrays, CPU torch tensors, objects wit
 from __future__ import annotations
 
 import json
+import operator
 import os
 from typing import Iterable, Iterator, Optional, Sequence, Tuple, Union
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from . import _raypatch
 from ._raypatch import BUNDLED_MODELS, BUNDLED_SCENES, EngineClosed, Error, FileError, GpuError, InputError
+from ._text import excerpt, quoted
 
 __all__ = [
     "Engine", "Model", "Scene", "SceneData", "Rendered", "load", "bundled", "load_scene", "bundled_scene",
@@ -33,6 +35,8 @@ __all__ = [
 
 OUTPUTS = ("rgb", "logdepth", "depth", "segmentation")
 PathLike = Union[str, "os.PathLike[str]"]
+# Most values in one array converted for the engine: the largest any call takes is a scene's images or rays.
+MAX_VALUES = 3 * _raypatch.MAX_SCENE_PIXELS
 
 
 def _array(name: str, value) -> np.ndarray:
@@ -44,25 +48,68 @@ def _array(name: str, value) -> np.ndarray:
             return np.asarray(value)
         return np.from_dlpack(value)
     except Exception as e:  # anything that is not an array of numbers
-        raise InputError(f"{name}: cannot be read as an array ({type(value).__name__}: {e})") from None
+        raise InputError(f"{name}: cannot be read as an array ({type(value).__name__}: {excerpt(e)})") from None
 
 
 def _floats(name: str, value, shape: Tuple[Optional[int], ...], dtype=np.float32, image: bool = False) -> np.ndarray:
-    """A C-contiguous, finite `dtype` array (float32 by default) of `shape` (None: any size), from floats, or for an
-    `image` also from uint8 (divided by 255)."""
+    """A C-contiguous, finite `dtype` array (float32 by default) of `shape` (None: any size), from floats or
+    integers, or for an `image` (`[..., H, W, 3]`) from floats or uint8 (divided by 255). Sizes are checked before
+    anything is converted: an array too large for the engine is an InputError, not a MemoryError."""
     array = _array(name, value)
     if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
         wanted = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
         raise InputError(f"{name}: shape {list(array.shape)}, expected {wanted}")
+    if array.size > MAX_VALUES:
+        raise InputError(f"{name}: shape {list(array.shape)}, more than the {MAX_VALUES} values accepted")
+    if image:
+        height, width = array.shape[-3:-1]
+        _raypatch.check_images(name, int(np.prod(array.shape[:-3])), width, height)
     if image and array.dtype == np.uint8:
         array = array.astype(np.float32) / np.float32(255.0)
-    elif array.dtype.kind == "f":
+    elif array.dtype.kind == "f" or (array.dtype.kind in ("i", "u") and not image):
         array = array.astype(dtype, copy=False)
-    else:
-        raise InputError(f"{name}: dtype {array.dtype}, expected {'uint8 or ' if image else ''}floating point")
+    else:  # bool, complex, strings, objects; and integer images other than uint8, whose scale is unknown
+        raise InputError(f"{name}: dtype {array.dtype}, expected {'uint8 or floating point' if image else 'numbers'}")
     if not np.isfinite(array).all():
         raise InputError(f"{name}: holds NaN or infinity")
     return np.ascontiguousarray(array)
+
+
+def _integer(name: str, value) -> int:
+    """A whole number from Python or numpy (a float only where whole; never a bool) within 64 bits: the binding
+    refuses a negative one where it needs a size, count or index, naming `name`."""
+    if isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name} {value}: expected an integer, not a bool")
+    try:
+        number = operator.index(value)
+    except TypeError:
+        whole = isinstance(value, (float, np.floating)) and float(value).is_integer()
+        if not whole:
+            raise InputError(f"{name} {quoted(value)}: expected an integer") from None
+        number = int(value)
+    if not -(2 ** 63) <= number < 2 ** 63:
+        raise InputError(f"{name}: an integer of {number.bit_length()} bits, expected one that fits 64 bits")
+    return number
+
+
+def _text(name: str, value, optional: bool = False) -> Optional[str]:
+    """A string argument (or None where `optional`)."""
+    if (value is None and optional) or isinstance(value, str):
+        return value
+    raise InputError(f"{name} {quoted(value)}: expected a string")
+
+
+def _path(name: str, value) -> str:
+    """A path argument: a string or os.PathLike."""
+    try:
+        return os.fspath(value)
+    except TypeError:
+        raise InputError(f"{name} {quoted(value)}: expected a path (str or os.PathLike)") from None
+
+
+def _number(name: str, value) -> float:
+    """A finite number from Python or numpy, integers included (not a bool)."""
+    return _floats(name, value, (), np.float64).item()
 
 
 def _bytes(array: np.ndarray) -> bytes:
@@ -97,7 +144,8 @@ class Engine:
     faster, rgb within ~1e-2); f16 needs the adapter's shader-f16."""
 
     def __init__(self, adapter: Optional[str] = None, matmul: Optional[str] = None, precision: str = "f32"):
-        self._inner = _raypatch.Engine(adapter, matmul, precision)
+        self._inner = _raypatch.Engine(_text("adapter", adapter, True), _text("matmul", matmul, True),
+                                       _text("precision", precision))
 
     @staticmethod
     def adapters() -> list:
@@ -125,11 +173,11 @@ class Engine:
 
     def load(self, path: PathLike) -> "Model":
         """A model file (safetensors with the official key names and the config in its metadata)."""
-        return Model(self._inner.load(os.fspath(path)))
+        return Model(self._inner.load(_path("path", path)))
 
     def bundled(self, name: str = "fitted") -> "Model":
         """A model shipped with the package (BUNDLED_MODELS): "fitted" is RP-SRT k=4 fitted to the bundled scene."""
-        return Model(self._inner.load_bundled(name))
+        return Model(self._inner.load_bundled(_text("name", name)))
 
     def __repr__(self) -> str:
         return f"raypatch.Engine({self.adapter!r}{', closed' if self.closed else ''})"
@@ -173,35 +221,35 @@ class SceneData:
 
     def target_size(self, i: int) -> Tuple[int, int]:
         """(width, height) of target view i."""
-        return self._inner.target_size(i)
+        return self._inner.target_size(_integer("view", i))
 
     def target_image(self, i: int) -> Optional[np.ndarray]:
         """Ground truth [H, W, 3] float32 in [0, 1], or None."""
-        data = self._inner.target_image(i)
+        data = self._inner.target_image(_integer("view", i))
         width, height = self.target_size(i)
         return None if data is None else np.frombuffer(data, "<f4").reshape(height, width, 3)
 
     def target_masks(self, i: int) -> Optional[np.ndarray]:
         """Object ids [H, W] uint32 (0: background), or None."""
-        data = self._inner.target_masks(i)
+        data = self._inner.target_masks(_integer("view", i))
         width, height = self.target_size(i)
         return None if data is None else np.frombuffer(data, "<u4").reshape(height, width)
 
     def target_depth(self, i: int) -> Optional[np.ndarray]:
         """Depth [H, W] float32 in metres (0 where unknown), or None."""
-        data = self._inner.target_depth(i)
+        data = self._inner.target_depth(_integer("view", i))
         width, height = self.target_size(i)
         return None if data is None else np.frombuffer(data, "<f4").reshape(height, width)
 
 
 def load_scene(path: PathLike) -> SceneData:
     """A scene safetensors file or a folder holding transforms.json."""
-    return SceneData(_raypatch.SceneData.load(os.fspath(path)))
+    return SceneData(_raypatch.SceneData.load(_path("path", path)))
 
 
 def bundled_scene(name: str = "scene-2000000") -> SceneData:
     """A scene shipped with the package (BUNDLED_SCENES): held-out views of a procedural MultiShapeNet-style scene."""
-    return SceneData(_raypatch.SceneData.bundled(name))
+    return SceneData(_raypatch.SceneData.bundled(_text("name", name)))
 
 
 class Rendered(dict):
@@ -211,12 +259,12 @@ class Rendered(dict):
     def save(self, path: PathLike, output: str = "rgb") -> None:
         """Writes the rgb image as a PNG (written beside, then renamed into place)."""
         if output != "rgb" or "rgb" not in self:
-            raise InputError(f"save: needs the rgb output (rendered: {sorted(self)})")
+            raise InputError(f"save: needs the rgb output (rendered: {quoted(sorted(self))})")
         rgb = self["rgb"]
         if rgb.ndim != 3:
             raise InputError("save: a batched render holds several views; save one, e.g. Rendered(rgb=r['rgb'][0])")
         height, width, _ = rgb.shape
-        _raypatch.save_png(_bytes(rgb), width, height, os.fspath(path))
+        _raypatch.save_png(_bytes(rgb), width, height, _path("path", path))
 
 
 def _rendered(raw: dict) -> Rendered:
@@ -228,10 +276,22 @@ def _rendered(raw: dict) -> Rendered:
 
 
 def _output_names(outputs: Union[str, Iterable[str]]) -> list:
-    names = [outputs] if isinstance(outputs, str) else list(outputs)
-    if not names:
-        raise InputError(f"outputs: none asked for, expected some of {OUTPUTS}")
+    try:
+        names = [outputs] if isinstance(outputs, str) else list(outputs)
+    except TypeError:
+        raise InputError(f"outputs {quoted(outputs)}: expected a name or names of {OUTPUTS}") from None
+    if not names or not all(isinstance(n, str) for n in names):
+        raise InputError(f"outputs {quoted(names)}: expected some of {OUTPUTS}")
     return names
+
+
+def _region(region: Optional[Sequence[int]]) -> Optional[tuple]:
+    """(x, y, width, height) of the pixels to render, or None for all."""
+    if region is None:
+        return None
+    if not isinstance(region, (tuple, list, np.ndarray)) or len(region) != 4:
+        raise InputError(f"region {quoted(region)}: expected (x, y, width, height)")
+    return tuple(_integer(f"region {n}", v) for n, v in zip(("x", "y", "width", "height"), region))
 
 
 class Model:
@@ -291,7 +351,8 @@ class Model:
             raise InputError("encode: needs poses and intrinsics (or positions and rays)")
         k = _intrinsics("intrinsics", intrinsics, count)
         poses = _poses("poses", poses, count)
-        scene = self._inner.encode_posed(_bytes(images), (count, height, width), poses, k, convention)
+        scene = self._inner.encode_posed(_bytes(images), (count, height, width), poses, k,
+                                         _text("convention", convention))
         cameras = [(_opencv(p, convention), (*k_i, width, height)) for p, k_i in zip(poses, k)]
         return Scene(scene, self, (k[0], width, height), cameras=cameras)
 
@@ -324,7 +385,9 @@ class Scene:
             k = _intrinsics("intrinsics", intrinsics, 1)[0]
             width, height = (None, None) if self._camera is None else self._camera[1:]
         if size is not None:
-            width, height = (int(v) for v in size)
+            if not isinstance(size, (tuple, list, np.ndarray)) or len(size) != 2:
+                raise InputError(f"size {quoted(size)}: expected (width, height)")
+            width, height = _integer("width", size[0]), _integer("height", size[1])
         elif width is None:
             raise InputError("render: needs size=(width, height)")
         return (*k, width, height)
@@ -338,8 +401,9 @@ class Scene:
         pose = _poses("pose", pose)
         if len(pose) != 1:
             raise InputError("render: one pose [4, 4]; render_many takes [T, 4, 4]")
-        region = None if region is None else tuple(int(v) for v in region)
-        return _rendered(self._inner.render_posed(pose[0], camera, convention, _output_names(outputs), region))
+        raw = self._inner.render_posed(pose[0], camera, _text("convention", convention), _output_names(outputs),
+                                       _region(region))
+        return _rendered(raw)
 
     def render_many(self, poses, intrinsics=None, size: Optional[Sequence[int]] = None,
                     outputs: Union[str, Iterable[str]] = ("rgb",), region: Optional[Sequence[int]] = None,
@@ -354,8 +418,8 @@ class Scene:
         """Renders target view i of the scene file this scene was encoded from (encode_scene)."""
         if self._data is None:
             raise InputError("render_view: the scene was not encoded from a scene file (use render)")
-        region = None if region is None else tuple(int(v) for v in region)
-        return _rendered(self._inner.render_target(self._data._inner, int(i), _output_names(outputs), region))
+        view = _integer("view", i)
+        return _rendered(self._inner.render_target(self._data._inner, view, _output_names(outputs), _region(region)))
 
 
     def render_path(self, poses=None, intrinsics=None, size: Optional[Sequence[int]] = None, *,
@@ -376,9 +440,10 @@ class Scene:
         cameras = self._path_cameras(poses, intrinsics, size, camera_path, motion, frames, elevation, radius,
                                      centre, up, fade, interpolate, convention)
         names = _output_names(outputs)
-        if int(batch) < 1:
+        batch = _integer("batch", batch)
+        if batch < 1:
             raise InputError(f"render_path: batch {batch}: expected at least 1")
-        return self._frames(cameras, names, int(batch))
+        return self._frames(cameras, names, batch)
 
     def _frames(self, cameras: list, names: list, batch: int) -> Iterator[Rendered]:
         for start in range(0, len(cameras), batch):
@@ -406,52 +471,66 @@ class Scene:
             camera = self._camera_of(intrinsics, size)
             cameras = [(_opencv(p, convention), camera) for p in _poses("poses", poses)]
         elif camera_path is not None:
-            cameras = _raypatch.camera_path_cameras(os.fspath(camera_path))[0]
+            cameras = _raypatch.camera_path_cameras(_path("camera_path", camera_path))[0]
         elif motion is not None:
             scene, first = self._scene_cameras()
             if centre is None:
                 centre = _raypatch.scene_centre([pose for pose, _ in scene])
             if up is None:
                 up = _raypatch.up_axis([pose for pose, _ in scene])
+            if not isinstance(motion, str):
+                raise InputError(f"motion {quoted(motion)}: expected a name such as \"orbit\"")
             point = lambda name, v: tuple(float(x) for x in _floats(name, v, (3,), np.float64))
-            return _raypatch.motion_cameras(str(motion), scene[first], int(frames), point("centre", centre),
-                                            point("up", up), elevation, radius, bool(fade))
+            number = lambda name, v: None if v is None else _number(name, v)
+            return _raypatch.motion_cameras(motion, scene[first], _integer("frames", frames), point("centre", centre),
+                                            point("up", up), number("elevation", elevation), number("radius", radius),
+                                            bool(fade))
         elif interpolate:
             cameras = self._scene_cameras()[0]
         else:
             raise InputError("render_path: give poses, a camera_path or a motion")
-        return _raypatch.interpolate_cameras(cameras, int(frames)) if interpolate else cameras
+        return _raypatch.interpolate_cameras(cameras, _integer("frames", frames)) if interpolate else cameras
 
 
 def _opencv(pose: Sequence[float], convention: str) -> tuple:
     """A row-major 4x4 camera-to-world pose with OpenCV axes (y down, looking along +z)."""
     if convention not in ("opengl", "opencv"):
-        raise InputError(f"convention {convention!r}: expected 'opengl' or 'opencv'")
+        raise InputError(f"convention {quoted(convention)}: expected 'opengl' or 'opencv'")
     m = np.asarray(pose, dtype=np.float64).reshape(4, 4)
     if convention == "opengl":
         m = m @ np.diag([1.0, -1.0, -1.0, 1.0])
     return tuple(m.reshape(-1).tolist())
 
 
-def psnr(a, b) -> float:
-    """PSNR in dB of two [H, W, 3] images in [0, 1] (the engine's, as render-frame --metrics)."""
+def _nonempty(name: str, value) -> np.ndarray:
+    """An array with some values: a metric of none is refused (as psnr and ssim refuse empty images)."""
+    array = _array(name, value)
+    if array.size == 0:
+        raise InputError(f"{name}: shape {list(array.shape)} is empty, expected at least one pixel")
+    return array
+
+
+def _image_pair(metric: str, a, b) -> tuple:
+    """Two images of one shape, [H, W, 3], neither empty, as the binding's metrics take them."""
     a, b = _floats("a", a, (None, None, 3), image=True), _floats("b", b, (None, None, 3), image=True)
     if a.shape != b.shape:
-        raise InputError(f"psnr: images of shapes {list(a.shape)} and {list(b.shape)}")
-    return _raypatch.psnr(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
+        raise InputError(f"{metric}: images of shapes {list(a.shape)} and {list(b.shape)}")
+    return _bytes(a), _bytes(b), a.shape[1], a.shape[0]
+
+
+def psnr(a, b) -> float:
+    """PSNR in dB of two [H, W, 3] images in [0, 1] (the engine's, as render-frame --metrics)."""
+    return _raypatch.psnr(*_image_pair("psnr", a, b))
 
 
 def ssim(a, b) -> float:
     """SSIM of two [H, W, 3] images in [0, 1], as the official evaluation computes it."""
-    a, b = _floats("a", a, (None, None, 3), image=True), _floats("b", b, (None, None, 3), image=True)
-    if a.shape != b.shape:
-        raise InputError(f"ssim: images of shapes {list(a.shape)} and {list(b.shape)}")
-    return _raypatch.ssim(_bytes(a), _bytes(b), a.shape[1], a.shape[0])
+    return _raypatch.ssim(*_image_pair("ssim", a, b))
 
 
 def fg_ari(true_ids, weights) -> float:
     """FG-ARI of slot weights [H, W, slots] against object ids [H, W] (0: background, ignored)."""
-    weights = _floats("weights", weights, (None, None, None))
+    weights = _floats("weights", _nonempty("weights", weights), (None, None, None))
     ids = _array("true_ids", true_ids)
     if ids.shape != weights.shape[:2] or ids.dtype.kind not in "ui":
         raise InputError(f"true_ids: {ids.dtype} {list(ids.shape)}, expected integers {list(weights.shape[:2])}")
@@ -464,7 +543,7 @@ def fg_ari(true_ids, weights) -> float:
 def depth_errors(predicted, truth) -> dict:
     """Abs.Rel, Sq.Rel and RMSE of predicted depth against ground truth (same shape; truth 0 = no data), over
     the pixels with ground truth, as the official DeFiNe test step computes them."""
-    predicted = _floats("predicted", predicted, (None, None))
+    predicted = _floats("predicted", _nonempty("predicted", predicted), (None, None))
     truth = _floats("truth", truth, predicted.shape)
     abs_rel, sq_rel, rmse, pixels = _raypatch.depth_errors(_bytes(predicted), _bytes(truth), predicted.size)
     return {"abs_rel": abs_rel, "sq_rel": sq_rel, "rmse": rmse, "pixels": pixels}

@@ -1,5 +1,6 @@
 """Type stubs of the extension module (python/src/lib.rs). Arrays cross as little-endian bytes with their shapes;
-use the `raypatch` package's classes, which take and give numpy arrays."""
+use the `raypatch` package's classes, which take and give numpy arrays. Sizes, counts and indices are signed: a
+negative one is an InputError naming it."""
 
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -11,6 +12,8 @@ class EngineClosed(Error): ...
 
 BUNDLED_MODELS: List[str]
 BUNDLED_SCENES: List[str]
+MAX_SCENE_PIXELS: int
+MAX_QUOTED_CHARS: int
 
 Region = Tuple[int, int, int, int]
 RawOutputs = Dict[str, Tuple[bytes, Tuple[int, int, int]]]
@@ -75,6 +78,7 @@ def ssim(a: bytes, b: bytes, width: int, height: int) -> float: ...
 def fg_ari(true_ids: bytes, weights: bytes, pixels: int, slots: int) -> float: ...
 def depth_errors(predicted: bytes, truth: bytes, pixels: int) -> Tuple[float, float, float, int]: ...
 def save_png(rgb: bytes, width: int, height: int, path: str) -> None: ...
+def check_images(what: str, count: int, width: int, height: int) -> None: ...
 def motion_cameras(motion: str, start: Pinhole, frames: int, centre: Tuple[float, float, float],
                    up: Tuple[float, float, float], elevation: Optional[float] = None,
                    radius: Optional[float] = None, fade: bool = False) -> List[Pinhole]: ...

@@ -14,6 +14,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
+use raypatch::raypatch_model::error::{one_line, Quoted, MAX_QUOTED_CHARS};
 use raypatch::{
     AdapterChoice, Camera, CameraAxes, EngineOptions, Image, InputView, Intrinsics, MatmulKernel, Output, Outputs,
     Precision, RayGrid, Region, Request, SceneData,
@@ -39,10 +40,10 @@ const BUNDLED_SCENES: [(&str, &[u8]); 2] = [
     ("scene-2000001", include_bytes!("../../assets/scenes/scene-2000001.safetensors")),
 ];
 
-/// The Python exception for an engine error, with the engine's one-line message.
+/// The Python exception for an engine error, with the engine's message on one bounded line (`one_line`).
 fn to_py(e: raypatch::Error) -> PyErr {
     use raypatch::raypatch_engine::EngineError;
-    let message = e.to_string();
+    let message = one_line(&e.to_string());
     match e {
         raypatch::Error::Model(_)
         | raypatch::Error::Io { .. }
@@ -60,6 +61,17 @@ fn input_error(message: String) -> PyErr {
     InputError::new_err(message)
 }
 
+/// A size, count or index from Python. The binding takes signed integers so that a negative one is an
+/// InputError naming the argument (an unsigned parameter would raise OverflowError).
+pub fn unsigned(name: &str, value: i64) -> PyResult<usize> {
+    usize::try_from(value).map_err(|_| input_error(format!("{name} {value}: expected 0 or more")))
+}
+
+/// `count` values of 4 bytes as a byte length, or an InputError where that overflows.
+fn byte_length(what: &str, count: usize) -> PyResult<usize> {
+    count.checked_mul(4).ok_or_else(|| input_error(format!("{what}: {count} values are more than memory holds")))
+}
+
 /// Whether the engine was closed; shared by the engine and everything loaded on it.
 #[derive(Clone, Default)]
 struct Alive(Arc<AtomicBool>);
@@ -75,14 +87,14 @@ impl Alive {
 
 /// Little-endian f32s from bytes, `count` of them.
 fn f32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<f32>> {
-    if bytes.len() != count * 4 {
+    if bytes.len() != byte_length(what, count)? {
         return Err(input_error(format!("{what}: {} bytes, expected {count} float32 values", bytes.len())));
     }
     Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
 }
 
 fn u32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<u32>> {
-    if bytes.len() != count * 4 {
+    if bytes.len() != byte_length(what, count)? {
         return Err(input_error(format!("{what}: {} bytes, expected {count} uint32 values", bytes.len())));
     }
     Ok(bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
@@ -97,21 +109,27 @@ fn axes(convention: &str) -> PyResult<CameraAxes> {
     match convention {
         "opengl" => Ok(CameraAxes::OpenGl),
         "opencv" => Ok(CameraAxes::OpenCv),
-        other => Err(input_error(format!("convention {other:?}: expected \"opengl\" or \"opencv\""))),
+        other => Err(input_error(format!("convention {:?}: expected \"opengl\" or \"opencv\"", Quoted(other)))),
     }
 }
 
-/// A pinhole camera from a row-major 4x4 camera-to-world pose and `(fx, fy, cx, cy, width, height)`.
-fn pinhole(pose: [f64; 16], k: (f64, f64, f64, f64, usize, usize), convention: &str) -> PyResult<Camera> {
-    let (fx, fy, cx, cy, width, height) = k;
-    let intrinsics = Intrinsics { width, height, fx, fy, cx, cy };
+/// A pinhole camera from a row-major 4x4 camera-to-world pose and its intrinsics.
+fn pinhole(pose: [f64; 16], intrinsics: Intrinsics, convention: &str) -> PyResult<Camera> {
     Camera::pinhole(intrinsics, DMat4::from_cols_array(&pose).transpose(), axes(convention)?).map_err(to_py)
+}
+
+/// A region `(x, y, width, height)` from Python.
+fn region_of(region: Option<(i64, i64, i64, i64)>) -> PyResult<Option<Region>> {
+    let Some((x, y, width, height)) = region else { return Ok(None) };
+    let (x, y) = (unsigned("region x", x)?, unsigned("region y", y)?);
+    Ok(Some(Region { x, y, width: unsigned("region width", width)?, height: unsigned("region height", height)? }))
 }
 
 fn outputs_of(names: Vec<String>) -> PyResult<Outputs> {
     let mut outputs = Outputs::default();
     for (i, name) in names.iter().enumerate() {
         let output = Output::from_name(name).ok_or_else(|| {
+            let name = Quoted(name);
             input_error(format!("outputs: {name:?} is not one of \"rgb\", \"logdepth\", \"depth\", \"segmentation\""))
         })?;
         outputs = if i == 0 { Outputs::of(&[output]) } else { outputs.with(output) };
@@ -120,7 +138,8 @@ fn outputs_of(names: Vec<String>) -> PyResult<Outputs> {
 }
 
 /// Reads an image of `[height, width, 3]` f32 values in [0, 1].
-fn image_of(what: &str, bytes: &[u8], width: usize, height: usize) -> PyResult<Image> {
+fn image_of(what: &str, bytes: &[u8], width: i64, height: i64) -> PyResult<Image> {
+    let (_, width, height) = image_sizes(what, 1, width, height)?;
     Image::new(width, height, f32s(what, bytes, width * height * 3)?).map_err(to_py)
 }
 
@@ -140,11 +159,11 @@ impl Engine {
             match matmul.as_deref() {
                 None => None,
                 Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
-                    input_error(format!("matmul {name:?}: expected \"rows\", \"tiled\" or \"lanes\""))
+                    input_error(format!("matmul {:?}: expected \"rows\", \"tiled\" or \"lanes\"", Quoted(name)))
                 })?),
             };
         let precision = Precision::from_name(precision).ok_or_else(|| {
-            input_error(format!("precision {precision:?}: expected \"f32\", \"f16\" or \"f16-act\""))
+            input_error(format!("precision {:?}: expected \"f32\", \"f16\" or \"f16-act\"", Quoted(precision)))
         })?;
         let adapter = adapter.map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
         let options = EngineOptions { adapter, matmul, precision, ..Default::default() };
@@ -193,7 +212,7 @@ impl Engine {
         self.alive.check()?;
         let Some((_, bytes)) = BUNDLED_MODELS.iter().find(|(n, _)| *n == name) else {
             let names: Vec<&str> = BUNDLED_MODELS.iter().map(|(n, _)| *n).collect();
-            return Err(input_error(format!("no bundled model {name:?}: the bundled models are {names:?}")));
+            return Err(input_error(format!("no bundled model {:?}: the bundled models are {names:?}", Quoted(name))));
         };
         let model = py.detach(|| self.inner.load_bytes(&format!("bundled model {name}"), bytes)).map_err(to_py)?;
         Ok(Model { inner: Arc::new(model), alive: self.alive.clone() })
@@ -265,12 +284,13 @@ impl Model {
         &self,
         py: Python<'_>,
         images: &[u8],
-        shape: (usize, usize, usize),
+        shape: (i64, i64, i64),
         poses: Vec<[f64; 16]>,
         intrinsics: Vec<(f64, f64, f64, f64)>,
         convention: &str,
     ) -> PyResult<Scene> {
-        let (count, height, width) = shape;
+        let (count, width, height) = image_sizes("images", shape.0, shape.2, shape.1)?;
+        let per = width * height * 3;
         if poses.len() != count || intrinsics.len() != count {
             return Err(input_error(format!(
                 "{count} images with {} poses and {} intrinsics: expected one of each per image",
@@ -278,13 +298,12 @@ impl Model {
                 intrinsics.len()
             )));
         }
-        let values = f32s("images", images, count * height * width * 3)?;
-        let per = height * width * 3;
+        let values = f32s("images", images, count * per)?;
         let views = (0..count)
             .map(|i| {
                 let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
                 let (fx, fy, cx, cy) = intrinsics[i];
-                let camera = pinhole(poses[i], (fx, fy, cx, cy, width, height), convention)
+                let camera = pinhole(poses[i], Intrinsics { width, height, fx, fy, cx, cy }, convention)
                     .map_err(|e| input_error(format!("view {i}: {}", e.value(py))))?;
                 Ok(InputView { image, camera })
             })
@@ -298,15 +317,15 @@ impl Model {
         &self,
         py: Python<'_>,
         images: &[u8],
-        shape: (usize, usize, usize),
+        shape: (i64, i64, i64),
         positions: Vec<[f64; 3]>,
         rays: &[u8],
     ) -> PyResult<Scene> {
-        let (count, height, width) = shape;
+        let (count, width, height) = image_sizes("images", shape.0, shape.2, shape.1)?;
+        let per = width * height * 3;
         if positions.len() != count {
             return Err(input_error(format!("{count} images with {} camera positions", positions.len())));
         }
-        let per = height * width * 3;
         let values = f32s("images", images, count * per)?;
         let rays = f32s("rays", rays, count * per)?;
         let views = (0..count)
@@ -348,7 +367,7 @@ impl SceneFile {
     fn bundled(name: &str) -> PyResult<SceneFile> {
         let Some((_, bytes)) = BUNDLED_SCENES.iter().find(|(n, _)| *n == name) else {
             let names: Vec<&str> = BUNDLED_SCENES.iter().map(|(n, _)| *n).collect();
-            return Err(input_error(format!("no bundled scene {name:?}: the bundled scenes are {names:?}")));
+            return Err(input_error(format!("no bundled scene {:?}: the bundled scenes are {names:?}", Quoted(name))));
         };
         Ok(SceneFile { inner: SceneData::from_bytes(&format!("bundled scene {name}"), bytes).map_err(to_py)? })
     }
@@ -364,30 +383,31 @@ impl SceneFile {
     }
 
     /// `(width, height)` of target view `i`.
-    fn target_size(&self, i: usize) -> PyResult<(usize, usize)> {
+    fn target_size(&self, i: i64) -> PyResult<(usize, usize)> {
         let t = self.target(i)?;
         Ok((t.camera.width(), t.camera.height()))
     }
 
     /// Target view `i`'s ground truth `[height, width, 3]` f32, or None.
-    fn target_image<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+    fn target_image<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Option<Bound<'py, PyBytes>>> {
         Ok(self.target(i)?.image.as_ref().map(|im| f32_bytes(py, im.data())))
     }
 
     /// Target view `i`'s object ids `[height, width]` u32 (0: background), or None.
-    fn target_masks<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+    fn target_masks<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Option<Bound<'py, PyBytes>>> {
         let masks = self.target(i)?.masks.as_ref();
         Ok(masks.map(|m| PyBytes::new(py, &m.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>())))
     }
 
     /// Target view `i`'s depth `[height, width]` f32 in metres (0: none), or None.
-    fn target_depth<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Option<Bound<'py, PyBytes>>> {
+    fn target_depth<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Option<Bound<'py, PyBytes>>> {
         Ok(self.target(i)?.depth.as_ref().map(|d| f32_bytes(py, d)))
     }
 }
 
 impl SceneFile {
-    fn target(&self, i: usize) -> PyResult<&raypatch::TargetView> {
+    fn target(&self, i: i64) -> PyResult<&raypatch::TargetView> {
+        let i = unsigned("target view", i)?;
         self.inner.targets.get(i).ok_or_else(|| {
             input_error(format!(
                 "target view {i}: the scene has {} (0..{})",
@@ -420,11 +440,10 @@ impl Scene {
         py: Python<'py>,
         camera: &Camera,
         outputs: Vec<String>,
-        region: Option<(usize, usize, usize, usize)>,
+        region: Option<(i64, i64, i64, i64)>,
     ) -> PyResult<Bound<'py, PyDict>> {
         self.alive.check()?;
-        let region = region.map(|(x, y, width, height)| Region { x, y, width, height });
-        let request = Request { outputs: outputs_of(outputs)?, region };
+        let request = Request { outputs: outputs_of(outputs)?, region: region_of(region)? };
         let rendered = py.detach(|| self.cell.borrow_dependent().render(camera, &request)).map_err(to_py)?;
         Scene::dict(py, &rendered)
     }
@@ -439,12 +458,12 @@ impl Scene {
         &self,
         py: Python<'py>,
         pose: [f64; 16],
-        intrinsics: (f64, f64, f64, f64, usize, usize),
+        intrinsics: paths::PinholeK,
         convention: &str,
         outputs: Vec<String>,
-        region: Option<(usize, usize, usize, usize)>,
+        region: Option<(i64, i64, i64, i64)>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let camera = pinhole(pose, intrinsics, convention)?;
+        let camera = pinhole(pose, paths::intrinsics_of(intrinsics)?, convention)?;
         self.render_camera(py, &camera, outputs, region)
     }
 
@@ -477,9 +496,9 @@ impl Scene {
         &self,
         py: Python<'py>,
         data: &SceneFile,
-        i: usize,
+        i: i64,
         outputs: Vec<String>,
-        region: Option<(usize, usize, usize, usize)>,
+        region: Option<(i64, i64, i64, i64)>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let camera = data.target(i)?.camera.clone();
         self.render_camera(py, &camera, outputs, region)
@@ -488,37 +507,63 @@ impl Scene {
 
 /// PSNR in dB of two `[height, width, 3]` f32 images.
 #[pyfunction]
-fn psnr(py: Python<'_>, a: &[u8], b: &[u8], width: usize, height: usize) -> PyResult<f64> {
+fn psnr(py: Python<'_>, a: &[u8], b: &[u8], width: i64, height: i64) -> PyResult<f64> {
     let (a, b) = (image_of("a", a, width, height)?, image_of("b", b, width, height)?);
     py.detach(|| raypatch::metrics::psnr(&a, &b)).map_err(to_py)
 }
 
 /// SSIM of two `[height, width, 3]` f32 images (the official evaluation's).
 #[pyfunction]
-fn ssim(py: Python<'_>, a: &[u8], b: &[u8], width: usize, height: usize) -> PyResult<f64> {
+fn ssim(py: Python<'_>, a: &[u8], b: &[u8], width: i64, height: i64) -> PyResult<f64> {
     let (a, b) = (image_of("a", a, width, height)?, image_of("b", b, width, height)?);
     py.detach(|| raypatch::metrics::ssim(&a, &b)).map_err(to_py)
 }
 
 /// FG-ARI of slot weights `[pixels, slots]` f32 against object ids `[pixels]` u32 (0: background).
 #[pyfunction]
-fn fg_ari(true_ids: &[u8], weights: &[u8], pixels: usize, slots: usize) -> PyResult<f64> {
+fn fg_ari(true_ids: &[u8], weights: &[u8], pixels: i64, slots: i64) -> PyResult<f64> {
+    let (pixels, slots) = (unsigned("pixels", pixels)?, unsigned("slots", slots)?);
     let ids = u32s("true_ids", true_ids, pixels)?;
-    let weights = f32s("weights", weights, pixels * slots)?;
+    let values = pixels.checked_mul(slots).ok_or_else(|| input_error(format!("weights: {pixels} x {slots} values")))?;
+    let weights = f32s("weights", weights, values)?;
     raypatch::metrics::fg_ari(&ids, &weights, slots).map_err(to_py)
 }
 
 /// Abs.Rel, Sq.Rel, RMSE and the pixel count of predicted depth against ground truth (`[pixels]` f32 each).
 #[pyfunction]
-fn depth_errors(predicted: &[u8], truth: &[u8], pixels: usize) -> PyResult<(f64, f64, f64, usize)> {
+fn depth_errors(predicted: &[u8], truth: &[u8], pixels: i64) -> PyResult<(f64, f64, f64, usize)> {
+    let pixels = unsigned("pixels", pixels)?;
     let e = raypatch::metrics::depth_errors(&f32s("predicted", predicted, pixels)?, &f32s("truth", truth, pixels)?)
         .map_err(to_py)?;
     Ok((e.abs_rel, e.sq_rel, e.rmse, e.pixels))
 }
 
+/// `count` images of `width` x `height` pixels checked against the engine's limits (each image's size, the
+/// views of a scene and their pixels) before anything is converted or allocated for them: (count, width,
+/// height), whose products cannot overflow.
+fn image_sizes(what: &str, count: i64, width: i64, height: i64) -> PyResult<(usize, usize, usize)> {
+    use raypatch::raypatch_model::views::MAX_VIEWS;
+    let (count, width, height) = (unsigned("images", count)?, unsigned("width", width)?, unsigned("height", height)?);
+    if count > MAX_VIEWS {
+        return Err(input_error(format!("{what}: {count} views; a scene may have at most {MAX_VIEWS}")));
+    }
+    raypatch::check_image_size(width, height).map_err(|reason| input_error(format!("{what}: {reason}")))?;
+    let most = raypatch::MAX_SCENE_PIXELS;
+    if count * width * height > most {
+        return Err(input_error(format!("{what}: {count} images of {width}x{height}; a scene holds at most {most} pixels")));
+    }
+    Ok((count, width, height))
+}
+
+/// [`image_sizes`] for the package, to check arrays before converting them.
+#[pyfunction]
+fn check_images(what: &str, count: i64, width: i64, height: i64) -> PyResult<()> {
+    image_sizes(what, count, width, height).map(|_| ())
+}
+
 /// Writes a `[height, width, 3]` f32 image in [0, 1] as a PNG (written beside, then renamed into place).
 #[pyfunction]
-fn save_png(py: Python<'_>, rgb: &[u8], width: usize, height: usize, path: PathBuf) -> PyResult<()> {
+fn save_png(py: Python<'_>, rgb: &[u8], width: i64, height: i64, path: PathBuf) -> PyResult<()> {
     let image = image_of("rgb", rgb, width, height)?;
     py.detach(|| image.save_png(&path)).map_err(to_py)
 }
@@ -533,6 +578,10 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EngineClosed", py.get_type::<EngineClosed>())?;
     m.add("BUNDLED_MODELS", BUNDLED_MODELS.iter().map(|(n, _)| *n).collect::<Vec<_>>())?;
     m.add("BUNDLED_SCENES", BUNDLED_SCENES.iter().map(|(n, _)| *n).collect::<Vec<_>>())?;
+    // The engine's limits, for the package to check arrays against before converting them.
+    m.add("MAX_SCENE_PIXELS", raypatch::MAX_SCENE_PIXELS)?;
+    // How much of a value a message quotes, for the package's own messages to quote alike.
+    m.add("MAX_QUOTED_CHARS", MAX_QUOTED_CHARS)?;
     m.add_class::<Engine>()?;
     m.add_class::<Model>()?;
     m.add_class::<SceneFile>()?;
@@ -542,6 +591,7 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fg_ari, m)?)?;
     m.add_function(wrap_pyfunction!(depth_errors, m)?)?;
     m.add_function(wrap_pyfunction!(save_png, m)?)?;
+    m.add_function(wrap_pyfunction!(check_images, m)?)?;
     m.add_function(wrap_pyfunction!(paths::motion_cameras, m)?)?;
     m.add_function(wrap_pyfunction!(paths::interpolate_cameras, m)?)?;
     m.add_function(wrap_pyfunction!(paths::scene_centre, m)?)?;

@@ -6,24 +6,33 @@ use std::path::PathBuf;
 
 use glam::{DMat4, DVec3};
 use pyo3::prelude::*;
+use raypatch::raypatch_model::error::Quoted;
 use raypatch::{Camera, CameraAxes, Intrinsics, Motion, MotionOptions};
 
-use crate::{input_error, to_py};
+use crate::{input_error, to_py, unsigned};
 
-/// A pinhole camera across the binding: the pose row-major with OpenCV axes, and (fx, fy, cx, cy, w, h).
-pub type Pinhole = ([f64; 16], (f64, f64, f64, f64, usize, usize));
+/// A pinhole camera's (fx, fy, cx, cy, width, height) across the binding (signed: see [`unsigned`]).
+pub type PinholeK = (f64, f64, f64, f64, i64, i64);
+/// A pinhole camera across the binding: the pose row-major with OpenCV axes, and its [`PinholeK`].
+pub type Pinhole = ([f64; 16], PinholeK);
 
 pub fn to_tuple((k, pose): (Intrinsics, DMat4)) -> Pinhole {
-    (pose.transpose().to_cols_array(), (k.fx, k.fy, k.cx, k.cy, k.width, k.height))
+    // Sizes of cameras the engine made: within MAX_IMAGE_SIDE, far from i64's limit.
+    (pose.transpose().to_cols_array(), (k.fx, k.fy, k.cx, k.cy, k.width as i64, k.height as i64))
 }
 
-fn from_tuple((pose, (fx, fy, cx, cy, width, height)): Pinhole) -> (Intrinsics, DMat4) {
-    (Intrinsics { width, height, fx, fy, cx, cy }, DMat4::from_cols_array(&pose).transpose())
+/// The intrinsics of a [`PinholeK`].
+pub fn intrinsics_of((fx, fy, cx, cy, width, height): PinholeK) -> PyResult<Intrinsics> {
+    Ok(Intrinsics { width: unsigned("width", width)?, height: unsigned("height", height)?, fx, fy, cx, cy })
+}
+
+fn from_tuple((pose, k): Pinhole) -> PyResult<(Intrinsics, DMat4)> {
+    Ok((intrinsics_of(k)?, DMat4::from_cols_array(&pose).transpose()))
 }
 
 /// A pinhole tuple as a camera.
 pub fn camera_of(camera: Pinhole) -> PyResult<Camera> {
-    let (k, pose) = from_tuple(camera);
+    let (k, pose) = from_tuple(camera)?;
     Camera::pinhole(k, pose, CameraAxes::OpenCv).map_err(to_py)
 }
 
@@ -35,6 +44,15 @@ fn poses(poses: Vec<[f64; 16]>) -> Vec<DMat4> {
     poses.iter().map(|p| DMat4::from_cols_array(p).transpose()).collect()
 }
 
+/// A path's frame count: 1 to MAX_PATH_FRAMES.
+fn frame_count(frames: i64) -> PyResult<usize> {
+    let most = raypatch::MAX_PATH_FRAMES;
+    match unsigned("frames", frames)? {
+        n if n == 0 || n > most => Err(input_error(format!("frames {n}: expected 1 to {most}"))),
+        n => Ok(n),
+    }
+}
+
 /// The cameras of a motion preset from `start` (see raypatch::motion_path).
 #[pyfunction]
 #[pyo3(signature = (motion, start, frames, centre, up, elevation=None, radius=None, fade=false))]
@@ -42,7 +60,7 @@ fn poses(poses: Vec<[f64; 16]>) -> Vec<DMat4> {
 pub fn motion_cameras(
     motion: &str,
     start: Pinhole,
-    frames: usize,
+    frames: i64,
     centre: [f64; 3],
     up: [f64; 3],
     elevation: Option<f64>,
@@ -51,10 +69,8 @@ pub fn motion_cameras(
 ) -> PyResult<Vec<Pinhole>> {
     let names: Vec<&str> = Motion::ALL.iter().map(|m| m.name()).collect();
     let motion = Motion::from_name(motion)
-        .ok_or_else(|| input_error(format!("motion {motion:?}: expected one of {}", names.join(", "))))?;
-    if frames == 0 || frames > raypatch::MAX_PATH_FRAMES {
-        return Err(input_error(format!("frames {frames}: expected 1 to {}", raypatch::MAX_PATH_FRAMES)));
-    }
+        .ok_or_else(|| input_error(format!("motion {:?}: expected one of {}", Quoted(motion), names.join(", "))))?;
+    let frames = frame_count(frames)?;
     if let Some(e) = elevation.filter(|e| !(-90.0..=90.0).contains(e)) {
         return Err(input_error(format!("elevation {e}: expected degrees from -90 to 90")));
     }
@@ -63,16 +79,14 @@ pub fn motion_cameras(
         return Err(input_error(format!("centre {centre} and up {up}: expected finite points, a non-zero up")));
     }
     let options = MotionOptions { frames, centre, up, elevation, radius, fade };
-    Ok(tuples(raypatch::motion_path(motion, from_tuple(start), &options).map_err(to_py)?))
+    Ok(tuples(raypatch::motion_path(motion, from_tuple(start)?, &options).map_err(to_py)?))
 }
 
 /// `frames` cameras along a smooth path through the key cameras (see raypatch::interpolate).
 #[pyfunction]
-pub fn interpolate_cameras(keys: Vec<Pinhole>, frames: usize) -> PyResult<Vec<Pinhole>> {
-    if frames == 0 || frames > raypatch::MAX_PATH_FRAMES {
-        return Err(input_error(format!("frames {frames}: expected 1 to {}", raypatch::MAX_PATH_FRAMES)));
-    }
-    let keys: Vec<(Intrinsics, DMat4)> = keys.into_iter().map(from_tuple).collect();
+pub fn interpolate_cameras(keys: Vec<Pinhole>, frames: i64) -> PyResult<Vec<Pinhole>> {
+    let frames = frame_count(frames)?;
+    let keys: Vec<(Intrinsics, DMat4)> = keys.into_iter().map(from_tuple).collect::<PyResult<_>>()?;
     Ok(tuples(raypatch::interpolate(&keys, frames).map_err(to_py)?))
 }
 

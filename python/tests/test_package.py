@@ -159,7 +159,7 @@ def test_opencv_poses_are_opengl_poses_flipped(posed_scene):
 
 @pytest.mark.parametrize("bad, message", [
     (lambda m, i, p, k: m.encode(i.astype(np.int64), p, k), "dtype int64"),
-    (lambda m, i, p, k: m.encode(i, np.abs(p).astype(np.uint8), k), "poses: dtype uint8"),
+    (lambda m, i, p, k: m.encode(i, p.astype(bool), k), "poses: dtype bool"),
     (lambda m, i, p, k: m.encode(i[..., :2], p, k), "shape"),
     (lambda m, i, p, k: m.encode(np.where(i > 0.5, np.nan, i), p, k), "NaN"),
     (lambda m, i, p, k: m.encode(i * 2, p, k), "[0, 1]"),
