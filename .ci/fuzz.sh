@@ -15,7 +15,7 @@ command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked --quiet
 # A scratch corpus per target: the committed inputs and the golden files (new finds stay in target/).
 work=target/fuzz-corpus
 rm -rf "$work"
-for t in safetensors_file model_file scene_file frames_folder; do
+for t in safetensors_file model_file scene_file frames_folder checkpoint_file checkpoint_pickle; do
     mkdir -p "$work/$t"
     cp fuzz/corpus/"$t"/* "$work/$t"/ 2>/dev/null || true
 done
@@ -28,7 +28,7 @@ for f in assets/golden/*/*.safetensors; do
     esac
 done
 
-for t in safetensors_file model_file scene_file frames_folder; do
+for t in safetensors_file model_file scene_file frames_folder checkpoint_file checkpoint_pickle; do
     echo "fuzz: $t for ${seconds}s"
     # -rss_limit_mb: memory must stay bounded on any input; -timeout: no input may hang.
     status=0

@@ -18,6 +18,20 @@ pub fn model_file(data: &[u8]) -> bool {
         .is_ok_and(|loaded| raypatch_engine::models::build(&loaded, raypatch_engine::nn::ReadLimits::NONE).is_ok())
 }
 
+/// A Lightning checkpoint: the zip archive, its pickle, the tensors and config made into a model file, then
+/// the model checked as [`model_file`] checks it.
+pub fn checkpoint_file(data: &[u8]) -> bool {
+    raypatch_model::weights::model_from_bytes("fuzz.ckpt", data)
+        .is_ok_and(|loaded| raypatch_engine::models::build(&loaded, raypatch_engine::nn::ReadLimits::NONE).is_ok())
+}
+
+/// A checkpoint's pickle (`archive/data.pkl`) alone, where mutations are not stopped by the zip's CRCs: the
+/// interpreter, then the state_dict's tensor views and the config.
+pub fn checkpoint_pickle(data: &[u8]) -> bool {
+    use raypatch_model::checkpoint::{pickle, state_dict, torch};
+    pickle::interpret(data).is_ok_and(|p| state_dict(&p).is_ok() && torch::model_config(&p).is_ok())
+}
+
 /// A scene file: the layout, the scene tensors, and the cameras built from them.
 pub fn scene_file(data: &[u8]) -> bool {
     SceneData::from_bytes("fuzz.safetensors", data).is_ok()

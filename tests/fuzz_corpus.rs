@@ -9,11 +9,13 @@ use raypatch::fuzzing;
 
 type Target = fn(&[u8]) -> bool;
 
-const TARGETS: [(&str, Target); 4] = [
+const TARGETS: [(&str, Target); 6] = [
     ("safetensors_file", fuzzing::safetensors_file),
     ("model_file", fuzzing::model_file),
     ("scene_file", fuzzing::scene_file),
     ("frames_folder", fuzzing::frames_folder),
+    ("checkpoint_file", fuzzing::checkpoint_file),
+    ("checkpoint_pickle", fuzzing::checkpoint_pickle),
 ];
 
 fn root() -> &'static Path {
@@ -26,7 +28,12 @@ fn seeds(target: &str) -> Vec<PathBuf> {
     match target {
         "safetensors_file" | "model_file" => vec![golden("model.safetensors")],
         "scene_file" => vec![golden("scene.safetensors"), root().join("assets/scenes/scene-2000000.safetensors")],
-        _ => vec![root().join("fuzz/corpus/frames_folder/seed")],
+        // A Lightning checkpoint of the golden rpsrt_k4 model (tools/tests/test_checkpoint_reader.py's "views"
+        // variant), and its pickle.
+        "checkpoint_file" | "checkpoint_pickle" | "frames_folder" => {
+            vec![root().join("fuzz/corpus").join(target).join("seed")]
+        }
+        other => panic!("no seed for the fuzz target {other}"),
     }
 }
 

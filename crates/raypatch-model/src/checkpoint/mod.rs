@@ -97,7 +97,7 @@ pub fn convert<R: Read + Seek>(reader: R, len: u64, source: &str) -> Result<Vec<
 
 /// The kept tensors of the checkpoint's state_dict by name; an error names the first bad entry (and counts
 /// the others).
-fn state_dict(p: &pickle::Pickle) -> Result<BTreeMap<String, TensorView>, String> {
+pub fn state_dict(p: &pickle::Pickle) -> Result<BTreeMap<String, TensorView>, String> {
     let state_dict = p.get(p.root, "state_dict").filter(|&id| matches!(p.node(id), pickle::Node::Dict(_)));
     let state_dict = state_dict.ok_or("no state_dict (not a Lightning checkpoint?)")?;
     let mut tensors = BTreeMap::new();

@@ -1,0 +1,5 @@
+#![no_main]
+// See raypatch::fuzzing::checkpoint_pickle.
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    raypatch::fuzzing::checkpoint_pickle(data);
+});
