@@ -418,52 +418,32 @@ impl<'m> Scene<'m> {
         Ok(Rendered { region: frame.region, outputs: frame.outputs })
     }
 
-    /// Renders several cameras of one image size in one plan and one submit (the engine's T target views),
-    /// one [`Rendered`] per camera, in order: the same pixels as rendering each alone.
+    /// Renders several cameras of one image size, one [`Rendered`] per camera, in order: the same pixels as
+    /// rendering each alone. They render as many at once (one plan, one submit) as
+    /// [`views_per_batch`](Self::views_per_batch) allows, the batches one after another with the GPU kept
+    /// busy ([`render_path`](Self::render_path)).
     pub fn render_batch(&self, cameras: &[Camera], request: &Request) -> Result<Vec<Rendered>> {
-        let config = &self.inner.model().config;
         let Some(first) = cameras.first() else {
             return Ok(Vec::new());
         };
-        for camera in cameras {
-            check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
-            if (camera.width(), camera.height(), camera.pixels_per_ray())
-                != (first.width(), first.height(), first.pixels_per_ray())
-            {
-                return Err(Error::Camera(format!(
-                    "a batch renders cameras of one size: {}x{} after {}x{}",
-                    camera.width(),
-                    camera.height(),
-                    first.width(),
-                    first.height()
-                )));
-            }
-        }
-        let mut targets = self.target_views(first);
-        for camera in &cameras[1..] {
-            let more = self.target_views(camera);
-            targets.camera_pos.extend(more.camera_pos);
-            targets.rays.extend(more.rays);
-        }
-        targets.count = cameras.len();
-        let frame = self.inner.render(&targets, *request)?;
-        Ok((0..cameras.len())
-            .map(|v| Rendered {
-                region: frame.region,
-                outputs: (frame.outputs.iter())
-                    .map(|out| {
-                        let per_view = out.values.len() / cameras.len();
-                        let values = out.values[v * per_view..(v + 1) * per_view].to_vec();
-                        raypatch_engine::OutputValues { values, ..*out }
-                    })
-                    .collect(),
-            })
-            .collect())
+        let batch = self.views_per_batch(first, request, cameras.len())?;
+        self.render_path(cameras, request, batch).collect()
+    }
+
+    /// How many cameras like `camera` one render call takes at once, of `count` to render: as many as fit
+    /// [`BATCH_BUDGET_BYTES`] of planned GPU memory with no buffer over the adapter's limit, spread evenly over
+    /// the calls (so that the last is not much shorter: a path pads it).
+    pub fn views_per_batch(&self, camera: &Camera, request: &Request, count: usize) -> Result<usize> {
+        let fit = self.inner.views_within(&self.target_views(camera), *request, BATCH_BUDGET_BYTES)?;
+        let calls = count.div_ceil(fit.max(1)).max(1);
+        Ok(count.div_ceil(calls).max(1))
     }
 
     /// The frames of a camera path, rendered as they are taken: `batch` cameras per render call (one plan for
     /// the whole path: a last, shorter batch is filled up with its last camera and the extra frames dropped),
-    /// holding no more than one batch of frames. Every camera must have one image size.
+    /// holding no more than two batches of frames. Each batch goes to the GPU before the one before it is read
+    /// back, so the GPU renders while the host reads and makes rays. Every camera must have one image size; a
+    /// camera that cannot be rendered ends the path with its error after the batches before its own.
     ///
     /// ```
     /// use glam::DVec3;
@@ -478,8 +458,33 @@ impl<'m> Scene<'m> {
     /// assert_eq!(scene.cached_plans(), 1); // one plan of 2 views for both batches
     /// # Ok::<(), raypatch::Error>(())
     /// ```
-    pub fn render_path<'s>(&'s self, cameras: &'s [Camera], request: &Request, batch: usize) -> RenderPath<'s, 'm> {
-        RenderPath { scene: self, cameras, request: *request, batch: batch.max(1), next: 0, ready: Vec::new() }
+    pub fn render_path<'s>(&'s self, cameras: &'s [Camera], request: &Request, batch: usize) -> RenderPath<'s> {
+        let batch = batch.max(1);
+        // The first camera that cannot be rendered: the path stops before its batch.
+        let config = &self.inner.model().config;
+        let mut failure = None;
+        for (i, camera) in cameras.iter().enumerate() {
+            let size = |c: &Camera| (c.width(), c.height(), c.pixels_per_ray());
+            let checked = check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera");
+            let checked = checked.and_then(|_| match size(camera) == size(&cameras[0]) {
+                true => Ok(()),
+                false => Err(Error::Camera(format!(
+                    "a batch renders cameras of one size: {}x{} after {}x{}",
+                    camera.width(),
+                    camera.height(),
+                    cameras[0].width(),
+                    cameras[0].height()
+                ))),
+            });
+            if let Err(e) = checked {
+                failure = Some((i / batch * batch, e));
+                break;
+            }
+        }
+        let end = failure.as_ref().map_or(cameras.len(), |(end, _)| *end);
+        let batches = Batches { cameras, end, batch, kind: config.ray_kind(), next: 0 };
+        let renders = self.inner.render_sequence(batches, *request);
+        RenderPath { renders, cameras: &cameras[..end], batch, next: 0, ready: Vec::new(), failure }
     }
 
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
@@ -521,46 +526,95 @@ impl<'m> Scene<'m> {
     }
 }
 
-/// The frames of [`Scene::render_path`], in order; an error ends the path.
-pub struct RenderPath<'s, 'm> {
-    scene: &'s Scene<'m>,
+/// The planned GPU memory a batched render may take (see [`Scene::views_per_batch`]).
+pub use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
+
+/// `cameras` (one size) as one batch of the engine's render targets, with rays of `kind`.
+fn targets_of(cameras: &[Camera], kind: RayKind) -> raypatch_model::TargetViews {
+    let mut targets = cameras[0].target_views_of(kind);
+    targets.count = cameras.len();
+    targets.rays.reserve(targets.rays.len() * (cameras.len() - 1));
+    targets.camera_pos.reserve(3 * (cameras.len() - 1));
+    for camera in &cameras[1..] {
+        targets.camera_pos.extend(camera.position().as_vec3().to_array());
+        targets.rays.extend(camera.rays_of(kind).rays.iter().flat_map(|d| d.to_array()));
+    }
+    targets
+}
+
+/// A path's batches of render targets, made as the engine takes them: `batch` cameras each, the last filled
+/// up with its last camera when the path has more than one batch (so that every batch has one plan).
+struct Batches<'s> {
     cameras: &'s [Camera],
-    request: Request,
+    /// Cameras rendered: those before the first that cannot be.
+    end: usize,
     batch: usize,
+    kind: RayKind,
+    next: usize,
+}
+
+impl Iterator for Batches<'_> {
+    type Item = raypatch_model::TargetViews;
+
+    fn next(&mut self) -> Option<raypatch_model::TargetViews> {
+        if self.next >= self.end {
+            return None;
+        }
+        let stop = (self.next + self.batch).min(self.end);
+        let real = &self.cameras[self.next..stop];
+        self.next = stop;
+        if real.len() == self.batch || self.cameras.len() <= self.batch {
+            return Some(targets_of(real, self.kind));
+        }
+        let mut padded = real.to_vec();
+        padded.resize(self.batch, real[real.len() - 1].clone());
+        Some(targets_of(&padded, self.kind))
+    }
+}
+
+/// The frames of [`Scene::render_path`], in order; an error ends the path.
+pub struct RenderPath<'s> {
+    renders: raypatch_engine::Renders<'s, Batches<'s>>,
+    /// The cameras rendered (before the first that cannot be).
+    cameras: &'s [Camera],
+    batch: usize,
+    /// Frames handed out or waiting in `ready`.
     next: usize,
     /// The rest of the current batch, last frame first.
     ready: Vec<Rendered>,
+    /// The first camera that cannot be rendered, as (where the path stops, why).
+    failure: Option<(usize, Error)>,
 }
 
-impl Iterator for RenderPath<'_, '_> {
+impl Iterator for RenderPath<'_> {
     type Item = Result<Rendered>;
 
     fn next(&mut self) -> Option<Result<Rendered>> {
         if self.ready.is_empty() && self.next < self.cameras.len() {
-            let end = (self.next + self.batch).min(self.cameras.len());
-            let mut batch = self.cameras[self.next..end].to_vec();
-            let real = batch.len();
-            if self.cameras.len() > self.batch {
-                batch.resize(self.batch, batch[real - 1].clone());
-            }
-            self.next = end;
-            match self.scene.render_batch(&batch, &self.request) {
-                Ok(mut frames) => {
-                    frames.truncate(real);
-                    frames.reverse();
-                    self.ready = frames;
+            match self.renders.next().expect("a batch per camera left") {
+                Ok(frames) => {
+                    let real = self.batch.min(self.cameras.len() - self.next);
+                    self.next += real;
+                    self.ready = (frames.into_iter().take(real))
+                        .map(|f| Rendered { region: f.region, outputs: f.outputs })
+                        .rev()
+                        .collect();
                 }
                 Err(e) => {
                     self.next = self.cameras.len();
-                    return Some(Err(e));
+                    self.failure = None;
+                    return Some(Err(e.into()));
                 }
             }
         }
-        self.ready.pop().map(Ok)
+        match self.ready.pop() {
+            Some(frame) => Some(Ok(frame)),
+            None => self.failure.take().map(|(_, e)| Err(e)),
+        }
     }
 
     fn size_hint(&self) -> (usize, Option<usize>) {
-        let left = self.ready.len() + self.cameras.len() - self.next;
+        let left = self.ready.len() + self.cameras.len() - self.next + usize::from(self.failure.is_some());
         (left, Some(left))
     }
 }

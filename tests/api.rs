@@ -277,7 +277,7 @@ fn only_requested_outputs_are_computed() {
     let (rgb_only, rgb_out) = dispatches(&request(true, false));
     let (both, both_out) = dispatches(&request(true, true));
     let (depth_only, depth_out) = dispatches(&request(false, true));
-    assert_eq!(both, rgb_only + 1, "log-depth costs one dispatch");
+    assert_eq!(both, rgb_only + 2, "log-depth costs one dispatch and its readout");
     assert_eq!(depth_only, rgb_only, "dropping rgb drops the sigmoid");
     let has = |r: &Request, op: &str| labels(r).iter().any(|l| l == op);
     assert!(has(&request(true, false), "sigmoid") && !has(&request(true, false), "logdepth"));
@@ -688,8 +688,8 @@ fn osrt_renders_compute_only_the_requested_outputs() {
         assert_eq!(seg_labels.iter().any(|l| l == "segmentation"), ray_patch, "{case}: {seg_labels:?}");
         assert!(seg_only < rgb_only, "{case}: segmentation alone {seg_only} dispatches, rgb alone {rgb_only}");
         assert!(seg_out.rgb().is_none() && seg_out.outputs.len() == 1, "{case}");
-        // Both: OSRT's mixing weights are the segmentation itself; RP-OSRT adds their bilinear resize.
-        assert_eq!(both, rgb_only + u64::from(ray_patch), "{case}: rgb + segmentation dispatches");
+        // Both: OSRT's mixing weights are the segmentation itself (read out); RP-OSRT adds their bilinear resize.
+        assert_eq!(both, rgb_only + 1 + u64::from(ray_patch), "{case}: rgb + segmentation dispatches");
         assert_eq!(rgb_out.get(Output::Rgb), both_out.get(Output::Rgb), "{case}: rgb");
         assert_eq!(seg_out.get(Output::Segmentation), both_out.get(Output::Segmentation), "{case}: segmentation");
     }

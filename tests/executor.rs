@@ -2,7 +2,8 @@
 //! once; rendering again at the same size reuses the plan (no buffer, no pipeline, one submit); encoding
 //! another scene of the same size reuses the encode plan (one submit, only the scene's own tensors
 //! allocated) and leaves earlier scenes as they were; transient buffers are shared; the debug mode reads back
-//! every op.
+//! every op; a sequence of renders keeps one in flight with nothing allocated once it runs; views come apart as
+//! they are read; no NaN reaches a kernel, and one the kernels make is caught and its op named.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -108,4 +109,103 @@ fn debug_mode_reads_back_every_op() {
     assert_eq!((outputs[0].op.as_str(), outputs[0].tensor.as_str()), ("sigmoid", "y"));
     assert_eq!(outputs[0].data[0], 0.5);
     assert_eq!(outputs[1].data, outputs[0].data);
+}
+
+/// One view of a scene's targets, as its own batch.
+fn view(targets: &raypatch_model::TargetViews, v: usize) -> raypatch_model::TargetViews {
+    let per_view = targets.rays.len() / targets.count;
+    raypatch_model::TargetViews {
+        count: 1,
+        camera_pos: targets.camera_pos[3 * v..3 * v + 3].to_vec(),
+        rays: targets.rays[v * per_view..(v + 1) * per_view].to_vec(),
+        images: None,
+        masks: None,
+        ..targets.clone()
+    }
+}
+
+#[test]
+fn a_sequence_keeps_a_render_in_flight_and_allocates_nothing_after_its_second() {
+    let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
+    let model = Model::load(gpu.clone(), case("rpsrt_k4").join("model.safetensors")).unwrap();
+    let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let encoded = model.encode(&scene.inputs).unwrap();
+    let alone = encoded.render(&view(&scene.targets, 0), Outputs::default()).unwrap();
+    let batches = || (0..6).map(|_| view(&scene.targets, 0));
+    let mut frames = encoded.render_sequence(batches(), Outputs::default().into());
+    // The first two batches: the second goes to the GPU before the first is read, on a staging of its own.
+    for frame in frames.by_ref().take(2) {
+        assert_eq!(frame.unwrap()[0].get(Output::Rgb), alone.get(Output::Rgb));
+    }
+    let before = gpu.counters();
+    let rest: Vec<_> = frames.map(|f| f.unwrap().remove(0)).collect();
+    let after = gpu.counters();
+    assert_eq!(rest.len(), 4);
+    assert!(rest.iter().all(|f| f.get(Output::Rgb) == alone.get(Output::Rgb)), "a render in flight changed pixels");
+    assert_eq!(after.buffers_created, before.buffers_created, "renders in a sequence created buffers");
+    assert_eq!(after.bytes_allocated, before.bytes_allocated, "renders in a sequence allocated");
+    assert_eq!(after.submits, before.submits + 3, "a submit per render (the next was submitted already)");
+}
+
+#[test]
+fn views_come_apart_as_read_and_non_finite_inputs_never_reach_a_kernel() {
+    let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
+    let model = Model::load(gpu.clone(), case("rpsrt_k4").join("model.safetensors")).unwrap();
+    let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
+    let encoded = model.encode(&scene.inputs).unwrap();
+    let mut two = view(&scene.targets, 0);
+    two.count = 2;
+    two.camera_pos.extend_from_within(..);
+    two.rays.extend_from_within(..);
+    let joined = encoded.render(&two, Outputs::default()).unwrap();
+    let each = encoded.render_each(&two, Outputs::default()).unwrap();
+    let rgb = joined.get(Output::Rgb).unwrap();
+    assert_eq!(each.len(), 2);
+    assert_eq!([each[0].get(Output::Rgb).unwrap(), each[1].get(Output::Rgb).unwrap()].concat(), rgb);
+
+    two.rays[7] = f32::NAN;
+    let submits = gpu.counters().submits;
+    let err = encoded.render(&two, Outputs::default()).unwrap_err().to_string();
+    assert!(err.contains("target_rays") && err.contains("finite"), "{err}");
+    assert_eq!(gpu.counters().submits, submits, "a render with a NaN ray was submitted");
+}
+
+/// A render's readout: the window of each view, packed densely, and the flag raised by a NaN or an infinity
+/// inside the window only.
+#[test]
+fn the_readout_packs_the_window_and_flags_non_finite_values_in_it() {
+    use raypatch_engine::kernels::readout::{read_region, ReadoutArgs};
+    use raypatch_engine::plan::PlanBuilder;
+
+    let gpu = Gpu::new(&GpuOptions::default()).expect("no GPU adapter");
+    let (views, height, width, cols) = (2, 3, 4, 3);
+    let mut b = PlanBuilder::new();
+    let x = b.input("x", views * height * width, cols);
+    let out = b.output("out", (views * height * width * cols).div_ceil(4), 4);
+    let window = b.input("window", 1, 4);
+    let flag = b.output("flag", 1, 1);
+    let args = ReadoutArgs { x: b.all(x), views, height, width, out: b.all(out), window: b.all(window), flag: b.all(flag) };
+    read_region(&mut b, "readout", args);
+    let plan = b.build(&gpu).unwrap();
+    let run = |values: &[f32]| {
+        gpu.write(&plan.tensor(x), values);
+        // Rows 1..3 and columns 1..3 of each 3x4 view.
+        gpu.write(&plan.tensor(window), &[1u32, 1, 2, 2].map(f32::from_bits));
+        gpu.write(&plan.tensor(flag), &[0.0]);
+        plan.execute(&gpu);
+        let packed = gpu.read(&plan.tensor(out)).unwrap();
+        (packed, gpu.read(&plan.tensor(flag)).unwrap()[0].to_bits())
+    };
+    let mut values: Vec<f32> = (0..views * height * width * cols).map(|i| i as f32).collect();
+    let (packed, raised) = run(&values);
+    let pixel = |v: usize, r: usize, c: usize| ((v * height + r) * width + c) * cols;
+    let want: Vec<f32> = (0..views)
+        .flat_map(|v| (1..3).flat_map(move |r| (1..3).flat_map(move |c| (0..cols).map(move |j| (pixel(v, r, c) + j) as f32))))
+        .collect();
+    assert_eq!(&packed[..want.len()], &want[..]);
+    assert_eq!(raised, 0, "finite values raised the flag");
+    values[pixel(1, 0, 0)] = f32::NAN;
+    assert_eq!(run(&values).1, 0, "a NaN outside the window raised the flag");
+    values[pixel(1, 2, 1) + 2] = f32::INFINITY;
+    assert_eq!(run(&values).1, 1, "an infinity in the window did not raise the flag");
 }

@@ -14,7 +14,7 @@ use crate::panels::{frame_picture, widen_range, Panel};
 use crate::video::{FrameWriter, Mp4Mode};
 
 /// Frames a sequence renders per render call (one plan of this many target views): fewer submits and
-/// readbacks, and on GPUs fuller dispatches.
+/// readbacks, and on GPUs fuller dispatches; few enough that the first frames come soon.
 const SEQUENCE_BATCH: usize = 4;
 
 pub struct Sequence<'a> {
@@ -32,7 +32,9 @@ pub struct Sequence<'a> {
     pub progress: bool,
     /// Keep every frame's outputs (for --metrics and --out-raw).
     pub keep: bool,
-    /// Whether the shots are a sequence (a path, a motion, a turntable): batched and with a progress bar.
+    /// Whether the shots are a sequence (a path, a motion, a turntable): with a progress bar, and
+    /// [`SEQUENCE_BATCH`] frames per render call (views of one size go as many at once as fit the engine's
+    /// memory budget).
     pub batched: bool,
 }
 
@@ -47,16 +49,24 @@ pub struct Rendering<'a> {
     pub total: Duration,
     /// Each render's time, when frames are rendered one per call.
     pub each: Vec<Duration>,
+    /// Frames per render call.
+    pub batch: usize,
     pub writing: Writing<'a>,
 }
 
 impl Sequence<'_> {
-    pub fn batch(&self) -> usize {
+    /// Frames per render call: [`SEQUENCE_BATCH`] for a sequence; target views of one size as many as the
+    /// engine's memory budget allows (`Scene::views_per_batch`), each still its own frame.
+    pub fn batch(&self, scene: &Scene) -> Result<usize> {
         if self.batched {
-            SEQUENCE_BATCH
-        } else {
-            1
+            return Ok(SEQUENCE_BATCH);
         }
+        let size = |c: &Camera| (c.width(), c.height(), c.pixels_per_ray());
+        let first = &self.shots[0].camera;
+        if self.shots.len() == 1 || self.shots.iter().any(|s| size(&s.camera) != size(first)) {
+            return Ok(1);
+        }
+        Ok(scene.views_per_batch(first, &self.request, self.shots.len())?)
     }
 
     fn progress_bar(&self, what: &str) -> ProgressBar {
@@ -72,14 +82,14 @@ impl Sequence<'_> {
 
     /// The one depth range of the depth panels: --depth-range, else a first pass rendering only the depth of
     /// every frame (no colour is decoded, nothing is kept but the running minimum and maximum).
-    fn panel_depth_range(&self, scene: &Scene, cameras: &[Camera]) -> Result<Option<(f32, f32)>> {
+    fn panel_depth_range(&self, scene: &Scene, cameras: &[Camera], batch: usize) -> Result<Option<(f32, f32)>> {
         if !self.panels.contains(&Panel::Depth) || self.depth_range.is_some() {
             return Ok(self.depth_range);
         }
         let request = Request { outputs: Outputs::NONE.with(Output::Depth), ..self.request };
         let bar = self.progress_bar("depth range");
         let mut range = None;
-        for (i, frame) in scene.render_path(cameras, &request, self.batch()).enumerate() {
+        for (i, frame) in scene.render_path(cameras, &request, batch).enumerate() {
             let frame = frame.with_context(|| self.shots[i].label.clone())?;
             range = widen_range(range, frame.depth().expect("depth was requested"));
             bar.inc(1);
@@ -93,7 +103,8 @@ impl Sequence<'_> {
     /// Renders every shot, writing each frame's outputs as it comes.
     pub fn render<'d>(&self, scene: &Scene, destinations: &'d Destinations) -> Result<Rendering<'d>> {
         let cameras: Vec<Camera> = self.shots.iter().map(|s| s.camera.clone()).collect();
-        let panel_range = self.panel_depth_range(scene, &cameras)?;
+        let batch = self.batch(scene)?;
+        let panel_range = self.panel_depth_range(scene, &cameras, batch)?;
         let mut writing = destinations.files.begin()?;
         let mut writer = match &destinations.out {
             Some(OutDest::Video(path, format)) => {
@@ -106,7 +117,7 @@ impl Sequence<'_> {
         let (mut kept, mut each, mut region) = (Vec::new(), Vec::new(), None);
         let start = Instant::now();
         let mut first = Duration::ZERO;
-        let mut frames = scene.render_path(&cameras, &self.request, self.batch());
+        let mut frames = scene.render_path(&cameras, &self.request, batch);
         let mut i = 0;
         loop {
             let call = Instant::now();
@@ -145,9 +156,9 @@ impl Sequence<'_> {
         if let Some(path) = &destinations.raw {
             writing.create(path)?.write_all(&raw_bytes(&kept)?)?;
         }
-        if self.batched {
+        if batch > 1 {
             each.clear();
         }
-        Ok(Rendering { kept, frames: i, region: region.expect("at least one shot"), first, total, each, writing })
+        Ok(Rendering { kept, frames: i, region: region.expect("at least one shot"), first, total, each, batch, writing })
     }
 }

@@ -11,15 +11,20 @@ use std::sync::{Arc, Mutex};
 use raypatch_model::{InputViews, TargetGrid, TargetViews};
 
 use crate::error::{EngineError, Result};
-use crate::frame::{Crop, Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
+use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Request};
 use crate::gpu::storage_usage;
 use crate::graph::{Graph, HostInput, ImageSize};
 use crate::model::{EncodePlan, Model};
-use crate::plan::{Plan, PlanBuilder, TensorId};
+use crate::plan::{PlanBuilder, TensorId};
+use crate::render_io::{record_readouts, RenderIo, RenderPlan, Sink, Submitted};
 use crate::tensor::GpuTensor;
 
 /// Each op's label and wall time, in plan order (from the profiling entry points).
 pub type OpTimes = Vec<(String, std::time::Duration)>;
+
+/// The planned GPU memory one render of several views may take (see [`EncodedScene::views_within`]): the
+/// API's multi-view renders batch under it.
+pub const BATCH_BUDGET_BYTES: u64 = 2 << 30;
 
 /// A scene encoded by a model: the latent and the tensors its renders read (for SRT, each decoder layer's
 /// keys and values).
@@ -47,23 +52,6 @@ struct PlanKey {
     views: usize,
     grid: TargetGrid,
     outputs: Outputs,
-}
-
-/// A built render plan.
-struct RenderPlan {
-    plan: Plan,
-    io: RenderIo,
-    largest_tensor_bytes: u64,
-    /// Held from writing the inputs to reading the outputs: renders of one plan from several threads take
-    /// turns (they share its input and output buffers).
-    in_use: Mutex<()>,
-}
-
-/// What the host writes into and reads from a render plan, and how many decoder queries it runs.
-struct RenderIo {
-    host_inputs: Vec<(TensorId, HostInput)>,
-    outputs: Vec<(Output, TensorId)>,
-    queries: usize,
 }
 
 impl Model {
@@ -182,61 +170,68 @@ impl EncodedScene<'_> {
     /// region is rendered in row bands, each with the halo its pixels depend on, one plan and submit each,
     /// and stitched: the same pixels as one render.
     pub fn render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
-        let request = request.into();
-        let bands = self.plans(targets, &request)?;
-        let mut frames =
-            bands.iter().map(|(crop, plan)| self.render_band(targets, crop, plan)).collect::<Result<Vec<_>>>()?;
-        if frames.len() == 1 {
-            return Ok(frames.remove(0));
-        }
-        let first = &frames[0];
-        let region = Region { height: frames.iter().map(|f| f.height).sum(), ..first.region };
-        let outputs = first
-            .outputs
-            .iter()
-            .enumerate()
-            .map(|(i, out)| {
-                let mut values = Vec::with_capacity(targets.count * region.height * region.width * out.channels);
-                for v in 0..targets.count {
-                    for frame in &frames {
-                        let per_view = frame.height * frame.width * out.channels;
-                        values.extend_from_slice(&frame.outputs[i].values[v * per_view..(v + 1) * per_view]);
-                    }
-                }
-                OutputValues { values, ..*out }
-            })
-            .collect();
-        Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
+        let pending = self.submit(targets, &request.into())?;
+        Ok(self.finish(targets, pending, false)?.remove(0))
     }
 
-    /// Renders one crop with its plan.
-    fn render_band(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> Result<Frame> {
-        let _turn = plan.in_use.lock().expect("render plan poisoned");
-        self.upload_targets(targets, crop, plan);
-        let gpu = self.model.gpu();
-        let ids: Vec<TensorId> = plan.io.outputs.iter().map(|&(_, id)| id).collect();
-        let read = plan.plan.execute_and_read(gpu, &[], &ids)?;
-        let mut outputs = Vec::with_capacity(plan.io.outputs.len());
-        for (&(output, id), values) in plan.io.outputs.iter().zip(read) {
-            plan.plan.check_finite(gpu, "render", &values)?;
-            let channels = plan.plan.tensor(id).cols;
-            outputs.push(OutputValues { output, channels, values: crop.cut(&values, targets.count, channels) });
-        }
-        let region = crop.region;
-        Ok(Frame { views: targets.count, height: region.height, width: region.width, region, outputs })
+    /// [`render`](Self::render), each view's outputs in a frame of its own (as read back: no copy splits them).
+    pub fn render_each(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<Frame>> {
+        let pending = self.submit(targets, &request.into())?;
+        self.finish(targets, pending, true)
     }
 
-    /// Writes the target cameras and the crop's rays into a render plan's inputs.
-    fn upload_targets(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) {
+    /// Renders a sequence of target batches, each as [`render_each`](Self::render_each), keeping the GPU busy:
+    /// a batch is submitted before the one before it is read back, so that the GPU renders while the host
+    /// reads (and makes the next batch's rays). Batches of one size share one plan.
+    pub fn render_sequence<I: Iterator<Item = TargetViews>>(&self, batches: I, request: Request) -> Renders<'_, I> {
+        Renders { scene: self, request, batches, pending: None }
+    }
+
+    /// Writes the inputs of every band of a render and submits them, without waiting for the GPU.
+    fn submit(&self, targets: &TargetViews, request: &Request) -> Result<Pending> {
+        let bands = self.plans(targets, request)?;
         let gpu = self.model.gpu();
-        let per_ray = if crop.image.rays_are_patches { self.model.family.patch_size() } else { 1 };
-        for (id, input) in &plan.io.host_inputs {
-            let tensor = plan.plan.tensor(*id);
-            match input {
-                HostInput::TargetCameraPos => gpu.write(&tensor, &targets.camera_pos),
-                HostInput::TargetRays => gpu.write(&tensor, &crop.rays(targets, per_ray)),
-                other => unreachable!("a render reads only target views, not {other:?}"),
+        let per_ray = self.per_ray(&bands[0].0);
+        let region = Region {
+            height: bands.iter().map(|(crop, _)| crop.region.height).sum(),
+            ..bands[0].0.region
+        };
+        let submitted =
+            bands.iter().map(|(crop, plan)| plan.submit(gpu, targets, crop, per_ray)).collect::<Result<Vec<_>>>()?;
+        Ok(Pending { submitted, region })
+    }
+
+    /// Waits for a submitted render and reads it: one frame of every view, or one per view.
+    fn finish(&self, targets: &TargetViews, pending: Pending, per_view: bool) -> Result<Vec<Frame>> {
+        let Pending { submitted, region } = pending;
+        let mut sink = Sink::new(submitted[0].plan(), targets.count, region, per_view);
+        for band in submitted {
+            let (plan, crop) = (band.plan().clone(), *band.crop());
+            if !band.finish(self.model.gpu(), &mut sink)? {
+                return Err(self.non_finite(targets, &crop, &plan));
             }
+        }
+        Ok(sink.frames())
+    }
+
+    /// Why a render came out NaN or infinite: its inputs written again and its plan run op by op to the first
+    /// op whose output is not finite.
+    fn non_finite(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> EngineError {
+        let gpu = self.model.gpu();
+        let _turn = plan.in_use.lock().expect("render plan poisoned");
+        let replayed = gpu.wait().and_then(|()| plan.write_inputs_directly(gpu, targets, crop, self.per_ray(crop)));
+        match replayed {
+            Ok(()) => plan.plan.non_finite(gpu, "render"),
+            Err(e) => e,
+        }
+    }
+
+    /// Pixels along each axis that one given ray covers: k for patch rays, else 1.
+    fn per_ray(&self, crop: &Crop) -> usize {
+        if crop.image.rays_are_patches {
+            self.model.family.patch_size()
+        } else {
+            1
         }
     }
 
@@ -245,7 +240,7 @@ impl EncodedScene<'_> {
         let mut times = OpTimes::new();
         for (crop, plan) in self.plans(targets, &request.into())? {
             let _turn = plan.in_use.lock().expect("render plan poisoned");
-            self.upload_targets(targets, &crop, &plan);
+            plan.write_inputs_directly(self.model.gpu(), targets, &crop, self.per_ray(&crop))?;
             times.extend(plan.plan.profile(self.model.gpu())?);
         }
         Ok(times)
@@ -261,6 +256,7 @@ impl EncodedScene<'_> {
             dispatches: 0,
             multiply_adds: 0,
             peak_bytes: 0,
+            staging_bytes: 0,
             largest_buffer_bytes: 0,
             bands: bands.len(),
         };
@@ -274,6 +270,7 @@ impl EncodedScene<'_> {
             if !distinct.contains(&crop.grid) {
                 distinct.push(crop.grid);
                 stats.peak_bytes += plan.plan.peak_bytes();
+                stats.staging_bytes += plan.staging_bytes();
             }
         }
         Ok(stats)
@@ -285,6 +282,21 @@ impl EncodedScene<'_> {
         let request = request.into();
         let crop = self.crop(targets, &request)?;
         Ok(self.record(targets.count, &crop, request.outputs).builder.multiply_adds())
+    }
+
+    /// How many views like `targets` one render may take at once within `budget` bytes of planned GPU memory
+    /// (its plan and a staging) and the adapter's buffer limit, as the recording of this render predicts them
+    /// (both grow with the views; recorded, not built: nothing is allocated); at least 1.
+    pub fn views_within(&self, targets: &TargetViews, request: impl Into<Request>, budget: u64) -> Result<usize> {
+        let request = request.into();
+        let crop = self.crop(targets, &request)?;
+        let builder = self.record(targets.count, &crop, request.outputs).builder;
+        let views = targets.count as u64;
+        // A staging holds the inputs and the outputs once more: at most the plan's own bytes again.
+        let per_view = (2 * builder.planned_bytes()).div_ceil(views).max(1);
+        let largest = builder.largest_tensor_bytes().div_ceil(views).max(1);
+        let fit = (budget / per_view).min(self.model.gpu().max_buffer_bytes / largest);
+        Ok(usize::try_from(fit).unwrap_or(usize::MAX).max(1))
     }
 
     /// Labels of the render plans' ops, in order (building the plans if needed).
@@ -422,23 +434,17 @@ impl EncodedScene<'_> {
         let model = self.model;
         let mut g = model.graph();
         let rendered = model.family.render(&mut g, &self.cached, views, crop.grid, outputs);
+        let (outputs, flag) = record_readouts(&mut g, views, (crop.grid.height, crop.grid.width), &rendered);
         let Graph { b, host_inputs, .. } = g;
         let k = model.family.patch_size();
         let queries = views * (crop.grid.height / k) * (crop.grid.width / k);
-        let outputs = rendered.iter().map(|(o, t)| (*o, t.id())).collect();
-        Recorded { builder: b, io: RenderIo { host_inputs, outputs, queries } }
+        Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
     }
 
     /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
     /// the same key first, that plan is kept and shared.
     fn build(&self, views: usize, grid: TargetGrid, outputs: Outputs, recorded: Recorded) -> Result<Arc<RenderPlan>> {
-        let largest_tensor_bytes = recorded.builder.largest_tensor_bytes();
-        let plan = Arc::new(RenderPlan {
-            plan: recorded.builder.build(self.model.gpu())?,
-            io: recorded.io,
-            largest_tensor_bytes,
-            in_use: Mutex::new(()),
-        });
+        let plan = Arc::new(RenderPlan::new(recorded.builder, recorded.io, self.model.gpu())?);
         let key = PlanKey { views, grid, outputs };
         let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
         Ok(plans.entry(key).or_insert(plan).clone())
@@ -449,4 +455,41 @@ impl EncodedScene<'_> {
 struct Recorded {
     builder: PlanBuilder,
     io: RenderIo,
+}
+
+/// The bands of a render, submitted and not read yet.
+struct Pending {
+    submitted: Vec<Submitted>,
+    /// The requested region (all bands together).
+    region: Region,
+}
+
+/// The renders of [`EncodedScene::render_sequence`]: each batch's frames, one per view, in order.
+pub struct Renders<'s, I> {
+    scene: &'s EncodedScene<'s>,
+    request: Request,
+    batches: I,
+    /// The next batch, submitted (or why it could not be).
+    pending: Option<Result<(TargetViews, Pending)>>,
+}
+
+impl<I: Iterator<Item = TargetViews>> Renders<'_, I> {
+    fn submit_next(&mut self) -> Option<Result<(TargetViews, Pending)>> {
+        let targets = self.batches.next()?;
+        Some(self.scene.submit(&targets, &self.request).map(|pending| (targets, pending)))
+    }
+}
+
+impl<I: Iterator<Item = TargetViews>> Iterator for Renders<'_, I> {
+    type Item = Result<Vec<Frame>>;
+
+    fn next(&mut self) -> Option<Result<Vec<Frame>>> {
+        let current = match self.pending.take() {
+            Some(pending) => pending,
+            None => self.submit_next()?,
+        };
+        // The next batch goes to the GPU before this one is read.
+        self.pending = self.submit_next();
+        Some(current.and_then(|(targets, pending)| self.scene.finish(&targets, pending, true)))
+    }
 }

@@ -200,6 +200,9 @@ pub struct RenderStats {
     pub multiply_adds: u64,
     /// Bytes the render's plans allocated (intermediates, inputs, outputs, params).
     pub peak_bytes: u64,
+    /// Bytes of one run's staging (the host-visible buffers its inputs and outputs go through), kept with
+    /// the plans: a render keeps one per run in flight.
+    pub staging_bytes: u64,
     /// Bytes of the largest tensor a plan binds as one buffer (at most `Gpu::max_buffer_bytes`).
     pub largest_buffer_bytes: u64,
     /// Row bands the render runs in: 1 unless a buffer of the whole render would exceed the GPU's limit.
@@ -220,40 +223,15 @@ pub(crate) struct Crop {
 }
 
 impl Crop {
-    /// The rays of the computed pixels; `per_ray` is the number of pixels along each axis one ray covers
-    /// (1 for full-resolution rays, k for patch rays).
-    pub fn rays<'t>(&self, targets: &'t TargetViews, per_ray: usize) -> std::borrow::Cow<'t, [f32]> {
-        if self.grid == self.image {
-            return targets.rays.as_slice().into();
-        }
+    /// The rays of the computed pixels, one 3-float slice each, view by view and row by row; `per_ray` is the
+    /// number of pixels along each axis one ray covers (1 for full-resolution rays, k for patch rays). Read in
+    /// place: nothing is copied.
+    pub fn ray_rows<'t>(&self, targets: &'t TargetViews, per_ray: usize) -> impl Iterator<Item = &'t [f32]> + 't {
         let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
         let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
         let (h, w) = (self.grid.height / per_ray, self.grid.width / per_ray);
-        cut_rows(&targets.rays, targets.count, (rh, rw, 3), (y0, x0), (h, w)).into()
+        (0..targets.count)
+            .flat_map(move |v| (y0..y0 + h).map(move |row| ((v * rh + row) * rw + x0) * 3))
+            .flat_map(move |start| targets.rays[start..start + w * 3].chunks_exact(3))
     }
-
-    /// The region's pixels out of a computed `[views, grid.height, grid.width, channels]` output.
-    pub fn cut(&self, computed: &[f32], views: usize, channels: usize) -> Vec<f32> {
-        let r = &self.region;
-        let size = (self.grid.height, self.grid.width, channels);
-        cut_rows(computed, views, size, (r.y - self.y0, r.x - self.x0), (r.height, r.width))
-    }
-}
-
-/// The `h`×`w` window at (row, column) `at` of each of `views` NHWC images of (height, width, channels).
-fn cut_rows(
-    data: &[f32],
-    views: usize,
-    (height, width, channels): (usize, usize, usize),
-    (y, x): (usize, usize),
-    (h, w): (usize, usize),
-) -> Vec<f32> {
-    let mut out = Vec::with_capacity(views * h * w * channels);
-    for v in 0..views {
-        for row in y..y + h {
-            let start = ((v * height + row) * width + x) * channels;
-            out.extend_from_slice(&data[start..start + w * channels]);
-        }
-    }
-    out
 }

@@ -7,10 +7,12 @@ use std::time::Instant;
 
 use crate::device::{KernelChoice, MatmulKernel};
 
+mod staging;
 mod timestamps;
 use crate::error::{EngineError, Result};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir, PipelineCacheStatus};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
+pub(crate) use staging::Staging;
 pub(crate) use timestamps::Timestamps;
 pub use timestamps::{GpuTimes, OpTime, TimestampMode};
 
@@ -83,6 +85,8 @@ pub struct GpuCounters {
     pub pipelines_compiled: AtomicU64,
     /// Nanoseconds spent compiling them (shader modules and compute pipelines).
     pub pipeline_compile_nanos: AtomicU64,
+    /// Buffers of every kind: plans' tensors, weights, scenes' tensors, and the staging buffers uploads and
+    /// readbacks go through.
     pub buffers_created: AtomicU64,
     /// Textures: plans' scratch textures and packed weights (`matmul_lanes`).
     pub textures_created: AtomicU64,
@@ -106,6 +110,10 @@ pub struct CounterSnapshot {
 /// A compiled pipeline's identity: shader, entry point, and its override constants' values (as bits).
 type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
 
+fn pipeline_key(shader: &Shader, entry: &'static str, constants: &[(&'static str, f64)]) -> PipelineKey {
+    (shader.name, entry, constants.iter().map(|&(name, value)| (name, value.to_bits())).collect())
+}
+
 pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
@@ -118,11 +126,15 @@ pub struct Gpu {
     /// Kernel variants plans record on this adapter.
     pub kernels: KernelChoice,
     pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
+    /// Each shader's module, parsed and validated once for all its entry points and constants.
+    modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
     /// The driver's cache of compiled pipelines, kept on disk between runs (written when dropped).
     pub(crate) pipeline_cache: DiskCache,
     /// Constant tensors (weights, scenes' keys and values) packed into textures for `matmul_lanes`, per
     /// tensor buffer (dropped after it).
     kept_textures: Mutex<Vec<KeptEntry>>,
+    /// The readback buffer of [`read`](Self::read) and encodes (renders keep their own with their plans).
+    readback: Mutex<Option<wgpu::Buffer>>,
     pub counters: GpuCounters,
     pub(crate) timestamps: Mutex<Timestamps>,
 }
@@ -227,8 +239,10 @@ impl Gpu {
             max_buffer_bytes,
             kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false, subgroups, shaped },
             pipelines: Mutex::new(HashMap::new()),
+            modules: Mutex::new(HashMap::new()),
             pipeline_cache,
             kept_textures: Mutex::new(Vec::new()),
+            readback: Mutex::new(None),
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
         })
@@ -247,43 +261,103 @@ impl Gpu {
         entry: &'static str,
         constants: &[(&'static str, f64)],
     ) -> Arc<wgpu::ComputePipeline> {
-        let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
-        let key = (shader.name, entry, constants.iter().map(|&(name, value)| (name, value.to_bits())).collect());
-        cache
-            .entry(key)
-            .or_insert_with(|| {
-                self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
-                let start = Instant::now();
-                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(shader.name),
-                    source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
-                });
-                let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: None,
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
-                    cache: self.pipeline_cache.wgpu(),
-                });
-                let nanos = start.elapsed().as_nanos().try_into().unwrap_or(u64::MAX);
-                self.counters.pipeline_compile_nanos.fetch_add(nanos, Ordering::Relaxed);
-                self.pipeline_cache.compiled();
-                Arc::new(pipeline)
-            })
-            .clone()
+        let key = pipeline_key(shader, entry, constants);
+        if let Some(pipeline) = self.pipelines.lock().expect("pipeline cache poisoned").get(&key) {
+            return pipeline.clone();
+        }
+        // Compiled outside the lock: other threads' pipelines compile meanwhile (a pipeline two threads ask
+        // for at once is compiled twice, and one kept).
+        let pipeline = Arc::new(self.compile(shader, entry, constants));
+        self.pipelines.lock().expect("pipeline cache poisoned").entry(key).or_insert(pipeline).clone()
     }
 
+    /// Compiles every pipeline of `wanted` not compiled yet, several at once (one thread per core, up to one
+    /// per pipeline): a plan's distinct pipelines before it is built, so that its first run does not compile
+    /// them one after another.
+    pub fn compile_pipelines<'a>(
+        &self,
+        wanted: impl IntoIterator<Item = (&'static Shader, &'static str, &'a [(&'static str, f64)])>,
+    ) {
+        let mut missing: Vec<(PipelineKey, &'static Shader, &'static str, &'a [(&'static str, f64)])> = Vec::new();
+        {
+            let cache = self.pipelines.lock().expect("pipeline cache poisoned");
+            for (shader, entry, constants) in wanted {
+                let key = pipeline_key(shader, entry, constants);
+                if !cache.contains_key(&key) && !missing.iter().any(|m| m.0 == key) {
+                    missing.push((key, shader, entry, constants));
+                }
+            }
+        }
+        if missing.len() < 2 {
+            return; // one is compiled where it is first asked for
+        }
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(missing.len());
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        std::thread::scope(|scope| {
+            for _ in 0..threads {
+                scope.spawn(|| loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some((key, shader, entry, constants)) = missing.get(i) else { break };
+                    let pipeline = Arc::new(self.compile(shader, entry, constants));
+                    self.pipelines.lock().expect("pipeline cache poisoned").entry(key.clone()).or_insert(pipeline);
+                });
+            }
+        });
+    }
+
+    /// `shader`'s module, made on first use.
+    fn module(&self, shader: &'static Shader) -> Arc<wgpu::ShaderModule> {
+        if let Some(module) = self.modules.lock().expect("module cache poisoned").get(shader.name) {
+            return module.clone();
+        }
+        let module = Arc::new(self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(shader.name),
+            source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
+        }));
+        self.modules.lock().expect("module cache poisoned").entry(shader.name).or_insert(module).clone()
+    }
+
+    /// Compiles one pipeline, counted in [`counters`](Self::counters) (the compile time of pipelines compiled at
+    /// once adds up: CPU time, not wall time).
+    fn compile(
+        &self,
+        shader: &'static Shader,
+        entry: &'static str,
+        constants: &[(&'static str, f64)],
+    ) -> wgpu::ComputePipeline {
+        self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
+        let start = Instant::now();
+        let module = self.module(shader);
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+            cache: self.pipeline_cache.wgpu(),
+        });
+        let nanos = start.elapsed().as_nanos().try_into().unwrap_or(u64::MAX);
+        self.counters.pipeline_compile_nanos.fetch_add(nanos, Ordering::Relaxed);
+        self.pipeline_cache.compiled();
+        pipeline
+    }
+
+    /// A buffer, counted in [`counters`](Self::counters) (staging buffers included).
     pub(crate) fn create_buffer(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.new_buffer(label, bytes, usage, false)
+    }
+
+    /// A buffer mapped for writing from the start.
+    pub(crate) fn create_buffer_mapped(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.new_buffer(label, bytes, usage, true)
+    }
+
+    fn new_buffer(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages, mapped: bool) -> wgpu::Buffer {
+        // wgpu rejects empty bindings; a 16-byte floor keeps zero-row tensors legal.
+        let size = bytes.max(16);
         self.counters.buffers_created.fetch_add(1, Ordering::Relaxed);
-        self.counters.bytes_allocated.fetch_add(bytes, Ordering::Relaxed);
-        self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            // wgpu rejects empty bindings; a 16-byte floor keeps zero-row tensors legal.
-            size: bytes.max(16),
-            usage,
-            mapped_at_creation: false,
-        })
+        self.counters.bytes_allocated.fetch_add(size, Ordering::Relaxed);
+        self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: mapped })
     }
 
     /// An rgba32float storage texture of at least `texels` texels, [`TEXTURE_WIDTH`] wide.
@@ -401,6 +475,12 @@ impl Gpu {
         }
     }
 
+    /// Submits `encoder`'s work (counted in [`counters`](Self::counters)).
+    pub(crate) fn submit(&self, encoder: wgpu::CommandEncoder) -> wgpu::SubmissionIndex {
+        self.counters.submits.fetch_add(1, Ordering::Relaxed);
+        self.queue.submit([encoder.finish()])
+    }
+
     /// Reads a tensor back as a row-major `[rows, cols]` matrix (row padding removed). Waits for the GPU.
     pub fn read(&self, tensor: &GpuTensor) -> Result<Vec<f32>> {
         self.read_rows(&tensor.buffer, 0, tensor.rows, tensor.cols)
@@ -422,14 +502,13 @@ impl Gpu {
     ) -> Result<Vec<Vec<f32>>> {
         let bytes = |part: &ReadPart| (part.rows * padded_cols(part.cols) * 4) as u64;
         let total: u64 = parts.iter().map(bytes).sum();
-        let staging = (total > 0).then(|| {
-            self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size: total,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        });
+        // One readback buffer for these reads (encodes, debugging), kept and grown as needed.
+        let mut kept = self.readback.lock().expect("readback buffer poisoned");
+        if total > 0 && kept.as_ref().is_none_or(|b| b.size() < total) {
+            let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+            *kept = Some(self.create_buffer("readback", total, usage));
+        }
+        let staging = kept.as_ref().filter(|_| total > 0);
         let mut at = 0;
         for part in parts {
             let ld = padded_cols(part.cols);
@@ -443,7 +522,7 @@ impl Gpu {
         let Some(staging) = staging else {
             return Ok(parts.iter().map(|_| Vec::new()).collect());
         };
-        let slice = staging.slice(..);
+        let slice = staging.slice(..total);
         self.map_for_reading(&slice, "a readback buffer")?;
         let mapped = slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
         let mut words: &[f32] = bytemuck::cast_slice(&mapped);

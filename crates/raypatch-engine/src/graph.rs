@@ -84,6 +84,10 @@ pub enum HostInput {
     TargetCameraPos,
     /// Target rays of the computed crop, one per pixel or per patch as the target grid gives them.
     TargetRays,
+    /// Where the requested region lies in the computed crop, as u32 words (`kernels::readout`).
+    ReadWindow,
+    /// Zeros: a flag the plan's ops raise.
+    Zeros,
 }
 
 /// A plan being recorded for one model.

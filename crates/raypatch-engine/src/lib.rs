@@ -17,11 +17,12 @@ pub mod models;
 pub mod nn;
 pub mod pipeline_cache;
 pub mod plan;
+mod render_io;
 pub mod tensor;
 pub mod weights;
 
 pub use device::MatmulKernel;
-pub use encoded::{EncodedScene, OpTimes};
+pub use encoded::{EncodedScene, OpTimes, Renders};
 pub use error::{EngineError, Result};
 pub use frame::{Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};

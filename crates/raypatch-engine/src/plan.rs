@@ -175,6 +175,13 @@ impl PlanBuilder {
     pub fn constant(&mut self, name: &str, tensor: &GpuTensor) -> TensorId {
         self.add(name, tensor.rows, tensor.cols, tensor.dtype, Storage::Constant(tensor.clone()))
     }
+    /// Makes an output a transient: for an output that only a later op of the plan reads (a render's readout
+    /// reads the region out of it), so that it shares the pooled buffers.
+    pub fn make_transient(&mut self, id: TensorId) {
+        let storage = &mut self.tensors[id.0].storage;
+        assert!(matches!(storage, Storage::Output), "only outputs become transients");
+        *storage = Storage::Transient;
+    }
     pub fn is_constant(&self, id: TensorId) -> bool {
         matches!(self.tensors[id.0].storage, Storage::Constant(_))
     }
@@ -235,6 +242,15 @@ impl PlanBuilder {
         self.ops.iter().map(|op| op.multiply_adds).sum()
     }
 
+    /// Bytes the plan would allocate when built (pooled intermediates, inputs, outputs, scratch textures; the
+    /// params aside), without building it: to size a render before committing memory to it.
+    pub fn planned_bytes(&self) -> u64 {
+        let (_, _, slot_bytes) = pool(&self.tensors, &self.ops);
+        let own = self.tensors.iter().filter(|t| matches!(t.storage, Storage::Input | Storage::Output));
+        let texels: usize = self.scratch_texels.iter().sum();
+        slot_bytes.iter().sum::<u64>() + own.map(TensorInfo::bytes).sum::<u64>() + texels as u64 * 16
+    }
+
     /// Bytes of the largest tensor the plan binds (what [`Gpu::check_binding_size`] must accept).
     pub fn largest_tensor_bytes(&self) -> u64 {
         self.tensors.iter().map(TensorInfo::bytes).max().unwrap_or(0)
@@ -248,48 +264,7 @@ impl PlanBuilder {
         let storage_align = gpu.limits.min_storage_buffer_offset_alignment as u64;
         let uniform_align = gpu.limits.min_uniform_buffer_offset_alignment as u64;
 
-        // Liveness of each transient: first and last op that binds it.
-        let mut live: Vec<Option<(usize, usize)>> = vec![None; tensors.len()];
-        for (i, op) in ops.iter().enumerate() {
-            for (view, _) in &op.bindings {
-                let span = live[view.id.0].get_or_insert((i, i));
-                span.1 = i;
-            }
-        }
-
-        // Pool transient buffers: walk the ops in order, give each tensor born at op i the best-fitting
-        // free slot (growing the largest free one if none fits), free tensors after their last op.
-        let mut slot_of: Vec<Option<usize>> = vec![None; tensors.len()];
-        let mut slot_bytes: Vec<u64> = Vec::new();
-        let mut slot_free: Vec<bool> = Vec::new();
-        for i in 0..ops.len() {
-            for (t, info) in tensors.iter().enumerate() {
-                if !matches!(info.storage, Storage::Transient) || live[t].map(|l| l.0) != Some(i) {
-                    continue;
-                }
-                let need = info.bytes();
-                let free = (0..slot_bytes.len()).filter(|&s| slot_free[s]);
-                let best_fit = free.clone().filter(|&s| slot_bytes[s] >= need).min_by_key(|&s| slot_bytes[s]);
-                let slot = match best_fit.or_else(|| free.max_by_key(|&s| slot_bytes[s])) {
-                    Some(s) => s,
-                    None => {
-                        slot_bytes.push(0);
-                        slot_free.push(true);
-                        slot_bytes.len() - 1
-                    }
-                };
-                slot_bytes[slot] = slot_bytes[slot].max(need);
-                slot_free[slot] = false;
-                slot_of[t] = Some(slot);
-            }
-            for (t, slot) in slot_of.iter().enumerate() {
-                if let (Some(s), Some((_, last))) = (slot, live[t]) {
-                    if last == i {
-                        slot_free[*s] = true;
-                    }
-                }
-            }
-        }
+        let (live, slot_of, slot_bytes) = pool(&tensors, &ops);
 
         for (t, info) in tensors.iter().enumerate() {
             gpu.check_binding_size(&info.name, info.bytes())?;
@@ -360,6 +335,7 @@ impl PlanBuilder {
             views.push(op_views);
         }
 
+        gpu.compile_pipelines(ops.iter().map(|op| (op.shader, op.entry, op.constants.as_slice())));
         let mut planned = Vec::with_capacity(ops.len());
         for ((op, &param_offset), op_views) in ops.iter().zip(&offsets).zip(&views) {
             let pipeline = gpu.pipeline(op.shader, op.entry, &op.constants);
@@ -420,6 +396,54 @@ impl PlanBuilder {
     }
 }
 
+/// Pools the transients of `ops`: walks the ops in order, gives each tensor born at op i the best-fitting free
+/// slot (growing the largest free one if none fits), and frees tensors after their last op. Returns each
+/// tensor's liveness (first and last op that binds it), each transient's slot and each slot's bytes.
+#[allow(clippy::type_complexity)]
+fn pool(tensors: &[TensorInfo], ops: &[Op]) -> (Vec<Option<(usize, usize)>>, Vec<Option<usize>>, Vec<u64>) {
+    // Liveness of each transient: first and last op that binds it.
+    let mut live: Vec<Option<(usize, usize)>> = vec![None; tensors.len()];
+    for (i, op) in ops.iter().enumerate() {
+        for (view, _) in &op.bindings {
+            let span = live[view.id.0].get_or_insert((i, i));
+            span.1 = i;
+        }
+    }
+
+    let mut slot_of: Vec<Option<usize>> = vec![None; tensors.len()];
+    let mut slot_bytes: Vec<u64> = Vec::new();
+    let mut slot_free: Vec<bool> = Vec::new();
+    for i in 0..ops.len() {
+        for (t, info) in tensors.iter().enumerate() {
+            if !matches!(info.storage, Storage::Transient) || live[t].map(|l| l.0) != Some(i) {
+                continue;
+            }
+            let need = info.bytes();
+            let free = (0..slot_bytes.len()).filter(|&s| slot_free[s]);
+            let best_fit = free.clone().filter(|&s| slot_bytes[s] >= need).min_by_key(|&s| slot_bytes[s]);
+            let slot = match best_fit.or_else(|| free.max_by_key(|&s| slot_bytes[s])) {
+                Some(s) => s,
+                None => {
+                    slot_bytes.push(0);
+                    slot_free.push(true);
+                    slot_bytes.len() - 1
+                }
+            };
+            slot_bytes[slot] = slot_bytes[slot].max(need);
+            slot_free[slot] = false;
+            slot_of[t] = Some(slot);
+        }
+        for (t, slot) in slot_of.iter().enumerate() {
+            if let (Some(s), Some((_, last))) = (slot, live[t]) {
+                if last == i {
+                    slot_free[*s] = true;
+                }
+            }
+        }
+    }
+    (live, slot_of, slot_bytes)
+}
+
 struct PlannedOp {
     label: String,
     shader: &'static str,
@@ -459,6 +483,17 @@ impl Plan {
 
     pub fn op_labels(&self) -> impl Iterator<Item = &str> {
         self.ops.iter().map(|o| o.label.as_str())
+    }
+
+    /// The buffer a tensor lives in (from its first byte).
+    pub(crate) fn buffer(&self, id: TensorId) -> &wgpu::Buffer {
+        &self.buffers[id.0]
+    }
+
+    /// Bytes of a tensor (rows padded).
+    pub(crate) fn tensor_bytes(&self, id: TensorId) -> u64 {
+        let (_, rows, cols, dtype) = self.infos[id.0];
+        (rows * dtype.row_bytes(cols)) as u64
     }
 
     /// The buffer of an input or output tensor, as a [`GpuTensor`] the host can write or read.

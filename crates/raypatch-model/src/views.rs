@@ -320,6 +320,19 @@ fn non_finite(values: &[f32], per_view: usize) -> Option<String> {
 }
 
 impl TargetViews {
+    /// Checks that every camera position and ray is finite. The engine checks as it uploads them (in the same
+    /// pass) and calls this only to name the value.
+    pub fn check_finite(&self, path: &str) -> Result<(), ModelError> {
+        let err = |key: &str, reason| Err(ModelError::Value { path: path.into(), key: key.into(), reason });
+        if let Some(reason) = non_finite(&self.camera_pos, 3) {
+            return err("target_camera_pos", reason);
+        }
+        if let Some(reason) = non_finite(&self.rays, self.rays.len() / self.count.max(1)) {
+            return err("target_rays", reason);
+        }
+        Ok(())
+    }
+
     /// The image size and ray resolution of these target views for a model (see [`grid`](Self::grid)).
     pub fn grid_for(&self, config: &ModelConfig, path: &str) -> Result<TargetGrid, ModelError> {
         self.grid(config.patch_size(), config.resizes_output(), path)
@@ -340,12 +353,6 @@ impl TargetViews {
                 self.rays.len(),
                 self.count
             )));
-        }
-        if let Some(reason) = non_finite(&self.camera_pos, 3) {
-            return Err(ModelError::Value { path: path.into(), key: "target_camera_pos".into(), reason });
-        }
-        if let Some(reason) = non_finite(&self.rays, per_view) {
-            return Err(err(reason));
         }
         if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
             return Err(err(format!(

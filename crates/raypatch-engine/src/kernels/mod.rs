@@ -73,6 +73,7 @@ pub mod norm;
 pub mod pack;
 pub mod pool;
 pub mod posenc;
+pub mod readout;
 pub mod resize;
 pub mod softmax;
 
@@ -299,6 +300,7 @@ shaders! {
         MIX = "mix" [] => mix::MixParams;
         CONCAT = "concat" [] => concat::ConcatParams;
         COPY = "copy" [] => copy::CopyParams;
+        READOUT = "readout" [] => readout::ReadoutParams;
         GRU = "gru" ["activation"] => gru::GruParams;
     }
     variants {

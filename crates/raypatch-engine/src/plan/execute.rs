@@ -30,6 +30,17 @@ impl Plan {
     /// at the pass's start and end, or also between every two ops.
     fn encode(&self, gpu: &Gpu, ops: &[PlannedOp]) -> wgpu::CommandEncoder {
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        self.encode_pass(gpu, &mut encoder, ops);
+        encoder
+    }
+
+    /// Records every op of the plan into `encoder` as one compute pass (timed as [`encode`](Self::encode)
+    /// says), for a caller that adds its own copies around it in the same submit.
+    pub(crate) fn encode_into(&self, gpu: &Gpu, encoder: &mut wgpu::CommandEncoder) {
+        self.encode_pass(gpu, encoder, &self.ops);
+    }
+
+    fn encode_pass(&self, gpu: &Gpu, encoder: &mut wgpu::CommandEncoder, ops: &[PlannedOp]) {
         let mut timestamps = gpu.timestamps.lock().expect("timestamps poisoned");
         let mode = timestamps.mode;
         let queries = match mode {
@@ -71,11 +82,10 @@ impl Plan {
                 }
                 _ => Vec::new(),
             };
-            timestamps.resolve(&mut encoder, queries, names);
+            timestamps.resolve(encoder, queries, names);
         }
         drop(timestamps);
         gpu.counters.dispatches.fetch_add(ops.len() as u64, Ordering::Relaxed);
-        encoder
     }
 
     /// Runs every op, then copies each `(tensor, into)` of `copies` into `into` (a buffer of the same size
@@ -170,8 +180,17 @@ impl Plan {
         if values.iter().all(|v| v.is_finite()) {
             return Ok(());
         }
-        let culprit = self.first_non_finite(gpu)?;
+        Err(self.non_finite(gpu, what))
+    }
+
+    /// The error of a run whose outputs were NaN or infinite: runs the ops one by one (on the inputs as they
+    /// are) to name the op where such values first appear.
+    pub fn non_finite(&self, gpu: &Gpu, what: &str) -> EngineError {
+        let culprit = match self.first_non_finite(gpu) {
+            Ok(culprit) => culprit,
+            Err(e) => return e,
+        };
         let (op, tensor) = culprit.map_or(("(not reproduced op by op)".into(), "?".into()), |o| (o.op, o.tensor));
-        Err(EngineError::NonFinite { what: what.to_string(), op, tensor })
+        EngineError::NonFinite { what: what.to_string(), op, tensor }
     }
 }
