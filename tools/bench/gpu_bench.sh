@@ -6,9 +6,9 @@
 #
 #     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
-# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to 20 minutes,
+# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to about 22 minutes,
 # more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 8
-# minutes; it took about 3 on an H200), `rpsrt srt families viewer` in another (limits 9 minutes; the sweeps time
+# minutes; it took about 3 on an H200), `rpsrt srt families viewer` in another (limits 10 minutes; the sweeps time
 # PyTorch eager and compiled at every size; a sweep cut short keeps the tables of the sizes it measured, and its
 # log has each configuration's line, PyTorch's times included), and `variants` in a third when device time
 # allows (limits 4.5 minutes)):
@@ -23,9 +23,12 @@
 #               (--no-subgroups: flash attention a query row per invocation): per op, the time the other variant
 #               would take, to decide which runs where (device.rs) from measurements
 #     rpsrt     the official RP-SRT k=8 at every size, one view and 8 and 32 at once, the per-kernel breakdown,
-#               PyTorch CUDA eager and torch.compile on the same weights and inputs
-#     srt       the official SRT (k=1) likewise
-#     families  the official RP-OSRT k=8 and RP-DeFiNe k=16 likewise
+#               PyTorch CUDA eager and torch.compile on the same weights and inputs; every row has the wall time,
+#               the GPU time and the host's (wall − GPU) side by side (tables.md, results.csv), and beside each
+#               8- and 32-view batched call the same views rendered as `render-frame --view all` renders them
+#               (a frame per view, batched under the memory budget; tables.md "Several views")
+#     srt       the official SRT (k=1) likewise (one view)
+#     families  the official RP-OSRT k=8 and RP-DeFiNe k=16 likewise, one view and 8 and 32 at once
 #     viewer    the live viewer's frames per second (render-frame --serve and tools/bench/viewer_fps.py)
 # OUT_DIR gets two files, rewritten as each step finishes (a run cut short still returns what it did):
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
@@ -181,7 +184,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 ;;
             rpsrt) sweep rpsrt 240 25 --only official:8 --views 8,32 ;;
             srt) sweep srt 120 0 --only official:1 ;;
-            families) sweep families 150 25 --only official-osrt:8 --only official-define:16 ;;
+            families) sweep families 210 25 --only official-osrt:8 --only official-define:16 --views 8,32 ;;
             viewer) viewer ;;
         esac
         save

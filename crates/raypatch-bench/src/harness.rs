@@ -419,10 +419,16 @@ impl Bench {
         let stats = s.encoded.render_stats(targets, request)?;
         (record.render_peak_bytes, record.dispatches, record.queries) =
             (Some(stats.peak_bytes), Some(stats.dispatches), stats.queries);
+        record.render_staging_bytes = Some(stats.staging_bytes);
         record.render_gflop = flops::gflop(stats.multiply_adds);
-        // The first render was the warm-up (it built the plan).
+        // The first render was the warm-up (it built the plan): what later renders allocate is counted.
         let repeats = Repeats { warmup: 0, ..self.repeats };
+        let before = self.gpu.counters();
         let (wall, mut gpu) = measure::repeat(repeats, || self.render_sample(&s.encoded, targets, request))?;
+        let after = self.gpu.counters();
+        let runs = wall.runs as f64;
+        record.render_buffers_per_run = Some((after.buffers_created - before.buffers_created) as f64 / runs);
+        record.render_bytes_per_run = Some((after.bytes_allocated - before.bytes_allocated) as f64 / runs);
         if stats.bands > 1 {
             // Timestamps cover the last band's plan only: time the whole banded render by the wall clock.
             gpu = None;
@@ -579,6 +585,7 @@ impl Bench {
 
 /// Fills the render timing fields: GPU time when there is one, else wall time.
 fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
+    record.render_gpu_ms = gpu;
     let render = gpu.unwrap_or(wall);
     record.render_ms = Some(render);
     record.render_wall_ms = Some(wall);

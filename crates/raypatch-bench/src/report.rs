@@ -69,6 +69,20 @@ pub struct Record {
     pub render_ms: Option<Stats>,
     /// Host to host: uploads the target cameras, runs the plan, reads the image back.
     pub render_wall_ms: Option<Stats>,
+    /// The render's GPU time (timestamps around its plan), where measured: `render_ms` is this, else the wall
+    /// time. Absent in results from before it was kept apart.
+    #[serde(default)]
+    pub render_gpu_ms: Option<Stats>,
+    /// Buffers and bytes the engine allocated per render after the first (staging buffers included): 0 when
+    /// everything lives with the cached plan. Absent in results from before they were counted.
+    #[serde(default)]
+    pub render_buffers_per_run: Option<f64>,
+    #[serde(default)]
+    pub render_bytes_per_run: Option<f64>,
+    /// Bytes of a render's staging buffers (inputs and outputs on their way to and from the GPU), kept with
+    /// its plan beside `render_peak_bytes`.
+    #[serde(default)]
+    pub render_staging_bytes: Option<u64>,
     /// Frames per second of one target view, from the median `render_ms`.
     pub fps: Option<f64>,
     pub encode_peak_bytes: Option<u64>,
@@ -225,6 +239,21 @@ fn stats_text(s: Option<Stats>) -> String {
     s.map_or_else(|| "-".into(), |s| format!("{:.2} [{:.2}–{:.2}]", s.median_ms, s.min_ms, s.max_ms))
 }
 
+/// The render's GPU time, where timestamps measured it (`-` where the wall clock is the only timing).
+fn gpu_ms(r: &Record) -> Option<Stats> {
+    r.render_gpu_ms
+}
+
+/// The host's time per render: wall minus GPU (medians), where timestamps measured the GPU.
+pub fn host_ms(r: &Record) -> Option<f64> {
+    Some(r.render_wall_ms?.median_ms - gpu_ms(r)?.median_ms)
+}
+
+/// Wall time, GPU time and the host's share (wall − GPU) of a render, side by side.
+fn time_columns(r: &Record) -> [String; 3] {
+    [stats_text(r.render_wall_ms), gpu_ms(r).map_or("-".into(), |g| format!("{:.2}", g.median_ms)), opt(host_ms(r), 2)]
+}
+
 /// A Markdown table of `rows` under `header`, and a blank line, appended to `out`.
 pub fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
     *out += &format!("| {} |\n|{}\n", header.join(" | "), "---|".repeat(header.len()));
@@ -250,7 +279,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
         );
     }
     let timing = records.first().map_or("", |r| r.timing.as_str());
-    out += &format!("### Sweep (random weights; render time: {timing}, median [min–max] ms)\n\n");
+    out += &format!(
+        "### Sweep (random weights; wall time per render call, median [min–max] ms; GPU time: {timing}; host = wall − GPU; fps from the GPU time)\n\n"
+    );
     let sweep: Vec<&Record> = records.iter().filter(|r| r.group == "sweep").collect();
     table(
         &mut out,
@@ -260,7 +291,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             "k",
             "precision",
             "target",
-            "render ms",
+            "wall ms",
+            "GPU ms",
+            "host ms",
             "fps",
             "encode ms",
             "render peak",
@@ -273,13 +306,19 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
         sweep
             .iter()
             .map(|r| {
-                vec![
+                let mut row = vec![
                     r.model.clone(),
                     r.decoder.clone(),
                     r.k.to_string(),
                     r.precision.clone(),
                     format!("{}x{}", r.target_views, r.target_size),
-                    if r.render_ms.is_some() { stats_text(r.render_ms) } else { r.note.clone() },
+                ];
+                if r.render_wall_ms.is_some() {
+                    row.extend(time_columns(r));
+                } else {
+                    row.extend([r.note.clone(), "-".into(), "-".into()]);
+                }
+                row.extend([
                     opt(r.fps, 2),
                     opt(r.encode_ms.map(|e| e.median_ms), 1),
                     r.render_peak_bytes.map_or("-".into(), bytes),
@@ -288,10 +327,42 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                     sci(r.max_err_f64_model),
                     sci(r.max_err_pytorch),
                     speed_ratios(r),
-                ]
+                ]);
+                row
             })
             .collect(),
     );
+
+    let paths: Vec<&Record> = records.iter().filter(|r| r.group == "views").collect();
+    if !paths.is_empty() {
+        out += "### Several views: one batched call against a frame per view (`render-frame --view all`'s path: batches under the memory budget, each submitted before the last is read back); wall ms\n\n";
+        let rows = paths
+            .iter()
+            .map(|p| {
+                let batched = sweep.iter().find(|r| {
+                    (&r.model, r.k, &r.precision, r.target_views, &r.target_size)
+                        == (&p.model, p.k, &p.precision, p.target_views, &p.target_size)
+                });
+                let wall = |r: Option<&&Record>| r.and_then(|r| r.render_wall_ms).map(|w| w.median_ms);
+                vec![
+                    p.model.clone(),
+                    p.decoder.clone(),
+                    p.k.to_string(),
+                    format!("{}x{}", p.target_views, p.target_size),
+                    opt(wall(batched), 2),
+                    batched.map_or("-".into(), |b| opt(gpu_ms(b).map(|g| g.median_ms), 2)),
+                    stats_text(p.render_wall_ms),
+                    opt(wall(Some(p)).zip(wall(batched)).map(|(p, b)| p / b), 2),
+                    p.note.clone(),
+                ]
+            })
+            .collect();
+        table(
+            &mut out,
+            &["model", "decoder", "k", "target", "batched wall ms", "batched GPU ms", "frame per view wall ms", "ratio", "note"],
+            rows,
+        );
+    }
 
     out += "### Ray-Patch speed-up over the per-pixel decoder (SRT or OSRT; fps ratio, same model and target size)\n\n";
     let mut rows = Vec::new();
@@ -331,7 +402,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             "decoder",
             "k",
             "target",
-            "render ms",
+            "wall ms",
+            "GPU ms",
+            "host ms",
             "encode ms",
             "max err vs PyTorch",
             "vs f64 ref",
@@ -347,7 +420,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                     r.decoder.clone(),
                     r.k.to_string(),
                     format!("{}x{}", r.target_views, r.target_size),
-                    stats_text(r.render_ms),
+                    time_columns(r)[0].clone(),
+                    time_columns(r)[1].clone(),
+                    time_columns(r)[2].clone(),
                     opt(r.encode_ms.map(|e| e.median_ms), 2),
                     sci(r.max_err_pytorch),
                     sci(r.max_err_f64_reference),
@@ -368,7 +443,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                 "decoder",
                 "k",
                 "target",
-                "render ms",
+                "wall ms",
+                "GPU ms",
+                "host ms",
                 "fps",
                 "encode ms",
                 "render peak",
@@ -385,7 +462,9 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                         r.decoder.clone(),
                         r.k.to_string(),
                         format!("{}x{}", r.target_views, r.target_size),
-                        stats_text(r.render_ms),
+                        time_columns(r)[0].clone(),
+                        time_columns(r)[1].clone(),
+                        time_columns(r)[2].clone(),
                         opt(r.fps, 2),
                         opt(r.encode_ms.map(|e| e.median_ms), 1),
                         r.render_peak_bytes.map_or("-".into(), bytes),
@@ -469,6 +548,12 @@ pub fn print_row(r: &Record) {
     let mut compared = String::new();
     if let Some(wall) = r.render_wall_ms {
         compared += &format!("; wall {:.2} ms", wall.median_ms);
+    }
+    if let Some(host) = host_ms(r) {
+        compared += &format!(" (host {host:.2} ms)");
+    }
+    if let Some(buffers) = r.render_buffers_per_run.filter(|b| *b > 0.0) {
+        compared += &format!("; {buffers:.1} buffers allocated per render");
     }
     if r.pytorch_render_ms.is_some() || r.pytorch_compiled_render_ms.is_some() {
         compared += &format!(

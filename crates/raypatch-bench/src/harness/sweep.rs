@@ -4,15 +4,19 @@
 //! predicted too slow: a size's render is predicted from the multiply-adds its plan would record (recorded,
 //! not built) and the rate measured at the previous size.
 
+use std::time::Instant;
+
 use anyhow::Result;
-use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision};
+use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
+use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision, Request};
 use raypatch_model::TargetViews;
 
 use super::{
-    model_outputs, scene, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
-    QUICK_SIZES, SEED, SMALL_WIDTH,
+    model_outputs, scene, set_times, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE,
+    PATCH_SIZES, QUICK_SIZES, SEED, SMALL_WIDTH,
 };
-use crate::report::{KernelTime, Record};
+use crate::measure::{self, Repeats, Sample};
+use crate::report::{self, KernelTime, Record};
 use crate::synthetic;
 use crate::{flops, pytorch};
 
@@ -213,7 +217,10 @@ impl Bench {
                 continue;
             }
             match self.measure(s, &targets, None, self.torch_config(name, k, size)) {
-                Ok(record) => records.push(record),
+                Ok(record) => {
+                    records.push(record);
+                    records.push(self.views_path(s, &targets)?);
+                }
                 Err(e) if matches!(e.downcast_ref::<EngineError>(), Some(EngineError::TooLarge { .. })) => {
                     let mut record = self.record(s, count, size, "");
                     record.note = format!("does not fit: {e}");
@@ -224,6 +231,52 @@ impl Bench {
             s.encoded.clear_render_plans();
         }
         Ok(records)
+    }
+
+    /// The views of `targets` as `render-frame --view all` renders them: a frame per view, in batches under
+    /// the engine's memory budget, each submitted before the last is read back (its wall time beside the one
+    /// batched call `measure` timed).
+    fn views_path(&self, s: &Subject, targets: &TargetViews) -> Result<Record> {
+        let grid = targets.grid_for(&s.loaded.config, "target views")?;
+        let variant = "a frame per view, batched under the budget (render-frame --view all)";
+        let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
+        record.group = "views".into();
+        let request = Request::from(model_outputs(&s.loaded.config));
+        let per_view = targets.rays.len() / targets.count;
+        let view = |v: usize| TargetViews {
+            count: 1,
+            camera_pos: targets.camera_pos[3 * v..3 * v + 3].to_vec(),
+            rays: targets.rays[v * per_view..(v + 1) * per_view].to_vec(),
+            images: None,
+            masks: None,
+            ..targets.clone()
+        };
+        let fit = s.encoded.views_within(&view(0), request, BATCH_BUDGET_BYTES)?;
+        let batch = targets.count.div_ceil(targets.count.div_ceil(fit));
+        let batches = || {
+            (0..targets.count).step_by(batch).map(move |first| {
+                let mut views = view(first);
+                for v in first + 1..(first + batch).min(targets.count) {
+                    let more = view(v);
+                    views.camera_pos.extend(more.camera_pos);
+                    views.rays.extend(more.rays);
+                    views.count += 1;
+                }
+                views
+            })
+        };
+        let run = || -> Result<Sample> {
+            let start = Instant::now();
+            let frames: usize = s.encoded.render_sequence(batches(), request).map(|f| f.map(|f| f.len())).sum::<raypatch_engine::Result<usize>>()?;
+            anyhow::ensure!(frames == targets.count, "{frames} frames of {} views", targets.count);
+            Ok(Sample { wall: start.elapsed(), gpu: None })
+        };
+        run()?;
+        let (wall, _) = measure::repeat(Repeats { warmup: 0, ..self.repeats }, run)?;
+        set_times(&mut record, wall, None);
+        record.note = format!("{batch} views per render call");
+        report::print_row(&record);
+        Ok(record)
     }
 
     fn torch_config(&self, name: &str, k: usize, size: (usize, usize)) -> bool {
