@@ -184,7 +184,8 @@ fn the_readout_packs_the_window_and_flags_non_finite_values_in_it() {
     let out = b.output("out", (views * height * width * cols).div_ceil(4), 4);
     let window = b.input("window", 1, 4);
     let flag = b.output("flag", 1, 1);
-    let args = ReadoutArgs { x: b.all(x), views, height, width, out: b.all(out), window: b.all(window), flag: b.all(flag) };
+    let args =
+        ReadoutArgs { x: b.all(x), views, height, width, out: b.all(out), window: b.all(window), flag: b.all(flag) };
     read_region(&mut b, "readout", args);
     let plan = b.build(&gpu).unwrap();
     let run = |values: &[f32]| {
@@ -200,7 +201,9 @@ fn the_readout_packs_the_window_and_flags_non_finite_values_in_it() {
     let (packed, raised) = run(&values);
     let pixel = |v: usize, r: usize, c: usize| ((v * height + r) * width + c) * cols;
     let want: Vec<f32> = (0..views)
-        .flat_map(|v| (1..3).flat_map(move |r| (1..3).flat_map(move |c| (0..cols).map(move |j| (pixel(v, r, c) + j) as f32))))
+        .flat_map(|v| {
+            (1..3).flat_map(move |r| (1..3).flat_map(move |c| (0..cols).map(move |j| (pixel(v, r, c) + j) as f32)))
+        })
         .collect();
     assert_eq!(&packed[..want.len()], &want[..]);
     assert_eq!(raised, 0, "finite values raised the flag");

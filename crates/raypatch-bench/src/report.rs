@@ -359,7 +359,17 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             .collect();
         table(
             &mut out,
-            &["model", "decoder", "k", "target", "batched wall ms", "batched GPU ms", "frame per view wall ms", "ratio", "note"],
+            &[
+                "model",
+                "decoder",
+                "k",
+                "target",
+                "batched wall ms",
+                "batched GPU ms",
+                "frame per view wall ms",
+                "ratio",
+                "note",
+            ],
             rows,
         );
     }

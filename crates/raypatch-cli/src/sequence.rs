@@ -159,6 +159,15 @@ impl Sequence<'_> {
         if batch > 1 {
             each.clear();
         }
-        Ok(Rendering { kept, frames: i, region: region.expect("at least one shot"), first, total, each, batch, writing })
+        Ok(Rendering {
+            kept,
+            frames: i,
+            region: region.expect("at least one shot"),
+            first,
+            total,
+            each,
+            batch,
+            writing,
+        })
     }
 }

@@ -192,10 +192,7 @@ impl EncodedScene<'_> {
         let bands = self.plans(targets, request)?;
         let gpu = self.model.gpu();
         let per_ray = self.per_ray(&bands[0].0);
-        let region = Region {
-            height: bands.iter().map(|(crop, _)| crop.region.height).sum(),
-            ..bands[0].0.region
-        };
+        let region = Region { height: bands.iter().map(|(crop, _)| crop.region.height).sum(), ..bands[0].0.region };
         let submitted =
             bands.iter().map(|(crop, plan)| plan.submit(gpu, targets, crop, per_ray)).collect::<Result<Vec<_>>>()?;
         Ok(Pending { submitted, region })

@@ -357,7 +357,12 @@ impl Gpu {
         let size = bytes.max(16);
         self.counters.buffers_created.fetch_add(1, Ordering::Relaxed);
         self.counters.bytes_allocated.fetch_add(size, Ordering::Relaxed);
-        self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: mapped })
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: mapped,
+        })
     }
 
     /// An rgba32float storage texture of at least `texels` texels, [`TEXTURE_WIDTH`] wide.

@@ -55,7 +55,12 @@ pub(crate) struct Readout {
 
 /// Records the readout of each rendered output of `views` views of a `height`x`width` grid; the outputs
 /// become transients (only the readout reads them).
-pub(crate) fn record_readouts(g: &mut Graph, views: usize, (height, width): (usize, usize), rendered: &[(Output, Tensor)]) -> (Vec<Readout>, TensorId) {
+pub(crate) fn record_readouts(
+    g: &mut Graph,
+    views: usize,
+    (height, width): (usize, usize),
+    rendered: &[(Output, Tensor)],
+) -> (Vec<Readout>, TensorId) {
     let window = g.input("readout.window", 1, WINDOW_WORDS, HostInput::ReadWindow, None);
     let flag = g.input("readout.flag", 1, 1, HostInput::Zeros, None);
     let mut readouts = Vec::with_capacity(rendered.len());
@@ -63,7 +68,8 @@ pub(crate) fn record_readouts(g: &mut Graph, views: usize, (height, width): (usi
         assert_eq!(tensor.view.row_start, 0, "output {} is a view into a tensor", output.name());
         let channels = tensor.cols;
         let dense = g.output(&format!("{}.readout", output.name()), (views * height * width * channels).div_ceil(4), 4);
-        let args = ReadoutArgs { x: tensor.view, views, height, width, out: dense.view, window: window.view, flag: flag.view };
+        let args =
+            ReadoutArgs { x: tensor.view, views, height, width, out: dense.view, window: window.view, flag: flag.view };
         read_region(&mut g.b, &format!("readout.{}", output.name()), args);
         g.b.make_transient(tensor.id());
         readouts.push(Readout { output, channels, dense: dense.id() });
@@ -104,7 +110,13 @@ impl RenderPlan {
 
     /// Writes the inputs of `views` target views of `crop` (rays `per_ray` pixels apart) and submits the run
     /// with its copies in and out. Returns without waiting for the GPU.
-    pub(crate) fn submit(self: &Arc<Self>, gpu: &Gpu, targets: &TargetViews, crop: &Crop, per_ray: usize) -> Result<Submitted> {
+    pub(crate) fn submit(
+        self: &Arc<Self>,
+        gpu: &Gpu,
+        targets: &TargetViews,
+        crop: &Crop,
+        per_ray: usize,
+    ) -> Result<Submitted> {
         let staging = self.take_staging(gpu)?;
         if !self.write_inputs(&staging, targets, crop, per_ray)? {
             // Nothing was submitted; the staging, unmapped, is dropped. Name the value.
@@ -182,7 +194,13 @@ impl RenderPlan {
     }
 
     /// Writes the target views' inputs with [`Gpu::write`] (no staging): for running the plan op by op.
-    pub(crate) fn write_inputs_directly(&self, gpu: &Gpu, targets: &TargetViews, crop: &Crop, per_ray: usize) -> Result<()> {
+    pub(crate) fn write_inputs_directly(
+        &self,
+        gpu: &Gpu,
+        targets: &TargetViews,
+        crop: &Crop,
+        per_ray: usize,
+    ) -> Result<()> {
         targets.check_finite("target views")?;
         for (id, input) in &self.io.host_inputs {
             let tensor = self.plan.tensor(*id);
@@ -245,7 +263,10 @@ impl Sink {
     pub(crate) fn frames(self) -> Vec<Frame> {
         let Sink { per_view, views, region, values } = self;
         let views = if per_view { 1 } else { views };
-        values.into_iter().map(|outputs| Frame { views, height: region.height, width: region.width, region, outputs }).collect()
+        values
+            .into_iter()
+            .map(|outputs| Frame { views, height: region.height, width: region.width, region, outputs })
+            .collect()
     }
 }
 

@@ -12,8 +12,8 @@ use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision, 
 use raypatch_model::TargetViews;
 
 use super::{
-    model_outputs, scene, set_times, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE,
-    PATCH_SIZES, QUICK_SIZES, SEED, SMALL_WIDTH,
+    model_outputs, scene, set_times, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
+    QUICK_SIZES, SEED, SMALL_WIDTH,
 };
 use crate::measure::{self, Repeats, Sample};
 use crate::report::{self, KernelTime, Record};
@@ -267,7 +267,11 @@ impl Bench {
         };
         let run = || -> Result<Sample> {
             let start = Instant::now();
-            let frames: usize = s.encoded.render_sequence(batches(), request).map(|f| f.map(|f| f.len())).sum::<raypatch_engine::Result<usize>>()?;
+            let frames: usize = s
+                .encoded
+                .render_sequence(batches(), request)
+                .map(|f| f.map(|f| f.len()))
+                .sum::<raypatch_engine::Result<usize>>()?;
             anyhow::ensure!(frames == targets.count, "{frames} frames of {} views", targets.count);
             Ok(Sample { wall: start.elapsed(), gpu: None })
         };
