@@ -114,7 +114,7 @@ pub fn state_dict(p: &pickle::Pickle) -> Result<BTreeMap<String, TensorView>, St
             Ok(view) => {
                 tensors.insert(name.to_string(), view);
             }
-            Err(why) => problems.push(format!("state_dict entry {:?} {why}", crate::error::Quoted(name))),
+            Err(why) => problems.push(format!("state_dict entry {} {why}", pickle::quoted(name))),
         }
         if problems.len() >= MAX_PROBLEMS {
             break;

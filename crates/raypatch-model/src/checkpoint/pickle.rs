@@ -496,6 +496,16 @@ fn long(bytes: &[u8]) -> Node {
     Node::Int(i64::from_le_bytes(word))
 }
 
+/// A string as messages quote it: in quotes, escaped, only its first 80 characters when it is longer.
+pub fn quoted(s: &str) -> String {
+    const MAX_CHARS: usize = 80;
+    let count = s.chars().count();
+    if count <= MAX_CHARS {
+        return format!("{s:?}");
+    }
+    format!("{:?}... ({count} characters)", s.chars().take(MAX_CHARS).collect::<String>())
+}
+
 /// A value's kind in words, as messages name it (Python's names).
 pub fn kind(node: &Node) -> String {
     match node {
@@ -585,7 +595,7 @@ impl Pickle {
             Node::Int(v) => format!("int {v}"),
             Node::Float(v) => format!("float {v}"),
             Node::Bool(v) => format!("bool {}", if *v { "True" } else { "False" }),
-            Node::Str(s) => format!("str {:?}", crate::error::Quoted(s)),
+            Node::Str(s) => format!("str {}", quoted(s)),
             Node::List(items) | Node::Tuple(items) | Node::Set(items) => {
                 format!("{} of {} items", kind(self.node(id)), items.len())
             }
