@@ -246,8 +246,11 @@ fn twenty_clients_get_their_frames_and_floods_get_errors_without_memory_growing(
     for statuses in [&first, &second] {
         assert!(statuses.iter().all(|s| [200, 400, 409, 429, 503].contains(s)), "{statuses:?}");
         assert_eq!(statuses.iter().filter(|&&s| s == 400).count(), 16 * 90);
-        assert!(statuses.contains(&409) && statuses.contains(&429), "no replaced or rate-limited render: {statuses:?}");
+        assert!(statuses.contains(&429), "no rate-limited render: {statuses:?}");
     }
+    // Replaced renders: the first flood's come in a burst (the page id's bucket is full). The second's come at
+    // the bucket's refill, one per 1/60 s, and replace one another only when a render takes longer than that.
+    assert!(first.contains(&409), "no replaced render: {first:?}");
     assert!(after < before + (48 << 20), "memory grew from {before} to {after} bytes in a second flood");
     std::thread::sleep(Duration::from_millis(1100));
     let reply = get(address, "/render.png");

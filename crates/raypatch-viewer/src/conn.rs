@@ -264,22 +264,24 @@ impl Io {
     /// Responses the workers made, set to be written.
     fn take_answers(&mut self) {
         let answers = std::mem::take(&mut *lock(&self.mailbox.answers));
+        let mut outgoing: usize = self
+            .conns
+            .values()
+            .map(|c| match &c.stage {
+                Stage::Write { bytes, sent, .. } => bytes.len() - sent,
+                _ => 0,
+            })
+            .sum();
         for (id, bytes) in answers {
-            let outgoing: usize = self
-                .conns
-                .values()
-                .map(|c| match &c.stage {
-                    Stage::Write { bytes, sent, .. } => bytes.len() - sent,
-                    _ => 0,
-                })
-                .sum();
             let Some(conn) = self.conns.get_mut(&id) else { continue };
             let bytes = if outgoing + bytes.len() > MAX_OUTGOING_BYTES {
-                let busy = format!("server: over {MAX_OUTGOING_BYTES} bytes of responses waiting for slow clients; try again");
+                let mib = MAX_OUTGOING_BYTES >> 20;
+                let busy = format!("server: over {mib} MiB of responses waiting for slow clients; try again");
                 HttpError::new(503, busy).response().into_bytes()
             } else {
                 bytes
             };
+            outgoing += bytes.len();
             conn.respond(bytes, &self.limits);
             self.advance(id);
         }
