@@ -494,10 +494,11 @@ fn messages_quote_bounded_excerpts_of_huge_inputs() {
     });
     std::fs::write(d.join("path.json"), path.to_string()).unwrap();
     let long = "9,".repeat(50_000);
+    let views = format!("{}x", "0,".repeat(50_000));
     let cases: [(&[&str], &[&str]); 4] = [
         (&["--camera-path", "path.json", "--out", "x.mp4"], &["path.json", "camera_to_world", "characters)"]),
         (&["--region", &long], &["--region", "X,Y,W,H"]),
-        (&["--view", &long], &["--view", "characters)"]),
+        (&["--view", &views], &["--view", "\"x\" is not an index", "characters)"]),
         (&["--motion", "orbit", "--centre", &long], &["--centre", "X,Y,Z"]),
     ];
     for (args, expected) in cases {
