@@ -19,8 +19,12 @@ use raypatch::{
 const RAY_TOLERANCE: f32 = 1e-6;
 
 /// How far a render in row bands may differ from one render: the same ops on fewer rows, but on a GPU a layer's
-/// kernel and its K split follow its row count (`device::linear_variant`), so its sums may run in another order
-/// (an H200 measured 1.9e-6 and 2.9e-6); lavapipe's are the same sums. A wrong band or halo is off by far more.
+/// kernel and its K split follow its row count (`device::linear_variant`), so its sums may run in another order.
+/// Another order of a K-term f32 sum moves it by about √K·u·Σ|x·w| (u = 2^-24; ~2.4e-6 of Σ|x·w| at K = 1536),
+/// a few layers deep: 1e-5 of the output's magnitude. rgb is in [0, 1]: absolute (an H200 measured 1.9e-6 and
+/// 2.9e-6). Log-depth is the raw pre-sigmoid channel, unbounded, so relative to its largest magnitude, as the
+/// golden tests measure it (an H100 measured 1.48e-5 absolute on srt_k1_depth, whose log-depth reaches 7.26:
+/// 2.0e-6). lavapipe's are the same sums. A wrong band or halo is off by far more.
 const BAND_TOLERANCE: f32 = 1e-5;
 
 fn golden(case: &str) -> PathBuf {
@@ -490,8 +494,9 @@ fn renders_too_large_for_one_buffer_run_in_bands_with_the_same_pixels() {
             assert!(err <= BAND_TOLERANCE, "{case} {region:?}: banded rgb differs from one render by {err:e}");
             if let (Some(d), Some(full_d)) = (banded.logdepth(), full.logdepth()) {
                 let want = crop_map(full_d, camera.width(), region);
-                let err = max_diff(d, &want);
-                assert!(err <= BAND_TOLERANCE, "{case} {region:?}: log-depth differs by {err:e}");
+                let scale = want.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1.0);
+                let err = max_diff(d, &want) / scale;
+                assert!(err <= BAND_TOLERANCE, "{case} {region:?}: log-depth differs by {err:e} of its magnitude");
             }
         }
     }
