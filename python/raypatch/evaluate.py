@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import List
 
 from . import Engine, Error, InputError, Model, depth_errors, fg_ari, load_scene, psnr, ssim
+from ._text import path_text
+from .output import Staged, check_output_path
 
 # Columns of the results table, in order; a family's metrics that do not apply are left out.
 COLUMNS = ("scene", "view", "psnr", "ssim", "fg_ari", "abs_rel", "sq_rel", "rmse", "depth_pixels")
@@ -27,7 +29,7 @@ def scene_paths(scenes: str) -> List[str]:
     else:
         found = sorted(glob.glob(scenes))
     if not found:
-        raise InputError(f"--scenes {scenes}: no scene file (*.safetensors) or frames folder (transforms.json) there")
+        raise InputError(f"--scenes {path_text(scenes)}: no scene file (*.safetensors) or frames folder (transforms.json) there")
     return found
 
 
@@ -65,17 +67,20 @@ def evaluate_scene(model: Model, path: str) -> List[dict]:
 
 
 def render_scene(model: Model, path: str, out: str) -> List[str]:
-    """Renders every target view of a scene into `out/<scene>/view_000.png`, ...; returns the files written."""
+    """Renders every target view of a scene into `out/<scene>/view_000.png`, ..., all of them or, on an error,
+    none (raypatch.output); returns the files written. `out` must exist."""
     data = load_scene(path)
     scene = model.encode_scene(data)
     folder = os.path.join(out, scene_name(path))
-    os.makedirs(folder, exist_ok=True)
-    written = []
-    for view in range(data.target_count):
-        file = os.path.join(folder, f"view_{view:03}.png")
-        scene.render_view(view).save(file)
-        written.append(file)
-    return written
+    files = [os.path.join(folder, f"view_{view:03}.png") for view in range(data.target_count)]
+    with Staged() as staged:
+        if not os.path.isdir(folder):
+            staged.new_folder(folder)
+        for view, file in enumerate(files):
+            check_output_path("--out", file)
+            scene.render_view(view).save(staged.file(file))
+        staged.commit()
+    return files
 
 
 def error_line(path: str, error: Exception) -> str:

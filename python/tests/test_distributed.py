@@ -1,15 +1,21 @@
 """python -m raypatch.distributed on a local Ray with 2 workers (lavapipe): the same figures as one process and
-as render-frame --metrics, scene by scene; bad inputs exit 2 with one line and write nothing."""
+as render-frame --metrics, scene by scene; bad arguments refused before Ray starts, bad inputs exit 2 with one
+line and write nothing (render too: all scenes or none); SIGINT and SIGTERM leave nothing behind."""
 
 import csv
+import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 import raypatch
+from raypatch import output
+from raypatch import distributed as ray_cli
 from raypatch.evaluate import evaluate_scene, scene_paths
 
 pytest.importorskip("ray")
@@ -81,3 +87,114 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
         assert not out.exists()
     run = distributed("evaluate", "--model", tmp_path / "missing.safetensors", "--scenes", SCENES, "--out", out)
     assert run.returncode == 2 and "missing.safetensors" in run.stderr and not out.exists()
+
+
+def one_error_line(stderr, ray_started=False):
+    """Our one error line; once Ray started, it may log lines of its own beside it."""
+    lines = stderr.splitlines()
+    ours = [line for line in lines if line.startswith("raypatch.distributed: ")]
+    assert len(ours) == 1 and (ray_started or len(lines) == 1), stderr
+    return ours[0]
+
+
+def ours(folder):
+    return [name for _, dirs, files in os.walk(folder) for name in dirs + files if output.TEMP_MARK in name]
+
+
+def listing(folder):
+    return sorted((p.relative_to(folder).as_posix(), p.read_bytes() if p.is_file() else None)
+                  for p in Path(folder).rglob("*"))
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    """A model, scene files and a frames folder in tmp_path, and an existing --out folder holding a file."""
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    for name in ("a", "b"):
+        (scenes / f"{name}.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
+    (tmp_path / "frames" / "a").mkdir(parents=True)
+    (tmp_path / "frames" / "a" / "transforms.json").write_text("{}")
+    model = tmp_path / "model.safetensors"
+    model.symlink_to(MODEL)
+    (tmp_path / "views" / "a").mkdir(parents=True)
+    (tmp_path / "views" / "a" / "view_000.png").write_bytes(b"the user's")
+    return tmp_path
+
+
+@pytest.mark.parametrize("task, args, named", [
+    ("evaluate", ["--address", "not an address"], "--address"),
+    ("evaluate", ["--address", "ray://head:99999"], "--address"),
+    ("evaluate", ["--address", "ray://" + "h" * 100_000 + ":10001"], "--address"),
+    ("evaluate", ["--gpus-per-worker", "nan"], "--gpus-per-worker"),
+    ("evaluate", ["--gpus-per-worker", "inf"], "--gpus-per-worker"),
+    ("evaluate", ["--gpus-per-worker", "-1"], "--gpus-per-worker"),
+    ("evaluate", ["--workers", "0"], "--workers"),
+    ("evaluate", ["--workers", "9" * 100_000], "--workers"),
+    ("x" * 100_000, [], "evaluate or render"),
+    ("evaluate", ["--bogus"], "unrecognized arguments"),
+    ("render", ["--out", "{tmp}/scenes/a.safetensors"], "is not a folder"),
+    ("render", ["--out", "{tmp}/missing/views"], "does not exist"),
+    ("render", ["--out", "{tmp}/frames", "--scenes", "{tmp}/frames"], "would write into"),
+    ("render", ["--scenes", "{tmp}/[sf]*/a*"], "would both render into"),
+    ("render", ["--model", "{tmp}/views/a/view_000.png"], "would overwrite the input given by --model"),
+    ("evaluate", ["--out", "{tmp}/views"], "is a folder"),
+    ("evaluate", ["--out", "{tmp}/model.safetensors"], "would overwrite the input given by --model"),
+    ("evaluate", ["--out", "{tmp}/scenes/b.safetensors"], "would overwrite the input given by --scenes"),
+    ("evaluate", ["--out", "{tmp}/frames/a/transforms.json", "--scenes", "{tmp}/frames"], "would write into"),
+    ("evaluate", ["--out", "/dev/null"], "a device"),
+    ("evaluate", ["--scenes", "{tmp}/nothing-" + "*" * 100_000], "no scene file"),
+])
+def test_arguments_and_outputs_are_checked_before_ray_starts(inputs, monkeypatch, capsys, task, args, named):
+    """One bounded line on stderr, exit code 2, nothing written, and Ray never started (run() fails the test)."""
+    monkeypatch.setattr(ray_cli, "run", lambda *a, **k: pytest.fail("Ray started"))
+    # The test's arguments after the defaults: argparse keeps an option's last value.
+    argv = [task, "--model", str(inputs / "model.safetensors"), "--scenes", str(inputs / "scenes"), "--out",
+            str(inputs / "views")] + [a.replace("{tmp}", str(inputs)) for a in args]
+    before = listing(inputs)
+    try:
+        code = ray_cli.main(argv)
+    except SystemExit as e:  # argparse
+        code = e.code
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 2 and named in line and len(line) < 1200, line[:1200]
+    assert listing(inputs) == before and not ours(inputs)
+
+
+def test_render_writes_all_scenes_or_none(tmp_path):
+    """A bad scene among good ones: exit 2, and neither a new --out folder nor anything in an existing one."""
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "good.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
+    (scenes / "bad.safetensors").write_bytes(b"not a scene")
+    existing = tmp_path / "existing"
+    (existing / "good").mkdir(parents=True)
+    (existing / "good" / "view_000.png").write_bytes(b"the user's")
+    before = listing(tmp_path)
+    for out in (tmp_path / "new", existing):
+        run = distributed("render", "--model", MODEL, "--scenes", scenes, "--out", out, "--workers", 2)
+        assert run.returncode == 2 and "bad.safetensors" in one_error_line(run.stderr, True), run.stderr
+        assert listing(tmp_path) == before and not ours(tmp_path)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_exits_128_plus_it_and_leaves_nothing(tmp_path, signum):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    for i in range(40):
+        (scenes / f"s{i:02}.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
+    out = tmp_path / "views"
+    run = subprocess.Popen([sys.executable, "-m", "raypatch.distributed", "render", "--model", str(MODEL), "--scenes",
+                            str(scenes), "--out", str(out), "--workers", "1"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not any(p.suffix == ".png" for p in tmp_path.glob(f".views{output.TEMP_MARK}*/*/*")):
+            assert run.poll() is None, run.communicate()
+            assert time.monotonic() < deadline, "no view rendered"
+            time.sleep(0.1)
+        run.send_signal(signum)
+        assert run.wait(timeout=60) == 128 + signum, run.communicate()
+    finally:
+        run.kill()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"], list(tmp_path.rglob("*"))
