@@ -22,6 +22,7 @@ import csv
 import math
 import os
 import re
+import signal
 import sys
 from typing import List, Optional
 
@@ -127,6 +128,10 @@ def run(task: str, model: str, paths: List[str], out: str, address: Optional[str
     if not ray.is_initialized():
         try:
             ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+        except SystemExit as e:  # Ray's own SIGTERM handler, in place while it starts: ends as ours would
+            if e.code == signal.SIGTERM:
+                output.stop(signal.SIGTERM)
+            raise
         except Exception as e:  # whatever Ray raises for a cluster it cannot reach or start
             raise Error(f"--address {excerpt(address or 'local')}: cannot start Ray: {_first_line(e)}") from None
         output.stop_on_signals(PROG, ray.shutdown)  # again: ray.init sets its own SIGTERM handler

@@ -16,7 +16,8 @@ import shutil
 import signal
 import stat
 import time
-from typing import Iterable, List, Optional, Sequence, Tuple
+import threading
+from typing import Callable, Iterable, List, Optional, Sequence, Tuple
 
 from ._raypatch import FileError
 from ._text import path_text
@@ -38,6 +39,7 @@ class _Pending:
         self.committing = False
         self.signal: Optional[int] = None
         self.prog = "raypatch"
+        self.before_exit: Optional[Callable[[], None]] = None
 
     def remove_all(self) -> None:
         for tmp in reversed(self.temporaries):
@@ -71,12 +73,17 @@ def _remove(path: str) -> None:
         return
 
 
-def stop_on_signals(prog: str) -> None:
+# How long `before_exit` may take before the process ends anyway.
+BEFORE_EXIT_SECONDS = 10.0
+
+
+def stop_on_signals(prog: str, before_exit: Optional[Callable[[], None]] = None) -> None:
     """From now on SIGINT, SIGTERM and SIGHUP end the process at once with 128 + the signal's number (130, 143,
-    129) after removing every temporary of this module's writers: a stopped run leaves nothing behind. For
-    programs (`python -m raypatch.distributed`); call it again after anything that sets its own handlers (Ray
-    sets SIGTERM's)."""
+    129) after removing every temporary of this module's writers (a stopped run leaves nothing behind) and
+    calling `before_exit` (ending Ray's processes), which gets BEFORE_EXIT_SECONDS. For programs (`python -m
+    raypatch.distributed`); call it again after anything that sets its own handlers (Ray sets SIGTERM's)."""
     _pending.prog = prog
+    _pending.before_exit = before_exit or _pending.before_exit
     for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, _on_signal)
 
@@ -85,15 +92,22 @@ def _on_signal(signum: int, frame) -> None:
     if _pending.committing:
         _pending.signal = signum  # the commit ends the process once its moves are all done or all undone
         return
-    _end(signum)
+    stop(signum)
 
 
-def _end(signum: int) -> None:
+def stop(signum: int) -> None:
+    """Ends the process as `signum` does once stop_on_signals was called (for a signal caught elsewhere)."""
     for other in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(other, signal.SIG_IGN)
     _pending.remove_all()
     os.write(2, f"{_pending.prog}: stopped by {signal.Signals(signum).name}\n".encode())
-    # _exit: no atexit handlers, which could wait on Ray or the GPU driver; Ray's own processes end with ours.
+    if _pending.before_exit is not None:
+        threading.Timer(BEFORE_EXIT_SECONDS, os._exit, (128 + signum,)).start()
+        try:
+            _pending.before_exit()
+        except Exception:  # ending anyway: what it could not stop, it could not stop
+            pass
+    # _exit: no atexit handlers, which could wait on the GPU driver or on what before_exit could not stop.
     os._exit(128 + signum)
 
 
@@ -272,7 +286,7 @@ class Staged:
         finally:
             _pending.committing = False
             if _pending.signal is not None:
-                _end(_pending.signal)
+                stop(_pending.signal)
 
 
 def _merged(moves: Sequence[Tuple[str, str]]) -> Tuple[List[str], List[Tuple[str, str]]]:

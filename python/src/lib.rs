@@ -155,13 +155,12 @@ impl Engine {
     #[new]
     #[pyo3(signature = (adapter=None, matmul=None, precision="f32"))]
     fn new(py: Python<'_>, adapter: Option<String>, matmul: Option<String>, precision: &str) -> PyResult<Engine> {
-        let matmul =
-            match matmul.as_deref() {
-                None => None,
-                Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
-                    input_error(format!("matmul {:?}: expected \"rows\", \"tiled\" or \"lanes\"", Quoted(name)))
-                })?),
-            };
+        let matmul = match matmul.as_deref() {
+            None => None,
+            Some(name) => Some(MatmulKernel::from_name(name).ok_or_else(|| {
+                input_error(format!("matmul {:?}: expected \"rows\", \"tiled\" or \"lanes\"", Quoted(name)))
+            })?),
+        };
         let precision = Precision::from_name(precision).ok_or_else(|| {
             input_error(format!("precision {:?}: expected \"f32\", \"f16\" or \"f16-act\"", Quoted(precision)))
         })?;
@@ -550,7 +549,9 @@ fn image_sizes(what: &str, count: i64, width: i64, height: i64) -> PyResult<(usi
     raypatch::check_image_size(width, height).map_err(|reason| input_error(format!("{what}: {reason}")))?;
     let most = raypatch::MAX_SCENE_PIXELS;
     if count * width * height > most {
-        return Err(input_error(format!("{what}: {count} images of {width}x{height}; a scene holds at most {most} pixels")));
+        return Err(input_error(format!(
+            "{what}: {count} images of {width}x{height}; a scene holds at most {most} pixels"
+        )));
     }
     Ok((count, width, height))
 }
