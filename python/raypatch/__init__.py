@@ -100,11 +100,11 @@ def _text(name: str, value, optional: bool = False) -> Optional[str]:
 
 
 def _path(name: str, value) -> str:
-    """A path argument: a string or os.PathLike."""
+    """A path argument: a string, bytes or os.PathLike."""
     try:
-        return os.fspath(value)
+        return os.fsdecode(os.fspath(value))
     except TypeError:
-        raise InputError(f"{name} {quoted(value)}: expected a path (str or os.PathLike)") from None
+        raise InputError(f"{name} {quoted(value)}: expected a path (str, bytes or os.PathLike)") from None
 
 
 def _number(name: str, value) -> float:

@@ -57,6 +57,10 @@ def refused(kind, call, *named):
     return text
 
 
+def test_bytes_paths_are_paths(tmp_path):
+    refused(raypatch.FileError, lambda: raypatch.load(bytes(tmp_path / "absent.safetensors")), "absent.safetensors")
+
+
 def test_integers_are_accepted_as_floats(posed, from_file):
     model, images, poses, k, scene = posed
     want = scene.render(poses[0])["rgb"]
@@ -84,6 +88,8 @@ def test_integers_are_accepted_as_floats(posed, from_file):
     (lambda s, p: s.render(p.astype(bool)), "pose: dtype bool"),
     (lambda s, p: s.render(p, region=(0, 0, 8.5, 8)), "region width 8.5: expected an integer"),
     (lambda s, p: s.render(p, size="80x60"), "size '80x60': expected (width, height)"),
+    (lambda s, p: raypatch.load(5), "path 5: expected a path"),
+    (lambda s, p: s.render(p, outputs=None), "outputs None: expected"),
 ])
 def test_nonsense_numbers_are_refused(posed, call, named):
     model, images, poses, k, scene = posed
