@@ -7,12 +7,17 @@ use raypatch_engine::{
     AdapterChoice, EncodedScene, Gpu, GpuOptions, LoadOptions, MatmulKernel, OpTimes, Output, Outputs,
     PipelineCacheDir, PipelineCacheStatus, Precision, RenderStats, Request,
 };
+use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::Region;
+
+mod path;
+use path::Batches;
+pub use path::RenderPath;
 
 /// How to set up the [`Engine`].
 ///
@@ -523,98 +528,5 @@ impl<'m> Scene<'m> {
     /// The engine-level scene (latent, cached tensors, plan labels), for tools that look inside.
     pub fn engine_scene(&self) -> &EncodedScene<'_> {
         &self.inner
-    }
-}
-
-/// The planned GPU memory a batched render may take (see [`Scene::views_per_batch`]).
-pub use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
-
-/// `cameras` (one size) as one batch of the engine's render targets, with rays of `kind`.
-fn targets_of(cameras: &[Camera], kind: RayKind) -> raypatch_model::TargetViews {
-    let mut targets = cameras[0].target_views_of(kind);
-    targets.count = cameras.len();
-    targets.rays.reserve(targets.rays.len() * (cameras.len() - 1));
-    targets.camera_pos.reserve(3 * (cameras.len() - 1));
-    for camera in &cameras[1..] {
-        targets.camera_pos.extend(camera.position().as_vec3().to_array());
-        targets.rays.extend(camera.rays_of(kind).rays.iter().flat_map(|d| d.to_array()));
-    }
-    targets
-}
-
-/// A path's batches of render targets, made as the engine takes them: `batch` cameras each, the last filled
-/// up with its last camera when the path has more than one batch (so that every batch has one plan).
-struct Batches<'s> {
-    cameras: &'s [Camera],
-    /// Cameras rendered: those before the first that cannot be.
-    end: usize,
-    batch: usize,
-    kind: RayKind,
-    next: usize,
-}
-
-impl Iterator for Batches<'_> {
-    type Item = raypatch_model::TargetViews;
-
-    fn next(&mut self) -> Option<raypatch_model::TargetViews> {
-        if self.next >= self.end {
-            return None;
-        }
-        let stop = (self.next + self.batch).min(self.end);
-        let real = &self.cameras[self.next..stop];
-        self.next = stop;
-        if real.len() == self.batch || self.cameras.len() <= self.batch {
-            return Some(targets_of(real, self.kind));
-        }
-        let mut padded = real.to_vec();
-        padded.resize(self.batch, real[real.len() - 1].clone());
-        Some(targets_of(&padded, self.kind))
-    }
-}
-
-/// The frames of [`Scene::render_path`], in order; an error ends the path.
-pub struct RenderPath<'s> {
-    renders: raypatch_engine::Renders<'s, Batches<'s>>,
-    /// The cameras rendered (before the first that cannot be).
-    cameras: &'s [Camera],
-    batch: usize,
-    /// Frames handed out or waiting in `ready`.
-    next: usize,
-    /// The rest of the current batch, last frame first.
-    ready: Vec<Rendered>,
-    /// The first camera that cannot be rendered, as (where the path stops, why).
-    failure: Option<(usize, Error)>,
-}
-
-impl Iterator for RenderPath<'_> {
-    type Item = Result<Rendered>;
-
-    fn next(&mut self) -> Option<Result<Rendered>> {
-        if self.ready.is_empty() && self.next < self.cameras.len() {
-            match self.renders.next().expect("a batch per camera left") {
-                Ok(frames) => {
-                    let real = self.batch.min(self.cameras.len() - self.next);
-                    self.next += real;
-                    self.ready = (frames.into_iter().take(real))
-                        .map(|f| Rendered { region: f.region, outputs: f.outputs })
-                        .rev()
-                        .collect();
-                }
-                Err(e) => {
-                    self.next = self.cameras.len();
-                    self.failure = None;
-                    return Some(Err(e.into()));
-                }
-            }
-        }
-        match self.ready.pop() {
-            Some(frame) => Some(Ok(frame)),
-            None => self.failure.take().map(|(_, e)| Err(e)),
-        }
-    }
-
-    fn size_hint(&self) -> (usize, Option<usize>) {
-        let left = self.ready.len() + self.cameras.len() - self.next + usize::from(self.failure.is_some());
-        (left, Some(left))
     }
 }

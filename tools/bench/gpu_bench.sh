@@ -6,15 +6,16 @@
 #
 #     bash tools/bench/gpu_bench.sh OUT_DIR [STEP ...]
 #
-# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to about 22 minutes,
-# more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 8
+# STEPs (default: all, in this order; each command under its own time limit, the limits adding up to about 23 minutes,
+# more than one device call of 10 minutes holds: run `info tests gemm lab breakdown` in one call (limits 9
 # minutes; it took about 3 on an H200), `rpsrt srt families viewer` in another (limits 10 minutes; the sweeps time
 # PyTorch eager and compiled at every size; a sweep cut short keeps the tables of the sizes it measured, and its
 # log has each configuration's line, PyTorch's times included), and `variants` in a third when device time
 # allows (limits 4.5 minutes)):
 #     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
 #               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
-#     tests     the kernel, golden and API tests on the GPU (every kernel variant the GPU runs)
+#     tests     the kernel, golden, API and executor tests on the GPU (every kernel variant the GPU runs; the
+#               executor's: renders' staging, readout and sequences kept in flight)
 #     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
 #     lab       the GEMM lab: the engine's GEMM kernels beside outer-product tilings (tools/bench/gemm_lab.py)
 #     breakdown the engine alone (no PyTorch, no float64 reference: about a minute) on the official RP-SRT k=8, SRT,
@@ -168,7 +169,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 unset RAYPATCH_CACHE_DIR
                 ;;
             tests)
-                for test in kernels golden api; do
+                for test in kernels golden api executor; do
                     run tests 50 "$kit/tests/$test" --test-threads 4
                 done
                 ;;

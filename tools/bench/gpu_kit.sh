@@ -2,7 +2,7 @@
 # Builds the kit that tools/bench/gpu_bench.sh runs on a lent GPU machine (no Rust toolchain, no package registry
 # there): .gpu/kit.tar.xz (ignored by git) with
 #   bin/    render-frame and raypatch-bench, release, stripped
-#   tests/  the golden, kernels and api test binaries (`cargo test --release --no-run`), stripped: they find
+#   tests/  the golden, kernels, api and executor test binaries (`cargo test --release --no-run`), stripped: they find
 #           assets/ and shaders/ through the checkout path baked into them, recorded in build-path
 #   debs/   the Vulkan loader and glvnd (libvulkan1, libglvnd0, libegl1, libgl1, libglx0, libopengl0,
 #           libgles2): NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs libGLdispatch from glvnd, and without
@@ -21,7 +21,7 @@ for program in render-frame raypatch-bench; do
     strip -o "$kit/bin/$program" "target/release/$program"
 done
 # The test binaries cargo built, by target name (the JSON lines cargo prints for each artifact).
-cargo test --release --no-run --test golden --test kernels --test api --message-format=json 2>/dev/null |
+cargo test --release --no-run --test golden --test kernels --test api --test executor --message-format=json 2>/dev/null |
     python3 -c '
 import json, sys
 for line in sys.stdin:
@@ -31,7 +31,7 @@ for line in sys.stdin:
 ' | while read -r name executable; do
     strip -o "$kit/tests/$name" "$executable"
 done
-for test in golden kernels api; do
+for test in golden kernels api executor; do
     [ -x "$kit/tests/$test" ] || { echo "gpu_kit: no $test test binary" >&2; exit 1; }
 done
 pwd >"$kit/build-path"

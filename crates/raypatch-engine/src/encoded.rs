@@ -43,6 +43,9 @@ pub struct EncodedScene<'m> {
     /// Crops whose plan would bind a buffer larger than the GPU allows: a later render of the same size goes
     /// straight to its bands instead of recording the crop again to find that out.
     too_large: Mutex<HashSet<PlanKey>>,
+    /// The planned bytes and largest buffer of a render of each key, as its recording gave them
+    /// ([`views_within`](Self::views_within) asks per batch of a sequence: recorded once).
+    sizes: Mutex<HashMap<PlanKey, (u64, u64)>>,
 }
 
 /// A render plan serves every render of this many views of this computed size with these outputs; the
@@ -129,6 +132,7 @@ impl Model {
             encode_multiply_adds: plan.multiply_adds,
             render_plans: Mutex::new(HashMap::new()),
             too_large: Mutex::new(HashSet::new()),
+            sizes: Mutex::new(HashMap::new()),
         };
         Ok((scene, times))
     }
@@ -287,11 +291,18 @@ impl EncodedScene<'_> {
     pub fn views_within(&self, targets: &TargetViews, request: impl Into<Request>, budget: u64) -> Result<usize> {
         let request = request.into();
         let crop = self.crop(targets, &request)?;
-        let builder = self.record(targets.count, &crop, request.outputs).builder;
+        let key = PlanKey { views: targets.count, grid: crop.grid, outputs: request.outputs };
+        let cached = self.sizes.lock().expect("render plan cache poisoned").get(&key).copied();
+        let (planned, largest) = cached.unwrap_or_else(|| {
+            let builder = self.record(targets.count, &crop, request.outputs).builder;
+            let sizes = (builder.planned_bytes(), builder.largest_tensor_bytes());
+            self.sizes.lock().expect("render plan cache poisoned").insert(key, sizes);
+            sizes
+        });
         let views = targets.count as u64;
         // A staging holds the inputs and the outputs once more: at most the plan's own bytes again.
-        let per_view = (2 * builder.planned_bytes()).div_ceil(views).max(1);
-        let largest = builder.largest_tensor_bytes().div_ceil(views).max(1);
+        let per_view = (2 * planned).div_ceil(views).max(1);
+        let largest = largest.div_ceil(views).max(1);
         let fit = (budget / per_view).min(self.model.gpu().max_buffer_bytes / largest);
         Ok(usize::try_from(fit).unwrap_or(usize::MAX).max(1))
     }
