@@ -46,11 +46,13 @@ alias WeightVec = vec4<f32>;
 
 @group(0) @binding(0) var<uniform> p: Params;
 
-// Shapes fixed per pipeline (device::fixed_shapes: `linear_tiled` and `linear_reduce` on GPUs): with SHAPED, the
-// op's dimensions and flags are these override constants (kernels::matmul::fixed_shape), so the GPU's compiler
-// sees loop bounds, strides and branches as constants; without, they come from the params (the same names).
+// Layer shapes fixed per pipeline (device::fixed_shapes: `linear_tiled` and `linear_reduce` on GPUs): with
+// SHAPED, a layer's columns, depth, weight stride and flags are these override constants
+// (kernels::matmul::fixed_shape), so the GPU's compiler sees strides and branches as constants and compiles the
+// unused prologue and epilogue away; without, they come from the params (the same names). The row count and the
+// K split, which change with every view count, size, region and band, always come from the params: one
+// pipeline serves a layer at every size.
 override SHAPED: bool = false;
-override SHAPED_M: u32 = 0u;
 override SHAPED_N: u32 = 0u;
 override SHAPED_K4: u32 = 0u;
 override SHAPED_N4: u32 = 0u;
@@ -58,11 +60,8 @@ override SHAPED_ACT: u32 = 0u;
 override SHAPED_HAS_BIAS: u32 = 0u;
 override SHAPED_ACCUMULATE: u32 = 0u;
 override SHAPED_W_LD4: u32 = 0u;
-override SHAPED_SPLITS: u32 = 0u;
-override SHAPED_K_SPLIT4: u32 = 0u;
-override SHAPED_M_TILES: u32 = 0u;
 override SHAPED_NORM: u32 = 0u;
-fn op_m() -> u32 { return select(p.m, SHAPED_M, SHAPED); }
+fn op_m() -> u32 { return p.m; }
 fn op_n() -> u32 { return select(p.n, SHAPED_N, SHAPED); }
 fn op_k4() -> u32 { return select(p.k4, SHAPED_K4, SHAPED); }
 fn op_n4() -> u32 { return select(p.n4, SHAPED_N4, SHAPED); }
@@ -70,9 +69,9 @@ fn op_act() -> u32 { return select(p.act, SHAPED_ACT, SHAPED); }
 fn op_has_bias() -> u32 { return select(p.has_bias, SHAPED_HAS_BIAS, SHAPED); }
 fn op_accumulate() -> u32 { return select(p.accumulate, SHAPED_ACCUMULATE, SHAPED); }
 fn op_w_ld4() -> u32 { return select(p.w_ld4, SHAPED_W_LD4, SHAPED); }
-fn op_splits() -> u32 { return select(p.splits, SHAPED_SPLITS, SHAPED); }
-fn op_k_split4() -> u32 { return select(p.k_split4, SHAPED_K_SPLIT4, SHAPED); }
-fn op_m_tiles() -> u32 { return select(p.m_tiles, SHAPED_M_TILES, SHAPED); }
+fn op_splits() -> u32 { return p.splits; }
+fn op_k_split4() -> u32 { return p.k_split4; }
+fn op_m_tiles() -> u32 { return p.m_tiles; }
 fn op_norm() -> u32 { return select(p.norm, SHAPED_NORM, SHAPED); }
 
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;

@@ -321,6 +321,11 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     assert_eq!(after.buffers_created, before.buffers_created, "a same-size render created buffers");
     assert_eq!(after.pipelines_compiled, before.pipelines_compiled, "a same-size render compiled pipelines");
     assert_eq!(after.submits, before.submits + 2, "each render is one submit");
+
+    // Another size: a new plan, but no pipeline is keyed on a render's size (rows and K splits are params).
+    let larger = Camera::msn(DVec3::new(-6.0, 5.0, 2.0), camera.width() * 2, camera.height() + 8).unwrap();
+    scene.render(&larger, &Request::default()).unwrap();
+    assert_eq!(engine.counters().pipelines_compiled, after.pipelines_compiled, "another size compiled pipelines");
 }
 
 /// The engine's precision applies to every model it loads: f16 weights (and, on the GPUs' kernel, activations)

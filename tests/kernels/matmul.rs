@@ -492,3 +492,42 @@ fn gelu_erf_accuracy() {
         assert!((f64::from(g) - e).abs() <= tol, "gelu({v}) = {g}, expected {e}");
     }
 }
+
+/// A layer's shaped `linear_tiled` pipeline (as on GPUs) serves every row count and K split: the rows, row tiles
+/// and splits are params, not override constants, so a render of another size, view count, region or band
+/// compiles nothing new. Each result is checked against the float64 reference.
+#[test]
+fn a_shaped_pipeline_serves_every_row_count() {
+    let gpu = gpu();
+    let (k, n) = (512, 40);
+    let mut rng = Rng::new(7);
+    let mut values = |count: usize| -> Vec<f32> { (0..count).map(|_| rng.uniform(-1.0, 1.0) as f32).collect() };
+    let w = values(n * k);
+    let w_t = gpu.upload("w", n, k, &w).unwrap();
+    let mut compiled = Vec::new();
+    // K split in 4 ranges (one row tile), in 3 (100 row tiles) and in 2 (133).
+    for (m, splits) in [(3usize, 4), (12_800, 3), (17_000, 2)] {
+        assert_eq!(k_splits(m.div_ceil(128) * n.div_ceil(128), k / 4), splits, "m={m}");
+        let x = values(m * k);
+        let x_t = gpu.upload("x", m, k, &x).unwrap();
+        let out_t = gpu.upload("out", m, n, &vec![0.0; m * n]).unwrap();
+        let before = gpu.counters().pipelines_compiled;
+        let mut plan = PlanBuilder::new();
+        plan.kernels = KernelChoice { matmul: MatmulKernel::Tiled, pinned: true, shaped: true, ..gpu.kernels };
+        let (x_id, w_id, out_id) = (plan.external("x", &x_t), plan.external("w", &w_t), plan.external("out", &out_t));
+        let (x_view, out_view) = (plan.all(x_id), plan.all(out_id));
+        let act = Activation::None;
+        let args =
+            LinearArgs { x: x_view, weight: w_id, bias: None, out: out_view, act, accumulate: false, norm: None };
+        linear(&mut plan, "linear", args);
+        run(plan);
+        compiled.push(gpu.counters().pipelines_compiled - before);
+        let got = gpu.read_rows(&out_t.buffer, 0, m, padded_cols(n)).unwrap();
+        let got: Vec<f32> = got.chunks(padded_cols(n)).flat_map(|row| row[..n].to_vec()).collect();
+        let expected = reference::linear(&to_f64(&x), m, k, &to_f64(&w), n, None, act, None);
+        // As in check_with: c·√K·u·Σ|x·w|, with Σ|x·w| <= K for values in [-1, 1].
+        let tol = 4.0 * f64::from(f32::EPSILON / 2.0) * (k as f64).sqrt() * k as f64;
+        assert_close(&format!("m={m}"), &got, &expected, tol, 0.0);
+    }
+    assert!(compiled[1..].iter().all(|&c| c == 0), "pipelines compiled per row count: {compiled:?}");
+}

@@ -231,12 +231,13 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     }
 }
 
-/// The override constants that fix `shaders/matmul.wgsl`'s op to `params` (`SHAPED`, and every field the shader
-/// reads through its `op_*` accessors; `slope` and `eps` stay in the params).
+/// The override constants that fix `shaders/matmul.wgsl`'s op to `params`' layer (`SHAPED`, and the fields the
+/// shader reads through its `op_*` accessors that a layer fixes: columns, depth, weight stride, flags). The rows,
+/// the row tiles and the K split stay in the params, with `slope` and `eps`: they change with the render's size,
+/// and a pipeline keyed on them would be compiled again for every view count, size, region and band.
 pub fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
     let p = params;
     let fields = [
-        ("SHAPED_M", p.m),
         ("SHAPED_N", p.n),
         ("SHAPED_K4", p.k4),
         ("SHAPED_N4", p.n4),
@@ -244,9 +245,6 @@ pub fn fixed_shape(params: &MatmulParams) -> Vec<(&'static str, f64)> {
         ("SHAPED_HAS_BIAS", p.has_bias),
         ("SHAPED_ACCUMULATE", p.accumulate),
         ("SHAPED_W_LD4", p.w_ld4),
-        ("SHAPED_SPLITS", p.splits),
-        ("SHAPED_K_SPLIT4", p.k_split4),
-        ("SHAPED_M_TILES", p.m_tiles),
         ("SHAPED_NORM", p.norm),
     ];
     std::iter::once(("SHAPED", 1.0)).chain(fields.map(|(name, value)| (name, f64::from(value)))).collect()
