@@ -147,7 +147,10 @@ def remove_stale(folder: str) -> None:
             if os.path.lexists(target):
                 _remove(entry.path)
             else:
-                os.rename(entry.path, target)
+                try:
+                    os.rename(entry.path, target)
+                except OSError:
+                    pass  # left for a later run: a clean-up never stops this one
 
 
 def _file_error(path: str, action: str, error: OSError) -> FileError:
