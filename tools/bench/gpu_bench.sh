@@ -12,8 +12,9 @@
 # PyTorch eager and compiled at every size; a sweep cut short keeps the tables of the sizes it measured, and its
 # log has each configuration's line, PyTorch's times included), and `variants` in a third when device time
 # allows (limits 4.5 minutes)):
-#     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, and the bundled model's
-#               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached)
+#     info      the GPU, its driver, PyTorch's CUDA device, the adapters the engine sees, the bundled model's
+#               first and repeated renders (render-frame --timings: pipelines compiled cold, then cached), and the
+#               official RP-SRT k=8's encode and first render in a fresh process from an empty pipeline cache
 #     tests     the kernel, golden, API and executor tests on the GPU (every kernel variant the GPU runs; the
 #               executor's: renders' staging, readout and sequences kept in flight)
 #     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
@@ -166,6 +167,11 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
                 export RAYPATCH_CACHE_DIR=$work/pipeline-cache
                 run info 45 "$bin/render-frame" --timings --out "$work/results/info-render.png"
                 run info 35 "$bin/render-frame" --timings --repeat 200 --out "$work/results/info-render.png"
+                # The official RP-SRT k=8's first frame in a fresh process from an empty cache (issue 41's bar: load +
+                # encode + first render within 1 s): the first record's encode and first-render wall times.
+                export RAYPATCH_CACHE_DIR=$work/pipeline-cache-first
+                run info 60 "$bin/raypatch-bench" --only official:8 --no-pytorch --max-render-seconds 0.02 \
+                    --max-reference-gmac 0 --repeats 1 --out "$work/results/first-frame"
                 unset RAYPATCH_CACHE_DIR
                 ;;
             tests)
