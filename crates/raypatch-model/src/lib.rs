@@ -19,6 +19,6 @@ pub use config::{
     SlotMixerConfig, SrtConfig, FAMILY_BASES,
 };
 pub use error::ModelError;
-pub use tensor_file::{HostTensor, TensorFile};
+pub use tensor_file::{HostTensor, TensorFile, MODEL_FORMAT};
 pub use views::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
-pub use weights::{load_model, LoadedModel, MODEL_FORMAT};
+pub use weights::{load_model, LoadedModel};

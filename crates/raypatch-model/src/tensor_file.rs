@@ -15,6 +15,9 @@ use crate::layout::{Layout, TensorEntry};
 /// bad file can make the reader allocate.
 pub const DEFAULT_MAX_TENSOR_BYTES: u64 = 1 << 30;
 
+/// The metadata `format` value of model files (written by the converters, checked when a model is loaded).
+pub const MODEL_FORMAT: &str = "raypatch-model/1";
+
 /// What a file that is not safetensors looks like, from its first bytes.
 fn sniff(bytes: &[u8]) -> Option<&'static str> {
     let kinds: [(&[u8], &str); 5] = [

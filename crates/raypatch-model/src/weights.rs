@@ -8,10 +8,7 @@ use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
-use crate::tensor_file::{HostTensor, TensorFile};
-
-/// The metadata `format` value of model files.
-pub const MODEL_FORMAT: &str = "raypatch-model/1";
+use crate::tensor_file::{HostTensor, TensorFile, MODEL_FORMAT};
 
 /// A model file with a valid config; its tensors are checked as they are fetched.
 #[derive(Debug)]

@@ -19,8 +19,7 @@ use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::error::ModelError;
-use crate::tensor_file::TensorFile;
-use crate::weights::MODEL_FORMAT;
+use crate::tensor_file::{TensorFile, MODEL_FORMAT};
 use torch::TensorView;
 
 /// How every zip archive, and so every checkpoint, starts.
