@@ -156,6 +156,26 @@ def bare(module_cls):
     return module
 
 
+def narrowed_srt_encoder(official_encoder, layers, enc):
+    """The official SRTEncoder (its class and forward) with the widths it hard-codes (conv hidden 96, 768-wide
+    tokens, 12 heads of 64) taken from `enc`, encoder_kwargs completed with the reference's defaults."""
+    srt = bare(official_encoder.SRTEncoder)
+    srt.ray_encoder = layers.RayEncoder(pos_octaves=enc["num_octaves"], pos_start_octave=enc["pos_start_octave"],
+                                        ray_octaves=enc["num_octaves"])
+    blocks, channels = [official_encoder.SRTConvBlock(idim=12 * enc["num_octaves"] + 3, hdim=enc["conv_hidden"],
+                                                      norm=enc["norm"])], 2 * enc["conv_hidden"]
+    for _ in range(1, enc["num_conv_blocks"]):
+        blocks.append(official_encoder.SRTConvBlock(idim=channels, odim=None, norm=enc["norm"]))
+        channels *= 2
+    srt.conv_blocks = nn.Sequential(*blocks)
+    srt.pooling = nn.MaxPool2d(2) if enc["max_pooling"] else nn.Identity()
+    srt.per_patch_linear = nn.Conv2d(channels, enc["token_dim"], kernel_size=1)
+    srt.transformer = layers.Transformer(enc["token_dim"], depth=enc["num_att_blocks"], heads=enc["heads"],
+                                         dim_head=enc["dim_head"], latent_dim=enc["latent_dim"],
+                                         mlp_dim=int(enc["latent_dim"] * 2), selfatt=True)
+    return srt
+
+
 def official_osrt_modules(official_encoder, official_decoder, layers, model_cfg, targets):
     """The official OSRT modules for model_cfg, loaded later with the reference's weights.
 
@@ -177,22 +197,8 @@ def official_osrt_modules(official_encoder, official_decoder, layers, model_cfg,
         encoder = official_encoder.OSRTEncoder(**model_cfg["encoder_kwargs"])
         decoder_att = official_decoder.SlotMixerDecoder(**{**model_cfg["decoder_kwargs"], "out_dims": dec["out_dims"]})
     else:
-        srt = bare(official_encoder.SRTEncoder)
-        srt.ray_encoder = layers.RayEncoder(pos_octaves=enc["num_octaves"], pos_start_octave=enc["pos_start_octave"],
-                                            ray_octaves=enc["num_octaves"])
-        blocks, channels = [official_encoder.SRTConvBlock(idim=12 * enc["num_octaves"] + 3, hdim=enc["conv_hidden"],
-                                                          norm=enc["norm"])], 2 * enc["conv_hidden"]
-        for _ in range(1, enc["num_conv_blocks"]):
-            blocks.append(official_encoder.SRTConvBlock(idim=channels, odim=None, norm=enc["norm"]))
-            channels *= 2
-        srt.conv_blocks = nn.Sequential(*blocks)
-        srt.pooling = nn.MaxPool2d(2) if enc["max_pooling"] else nn.Identity()
-        srt.per_patch_linear = nn.Conv2d(channels, enc["token_dim"], kernel_size=1)
-        srt.transformer = layers.Transformer(enc["token_dim"], depth=enc["num_att_blocks"], heads=enc["heads"],
-                                             dim_head=enc["dim_head"], latent_dim=enc["latent_dim"],
-                                             mlp_dim=int(enc["latent_dim"] * 2), selfatt=True)
         encoder = bare(official_encoder.OSRTEncoder)
-        encoder.srt_encoder = srt
+        encoder.srt_encoder = narrowed_srt_encoder(official_encoder, layers, enc)
         encoder.slot_attention = layers.SlotAttention(enc["num_slots"], input_dim=enc["token_dim"],
                                                       slot_dim=enc["slot_dim"], hidden_dim=enc["slot_hidden"],
                                                       iters=enc["slot_iters"])
