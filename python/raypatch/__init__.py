@@ -37,6 +37,9 @@ OUTPUTS = ("rgb", "logdepth", "depth", "segmentation")
 PathLike = Union[str, "os.PathLike[str]"]
 # Most values in one array converted for the engine: the largest any call takes is a scene's images or rays.
 MAX_VALUES = 3 * _raypatch.MAX_SCENE_PIXELS
+# render_path's batches per render_batch call: the GPU renders one while the last is read back, and at most
+# these many batches of frames are held.
+PATH_BATCHES = 4
 
 
 def _array(name: str, value) -> np.ndarray:
@@ -408,10 +411,14 @@ class Scene:
     def render_many(self, poses, intrinsics=None, size: Optional[Sequence[int]] = None,
                     outputs: Union[str, Iterable[str]] = ("rgb",), region: Optional[Sequence[int]] = None,
                     convention: str = "opengl") -> Rendered:
-        """Renders poses [T, 4, 4] as render does; each output gets a leading axis of T views."""
-        renders = [self.render(pose, intrinsics, size, outputs, region, convention)
-                   for pose in _floats("poses", poses, (None, 4, 4), np.float64)]
-        return Rendered({name: np.stack([r[name] for r in renders]) for name in (renders[0] if renders else {})})
+        """Renders poses [T, 4, 4] as render does; each output gets a leading axis of T views. The views render
+        as many at once as the engine's memory budget allows, each batch submitted before the last is read."""
+        camera = self._camera_of(intrinsics, size)
+        cameras = [(_opencv(p, convention), camera) for p in _floats("poses", poses, (None, 4, 4), np.float64)]
+        if not cameras:
+            return Rendered({})
+        renders = [_rendered(raw) for raw in self._inner.render_batch(cameras, _output_names(outputs), _region(region))]
+        return Rendered({name: np.stack([r[name] for r in renders]) for name in renders[0]})
 
     def render_view(self, i: int, outputs: Union[str, Iterable[str]] = ("rgb",),
                     region: Optional[Sequence[int]] = None) -> Rendered:
@@ -428,7 +435,8 @@ class Scene:
                     fade: bool = False, interpolate: bool = False, outputs: Union[str, Iterable[str]] = ("rgb",),
                     convention: str = "opengl", batch: int = 4) -> Iterator[Rendered]:
         """Renders a sequence of cameras, yielding one Rendered per frame as it is rendered (``batch`` frames
-        per render call, one plan for the whole sequence; only one batch is held).
+        per render call, one plan for the whole sequence, each batch submitted before the last is read back; at
+        most PATH_BATCHES batches are held).
 
         The cameras: ``poses`` [T, 4, 4] (intrinsics and size as render), the cameras of a ``camera_path`` file
         (nerfstudio's camera_path.json or raypatch's form, docs/CAMERA_PATHS.md), or a ``motion`` preset
@@ -446,12 +454,14 @@ class Scene:
         return self._frames(cameras, names, batch)
 
     def _frames(self, cameras: list, names: list, batch: int) -> Iterator[Rendered]:
-        for start in range(0, len(cameras), batch):
-            chunk = cameras[start:start + batch]
+        # PATH_BATCHES batches per call: within a call each batch is submitted before the last is read back.
+        group = batch * PATH_BATCHES
+        for start in range(0, len(cameras), group):
+            chunk = cameras[start:start + group]
             real = len(chunk)
-            if len(cameras) > batch:  # a short last batch filled up: one plan for the whole sequence
-                chunk = chunk + [chunk[-1]] * (batch - real)
-            for raw in self._inner.render_batch(chunk, names)[:real]:
+            if len(cameras) > batch and real % batch:  # a short last batch filled up: one plan for the sequence
+                chunk = chunk + [chunk[-1]] * (batch - real % batch)
+            for raw in self._inner.render_batch(chunk, names, None, batch)[:real]:
                 yield _rendered(raw)
 
     def _scene_cameras(self) -> Tuple[list, int]:

@@ -466,18 +466,29 @@ impl Scene {
         self.render_camera(py, &camera, outputs, region)
     }
 
-    /// Renders pinhole cameras of one size (OpenCV poses, see paths.rs) in one render call, one dict each (as
-    /// `render_posed`).
+    /// Renders pinhole cameras of one size (OpenCV poses, see paths.rs), one dict each (as `render_posed`):
+    /// `batch` views per render call (None: as many as the memory budget allows), each batch submitted before
+    /// the last is read back (raypatch's `Scene::render_path`).
+    #[pyo3(signature = (cameras, outputs, region=None, batch=None))]
     fn render_batch<'py>(
         &self,
         py: Python<'py>,
         cameras: Vec<paths::Pinhole>,
         outputs: Vec<String>,
+        region: Option<(i64, i64, i64, i64)>,
+        batch: Option<i64>,
     ) -> PyResult<Vec<Bound<'py, PyDict>>> {
         self.alive.check()?;
         let cameras = cameras.into_iter().map(paths::camera_of).collect::<PyResult<Vec<_>>>()?;
-        let request = Request { outputs: outputs_of(outputs)?, region: None };
-        let frames = py.detach(|| self.cell.borrow_dependent().render_batch(&cameras, &request)).map_err(to_py)?;
+        let request = Request { outputs: outputs_of(outputs)?, region: region_of(region)? };
+        let batch = batch.map(|b| unsigned("batch", b)).transpose()?;
+        let scene = self.cell.borrow_dependent();
+        let frames = py
+            .detach(|| match batch {
+                Some(batch) => scene.render_path(&cameras, &request, batch).collect(),
+                None => scene.render_batch(&cameras, &request),
+            })
+            .map_err(to_py)?;
         frames.iter().map(|f| Scene::dict(py, f)).collect()
     }
 

@@ -138,6 +138,27 @@ def test_renders_many_poses_and_regions(posed_scene):
     part = scene.render(poses[0], region=(40, 8, 16, 12))["rgb"]
     assert part.shape == (12, 16, 3)
     assert np.abs(part - many["rgb"][0][8:20, 40:56]).max() < 1e-5
+    parts = scene.render_many(poses, region=(40, 8, 16, 12))["rgb"]
+    assert parts.shape == (2, 12, 16, 3) and np.array_equal(parts[0], part)
+    assert scene.render_many(np.zeros((0, 4, 4))) == {}
+
+
+def test_a_lightning_checkpoint_loads_as_its_model(engine, tmp_path):
+    """raypatch.load reads an official Lightning checkpoint (a torch.save zip, told apart by content, whatever
+    its name) as the model the Python converter would make of it."""
+    torch = pytest.importorskip("torch")
+    from safetensors import safe_open
+    from safetensors.torch import load_file as load_tensors
+    folder = GOLDEN / "rpsrt_k4"
+    with safe_open(str(folder / "model.safetensors"), "pt") as file:
+        cfg = json.loads(file.metadata()["config"])
+    checkpoint = {"epoch": 3, "state_dict": load_tensors(str(folder / "model.safetensors")),
+                  "hyper_parameters": {"cfg": cfg, "lpips": False, "ssim": False}}
+    torch.save(checkpoint, tmp_path / "run.weights")
+    data = raypatch.load_scene(folder / "scene.safetensors")
+    renders = [engine.load(path).encode_scene(data).render_view(0)["rgb"]
+               for path in (tmp_path / "run.weights", folder / "model.safetensors")]
+    assert np.array_equal(renders[0], renders[1])
 
 
 def test_non_contiguous_and_torch_inputs_give_the_same_scene(posed_scene):
