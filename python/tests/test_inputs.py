@@ -9,34 +9,10 @@ import numpy as np
 import pytest
 
 import raypatch
+from conftest import look_at
 
 # What a message may grow to when it quotes a huge value: the excerpt, its length, and the rest of the line.
 SHORT = 400
-
-
-@pytest.fixture(scope="module")
-def engine():
-    with raypatch.Engine() as engine:
-        yield engine
-
-
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
-    """An OpenGL camera-to-world pose at eye looking at target."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    back = (eye - target) / np.linalg.norm(eye - target)
-    right = np.cross(up, back) / np.linalg.norm(np.cross(up, back))
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(back, right), back, eye
-    return pose
-
-
-@pytest.fixture(scope="module")
-def posed(engine):
-    model = engine.bundled("rpsrt_k4")
-    images = np.random.default_rng(0).random((2, 60, 80, 3), dtype=np.float32)
-    poses = np.stack([look_at((7.0, -2.0, 3.0)), look_at((-5.0, 5.0, 2.0))])
-    k = np.array([[105.0, 0.0, 40.0], [0.0, 105.0, 30.0], [0.0, 0.0, 1.0]])
-    return model, images, poses, k, model.encode(images, poses, k)
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +37,8 @@ def test_bytes_paths_are_paths(tmp_path):
     refused(raypatch.FileError, lambda: raypatch.load(bytes(tmp_path / "absent.safetensors")), "absent.safetensors")
 
 
-def test_integers_are_accepted_as_floats(posed, from_file):
-    model, images, poses, k, scene = posed
+def test_integers_are_accepted_as_floats(posed_scene, from_file):
+    model, images, poses, k, scene = posed_scene
     want = scene.render(poses[0])["rgb"]
     k_ints = np.array([[105, 0, 40], [0, 105, 30], [0, 0, 1]])
     assert np.array_equal(model.encode(images, poses, k_ints).render(poses[0])["rgb"], want)
@@ -91,8 +67,8 @@ def test_integers_are_accepted_as_floats(posed, from_file):
     (lambda s, p: raypatch.load(5), "path 5: expected a path"),
     (lambda s, p: s.render(p, outputs=None), "outputs None: expected"),
 ])
-def test_nonsense_numbers_are_refused(posed, call, named):
-    model, images, poses, k, scene = posed
+def test_nonsense_numbers_are_refused(posed_scene, call, named):
+    model, images, poses, k, scene = posed_scene
     refused(raypatch.InputError, lambda: call(scene, poses[0]), named)
 
 
@@ -115,8 +91,8 @@ def test_negative_sizes_indices_and_counts_are_input_errors(from_file, call, nam
     refused(raypatch.InputError, lambda: call(scene, data, look_at((7.0, -2.0, 3.0))), named)
 
 
-def test_too_large_arrays_are_refused_before_conversion(posed):
-    model, images, poses, k, scene = posed
+def test_too_large_arrays_are_refused_before_conversion(posed_scene):
+    model, images, poses, k, scene = posed_scene
     one = np.zeros((1, 1, 1, 3), dtype=np.uint8)
     # Views of one pixel (no memory): converted, they would be 2 TB and 300 MB of float32.
     huge = np.broadcast_to(one, (10_000, 4096, 4096, 3))
@@ -166,8 +142,8 @@ HUGE = "x" * 5_000_000
     lambda m, s, p: raypatch.bundled_scene(HUGE),
     lambda m, s, p: raypatch.Rendered({HUGE: p}).save("x.png"),
 ])
-def test_messages_quote_a_bounded_excerpt(posed, call):
-    model, images, poses, k, scene = posed
+def test_messages_quote_a_bounded_excerpt(posed_scene, call):
+    model, images, poses, k, scene = posed_scene
     refused(raypatch.Error, lambda: call(model, scene, poses))
 
 

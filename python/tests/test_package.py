@@ -22,12 +22,6 @@ OUTPUT_MAX_ABS = 1e-4
 RELATIVE_MAX = 1e-4
 
 
-@pytest.fixture(scope="module")
-def engine():
-    with raypatch.Engine() as engine:
-        yield engine
-
-
 def golden_cases():
     # rpsrt_k8_resize gives patch rays (10x7) that k = 8 does not divide into its 80x60 target: the engine-level
     # golden test reads them, the scene-file API (raypatch::SceneData) takes only grids of the size or size / k.
@@ -78,28 +72,6 @@ def test_the_same_bytes_as_render_frame(engine, tmp_path):
         ours = scene.render_view(view, ("rgb", "segmentation"))
         for output in ("rgb", "segmentation"):
             assert ours[output].tobytes() == cli[output][view].tobytes(), (output, view)
-
-
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
-    """An OpenGL camera-to-world pose at eye looking at target."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    back = eye - target
-    back /= np.linalg.norm(back)
-    right = np.cross(up, back)
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(back, right), back, eye
-    return pose
-
-
-@pytest.fixture(scope="module")
-def posed_scene(engine):
-    model = engine.bundled("rpsrt_k4")
-    rng = np.random.default_rng(0)
-    images = rng.random((2, 60, 80, 3), dtype=np.float32)
-    poses = np.stack([look_at((7.0, -2.0, 3.0)), look_at((-5.0, 5.0, 2.0))])
-    k = np.array([[105.0, 0.0, 40.0], [0.0, 105.0, 30.0], [0.0, 0.0, 1.0]])
-    return model, images, poses, k, model.encode(images, poses, k)
 
 
 def test_a_transforms_json_folder_is_the_same_scene_as_its_arrays(posed_scene, tmp_path):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import raypatch
+from conftest import look_at
 
 ROOT = Path(__file__).resolve().parents[2]
 RENDER_FRAME = ROOT / "target" / "release" / "render-frame"
@@ -18,16 +19,6 @@ RENDER_FRAME = ROOT / "target" / "release" / "render-frame"
 def bundled():
     with raypatch.Engine() as engine:
         yield engine.bundled("fitted").encode_scene(raypatch.bundled_scene())
-
-
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
-    """An OpenGL camera-to-world pose at eye looking at target."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    back = (eye - target) / np.linalg.norm(eye - target)
-    right = np.cross(up, back) / np.linalg.norm(np.cross(up, back))
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(back, right), back, eye
-    return pose
 
 
 def test_poses_render_as_render_does(bundled):
