@@ -172,9 +172,21 @@ fn turned(grid: &RayGrid, turn: DMat3) -> RayGrid {
     if turn == DMat3::IDENTITY {
         return grid.clone();
     }
-    let rays = grid.rays.iter().map(|d| (turn * d.as_dvec3()).as_vec3()).collect();
+    let rays = grid.rays.iter().map(|d| turned_ray(*d, turn)).collect();
     RayGrid { rays, ..*grid }
 }
+
+fn turned_ray(ray: Vec3, turn: DMat3) -> Vec3 {
+    if turn == DMat3::IDENTITY {
+        ray
+    } else {
+        (turn * ray.as_dvec3()).as_vec3()
+    }
+}
+
+/// Rays of a pinhole camera from which [`Camera::write_rays`] shares the work among the cores (below, the
+/// threads would cost more than they save: a ray takes some 10 ns).
+const PARALLEL_RAYS: usize = 1 << 16;
 
 fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
     if v.is_finite() {
@@ -194,13 +206,15 @@ impl Camera {
     /// This camera as the engine's one-view render target, with rays of the model's kind (see
     /// [`rays_of`](Self::rays_of)).
     pub fn target_views_of(&self, kind: RayKind) -> raypatch_model::TargetViews {
-        let rays = self.rays_of(kind);
+        let (width, height) = self.ray_grid_size();
+        let mut rays = vec![0.0; width * height * 3];
+        self.write_rays(kind, &mut rays);
         raypatch_model::TargetViews {
             count: 1,
             camera_pos: self.position().as_vec3().to_array().to_vec(),
-            rays: rays.rays.iter().flat_map(|d| d.to_array()).collect(),
-            rays_height: rays.height,
-            rays_width: rays.width,
+            rays,
+            rays_height: height,
+            rays_width: width,
             declared_size: Some((self.height(), self.width())),
             images: None,
             masks: None,
@@ -378,21 +392,64 @@ impl Camera {
     pub fn rays_of(&self, kind: RayKind) -> RayGrid {
         match &self.projection {
             Projection::Rays { grid, turn, .. } => turned(grid, *turn),
-            Projection::Pinhole { intrinsics: k, rotation } => {
-                let mut directions = Vec::with_capacity(self.width * self.height);
-                for i in 0..self.height {
-                    for j in 0..self.width {
-                        let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
-                        let world = *rotation * camera;
-                        directions.push(match kind {
-                            RayKind::UnitDirection => world.normalize().as_vec3(),
-                            RayKind::UnitDepthPoint => (self.position + world).as_vec3(),
-                        });
-                    }
-                }
-                RayGrid { width: self.width, height: self.height, rays: directions }
+            Projection::Pinhole { .. } => {
+                let mut values = vec![0.0; self.width * self.height * 3];
+                self.write_rays(kind, &mut values);
+                let rays = values.chunks_exact(3).map(Vec3::from_slice).collect();
+                RayGrid { width: self.width, height: self.height, rays }
             }
         }
+    }
+
+    /// The size of the camera's ray grid: the image's, or the given patch grid's (width, height).
+    pub fn ray_grid_size(&self) -> (usize, usize) {
+        match &self.projection {
+            Projection::Rays { grid, .. } => (grid.width, grid.height),
+            Projection::Pinhole { .. } => (self.width, self.height),
+        }
+    }
+
+    /// Writes the rays [`rays_of`](Self::rays_of) gives, row-major, 3 floats a ray, into `out` (the
+    /// [`ray_grid_size`](Self::ray_grid_size)'s rays × 3 values), without building the grid: a pinhole camera's
+    /// large images (a render's targets) are computed a band of rows per core, each ray as `rays_of` makes it.
+    pub fn write_rays(&self, kind: RayKind, out: &mut [f32]) {
+        let (width, height) = self.ray_grid_size();
+        assert_eq!(out.len(), width * height * 3, "write_rays: room for {width}x{height} rays");
+        let (k, rotation) = match &self.projection {
+            Projection::Rays { grid, turn, .. } => {
+                for (o, d) in out.chunks_exact_mut(3).zip(&grid.rays) {
+                    o.copy_from_slice(&turned_ray(*d, *turn).to_array());
+                }
+                return;
+            }
+            Projection::Pinhole { intrinsics, rotation } => (intrinsics, *rotation),
+        };
+        let row = |i: usize, values: &mut [f32]| {
+            for (j, value) in values.chunks_exact_mut(3).enumerate() {
+                let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
+                let world = rotation * camera;
+                let ray = match kind {
+                    RayKind::UnitDirection => world.normalize().as_vec3(),
+                    RayKind::UnitDepthPoint => (self.position + world).as_vec3(),
+                };
+                value.copy_from_slice(&ray.to_array());
+            }
+        };
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        if threads == 1 || width * height < PARALLEL_RAYS {
+            out.chunks_exact_mut(width * 3).enumerate().for_each(|(i, values)| row(i, values));
+            return;
+        }
+        let rows_each = height.div_ceil(threads);
+        std::thread::scope(|scope| {
+            for (band, values) in out.chunks_mut(rows_each * width * 3).enumerate() {
+                scope.spawn(move || {
+                    for (r, values) in values.chunks_exact_mut(width * 3).enumerate() {
+                        row(band * rows_each + r, values);
+                    }
+                });
+            }
+        });
     }
 
     /// Checks the rays this camera was given against `kind` (see [`raypatch_model::rays::check_ray_kind`]):
@@ -500,5 +557,30 @@ mod tests {
         assert_eq!(a.check_rays(RayKind::UnitDepthPoint), Ok(()));
         assert!(a.check_rays(RayKind::UnitDirection).unwrap_err().contains("unit ray directions"));
         assert_eq!(camera.check_rays(RayKind::UnitDirection), Ok(()), "a pinhole camera makes either kind");
+    }
+
+    /// A large image's rays, written a band of rows per core, are each pixel's own ray: no band shifted,
+    /// repeated or left out (the image is above PARALLEL_RAYS, its height not a multiple of the cores).
+    #[test]
+    fn rays_written_in_bands_are_each_pixels_own() {
+        let (width, height) = (331, 257);
+        assert!(width * height >= PARALLEL_RAYS);
+        let k = Intrinsics { width, height, fx: 300.0, fy: 310.0, cx: 160.0, cy: 131.5 };
+        let camera = Camera::look_at(DVec3::new(4.0, -3.0, 2.5), DVec3::ZERO, DVec3::Z, k).unwrap();
+        let (_, pose) = camera.as_pinhole().unwrap();
+        let rotation = DMat3::from_mat4(pose);
+        for kind in [RayKind::UnitDirection, RayKind::UnitDepthPoint] {
+            let mut written = vec![f32::NAN; width * height * 3];
+            camera.write_rays(kind, &mut written);
+            for (i, ray) in written.chunks_exact(3).enumerate() {
+                let (u, v) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);
+                let world = rotation * DVec3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+                let want = match kind {
+                    RayKind::UnitDirection => world.normalize(),
+                    RayKind::UnitDepthPoint => camera.position() + world,
+                };
+                assert_eq!(ray, want.as_vec3().to_array(), "{kind:?} ray {i}");
+            }
+        }
     }
 }

@@ -10,12 +10,13 @@ use crate::error::{Error, Result};
 /// `cameras` (one size) as one batch of the engine's render targets, with rays of `kind`.
 fn targets_of(cameras: &[Camera], kind: RayKind) -> raypatch_model::TargetViews {
     let mut targets = cameras[0].target_views_of(kind);
+    let per_view = targets.rays.len();
     targets.count = cameras.len();
-    targets.rays.reserve(targets.rays.len() * (cameras.len() - 1));
+    targets.rays.resize(per_view * cameras.len(), 0.0);
     targets.camera_pos.reserve(3 * (cameras.len() - 1));
-    for camera in &cameras[1..] {
+    for (camera, rays) in cameras[1..].iter().zip(targets.rays[per_view..].chunks_exact_mut(per_view)) {
         targets.camera_pos.extend(camera.position().as_vec3().to_array());
-        targets.rays.extend(camera.rays_of(kind).rays.iter().flat_map(|d| d.to_array()));
+        camera.write_rays(kind, rays);
     }
     targets
 }
