@@ -25,6 +25,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from checkpoint_helpers import PAYLOAD_PLACES, with_payload
 from conversion import convert_checkpoint
 from reference.raypatch_reference import build_model
 
@@ -98,8 +99,10 @@ def render_frame(*args):
 
 
 def render_raw(model, case, out):
+    # The pictures go beside the raw file (render-frame's default, render.png, would land in the working folder).
+    pictures = Path(out).with_suffix("")
     result = render_frame("--model", model, "--scene", GOLDEN / case / "scene.safetensors", "--view", "all",
-                          "--out-raw", out, "--quiet")
+                          "--out-raw", out, "--out", pictures, "--quiet")
     assert result.returncode == 0, result.stderr
     return load_file(str(out))
 
@@ -153,17 +156,9 @@ def hostile(tmp_path, model, model_cfg):
         torch.save(checkpoint, path)
         return path.read_bytes()
 
-    for where in ("state_dict", "callbacks", "hyper_parameters", "top_level"):
-        checkpoint = lightning_checkpoint(model, model_cfg, "plain")
+    for where in PAYLOAD_PLACES:
         evil = RunsCode(os.system, f"touch {marker}")
-        if where == "state_dict":
-            checkpoint["state_dict"]["encoder.evil"] = evil
-        elif where == "callbacks":
-            checkpoint["callbacks"] = {"ModelCheckpoint": {"best_k_models": {"a.ckpt": [evil]}}}
-        elif where == "hyper_parameters":
-            checkpoint["hyper_parameters"]["evil"] = evil
-        else:
-            checkpoint = evil
+        checkpoint = with_payload(lightning_checkpoint(model, model_cfg, "plain"), where, evil)
         cases[f"system-{where}"] = (saved(checkpoint), "refusing to unpickle posix.system")
     checkpoint = lightning_checkpoint(model, model_cfg, "plain")
     checkpoint["optimizer_states"] = [{"state": {0: {"exp_avg": torch.zeros(25_000_000)}}}]  # 100 MB of zeros

@@ -34,6 +34,7 @@ import pytest
 import torch
 from safetensors import safe_open
 
+from checkpoint_helpers import PAYLOAD_PLACES, with_payload
 from conversion import convert_checkpoint
 from data import make_golden
 from data.random_models import k4_config, random_define, random_model
@@ -384,22 +385,14 @@ def payloads(marker):
 
 
 @pytest.mark.parametrize("payload", ["os.system", "exec", "subprocess"])
-@pytest.mark.parametrize("where", ["state_dict", "callbacks", "hyper_parameters", "top_level"])
+@pytest.mark.parametrize("where", PAYLOAD_PLACES)
 def test_pickles_that_run_code_are_refused_unrun(tmp_path, k4, where, payload):
     """A checkpoint whose pickle would run a command (in a state_dict entry, nested in callback state, in a
     hyper_parameters entry, or as the whole pickle) is refused with one line naming the callable; nothing runs."""
     model_cfg, model = k4
     marker = tmp_path / "MARKER"
     evil, names = payloads(marker)[payload]
-    checkpoint = fake_checkpoint(model, model_cfg)
-    if where == "state_dict":
-        checkpoint["state_dict"]["encoder.evil"] = evil
-    elif where == "callbacks":
-        checkpoint["callbacks"] = {"ModelCheckpoint": {"best_k_models": {"a.ckpt": [evil]}}}
-    elif where == "hyper_parameters":
-        checkpoint["hyper_parameters"]["evil"] = evil
-    else:
-        checkpoint = evil
+    checkpoint = with_payload(fake_checkpoint(model, model_cfg), where, evil)
     code, stderr, out_path = run_converter(checkpoint, tmp_path)
     assert not marker.exists(), "the pickle ran code"
     assert_refused(code, stderr, tmp_path / "run.ckpt", "could run code")
