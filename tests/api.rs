@@ -328,6 +328,22 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     assert_eq!(engine.counters().pipelines_compiled, after.pipelines_compiled, "another size compiled pipelines");
 }
 
+/// The first render's pipelines compile while the GPU encodes: a render of the inputs' size compiles none.
+#[test]
+fn the_first_renders_pipelines_compile_during_the_encode() {
+    for case in ["rpsrt_k4", "srt_k1_depth", "rposrt_k8", "define"] {
+        let engine = engine();
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let before = engine.counters().pipelines_compiled;
+        let (width, height) = (data.inputs[0].camera.width(), data.inputs[0].camera.height());
+        let camera = Camera::msn(data.targets[0].camera.position(), width, height).unwrap();
+        scene.render(&camera, &Request::default()).unwrap();
+        assert_eq!(engine.counters().pipelines_compiled, before, "{case}: the first render compiled pipelines");
+    }
+}
+
 /// The engine's precision applies to every model it loads: f16 weights (and, on the GPUs' kernel, activations)
 /// move the render by f16's rounding (tests/stress/f16.rs bounds it against the float64 model), no more.
 #[test]

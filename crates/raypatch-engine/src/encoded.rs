@@ -122,7 +122,24 @@ impl Model {
             std::iter::once((plan.latent, &latent)).chain(plan.cached.iter().copied().zip(&cached)).collect();
         // Profiling times the ops one by one, then runs them again as one submit for the scene's values.
         let times = if profile { plan.plan.profile(gpu)? } else { Vec::new() };
-        let latent_values = plan.plan.execute_and_read(gpu, &copies, &[plan.latent])?.remove(0);
+        // While the GPU encodes, the pipelines of a first render are compiled (a view of the inputs' size; a
+        // render of another size runs the same pipelines but where its size picks another kernel variant).
+        let k = self.family.patch_size();
+        let warm = || {
+            if !inputs.height.is_multiple_of(k) || !inputs.width.is_multiple_of(k) {
+                return; // a size no render of this model computes whole
+            }
+            let grid = TargetGrid { height: inputs.height, width: inputs.width, rays_are_patches: false };
+            let rgb = Outputs::of(&[Output::Rgb]);
+            let outputs = if self.family.outputs().contains(Output::Rgb) { rgb } else { self.family.outputs() };
+            let recorded = record_render(self, &cached, 1, grid, outputs);
+            gpu.compile_pipelines(recorded.builder.pipelines());
+        };
+        let latent_values = std::thread::scope(|scope| {
+            scope.spawn(warm);
+            plan.plan.execute_and_read(gpu, &copies, &[plan.latent])
+        })?
+        .remove(0);
         plan.plan.check_finite(gpu, "encode", &latent_values)?;
         let scene = EncodedScene {
             model: self,
@@ -439,14 +456,7 @@ impl EncodedScene<'_> {
 
     /// Records the render of `views` target views of a crop (no buffer exists yet).
     fn record(&self, views: usize, crop: &Crop, outputs: Outputs) -> Recorded {
-        let model = self.model;
-        let mut g = model.graph();
-        let rendered = model.family.render(&mut g, &self.cached, views, crop.grid, outputs);
-        let (outputs, flag) = record_readouts(&mut g, views, (crop.grid.height, crop.grid.width), &rendered);
-        let Graph { b, host_inputs, .. } = g;
-        let k = model.family.patch_size();
-        let queries = views * (crop.grid.height / k) * (crop.grid.width / k);
-        Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
+        record_render(self.model, &self.cached, views, crop.grid, outputs)
     }
 
     /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
@@ -457,6 +467,17 @@ impl EncodedScene<'_> {
         let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
         Ok(plans.entry(key).or_insert(plan).clone())
     }
+}
+
+/// Records the render of `views` target views on `grid` of a scene whose cached tensors are `cached`.
+fn record_render(model: &Model, cached: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs) -> Recorded {
+    let mut g = model.graph();
+    let rendered = model.family.render(&mut g, cached, views, grid, outputs);
+    let (outputs, flag) = record_readouts(&mut g, views, (grid.height, grid.width), &rendered);
+    let Graph { b, host_inputs, .. } = g;
+    let k = model.family.patch_size();
+    let queries = views * (grid.height / k) * (grid.width / k);
+    Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
 }
 
 /// A render recorded but not built.

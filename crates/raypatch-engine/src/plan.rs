@@ -242,6 +242,11 @@ impl PlanBuilder {
         self.ops.iter().map(|op| op.multiply_adds).sum()
     }
 
+    /// The pipelines the ops recorded so far run: shader, entry point, override constants (repeats included).
+    pub fn pipelines(&self) -> impl Iterator<Item = (&'static Shader, &'static str, &[(&'static str, f64)])> {
+        self.ops.iter().map(|op| (op.shader, op.entry, op.constants.as_slice()))
+    }
+
     /// Bytes the plan would allocate when built (pooled intermediates, inputs, outputs, scratch textures; the
     /// params aside), without building it: to size a render before committing memory to it.
     pub fn planned_bytes(&self) -> u64 {
