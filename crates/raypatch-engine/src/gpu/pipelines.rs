@@ -1,0 +1,106 @@
+//! The Gpu's compute pipelines: compiled once per shader, entry point and override constants, a plan's all at
+//! once (a thread per core), through the driver's pipeline cache on disk where there is one.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::{Gpu, Shader};
+
+/// A compiled pipeline's identity: shader, entry point, and its override constants' values (as bits).
+pub(super) type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
+
+fn pipeline_key(shader: &Shader, entry: &'static str, constants: &[(&'static str, f64)]) -> PipelineKey {
+    (shader.name, entry, constants.iter().map(|&(name, value)| (name, value.to_bits())).collect())
+}
+
+impl Gpu {
+    /// The compute pipeline of `shader`'s `entry` with its override `constants`, compiled on first use (through
+    /// the pipeline cache on disk, where there is one) and cached for the life of the Gpu.
+    pub fn pipeline(
+        &self,
+        shader: &'static Shader,
+        entry: &'static str,
+        constants: &[(&'static str, f64)],
+    ) -> Arc<wgpu::ComputePipeline> {
+        let key = pipeline_key(shader, entry, constants);
+        if let Some(pipeline) = self.pipelines.lock().expect("pipeline cache poisoned").get(&key) {
+            return pipeline.clone();
+        }
+        // Compiled outside the lock: other threads' pipelines compile meanwhile (a pipeline two threads ask
+        // for at once is compiled twice, and one kept).
+        let pipeline = Arc::new(self.compile(shader, entry, constants));
+        self.pipelines.lock().expect("pipeline cache poisoned").entry(key).or_insert(pipeline).clone()
+    }
+
+    /// Compiles every pipeline of `wanted` not compiled yet, several at once (one thread per core, up to one
+    /// per pipeline): a plan's distinct pipelines before it is built, so that its first run does not compile
+    /// them one after another.
+    pub fn compile_pipelines<'a>(
+        &self,
+        wanted: impl IntoIterator<Item = (&'static Shader, &'static str, &'a [(&'static str, f64)])>,
+    ) {
+        let mut missing: Vec<(PipelineKey, &'static Shader, &'static str, &'a [(&'static str, f64)])> = Vec::new();
+        {
+            let cache = self.pipelines.lock().expect("pipeline cache poisoned");
+            for (shader, entry, constants) in wanted {
+                let key = pipeline_key(shader, entry, constants);
+                if !cache.contains_key(&key) && !missing.iter().any(|m| m.0 == key) {
+                    missing.push((key, shader, entry, constants));
+                }
+            }
+        }
+        if missing.len() < 2 {
+            return; // one is compiled where it is first asked for
+        }
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(missing.len());
+        let next = AtomicUsize::new(0);
+        std::thread::scope(|scope| {
+            for _ in 0..threads {
+                scope.spawn(|| loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some((key, shader, entry, constants)) = missing.get(i) else { break };
+                    let pipeline = Arc::new(self.compile(shader, entry, constants));
+                    self.pipelines.lock().expect("pipeline cache poisoned").entry(key.clone()).or_insert(pipeline);
+                });
+            }
+        });
+    }
+
+    /// `shader`'s module, made on first use.
+    fn module(&self, shader: &'static Shader) -> Arc<wgpu::ShaderModule> {
+        if let Some(module) = self.modules.lock().expect("module cache poisoned").get(shader.name) {
+            return module.clone();
+        }
+        let module = Arc::new(self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(shader.name),
+            source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
+        }));
+        self.modules.lock().expect("module cache poisoned").entry(shader.name).or_insert(module).clone()
+    }
+
+    /// Compiles one pipeline, counted in [`counters`](Self::counters) (the compile time of pipelines compiled at
+    /// once adds up: CPU time, not wall time).
+    fn compile(
+        &self,
+        shader: &'static Shader,
+        entry: &'static str,
+        constants: &[(&'static str, f64)],
+    ) -> wgpu::ComputePipeline {
+        self.counters.pipelines_compiled.fetch_add(1, Ordering::Relaxed);
+        let start = Instant::now();
+        let module = self.module(shader);
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+            cache: self.pipeline_cache.wgpu(),
+        });
+        let nanos = start.elapsed().as_nanos().try_into().unwrap_or(u64::MAX);
+        self.counters.pipeline_compile_nanos.fetch_add(nanos, Ordering::Relaxed);
+        self.pipeline_cache.compiled();
+        pipeline
+    }
+}
