@@ -12,6 +12,8 @@
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
+use crate::error::Quoted;
+
 /// Why a file could not be read, as one phrase (the caller names the file).
 #[derive(Debug)]
 pub enum ReadError {
@@ -112,15 +114,16 @@ pub fn read_regular_text(path: &Path, max_bytes: u64) -> Result<String, ReadErro
 /// The file `name` (as written in a scene folder's JSON) inside `dir`: a relative path without `..` that
 /// resolves, symlinks followed, to a regular file inside `dir`. Returns the resolved path, or why not.
 pub fn resolve_inside(dir: &Path, name: &str) -> Result<PathBuf, String> {
-    let outside = || format!("{name:?} does not name a regular file inside the scene folder");
+    let quoted = Quoted(name);
+    let outside = || format!("{quoted:?} does not name a regular file inside the scene folder");
     let relative = Path::new(name);
     if name.is_empty() || relative.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir)) {
-        return Err(format!("{name:?} is not a relative path inside the scene folder (no `..`, no absolute path)"));
+        return Err(format!("{quoted:?} is not a relative path inside the scene folder (no `..`, no absolute path)"));
     }
     let root = dir.canonicalize().map_err(|e| format!("{}: {e}", dir.display()))?;
     let joined = root.join(relative);
     if std::fs::symlink_metadata(&joined).is_err() {
-        return Err(format!("{name:?}: no such file in the scene folder"));
+        return Err(format!("{quoted:?}: no such file in the scene folder"));
     }
     // Something is there: only a regular file inside the folder is acceptable, and every other case gets
     // the same words (a dangling link and a link to an outside file must not be told apart).
