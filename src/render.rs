@@ -3,11 +3,11 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
 use raypatch_engine::{
     AdapterChoice, EncodedScene, Gpu, GpuOptions, LoadOptions, MatmulKernel, OpTimes, Output, Outputs,
     PipelineCacheDir, PipelineCacheStatus, Precision, RenderStats, Request,
 };
-use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
 use crate::camera::Camera;
