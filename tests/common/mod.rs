@@ -89,7 +89,7 @@ pub fn read_written_rows(out: &GpuTensor, view: Range<usize>, sentinel: f32) -> 
 }
 
 /// Parses and validates a WGSL source with naga, with the capabilities its optional wgpu features give
-/// (f16, subgroups in compute shaders); panics naming the shader on any error.
+/// (f16, subgroups in compute shaders, cooperative matrices); panics naming the shader on any error.
 pub fn validate_wgsl(name: &str, source: &str, features: wgpu::Features) -> (naga::Module, naga::valid::ModuleInfo) {
     let module =
         naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
@@ -99,6 +99,9 @@ pub fn validate_wgsl(name: &str, source: &str, features: wgpu::Features) -> (nag
     }
     if features.contains(wgpu::Features::SUBGROUP) {
         capabilities |= naga::valid::Capabilities::SUBGROUP;
+    }
+    if features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+        capabilities |= naga::valid::Capabilities::COOPERATIVE_MATRIX;
     }
     let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities)
         .subgroup_stages(naga::valid::ShaderStages::COMPUTE)

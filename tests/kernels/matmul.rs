@@ -43,6 +43,12 @@ fn check(case: &Case, rng: &mut Rng) {
 /// with exactly those in f32. f16 activations (on `Tiled` only, where they apply): the reference also rounds
 /// x (normalised, where it is) to f16, and the tolerance adds the f16 sums of each K step.
 fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
+    let kernels = if precision == Precision::F16Activations { vec![MatmulKernel::Tiled] } else { matmul_kernels() };
+    check_on(case, rng, precision, &kernels);
+}
+
+/// [`check_with`] on `kernels`.
+fn check_on(case: &Case, rng: &mut Rng, precision: Precision, kernels: &[MatmulKernel]) {
     let Case { m, k, n, act, .. } = *case;
     let weights = if precision.f16_weights() { Dtype::F16 } else { Dtype::F32 };
     let f16_activations = precision == Precision::F16Activations;
@@ -108,8 +114,7 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
     let w = w64;
     let bias = bias64;
 
-    let kernels = if f16_activations { vec![MatmulKernel::Tiled] } else { matmul_kernels() };
-    for kernel in kernels {
+    for &kernel in kernels {
         gpu.queue.write_buffer(&out_t.buffer, 0, &out_bytes);
         let mut plan = PlanBuilder::new();
         plan.kernels =
@@ -137,6 +142,9 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
         linear(&mut plan, "linear", args);
         if f16_activations {
             assert!(plan.op_kernels().any(|k| k.starts_with("matmul_f16_act")), "f16 activations did not run");
+        }
+        if kernel == MatmulKernel::Coop {
+            assert!(plan.op_kernels().any(|k| k.contains("linear_coop")), "linear_coop did not run");
         }
         run(plan);
         let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
@@ -182,6 +190,16 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
             // most 2^-11 of itself, so a sum by 2^-11·Σ|x·w|; c = 4, as above.
             tol += 4.0 * 2f64.powi(-11) * magnitude;
         }
+        if kernel == MatmulKernel::Coop {
+            // x and w rounded to f16 as they are staged (the reference keeps them exact): each operand is off by at
+            // most u16 = 2^-11 of itself, or 2^-25 where it is below f16's normal range, so a product by
+            // (2·u16 + u16²)·|x·w| + 2^-25·(|x| + |w|); the sums are f32, bounded above. A single wrong product
+            // (~Σ|x·w|/K, K < 600 here) still fails.
+            let u16 = 2f64.powi(-11);
+            let x_max = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            let w_max = w.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            tol += (2.0 * u16 + u16 * u16) * magnitude + k as f64 * 2f64.powi(-25) * (x_max + w_max);
+        }
         assert_close(&what, &values, &expected, tol, 0.0);
     }
 }
@@ -209,6 +227,35 @@ fn linear_random_shapes() {
             shaped: i % 3 == 0,
         };
         check(&case, &mut rng);
+    }
+}
+
+/// `Coop` (`linear_coop`: f16 cooperative matrices), where the adapter has them (`MatmulKernel::supported`; not
+/// lavapipe): random shapes with tails of its 64x64 tiles and 32-float K steps, every activation, bias, accumulate,
+/// views, a layer norm first, f32 and f16 weights.
+#[test]
+fn linear_coop() {
+    let gpu = gpu();
+    if let Err(why) = MatmulKernel::Coop.supported(&gpu.info, gpu.features) {
+        eprintln!("linear_coop not tested on {}: {why}", gpu.describe());
+        return;
+    }
+    let mut rng = Rng::new(6);
+    for i in 0..32 {
+        let k = if i < 4 { [1, 16, 33, 64][i] } else { rng.range(1, 600) };
+        let case = Case {
+            m: rng.range(1, 300),
+            k,
+            n: rng.range(1, 200),
+            act: ACTIVATIONS[i % 4],
+            bias: (i / 4) % 2 == 1,
+            accumulate: (i / 8) % 2 == 1,
+            view: i % 3 == 0,
+            norm: i % 5 == 2,
+            shaped: false,
+        };
+        let precision = if i % 2 == 1 { Precision::F16Weights } else { Precision::F32 };
+        check_on(&case, &mut rng, precision, &[MatmulKernel::Coop]);
     }
 }
 

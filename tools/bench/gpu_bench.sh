@@ -17,7 +17,8 @@
 #               official RP-SRT k=8's encode and first render in a fresh process from an empty pipeline cache
 #     tests     the kernel, golden, API and executor tests on the GPU (every kernel variant the GPU runs; the
 #               executor's: renders' staging, readout and sequences kept in flight)
-#     gemm      the hot linear layers on every matmul kernel and in PyTorch (cuBLAS, no TF32)
+#     gemm      the hot linear layers on every matmul kernel the GPU runs (`Coop`, f16 tensor cores, where it has
+#               16x16x16 f16 cooperative matrices) and in PyTorch (cuBLAS, no TF32)
 #     lab       the GEMM lab: the engine's GEMM kernels beside outer-product tilings (tools/bench/gemm_lab.py)
 #     breakdown the engine alone (no PyTorch, no float64 reference: about a minute) on the official RP-SRT k=8, SRT,
 #               RP-OSRT k=8 and RP-DeFiNe k=16: where each encode's and render's GPU time goes, by kernel and op

@@ -5,7 +5,8 @@
 //! [`attention_variant`], and whether its pipeline is specialised to its shape: [`fixed_shapes`].
 //!
 //! The families: `Rows` (storage buffers and register tiles, any adapter), `Tiled` (workgroup-memory tiles:
-//! GPUs), `Lanes` (packed textures and 8-lane subgroup broadcasts: llvmpipe). Adding a variant is an arm here,
+//! GPUs), `Lanes` (packed textures and 8-lane subgroup broadcasts: llvmpipe), `Coop` (f16 cooperative matrices,
+//! tensor cores: opt-in, linear layers only so far). Adding a variant is an arm here,
 //! its WGSL entry point and its wrapper's dispatch; ARCHITECTURE.md "Adding a kernel variant".
 
 /// Lanes of a subgroup `matmul_lanes` needs, exactly.
@@ -31,11 +32,33 @@ pub enum MatmulKernel {
     /// ~4x faster; needs subgroups of exactly 8 lanes. Ops it does not suit (f16 weights, operands too large
     /// for its textures or grid, convolutions with few channels, heads not a multiple of 32 wide) run as `Rows`.
     Lanes,
+    /// `matmul_coop.linear_coop`: f16 cooperative matrices (tensor cores) on 64x64 tiles of out, x and w rounded to
+    /// f16 as they are staged, the products summed in f32 ([`COOP_FEATURES`]). Opt-in only (never
+    /// [`best_for`](Self::best_for)) until a GPU measurement decides; linear layers only: convolutions and
+    /// attention run as on `Tiled` ([`beyond_linear`](Self::beyond_linear)).
+    Coop,
+}
+
+/// What `Coop` needs: cooperative matrices, requested only where the adapter lists 16x16x16 f16 x f16 -> f32
+/// (`Gpu::new`), f16 in shaders, and subgroups of exactly [`COOP_LANES`] lanes.
+pub const COOP_FEATURES: wgpu::Features =
+    wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX.union(wgpu::Features::SHADER_F16).union(wgpu::Features::SUBGROUP);
+
+/// Lanes of a subgroup `linear_coop` needs: its 128 invocations must be its 4 subgroups, one per quarter of the
+/// tile.
+pub const COOP_LANES: u32 = 32;
+
+/// Whether a cooperative-matrix configuration is `Coop`'s: 16x16x16, f16 operands, f32 accumulators.
+pub fn coop_configuration(p: &wgpu::CooperativeMatrixProperties) -> bool {
+    (p.m_size, p.n_size, p.k_size) == (16, 16, 16)
+        && p.ab_type == wgpu::CooperativeScalarType::F16
+        && p.cr_type == wgpu::CooperativeScalarType::F32
 }
 
 impl MatmulKernel {
     /// Every kernel.
-    pub const ALL: [MatmulKernel; 3] = [MatmulKernel::Rows, MatmulKernel::Tiled, MatmulKernel::Lanes];
+    pub const ALL: [MatmulKernel; 4] =
+        [MatmulKernel::Rows, MatmulKernel::Tiled, MatmulKernel::Lanes, MatmulKernel::Coop];
 
     /// The name `--matmul-kernel` takes.
     pub fn name(self) -> &'static str {
@@ -43,6 +66,7 @@ impl MatmulKernel {
             MatmulKernel::Rows => "rows",
             MatmulKernel::Tiled => "tiled",
             MatmulKernel::Lanes => "lanes",
+            MatmulKernel::Coop => "coop",
         }
     }
 
@@ -76,6 +100,28 @@ impl MatmulKernel {
                 info.subgroup_min_size, info.subgroup_max_size
             )),
             MatmulKernel::Lanes => Ok(()),
+            MatmulKernel::Coop if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) => {
+                Err("the adapter has no 16x16x16 f16 cooperative matrices with f32 accumulators".into())
+            }
+            MatmulKernel::Coop if !features.contains(COOP_FEATURES) => {
+                Err("the adapter lacks f16 in shaders or subgroup operations".into())
+            }
+            MatmulKernel::Coop if (info.subgroup_min_size, info.subgroup_max_size) != (COOP_LANES, COOP_LANES) => {
+                Err(format!(
+                    "needs subgroups of {COOP_LANES} lanes, the adapter's are {}..{}",
+                    info.subgroup_min_size, info.subgroup_max_size
+                ))
+            }
+            MatmulKernel::Coop => Ok(()),
+        }
+    }
+
+    /// The family convolutions and attention run on: `Coop` has linear layers only so far, the rest runs as on
+    /// `Tiled`.
+    pub fn beyond_linear(self) -> MatmulKernel {
+        match self {
+            MatmulKernel::Coop => MatmulKernel::Tiled,
+            other => other,
         }
     }
 }
@@ -105,6 +151,9 @@ pub struct KernelChoice {
     /// narrow layers ran there), so one pipeline serves every shape; the kernel tests set it there to check the
     /// shaped pipelines.
     pub shaped: bool,
+    /// The adapter has 16x16x16 f16 x f16 -> f32 cooperative matrices and the device was created with them
+    /// ([`COOP_FEATURES`]): `Coop` can run.
+    pub coop: bool,
 }
 
 impl KernelChoice {
@@ -171,7 +220,7 @@ pub fn conv_variant(
     rows_groups: usize,
     lanes_suit: impl FnOnce() -> bool,
 ) -> MatmulKernel {
-    match choice.matmul {
+    match choice.matmul.beyond_linear() {
         MatmulKernel::Lanes if lanes_suit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
         MatmulKernel::Tiled if narrow_on_rows(choice, cout, rows_groups) => MatmulKernel::Rows,
@@ -210,7 +259,7 @@ pub fn fixed_shapes(choice: &KernelChoice, variant: MatmulKernel) -> bool {
 /// rather than an invocation per row: on `Tiled`, the GPUs' family, where 300 rows on as many invocations would
 /// leave a GPU idle while each walks its row; not on CPU adapters, whose invocations are SIMD lanes.
 pub fn reduce_rows_per_workgroup(choice: &KernelChoice) -> bool {
-    choice.matmul == MatmulKernel::Tiled
+    choice.matmul.beyond_linear() == MatmulKernel::Tiled
 }
 
 /// How attention runs ([`attention_variant`]).
@@ -232,11 +281,11 @@ pub fn attention_variant<L>(
     queries: usize,
     lanes_layout: impl FnOnce() -> Option<L>,
 ) -> AttentionVariant<L> {
-    match choice.matmul {
+    match choice.matmul.beyond_linear() {
         _ if queries == 0 => AttentionVariant::Fused,
         MatmulKernel::Tiled => AttentionVariant::Flash { lanes: if choice.subgroups { FLASH_LANES } else { 1 } },
         MatmulKernel::Lanes => lanes_layout().map_or(AttentionVariant::Fused, AttentionVariant::Lanes),
-        MatmulKernel::Rows => AttentionVariant::Fused,
+        MatmulKernel::Rows | MatmulKernel::Coop => AttentionVariant::Fused,
     }
 }
 

@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 
-use crate::device::{KernelChoice, MatmulKernel};
+use crate::device::{coop_configuration, KernelChoice, MatmulKernel};
 
 mod pipelines;
 mod staging;
@@ -113,7 +113,8 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
-    /// The optional features the device was created with (those of [`OPTIONAL_FEATURES`] it has).
+    /// The optional features the device was created with (those of [`OPTIONAL_FEATURES`] it has, and cooperative
+    /// matrices where `Coop` can use them: [`KernelChoice::coop`]).
     pub features: wgpu::Features,
     /// The largest buffer the engine binds: the adapter's limit, or the smaller one asked for.
     pub max_buffer_bytes: u64,
@@ -201,11 +202,25 @@ impl Gpu {
         if options.without_subgroups {
             features.remove(wgpu::Features::SUBGROUP);
         }
+        // Cooperative matrices (MatmulKernel::Coop) only where the adapter lists Coop's configuration: an experimental
+        // feature, so it is asked for nowhere else (lavapipe has none).
+        let coop = adapter.features().contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX)
+            && features.contains(wgpu::Features::SHADER_F16)
+            && adapter.cooperative_matrix_properties().iter().any(coop_configuration);
+        let experimental_features = if coop {
+            features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
+            // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation; only
+            // the opt-in `Coop` kernel uses this one, and its tests check its results on the GPUs that have it.
+            unsafe { wgpu::ExperimentalFeatures::enabled() }
+        } else {
+            wgpu::ExperimentalFeatures::disabled()
+        };
         let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("raypatch"),
             required_features: features | pipeline_cache::features(&cache_file),
             required_limits: limits.clone(),
+            experimental_features,
             ..Default::default()
         }))
         .map_err(|e| EngineError::Device(e.to_string()))?;
@@ -231,7 +246,15 @@ impl Gpu {
             limits,
             features,
             max_buffer_bytes,
-            kernels: KernelChoice { matmul, max_texels, f16_activations: false, pinned: false, subgroups, shaped },
+            kernels: KernelChoice {
+                matmul,
+                max_texels,
+                f16_activations: false,
+                pinned: false,
+                subgroups,
+                shaped,
+                coop,
+            },
             pipelines: Mutex::new(HashMap::new()),
             modules: Mutex::new(HashMap::new()),
             pipeline_cache,

@@ -127,7 +127,8 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let variant = conv_variant(&plan.kernels, cout, rows_grid.0 * rows_grid.1, || lanes_suit(plan, &args));
     let (shader, entry, cout_tiles, pixel_tiles) = match variant {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
-        MatmulKernel::Tiled => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
+        // conv_variant runs `Coop`'s convolutions on `Tiled` (MatmulKernel::beyond_linear).
+        MatmulKernel::Tiled | MatmulKernel::Coop => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
         MatmulKernel::Rows => (&CONV, "conv2d", rows_grid.0, rows_grid.1),
     };
     // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).

@@ -1,6 +1,7 @@
-//! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in three
+//! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in four
 //! kernels that compute the same sums ([`MatmulKernel`]): `shaders/matmul.wgsl`'s `linear` (register tiles,
-//! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), and `shaders/matmul_lanes.wgsl` (for
+//! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), `shaders/matmul_coop.wgsl`'s `linear_coop`
+//! (f16 cooperative matrices, opt-in), and `shaders/matmul_lanes.wgsl` (for
 //! CPU adapters: textures and subgroup broadcasts), an implicit GEMM that runs convolutions too
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
@@ -9,7 +10,7 @@ use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, 
 use crate::kernels::norm::{check_affine, layernorm, row_stats, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
-use crate::kernels::{Activation, Window, MATMUL, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES};
+use crate::kernels::{Activation, Window, MATMUL, MATMUL_COOP, MATMUL_COOP_F16, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
@@ -27,6 +28,8 @@ const ROWS_TILE: (usize, usize) = (256, 8);
 /// Rows and columns of `out` one workgroup of `linear_tiled` or `conv_tiled` computes (`TILE` in
 /// `shaders/tiles.wgsl`).
 pub(crate) const TILED_TILE: usize = 128;
+/// Rows and columns of `out` one workgroup of `linear_coop` computes (`COOP_TILE` in `shaders/matmul_coop.wgsl`).
+const COOP_TILE: usize = 64;
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -166,11 +169,14 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, as_conv),
         MatmulKernel::Tiled => ("linear_tiled", (TILED_TILE, TILED_TILE)),
         MatmulKernel::Rows => ("linear", ROWS_TILE),
+        MatmulKernel::Coop => ("linear_coop", (COOP_TILE, COOP_TILE)),
     };
-    let shader = match (plan.dtype(w), tiles) {
-        (Dtype::F32, _) => &MATMUL,
-        (Dtype::F16, TileElement::F32) => &MATMUL_F16,
-        (Dtype::F16, TileElement::F16) => &MATMUL_F16_ACT,
+    let shader = match (variant, plan.dtype(w), tiles) {
+        (MatmulKernel::Coop, Dtype::F32, _) => &MATMUL_COOP,
+        (MatmulKernel::Coop, Dtype::F16, _) => &MATMUL_COOP_F16,
+        (_, Dtype::F32, _) => &MATMUL,
+        (_, Dtype::F16, TileElement::F32) => &MATMUL_F16,
+        (_, Dtype::F16, TileElement::F16) => &MATMUL_F16_ACT,
     };
     let groups = m.div_ceil(tile_rows) * padded_cols(n).div_ceil(tile_cols);
     params.m_tiles = m.div_ceil(tile_rows) as u32;

@@ -77,6 +77,7 @@ pub mod readout;
 pub mod resize;
 pub mod softmax;
 
+use crate::device::COOP_FEATURES;
 use crate::gpu::Shader;
 use crate::plan::{TensorId, View};
 
@@ -280,6 +281,10 @@ const CHUNKS_8: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 =
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
+        /// `matmul` with `linear_coop` (`MatmulKernel::Coop`: f16 cooperative matrices), which comes first for its
+        /// `enable` directives.
+        MATMUL_COOP = "matmul" as "matmul_coop" ["matmul_coop", "activation", "tiles"] needs COOP_FEATURES
+            => matmul::MatmulParams;
         /// The linear layer for CPU adapters: see `tools/codegen/gen_matmul_lanes.py`.
         MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
             => matmul::MatmulLanesParams;
@@ -317,6 +322,13 @@ shaders! {
             prefix: "enable f16;\n",
             replace: &[F16_WEIGHTS, F16_TILES],
             features: wgpu::Features::SHADER_F16,
+        } => matmul::MatmulParams;
+        /// `matmul_coop` with f16 weights.
+        MATMUL_COOP_F16 = MATMUL_COOP {
+            name: "matmul_coop_f16",
+            prefix: "",
+            replace: &[F16_WEIGHTS],
+            features: COOP_FEATURES,
         } => matmul::MatmulParams;
         /// `attention_flash` with registers for heads of up to 64 floats.
         ATTENTION_FLASH_16 = ATTENTION_FLASH {
