@@ -204,26 +204,39 @@ impl Gpu {
         }
         // Cooperative matrices (MatmulKernel::Coop) only where the adapter lists Coop's configuration: an experimental
         // feature, so it is asked for nowhere else (lavapipe has none).
-        let coop = adapter.features().contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX)
+        let mut coop = adapter.features().contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX)
             && features.contains(wgpu::Features::SHADER_F16)
             && adapter.cooperative_matrix_properties().iter().any(coop_configuration);
-        let experimental_features = if coop {
-            features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
+        let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
+        let request = |features: wgpu::Features, experimental_features| {
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                label: Some("raypatch"),
+                required_features: features | pipeline_cache::features(&cache_file),
+                required_limits: limits.clone(),
+                experimental_features,
+                ..Default::default()
+            }))
+        };
+        let with_coop = if coop {
             // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation; only
             // the opt-in `Coop` kernel uses this one, and its tests check its results on the GPUs that have it.
-            unsafe { wgpu::ExperimentalFeatures::enabled() }
+            let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
+            request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental).ok()
         } else {
-            wgpu::ExperimentalFeatures::disabled()
+            None
         };
-        let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("raypatch"),
-            required_features: features | pipeline_cache::features(&cache_file),
-            required_limits: limits.clone(),
-            experimental_features,
-            ..Default::default()
-        }))
-        .map_err(|e| EngineError::Device(e.to_string()))?;
+        // Where the experimental feature cannot be had after all, the device is made without it (no `Coop`).
+        let (device, queue) = match with_coop {
+            Some(device) => {
+                features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
+                device
+            }
+            None => {
+                coop = false;
+                request(features, wgpu::ExperimentalFeatures::disabled())
+                    .map_err(|e| EngineError::Device(e.to_string()))?
+            }
+        };
         let adapter_max = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let max_buffer_bytes = options.max_buffer_bytes.map_or(adapter_max, |m| m.min(adapter_max));
         let matmul = match options.matmul {
