@@ -111,18 +111,6 @@ fn debug_mode_reads_back_every_op() {
     assert_eq!(outputs[1].data, outputs[0].data);
 }
 
-/// One view of a scene's targets, as its own batch.
-fn view(targets: &raypatch_model::TargetViews, v: usize) -> raypatch_model::TargetViews {
-    let per_view = targets.rays.len() / targets.count;
-    raypatch_model::TargetViews {
-        count: 1,
-        camera_pos: targets.camera_pos[3 * v..3 * v + 3].to_vec(),
-        rays: targets.rays[v * per_view..(v + 1) * per_view].to_vec(),
-        images: None,
-        masks: None,
-        ..targets.clone()
-    }
-}
 
 #[test]
 fn a_sequence_keeps_a_render_in_flight_and_allocates_nothing_after_its_second() {
@@ -130,8 +118,8 @@ fn a_sequence_keeps_a_render_in_flight_and_allocates_nothing_after_its_second() 
     let model = Model::load(gpu.clone(), case("rpsrt_k4").join("model.safetensors")).unwrap();
     let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
     let encoded = model.encode(&scene.inputs).unwrap();
-    let alone = encoded.render(&view(&scene.targets, 0), Outputs::default()).unwrap();
-    let batches = || (0..6).map(|_| view(&scene.targets, 0));
+    let alone = encoded.render(&scene.targets.view(0), Outputs::default()).unwrap();
+    let batches = || (0..6).map(|_| scene.targets.view(0));
     let mut frames = encoded.render_sequence(batches(), Outputs::default().into());
     // The first two batches: the second goes to the GPU before the first is read, on a staging of its own.
     for frame in frames.by_ref().take(2) {
@@ -153,7 +141,7 @@ fn views_come_apart_as_read_and_non_finite_inputs_never_reach_a_kernel() {
     let model = Model::load(gpu.clone(), case("rpsrt_k4").join("model.safetensors")).unwrap();
     let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
     let encoded = model.encode(&scene.inputs).unwrap();
-    let mut two = view(&scene.targets, 0);
+    let mut two = scene.targets.view(0);
     two.count = 2;
     two.camera_pos.extend_from_within(..);
     two.rays.extend_from_within(..);

@@ -320,6 +320,21 @@ fn non_finite(values: &[f32], per_view: usize) -> Option<String> {
 }
 
 impl TargetViews {
+    /// Target view `v` alone (its camera and rays; no ground truth), as a batch of one.
+    pub fn view(&self, v: usize) -> TargetViews {
+        let per_view = self.rays.len() / self.count;
+        TargetViews {
+            count: 1,
+            camera_pos: self.camera_pos[3 * v..3 * v + 3].to_vec(),
+            rays: self.rays[v * per_view..(v + 1) * per_view].to_vec(),
+            rays_height: self.rays_height,
+            rays_width: self.rays_width,
+            declared_size: self.declared_size,
+            images: None,
+            masks: None,
+        }
+    }
+
     /// Checks that every camera position and ray is finite. The engine checks as it uploads them (in the same
     /// pass) and calls this only to name the value.
     pub fn check_finite(&self, path: &str) -> Result<(), ModelError> {

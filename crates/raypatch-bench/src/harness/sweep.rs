@@ -242,22 +242,13 @@ impl Bench {
         let mut record = self.record(s, targets.count, (grid.height, grid.width), variant);
         record.group = "views".into();
         let request = Request::from(model_outputs(&s.loaded.config));
-        let per_view = targets.rays.len() / targets.count;
-        let view = |v: usize| TargetViews {
-            count: 1,
-            camera_pos: targets.camera_pos[3 * v..3 * v + 3].to_vec(),
-            rays: targets.rays[v * per_view..(v + 1) * per_view].to_vec(),
-            images: None,
-            masks: None,
-            ..targets.clone()
-        };
-        let fit = s.encoded.views_within(&view(0), request, BATCH_BUDGET_BYTES)?;
+        let fit = s.encoded.views_within(&targets.view(0), request, BATCH_BUDGET_BYTES)?;
         let batch = targets.count.div_ceil(targets.count.div_ceil(fit));
         let batches = || {
             (0..targets.count).step_by(batch).map(move |first| {
-                let mut views = view(first);
+                let mut views = targets.view(first);
                 for v in first + 1..(first + batch).min(targets.count) {
-                    let more = view(v);
+                    let more = targets.view(v);
                     views.camera_pos.extend(more.camera_pos);
                     views.rays.extend(more.rays);
                     views.count += 1;
