@@ -111,7 +111,6 @@ fn debug_mode_reads_back_every_op() {
     assert_eq!(outputs[1].data, outputs[0].data);
 }
 
-
 #[test]
 fn a_sequence_keeps_a_render_in_flight_and_allocates_nothing_after_its_second() {
     let gpu = Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter"));
