@@ -417,24 +417,16 @@ impl<'a> Machine<'a> {
                 let dict = self.top()?;
                 self.set_items(dict, items)?;
             }
-            b'q' => {
-                let key = self.uint(1)? as u32;
-                self.memo_put(key)?;
-            }
-            b'r' => {
-                let key = self.uint(4)? as u32;
+            b'q' | b'r' => {
+                let key = self.uint(if op == b'q' { 1 } else { 4 })? as u32;
                 self.memo_put(key)?;
             }
             0x94 => {
                 let key = self.memo.len() as u32;
                 self.memo_put(key)?;
             }
-            b'h' => {
-                let key = self.uint(1)? as u32;
-                self.memo_get(key)?;
-            }
-            b'j' => {
-                let key = self.uint(4)? as u32;
+            b'h' | b'j' => {
+                let key = self.uint(if op == b'h' { 1 } else { 4 })? as u32;
                 self.memo_get(key)?;
             }
             b'c' => {
