@@ -223,6 +223,13 @@ pub(crate) struct Crop {
 }
 
 impl Crop {
+    /// Where the requested region lies in the computed pixels: its first row and column, its rows and columns
+    /// (the readout's window, `kernels::readout`).
+    pub fn read_window(&self) -> [u32; 4] {
+        let r = &self.region;
+        [r.y - self.y0, r.x - self.x0, r.height, r.width].map(|v| v as u32)
+    }
+
     /// The rays of the computed pixels, one 3-float slice each, view by view and row by row; `per_ray` is the
     /// number of pixels along each axis one ray covers (1 for full-resolution rays, k for patch rays). Read in
     /// place: nothing is copied.

@@ -261,11 +261,12 @@ impl PlanBuilder {
         self.tensors.iter().map(TensorInfo::bytes).max().unwrap_or(0)
     }
 
-    pub fn build(self, gpu: &Gpu) -> Result<Plan> {
-        let PlanBuilder { tensors, ops, unindexable, scratch_texels, .. } = self;
-        if let Some((what, bytes)) = unindexable {
+    pub fn build(mut self, gpu: &Gpu) -> Result<Plan> {
+        if let Some((what, bytes)) = self.unindexable.take() {
             return Err(EngineError::TooLarge { what, bytes, max: gpu.max_buffer_bytes });
         }
+        gpu.compile_pipelines(self.pipelines());
+        let PlanBuilder { tensors, ops, scratch_texels, .. } = self;
         let storage_align = gpu.limits.min_storage_buffer_offset_alignment as u64;
         let uniform_align = gpu.limits.min_uniform_buffer_offset_alignment as u64;
 
@@ -340,7 +341,6 @@ impl PlanBuilder {
             views.push(op_views);
         }
 
-        gpu.compile_pipelines(ops.iter().map(|op| (op.shader, op.entry, op.constants.as_slice())));
         let mut planned = Vec::with_capacity(ops.len());
         for ((op, &param_offset), op_views) in ops.iter().zip(&offsets).zip(&views) {
             let pipeline = gpu.pipeline(op.shader, op.entry, &op.constants);

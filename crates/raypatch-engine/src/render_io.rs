@@ -179,11 +179,7 @@ impl RenderPlan {
                 match input {
                     HostInput::TargetCameraPos => finite &= write_rows(rows, targets.camera_pos.chunks_exact(3)),
                     HostInput::TargetRays => finite &= write_rows(rows, crop.ray_rows(targets, per_ray)),
-                    HostInput::ReadWindow => {
-                        let r = &crop.region;
-                        let window = [r.y - crop.y0, r.x - crop.x0, r.height, r.width].map(|v| v as u32);
-                        rows.write_iter([bytemuck::cast(window)]);
-                    }
+                    HostInput::ReadWindow => rows.write_iter([bytemuck::cast(crop.read_window())]),
                     HostInput::Zeros => rows.write_iter(std::iter::repeat_n([0u8; 16], bytes / 16)),
                     other => unreachable!("a render reads only target views, not {other:?}"),
                 }
@@ -207,10 +203,7 @@ impl RenderPlan {
             let values: Vec<f32> = match input {
                 HostInput::TargetCameraPos => targets.camera_pos.clone(),
                 HostInput::TargetRays => crop.ray_rows(targets, per_ray).flatten().copied().collect(),
-                HostInput::ReadWindow => {
-                    let r = &crop.region;
-                    [r.y - crop.y0, r.x - crop.x0, r.height, r.width].map(|v| f32::from_bits(v as u32)).to_vec()
-                }
+                HostInput::ReadWindow => crop.read_window().map(f32::from_bits).to_vec(),
                 HostInput::Zeros => vec![0.0; tensor.rows * tensor.cols],
                 other => unreachable!("a render reads only target views, not {other:?}"),
             };
