@@ -487,6 +487,7 @@ impl<'m> Scene<'m> {
             }
         }
         let end = failure.as_ref().map_or(cameras.len(), |(end, _)| *end);
+        let failure = failure.map(|(_, e)| e);
         let batches = Batches { cameras, end, batch, kind: config.ray_kind(), next: 0 };
         let renders = self.inner.render_sequence(batches, *request);
         RenderPath { renders, cameras: &cameras[..end], batch, next: 0, ready: Vec::new(), failure }

@@ -61,8 +61,8 @@ pub struct RenderPath<'s> {
     pub(super) next: usize,
     /// The rest of the current batch, last frame first.
     pub(super) ready: Vec<Rendered>,
-    /// The first camera that cannot be rendered, as (where the path stops, why).
-    pub(super) failure: Option<(usize, Error)>,
+    /// Why a camera of the batch after `cameras` cannot be rendered, handed out after their frames.
+    pub(super) failure: Option<Error>,
 }
 
 impl Iterator for RenderPath<'_> {
@@ -88,7 +88,7 @@ impl Iterator for RenderPath<'_> {
         }
         match self.ready.pop() {
             Some(frame) => Some(Ok(frame)),
-            None => self.failure.take().map(|(_, e)| Err(e)),
+            None => self.failure.take().map(Err),
         }
     }
 
