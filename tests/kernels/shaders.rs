@@ -11,8 +11,9 @@ fn all_shaders_validate() {
         let name = format!("{}.wgsl", shader.name);
         let (module, info) = crate::common::validate_wgsl(&name, &shader.wgsl(), shader.features);
         // The override constants at their defaults, as a pipeline without constants gets them.
-        let (module, info) = naga::back::pipeline_constants::process_overrides(&module, &info, None, &Default::default())
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (module, info) =
+            naga::back::pipeline_constants::process_overrides(&module, &info, None, &Default::default())
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
         // wgpu's Vulkan backend's options for a module with its default runtime checks.
         let restrict = naga::proc::BoundsCheckPolicy::Restrict;
         let bounds_check_policies =

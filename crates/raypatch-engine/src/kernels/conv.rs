@@ -128,7 +128,9 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let (shader, entry, cout_tiles, pixel_tiles) = match variant {
         MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
         // conv_variant runs `Coop`'s convolutions on `Tiled` (MatmulKernel::beyond_linear).
-        MatmulKernel::Tiled | MatmulKernel::Coop => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
+        MatmulKernel::Tiled | MatmulKernel::Coop => {
+            (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE))
+        }
         MatmulKernel::Rows => (&CONV, "conv2d", rows_grid.0, rows_grid.1),
     };
     // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).

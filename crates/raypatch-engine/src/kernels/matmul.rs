@@ -10,7 +10,9 @@ use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, 
 use crate::kernels::norm::{check_affine, layernorm, row_stats, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
-use crate::kernels::{Activation, Window, MATMUL, MATMUL_COOP, MATMUL_COOP_F16, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES};
+use crate::kernels::{
+    Activation, Window, MATMUL, MATMUL_COOP, MATMUL_COOP_F16, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES,
+};
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
 
