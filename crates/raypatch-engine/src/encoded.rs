@@ -15,6 +15,7 @@ use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Request};
 use crate::gpu::storage_usage;
 use crate::graph::{Graph, HostInput, ImageSize};
 use crate::model::{EncodePlan, Model};
+use crate::models::LightField;
 use crate::plan::{PlanBuilder, TensorId};
 use crate::render_io::{record_readouts, RenderIo, RenderPlan, Sink, Submitted};
 use crate::tensor::GpuTensor;
@@ -122,18 +123,17 @@ impl Model {
             std::iter::once((plan.latent, &latent)).chain(plan.cached.iter().copied().zip(&cached)).collect();
         // Profiling times the ops one by one, then runs them again as one submit for the scene's values.
         let times = if profile { plan.plan.profile(gpu)? } else { Vec::new() };
-        // While the GPU encodes, the pipelines of a first render are compiled (a view of the inputs' size; a
-        // render of another size runs the same pipelines but where its size picks another kernel variant).
-        let k = self.family.patch_size();
+        // While the GPU encodes, the load's warm-up finishes, and the first encode of a size the warm-up did not
+        // cover compiles the pipelines of a first render of the inputs' size (a render of another size runs the
+        // same pipelines but where its size picks another kernel variant).
+        let size_hw = (inputs.height, inputs.width);
         let warm = || {
-            if !inputs.height.is_multiple_of(k) || !inputs.width.is_multiple_of(k) {
-                return; // a size no render of this model computes whole
+            if self.claim_warm_up(size_hw) {
+                if let Some(render) = first_render(self.graph(), &*self.family, &cached, size_hw) {
+                    gpu.compile_pipelines(render.pipelines());
+                }
             }
-            let grid = TargetGrid { height: inputs.height, width: inputs.width, rays_are_patches: false };
-            let rgb = Outputs::of(&[Output::Rgb]);
-            let outputs = if self.family.outputs().contains(Output::Rgb) { rgb } else { self.family.outputs() };
-            let recorded = record_render(self, &cached, 1, grid, outputs);
-            gpu.compile_pipelines(recorded.builder.pipelines());
+            self.finish_warm_up();
         };
         let latent_values = std::thread::scope(|scope| {
             scope.spawn(warm);
@@ -456,7 +456,7 @@ impl EncodedScene<'_> {
 
     /// Records the render of `views` target views of a crop (no buffer exists yet).
     fn record(&self, views: usize, crop: &Crop, outputs: Outputs) -> Recorded {
-        record_render(self.model, &self.cached, views, crop.grid, outputs)
+        record_render(self.model.graph(), &*self.model.family, &self.cached, views, crop.grid, outputs)
     }
 
     /// Builds a recorded render plan (buffers, bind groups) and caches it; when a concurrent render cached
@@ -470,14 +470,39 @@ impl EncodedScene<'_> {
 }
 
 /// Records the render of `views` target views on `grid` of a scene whose cached tensors are `cached`.
-fn record_render(model: &Model, cached: &[GpuTensor], views: usize, grid: TargetGrid, outputs: Outputs) -> Recorded {
-    let mut g = model.graph();
-    let rendered = model.family.render(&mut g, cached, views, grid, outputs);
+fn record_render(
+    mut g: Graph,
+    family: &dyn LightField,
+    cached: &[GpuTensor],
+    views: usize,
+    grid: TargetGrid,
+    outputs: Outputs,
+) -> Recorded {
+    let rendered = family.render(&mut g, cached, views, grid, outputs);
     let (outputs, flag) = record_readouts(&mut g, views, (grid.height, grid.width), &rendered);
     let Graph { b, host_inputs, .. } = g;
-    let k = model.family.patch_size();
+    let k = family.patch_size();
     let queries = views * (grid.height / k) * (grid.width / k);
     Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
+}
+
+/// The recording of what a first render of `(height, width)` likely is: one view, rgb
+/// where the model has it, over a scene whose cached tensors are `cached`; `None` for a size that no render
+/// computes whole. Its pipelines are compiled before that render asks for them (`model.rs`).
+pub(crate) fn first_render(
+    g: Graph,
+    family: &dyn LightField,
+    cached: &[GpuTensor],
+    (height, width): (usize, usize),
+) -> Option<PlanBuilder> {
+    let k = family.patch_size();
+    if !height.is_multiple_of(k) || !width.is_multiple_of(k) {
+        return None;
+    }
+    let grid = TargetGrid { height, width, rays_are_patches: false };
+    let rgb = Outputs::of(&[Output::Rgb]);
+    let outputs = if family.outputs().contains(Output::Rgb) { rgb } else { family.outputs() };
+    Some(record_render(g, family, cached, 1, grid, outputs).builder)
 }
 
 /// A render recorded but not built.

@@ -12,7 +12,7 @@ mod timestamps;
 use crate::error::{EngineError, Result};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir, PipelineCacheStatus};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
-use pipelines::PipelineKey;
+use pipelines::Pipelines;
 pub(crate) use staging::Staging;
 pub(crate) use timestamps::Timestamps;
 pub use timestamps::{GpuTimes, OpTime, TimestampMode};
@@ -120,7 +120,7 @@ pub struct Gpu {
     pub max_buffer_bytes: u64,
     /// Kernel variants plans record on this adapter.
     pub kernels: KernelChoice,
-    pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
+    pipelines: Mutex<Pipelines>,
     /// Each shader's module, parsed and validated once for all its entry points and constants.
     modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
     /// The driver's cache of compiled pipelines, kept on disk between runs (written when dropped).

@@ -1,11 +1,18 @@
 //! The engine's [`Model`]: a family's module tree ([`LightField`]) with its weights on the GPU, loaded once.
 //! Encoding a scene with it is the scene core's (`encoded.rs`).
+//!
+//! Loading starts compiling, on a thread of its own, the pipelines of an encode and a first render at the size
+//! the model's config was made for, while the caller goes on (reads its scene, makes its cameras): the first
+//! encode then finds them compiled, or waits for the ones still compiling (`gpu/pipelines.rs`).
 
+use std::collections::HashSet;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
+use crate::encoded::first_render;
 use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
@@ -13,6 +20,7 @@ use crate::graph::{Graph, HostInput, ImageSize};
 use crate::models::{self, LightField};
 use crate::nn::ReadLimits;
 use crate::plan::{Plan, TensorId};
+use crate::tensor::GpuTensor;
 use crate::weights::{GpuWeights, KeptF32, LoadOptions};
 
 /// A loaded model with its weights on the GPU.
@@ -21,10 +29,16 @@ pub struct Model {
     pub config: ModelConfig,
     pub path: String,
     pub parameter_count: usize,
-    pub(crate) family: Box<dyn LightField>,
-    pub(crate) weights: GpuWeights,
+    /// Shared with the load's warm-up thread, which a dropped model leaves to finish on its own.
+    pub(crate) family: Arc<dyn LightField>,
+    pub(crate) weights: Arc<GpuWeights>,
     /// The plan of the last encode, reused by the next encode of the same input size (`encoded.rs`).
     pub(crate) encode_plan: Mutex<Option<EncodePlan>>,
+    /// The load's warm-up while it may still run.
+    warm_up: Mutex<Option<JoinHandle<()>>>,
+    /// The image sizes (height, width) whose first render's pipelines were compiled, or are compiling: by the
+    /// load's warm-up, or beside an encode of input views of that size ([`claim_warm_up`](Self::claim_warm_up)).
+    warmed: Mutex<HashSet<(usize, usize)>>,
 }
 
 /// The encode plan a [`Model`] keeps for its last input size: an encode of that size again builds nothing.
@@ -53,7 +67,11 @@ impl Model {
         let limits =
             ReadLimits { tensor_bytes: gpu.max_buffer_bytes, total_bytes: host_memory_available().unwrap_or(u64::MAX) };
         let (family, weights) = models::build(loaded, limits)?;
-        let weights = weights.upload(&gpu, options)?;
+        let family: Arc<dyn LightField> = Arc::from(family);
+        let weights = Arc::new(weights.upload(&gpu, options)?);
+        let nominal = nominal_size(&loaded.config).filter(|&(h, w)| family.check_inputs(h, w).is_ok());
+        let warm_up = nominal.and_then(|size| start_warm_up(&gpu, &family, &weights, size));
+        let warmed = nominal.filter(|_| warm_up.is_some()).into_iter().collect();
         Ok(Model {
             gpu,
             config: loaded.config.clone(),
@@ -62,7 +80,24 @@ impl Model {
             family,
             weights,
             encode_plan: Mutex::new(None),
+            warm_up: Mutex::new(warm_up),
+            warmed: Mutex::new(warmed),
         })
+    }
+
+    /// Waits for the pipelines the load began compiling in the background (the first encode waits for them
+    /// too): for a caller that wants them ready before its first request, or its counters to count only
+    /// what follows.
+    pub fn finish_warm_up(&self) {
+        let warm_up = self.warm_up.lock().expect("warm-up poisoned").take();
+        // A pipeline that failed to compile there is compiled again, and its error told, where a plan needs it.
+        let _ = warm_up.map(JoinHandle::join);
+    }
+
+    /// Whether a first render of input views' size `(height, width)` is still to be warmed up: true once per
+    /// size, so that only the first encode of a size records that render.
+    pub(crate) fn claim_warm_up(&self, size: (usize, usize)) -> bool {
+        self.warmed.lock().expect("warm-up sizes poisoned").insert(size)
     }
 
     pub fn gpu(&self) -> &Gpu {
@@ -71,9 +106,7 @@ impl Model {
 
     /// A plan recording over this model's weights, against the GPU's kernel choice at the model's precision.
     pub(crate) fn graph(&self) -> Graph<'_> {
-        let mut g = Graph::new(&self.gpu, &self.weights.tensors);
-        g.b.kernels.f16_activations = self.weights.f16_activations;
-        g
+        graph(&self.gpu, &self.weights)
     }
 
     /// The outputs this model can render.
@@ -90,6 +123,53 @@ impl Model {
     pub fn weights_kept_f32(&self) -> &[KeptF32] {
         &self.weights.kept_f32
     }
+}
+
+/// A plan recording over `weights`, against the GPU's kernel choice at the weights' precision.
+fn graph<'a>(gpu: &'a Gpu, weights: &'a GpuWeights) -> Graph<'a> {
+    let mut g = Graph::new(gpu, &weights.tensors);
+    g.b.kernels.f16_activations = weights.f16_activations;
+    g
+}
+
+/// The image size `(height, width)` a model's config was made for, where it says: a Ray-Patch decoder's output
+/// size (`h_out`×`w_out`, which the official runs set to their image size), else its patch grid (`h_in`×`w_in`)
+/// of k×k patches. The other decoders' configs name no size.
+fn nominal_size(config: &ModelConfig) -> Option<(usize, usize)> {
+    let rp = config.ray_patch()?;
+    let k = rp.patch_size();
+    Some(rp.resize_out.unwrap_or((rp.grid_in.0 * k, rp.grid_in.1 * k)))
+}
+
+/// Starts compiling, on a thread of its own, the pipelines of encoding one input view of `(height, width)`
+/// and of a first render of that size (the encoder's first: the first encode asks for them first). `None`
+/// where no thread could be started: the plans then compile them when built.
+fn start_warm_up(
+    gpu: &Arc<Gpu>,
+    family: &Arc<dyn LightField>,
+    weights: &Arc<GpuWeights>,
+    (height, width): (usize, usize),
+) -> Option<JoinHandle<()>> {
+    let (gpu, family, weights) = (gpu.clone(), family.clone(), weights.clone());
+    let warm = move || {
+        let Some(any) = weights.tensors.first() else { return };
+        let mut g = graph(&gpu, &weights);
+        let encoded = family.encode(&mut g, ImageSize { n: 1, h: height, w: width });
+        let encoder = g.b;
+        // The scene's tensors as the encode would make them: their shapes pick the render's kernels, and the
+        // recording binds no buffer, so any buffer stands in.
+        let cached: Vec<GpuTensor> = (encoded.cached.iter().map(|t| t.id()))
+            .map(|id| GpuTensor {
+                buffer: any.buffer.clone(),
+                rows: encoder.rows(id),
+                cols: encoder.cols(id),
+                dtype: encoder.dtype(id),
+            })
+            .collect();
+        let render = first_render(graph(&gpu, &weights), &*family, &cached, (height, width));
+        gpu.compile_pipelines(encoder.pipelines().chain(render.iter().flat_map(|r| r.pipelines())));
+    };
+    std::thread::Builder::new().name("raypatch-warm-up".into()).spawn(warm).ok()
 }
 
 /// The host memory available to this process now, where the system says: Linux's `MemAvailable`, less where

@@ -1,14 +1,26 @@
 //! The Gpu's compute pipelines: compiled once per shader, entry point and override constants, a plan's all at
-//! once (a thread per core), through the driver's pipeline cache on disk where there is one.
+//! once (a thread per core), through the driver's pipeline cache on disk where there is one. Each pipeline has
+//! a slot that the first thread to want it compiles into while any other that wants it waits (a model's
+//! warm-up, `model.rs`, and the plans of a first encode and render may ask for the same ones at once).
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use super::{Gpu, Shader};
 
 /// A compiled pipeline's identity: shader, entry point, and its override constants' values (as bits).
-pub(super) type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
+type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
+
+/// A pipeline, once compiled.
+type Slot = Arc<OnceLock<Arc<wgpu::ComputePipeline>>>;
+
+/// Every pipeline asked for, compiled or being compiled.
+pub(super) type Pipelines = HashMap<PipelineKey, Slot>;
+
+/// A pipeline as plans ask for it: shader, entry point, override constants.
+type Wanted<'a> = (&'static Shader, &'static str, &'a [(&'static str, f64)]);
 
 fn pipeline_key(shader: &Shader, entry: &'static str, constants: &[(&'static str, f64)]) -> PipelineKey {
     (shader.name, entry, constants.iter().map(|&(name, value)| (name, value.to_bits())).collect())
@@ -23,30 +35,27 @@ impl Gpu {
         entry: &'static str,
         constants: &[(&'static str, f64)],
     ) -> Arc<wgpu::ComputePipeline> {
-        let key = pipeline_key(shader, entry, constants);
-        if let Some(pipeline) = self.pipelines.lock().expect("pipeline cache poisoned").get(&key) {
-            return pipeline.clone();
-        }
-        // Compiled outside the lock: other threads' pipelines compile meanwhile (a pipeline two threads ask
-        // for at once is compiled twice, and one kept).
-        let pipeline = Arc::new(self.compile(shader, entry, constants));
-        self.pipelines.lock().expect("pipeline cache poisoned").entry(key).or_insert(pipeline).clone()
+        let slot = self.slot(pipeline_key(shader, entry, constants));
+        slot.get_or_init(|| Arc::new(self.compile(shader, entry, constants))).clone()
+    }
+
+    /// The slot of a pipeline, made empty on first ask.
+    fn slot(&self, key: PipelineKey) -> Slot {
+        self.pipelines.lock().expect("pipeline cache poisoned").entry(key).or_default().clone()
     }
 
     /// Compiles every pipeline of `wanted` not compiled yet, several at once (one thread per core, up to one
     /// per pipeline): a plan's distinct pipelines before it is built, so that its first run does not compile
-    /// them one after another.
-    pub fn compile_pipelines<'a>(
-        &self,
-        wanted: impl IntoIterator<Item = (&'static Shader, &'static str, &'a [(&'static str, f64)])>,
-    ) {
-        let mut missing: Vec<(PipelineKey, &'static Shader, &'static str, &'a [(&'static str, f64)])> = Vec::new();
+    /// them one after another. One that another thread is compiling is waited for, not compiled again.
+    pub fn compile_pipelines<'a>(&self, wanted: impl IntoIterator<Item = Wanted<'a>>) {
+        let mut missing: Vec<(PipelineKey, Wanted<'a>)> = Vec::new();
         {
             let cache = self.pipelines.lock().expect("pipeline cache poisoned");
             for (shader, entry, constants) in wanted {
                 let key = pipeline_key(shader, entry, constants);
-                if !cache.contains_key(&key) && !missing.iter().any(|m| m.0 == key) {
-                    missing.push((key, shader, entry, constants));
+                let compiled = cache.get(&key).is_some_and(|slot| slot.get().is_some());
+                if !compiled && !missing.iter().any(|m| m.0 == key) {
+                    missing.push((key, (shader, entry, constants)));
                 }
             }
         }
@@ -59,9 +68,8 @@ impl Gpu {
             for _ in 0..threads {
                 scope.spawn(|| loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some((key, shader, entry, constants)) = missing.get(i) else { break };
-                    let pipeline = Arc::new(self.compile(shader, entry, constants));
-                    self.pipelines.lock().expect("pipeline cache poisoned").entry(key.clone()).or_insert(pipeline);
+                    let Some((key, (shader, entry, constants))) = missing.get(i) else { break };
+                    self.slot(key.clone()).get_or_init(|| Arc::new(self.compile(shader, entry, constants)));
                 });
             }
         });
