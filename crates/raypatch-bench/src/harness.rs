@@ -3,10 +3,14 @@
 //! with the golden cases and `--model` files. Which random-weight configurations are swept is in
 //! `harness/sweep.rs`; the skips on and off and the per-kernel breakdown are in `harness/skips.rs`.
 
+mod cases;
+mod replot;
 mod skips;
 mod sweep;
 
-use std::path::{Path, PathBuf};
+pub use replot::replot;
+
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -38,6 +42,8 @@ pub struct Options {
     pub without_subgroups: bool,
     /// Measured runs per configuration (default 5, quick 3).
     pub repeats: Option<usize>,
+    /// Stop repeating a configuration once its measured runs took this long, in seconds (default 30, quick 2).
+    pub repeat_seconds: Option<f64>,
     /// Skip configurations whose render is predicted (from its multiply-adds, counted from the ops its plan
     /// would record, and the rate measured at the previous size) to take longer than this (default 120 s,
     /// quick 1.5 s).
@@ -56,6 +62,8 @@ pub struct Options {
     pub scene: Option<PathBuf>,
     /// Measure only these sweep models, as (group, k), e.g. ("small", 2); no golden cases. Empty: all.
     pub only: Vec<(String, usize)>,
+    /// Measure only these target sizes of the sweep. Empty: every size of each model's sweep.
+    pub sizes: Vec<Size>,
     /// Also render this many target views at once at each measured sweep size, a measurement each (beside
     /// the one view every size gets).
     pub views: Vec<usize>,
@@ -64,7 +72,7 @@ pub struct Options {
 }
 
 /// A target size, (height, width).
-type Size = (usize, usize);
+pub type Size = (usize, usize);
 
 /// The MSN-Easy setting of the paper: one 120×160 input view; target sizes of its Figure 2.
 const INPUT_SIZE: (usize, usize) = (120, 160);
@@ -89,6 +97,8 @@ struct Bench {
     scratch: PathBuf,
     quick: bool,
     only: Vec<(String, usize)>,
+    /// The sweep's sizes measured (`Options::sizes`).
+    sizes: Vec<Size>,
     /// Target views rendered at once too (`Options::views`).
     views: Vec<usize>,
 }
@@ -104,61 +114,6 @@ struct Results {
     results: Vec<Record>,
     kernels: Vec<KernelTime>,
     paper_comparison: Vec<paper::Comparison>,
-}
-
-/// Writes tables.md and the plots again from results.json files (e.g. after changing how they are drawn).
-/// With several files, later files' records replace earlier ones of the same configuration (model, decoder,
-/// k, precision, target views and size, variant) and the others are kept: a partial run (`--only`) updates a full one.
-/// The merged results.json, results.csv and kernels.csv are written into `out` too.
-pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
-    let mut merged: Option<Results> = None;
-    for file in files {
-        let text = std::fs::read_to_string(file).with_context(|| format!("{}: cannot read", file.display()))?;
-        let next: Results = serde_json::from_str(&text)
-            .with_context(|| format!("{}: not a raypatch-bench results.json", file.display()))?;
-        merged = Some(match merged {
-            None => next,
-            Some(mut all) => {
-                let key = |r: &Record| {
-                    (
-                        r.model.clone(),
-                        r.decoder.clone(),
-                        r.k,
-                        r.precision.clone(),
-                        r.target_views,
-                        r.target_size.clone(),
-                        r.variant.clone(),
-                    )
-                };
-                for record in next.results {
-                    match all.results.iter_mut().find(|r| key(r) == key(&record)) {
-                        Some(old) => *old = record,
-                        None => all.results.push(record),
-                    }
-                }
-                let configs: Vec<String> = next.kernels.iter().map(|k| k.config.clone()).collect();
-                all.kernels.retain(|k| !configs.contains(&k.config));
-                all.kernels.extend(next.kernels);
-                all.command = format!("{}\n{}", all.command, next.command);
-                all.paper_comparison = paper::compare(&all.results);
-                all
-            }
-        });
-    }
-    let results = merged.context("no results.json to replot")?;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create the output folder", out.display()))?;
-    if files.len() > 1 {
-        let json = serde_json::to_string_pretty(&results)?;
-        report::write_file(&out.join("results.json"), json.as_bytes())?;
-        report::write_csv(&out.join("results.csv"), &results.results)?;
-        report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
-    }
-    let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
-        + &paper::markdown(&results.paper_comparison);
-    report::write_file(&out.join("tables.md"), tables.as_bytes())?;
-    plots::draw_all(&results.results, out)?;
-    println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
-    Ok(())
 }
 
 /// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
@@ -177,6 +132,10 @@ struct Subject<'a> {
     model: &'a Model,
     precision: Precision,
     inputs: &'a InputViews,
+    /// Parsing the model file and loading it on the GPU (the sweep's models, made in memory as files), ms.
+    load_ms: Option<f64>,
+    /// The first encode, which compiles the encode's pipelines, ms (the timed encodes come after it).
+    first_encode_ms: f64,
     encode: (Stats, Option<Stats>),
     encoded: EncodedScene<'a>,
     references: std::result::Result<&'a References, String>,
@@ -217,7 +176,12 @@ pub fn run(options: &Options) -> Result<()> {
     let bench = Bench {
         gpu,
         timestamps,
-        repeats: Repeats { warmup: 1, warm_for, runs, budget: Duration::from_secs(if options.quick { 2 } else { 30 }) },
+        repeats: Repeats {
+            warmup: 1,
+            warm_for,
+            runs,
+            budget: Duration::from_secs_f64(options.repeat_seconds.unwrap_or(if options.quick { 2.0 } else { 30.0 })),
+        },
         max_render: Duration::from_secs_f64(options.max_render_seconds.unwrap_or(if options.quick {
             1.5
         } else {
@@ -228,6 +192,7 @@ pub fn run(options: &Options) -> Result<()> {
         scratch,
         quick: options.quick,
         only: options.only.clone(),
+        sizes: options.sizes.clone(),
         views: options.views.clone(),
         env,
     };
@@ -324,10 +289,18 @@ impl Bench {
         Ok(Sample { wall, gpu: self.gpu.take_timestamps()?.map(|t| t.total) })
     }
 
-    /// Encodes `inputs` repeatedly; returns the timings and the last encoded scene.
-    fn encode<'m>(&self, model: &'m Model, inputs: &InputViews) -> Result<((Stats, Option<Stats>), EncodedScene<'m>)> {
-        let mut last = None;
-        let stats = measure::repeat(self.repeats, || -> Result<Sample> {
+    /// Encodes `inputs` once (the first encode, timed apart: it compiles), then repeatedly; returns the first
+    /// encode's wall time (ms), the timings and the last encoded scene.
+    fn encode<'m>(
+        &self,
+        model: &'m Model,
+        inputs: &InputViews,
+    ) -> Result<(f64, (Stats, Option<Stats>), EncodedScene<'m>)> {
+        let start = Instant::now();
+        let mut last = Some(model.encode(inputs)?);
+        let first_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.gpu.take_timestamps()?;
+        let stats = measure::repeat(Repeats { warmup: 0, ..self.repeats }, || -> Result<Sample> {
             let start = Instant::now();
             let encoded = model.encode(inputs)?;
             let wall = start.elapsed();
@@ -335,7 +308,7 @@ impl Bench {
             last = Some(encoded);
             Ok(Sample { wall, gpu })
         })?;
-        Ok((stats, last.expect("at least one encode")))
+        Ok((first_ms, stats, last.expect("at least one encode")))
     }
 
     /// Both float64 references of a model and their encodings, when affordable: the encode's multiply-adds,
@@ -363,12 +336,25 @@ impl Bench {
         loaded: &'a LoadedModel,
         file: Option<&'a [u8]>,
         model: &'a Model,
-        precision: Precision,
+        (precision, load_ms): (Precision, Option<f64>),
         inputs: &'a InputViews,
         references: std::result::Result<&'a References, String>,
     ) -> Result<Subject<'a>> {
-        let (encode, encoded) = self.encode(model, inputs)?;
-        Ok(Subject { name, group, loaded, file, model, precision, inputs, encode, encoded, references })
+        let (first_encode_ms, encode, encoded) = self.encode(model, inputs)?;
+        Ok(Subject {
+            name,
+            group,
+            loaded,
+            file,
+            model,
+            precision,
+            inputs,
+            load_ms,
+            first_encode_ms,
+            encode,
+            encoded,
+            references,
+        })
     }
 
     /// The fields of a record that do not need a render: the configuration, the encode's FLOPs, the memory a
@@ -401,6 +387,8 @@ impl Bench {
             timing: self.timing().into(),
             encode_ms: s.encode.1.or(Some(s.encode.0)),
             encode_wall_ms: Some(s.encode.0),
+            load_wall_ms: s.load_ms,
+            first_encode_wall_ms: Some(s.first_encode_ms),
             encode_peak_bytes: Some(s.encoded.encode_peak_bytes),
             attention_scores_bytes,
             encode_gflop: flops::gflop(s.encoded.encode_multiply_adds),
@@ -412,9 +400,11 @@ impl Bench {
     /// Renders once (building the plan), then times repeated renders; fills the record's timing, memory and
     /// work fields and returns the first frame.
     fn time_render(&self, s: &Subject, targets: &TargetViews, request: Request, record: &mut Record) -> Result<Frame> {
+        let compiled = self.gpu.counters().pipelines_compiled;
         let start = Instant::now();
         let frame = s.encoded.render(targets, request)?;
         record.first_render_wall_ms = Some(start.elapsed().as_secs_f64() * 1e3);
+        record.first_render_pipelines = Some(self.gpu.counters().pipelines_compiled - compiled);
         self.gpu.take_timestamps()?;
         let stats = s.encoded.render_stats(targets, request)?;
         (record.render_peak_bytes, record.dispatches, record.queries) =
@@ -512,72 +502,6 @@ impl Bench {
                 record.pytorch_compiled_render_ms = compiled.map(|c| c.render);
             }
             Err(why) => record.note += &format!("; torch.compile failed: {why}"),
-        }
-        Ok(())
-    }
-
-    /// Every golden case: errors against PyTorch's float32 output and both float64 references, PSNR where the
-    /// scene has ground truth.
-    fn golden(&self, records: &mut Vec<Record>) -> Result<()> {
-        let dir = pytorch::source_file("assets/golden");
-        let mut cases: Vec<PathBuf> = std::fs::read_dir(&dir)
-            .with_context(|| format!("{}: the golden cases are missing", dir.display()))?
-            .map(|e| e.map(|e| e.path()))
-            .collect::<std::io::Result<_>>()?;
-        cases.retain(|p| p.join("expected.safetensors").exists());
-        cases.sort();
-        println!("golden cases (assets/golden): errors against PyTorch and the float64 reference");
-        for case in cases {
-            let name = case.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let loaded = raypatch_model::load_model(case.join("model.safetensors"))?;
-            let scene = raypatch_model::load_scene(case.join("scene.safetensors"))?;
-            let truth = raypatch_model::TensorFile::open(&case.join("expected.safetensors"))?.f32("rgb")?.data;
-            let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
-            let references = self.references(&loaded, &model, &scene.inputs)?;
-            let subject = self.subject(
-                name,
-                "golden",
-                &loaded,
-                None,
-                &model,
-                Precision::F32,
-                &scene.inputs,
-                references.as_ref().map_err(Clone::clone),
-            )?;
-            records.push(self.measure(&subject, &scene.targets, Some(&truth), false)?);
-            if loaded.config.has_depth() {
-                records.extend(self.logdepth_skip(&subject, &scene.targets)?);
-            }
-        }
-        Ok(())
-    }
-
-    /// Model files given on the command line, on their scene (or a synthetic one).
-    fn model_files(&self, options: &Options, records: &mut Vec<Record>) -> Result<()> {
-        for path in &options.models {
-            let loaded = raypatch_model::load_model(path)?;
-            let (inputs, targets) = match &options.scene {
-                Some(scene) => {
-                    let s = raypatch_model::load_scene(scene)?;
-                    (s.inputs, s.targets)
-                }
-                None => scene(1, INPUT_SIZE, 1, (120, 160))?,
-            };
-            let model = Model::from_loaded(self.gpu.clone(), &loaded)?;
-            let file = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-            let references = self.references(&loaded, &model, &inputs)?;
-            let name = path.display().to_string();
-            let subject = self.subject(
-                name,
-                "model",
-                &loaded,
-                Some(&file),
-                &model,
-                Precision::F32,
-                &inputs,
-                references.as_ref().map_err(Clone::clone),
-            )?;
-            records.push(self.measure(&subject, &targets, None, true)?);
         }
         Ok(())
     }

@@ -24,6 +24,10 @@ struct Args {
     /// Measured runs per configuration, after a warm-up (default 5, quick 3).
     #[arg(long)]
     repeats: Option<usize>,
+    /// Stop repeating a configuration once its measured runs took this many seconds (at least one run is
+    /// always made; default 30, quick 2): many runs of the fast configurations, few of the slow.
+    #[arg(long, value_name = "S")]
+    repeat_seconds: Option<f64>,
     /// Skip sizes whose render is predicted to take longer than this many seconds (default 120, quick 1.5).
     #[arg(long)]
     max_render_seconds: Option<f64>,
@@ -63,6 +67,10 @@ struct Args {
     /// K = 16, from two 128x192 views at 480x640 and 960x1280). Skips the golden cases. Merge into a full run with --replot.
     #[arg(long, value_name = "GROUP:K", value_parser = parse_only)]
     only: Vec<(String, usize)>,
+    /// Measure only these target sizes of the sweep (comma-separated HxW, e.g. 120x160,480x640; default: every
+    /// size of each model's sweep).
+    #[arg(long, value_name = "HxW,...", value_delimiter = ',', value_parser = parse_size)]
+    sizes: Vec<(usize, usize)>,
     /// Also render T target views at once at each measured sweep size (comma-separated counts, 2 to 256): a
     /// measurement per count, its frames per second counting views, PyTorch rendering as many at once
     #[arg(long, value_name = "T,...", value_delimiter = ',', value_parser = clap::value_parser!(u16).range(2..=256))]
@@ -88,6 +96,10 @@ fn main() -> ExitCode {
     let args = Args::parse();
     if args.repeats == Some(0) {
         eprintln!("raypatch-bench: --repeats must be at least 1");
+        return ExitCode::from(2);
+    }
+    if args.repeat_seconds.is_some_and(|s| !(s.is_finite() && s > 0.0)) {
+        eprintln!("raypatch-bench: --repeat-seconds must be a number above 0");
         return ExitCode::from(2);
     }
     if args.max_reference_gmac.is_some_and(|g| g.is_nan() || g < 0.0) {
@@ -119,6 +131,7 @@ fn main() -> ExitCode {
         matmul: args.matmul_kernel,
         without_subgroups: args.no_subgroups,
         repeats: args.repeats,
+        repeat_seconds: args.repeat_seconds,
         max_render_seconds: args.max_render_seconds,
         max_reference_gmac: args.max_reference_gmac,
         pytorch: !args.no_pytorch,
@@ -127,6 +140,7 @@ fn main() -> ExitCode {
         models: args.models,
         scene: args.scene,
         only: args.only,
+        sizes: args.sizes,
         views: args.views.into_iter().map(usize::from).collect(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
     };
@@ -180,9 +194,24 @@ fn parse_only(text: &str) -> Result<(String, usize), String> {
     Ok((group.to_string(), k))
 }
 
+/// A target size, `HxW` (height by width, in pixels, each at least 1).
+fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let size = text.split_once('x').and_then(|(h, w)| Some((h.parse().ok()?, w.parse().ok()?)));
+    size.filter(|&(h, w)| h > 0 && w > 0).ok_or_else(|| format!("{text:?}: expected HxW, e.g. 480x640"))
+}
+
 #[cfg(test)]
 mod tests {
-    use super::parse_only;
+    use super::{parse_only, parse_size};
+
+    #[test]
+    fn sizes() {
+        assert_eq!(parse_size("480x640"), Ok((480, 640)));
+        assert!(parse_size("480").is_err());
+        assert!(parse_size("0x640").is_err());
+        assert!(parse_size("480x").is_err());
+        assert!(parse_size("480x640x3").is_err());
+    }
 
     #[test]
     fn only_selectors() {

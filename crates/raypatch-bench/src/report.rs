@@ -66,6 +66,15 @@ pub struct Record {
     pub encode_wall_ms: Option<Stats>,
     /// The first render: builds the plan and compiles what it needs.
     pub first_render_wall_ms: Option<f64>,
+    /// Pipelines the first render compiled: none where earlier shapes of the model compiled what it needs.
+    #[serde(default)]
+    pub first_render_pipelines: Option<u64>,
+    /// Parsing the model file and loading it on the GPU, and the model's first encode (its pipelines
+    /// compiled): with `first_render_wall_ms`, the first frame of a process. Absent where not measured.
+    #[serde(default)]
+    pub load_wall_ms: Option<f64>,
+    #[serde(default)]
+    pub first_encode_wall_ms: Option<f64>,
     pub render_ms: Option<Stats>,
     /// Host to host: uploads the target cameras, runs the plan, reads the image back.
     pub render_wall_ms: Option<Stats>,

@@ -96,10 +96,22 @@ impl Bench {
                     precisions.push(Precision::F16Activations);
                 }
             }
-            let mut sizes: Vec<(usize, usize)> =
-                sizes.iter().filter(|s| s.0 % k == 0 && s.1 % k == 0).copied().collect();
+            let mut sizes: Vec<(usize, usize)> = sizes
+                .iter()
+                .filter(|s| s.0 % k == 0 && s.1 % k == 0 && (self.sizes.is_empty() || self.sizes.contains(s)))
+                .copied()
+                .collect();
+            if sizes.is_empty() {
+                println!("  {name:<12} k={k:<2} none of --sizes is among its sizes: not measured");
+                continue;
+            }
             for precision in precisions {
-                let model = Model::from_loaded_with(self.gpu.clone(), &loaded, &LoadOptions { precision })?;
+                // Loaded from its file's bytes, as `Engine::load_bytes` loads one: a first frame's load time.
+                let start = Instant::now();
+                let from_file = raypatch_model::weights::model_from_bytes(name, &file)?;
+                let model = Model::from_loaded_with(self.gpu.clone(), &from_file, &LoadOptions { precision })?;
+                let load_ms = start.elapsed().as_secs_f64() * 1e3;
+                drop(from_file);
                 if references.is_none() {
                     references = Some(self.references(&loaded, &model, &inputs)?);
                 }
@@ -109,7 +121,7 @@ impl Bench {
                     &loaded,
                     Some(&file),
                     &model,
-                    precision,
+                    (precision, Some(load_ms)),
                     &inputs,
                     references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
@@ -266,7 +278,9 @@ impl Bench {
             anyhow::ensure!(frames == targets.count, "{frames} frames of {} views", targets.count);
             Ok(Sample { wall: start.elapsed(), gpu: None })
         };
-        run()?;
+        let compiled = self.gpu.counters().pipelines_compiled;
+        record.first_render_wall_ms = Some(run()?.wall.as_secs_f64() * 1e3);
+        record.first_render_pipelines = Some(self.gpu.counters().pipelines_compiled - compiled);
         let (wall, _) = measure::repeat(Repeats { warmup: 0, ..self.repeats }, run)?;
         set_times(&mut record, wall, None);
         record.note = format!("{batch} views per render call");
