@@ -76,7 +76,11 @@ out=$(cd "$out" && pwd)
 work=$(mktemp -d)
 kit=$work/kit
 mkdir -p "$kit" "$work/results"
-tar -xJf .gpu/kit.tar.xz -C "$kit"
+if ! tar -xJf .gpu/kit.tar.xz -C "$kit"; then
+    echo "gpu_bench: .gpu/kit.tar.xz: cannot unpack (cut short or damaged): run tools/bench/gpu_kit.sh again" >&2
+    rm -rf "$work"
+    exit 2
+fi
 bin=$kit/bin
 
 # The Vulkan loader and glvnd, unpacked from the kit where the system lacks them.

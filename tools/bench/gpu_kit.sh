@@ -36,5 +36,7 @@ for test in golden kernels api executor; do
 done
 pwd >"$kit/build-path"
 (cd "$kit/debs" && apt-get download libvulkan1 libglvnd0 libegl1 libgl1 libglx0 libopengl0 libgles2)
-tar -cJf .gpu/kit.tar.xz -C "$kit" .
+# Through a temporary name: a kit being written is never taken for a whole one.
+tar -cJf .gpu/kit.tar.xz.part -C "$kit" .
+mv .gpu/kit.tar.xz.part .gpu/kit.tar.xz
 echo "gpu_kit: .gpu/kit.tar.xz, $(du -h .gpu/kit.tar.xz | cut -f1) (binaries of $(git rev-parse --short HEAD))"

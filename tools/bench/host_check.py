@@ -42,7 +42,7 @@ PASS, FAIL, NOT_MEASURED = "PASS", "FAIL", "NOT MEASURED"
 
 
 def load(host, folder):
-    """The records of HOST_DIR/folder/results.json and its environment, or why there are none."""
+    """(HOST_DIR/folder/results.json as read, None) or (None, why there is none)."""
     path = os.path.join(host, folder, "results.json")
     try:
         with open(path) as f:
@@ -69,13 +69,12 @@ def find(results, key, views, size, group="sweep"):
     return None
 
 
-def verdict(rows, expected):
-    """PASS / FAIL / NOT MEASURED of rows [(ok or None, ...)]: FAIL on any failure, PASS when all
-    `expected` were measured and passed."""
-    measured = [row for row in rows if row[0] is not None]
-    if any(not row[0] for row in measured):
+def verdict(rows):
+    """PASS / FAIL / NOT MEASURED of rows [(ok, or None where not measured, ...)]: FAIL on any failure, PASS
+    when every row was measured and passed."""
+    if any(row[0] is False for row in rows):
         return FAIL
-    return PASS if len(measured) == expected and expected > 0 else NOT_MEASURED
+    return PASS if rows and all(row[0] for row in rows) else NOT_MEASURED
 
 
 def unmeasured(record, why_missing):
@@ -109,7 +108,7 @@ def criterion1(profile, loaded):
         figure += f"; worst {worst[1]}: wall {worst[2]} ms, GPU {worst[3]} ms (bound {worst[4]} ms)"
     detail = ["| render | wall ms | GPU ms | bound ms | within | note |", "|---|---|---|---|---|---|"]
     detail += [f"| {row[1]} | {row[2]} | {row[3]} | {row[4]} | {yes_no(row[0])} | {row[5]} |" for row in rows]
-    return verdict(rows, len(rows)), figure, detail
+    return verdict(rows), figure, detail
 
 
 def yes_no(ok):
@@ -200,7 +199,7 @@ def criterion5(profile, loaded):
     detail = ["| views | one batched call wall ms | a frame per view wall ms | ratio | within | note |",
               "|---|---|---|---|---|---|"]
     detail += [f"| {row[1]} | {row[2]} | {row[3]} | {row[4]} | {yes_no(row[0])} | {row[5]} |" for row in rows]
-    return verdict(rows, len(rows)), figure, detail
+    return verdict(rows), figure, detail
 
 
 def criterion6(host):
