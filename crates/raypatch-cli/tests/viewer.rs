@@ -1,7 +1,7 @@
 //! `render-frame --serve` as a process: hostile requests get one-line errors and the server keeps serving,
-//! 20 clients at once get their frames, a flood gets errors without the server's memory growing, hundreds of
-//! slow clients do not keep a request waiting, Ctrl-C stops it cleanly, and the endpoint renders exactly what
-//! `render-frame --pose` renders.
+//! 20 clients at once get their frames, two rendering at once get each their own, a flood gets errors without
+//! the server's memory growing, hundreds of slow clients do not keep a request waiting, Ctrl-C stops it cleanly,
+//! and the endpoint renders exactly what `render-frame --pose` renders.
 #![cfg(unix)]
 
 mod common;
@@ -255,6 +255,35 @@ fn twenty_clients_get_their_frames_and_floods_get_errors_without_memory_growing(
     std::thread::sleep(Duration::from_millis(1100));
     let reply = get(address, "/render.png");
     assert_eq!(reply.status, 200, "after the floods: {}", reply.text());
+    assert_eq!(viewer.stop().0, 0);
+}
+
+/// Two clients whose renders run at once (on the two render threads, one submitted while the other is read
+/// back) each get their own camera's frame, as rendered one request at a time.
+#[test]
+fn two_clients_rendering_at_once_each_get_their_own_frames() {
+    let viewer = Viewer::start(&[]);
+    let address = viewer.address;
+    let target = |degrees: f64| format!("/render.png?pose={}", orbit_pose(degrees));
+    let alone: Vec<Image> = [0.0, 90.0].map(|degrees| get(address, &target(degrees)).image()).to_vec();
+    assert_ne!(alone[0], alone[1]);
+    let clients: Vec<_> = [0.0, 90.0]
+        .into_iter()
+        .zip(alone)
+        .map(|(degrees, expected)| {
+            let target = target(degrees);
+            std::thread::spawn(move || {
+                for _ in 0..12 {
+                    let reply = get(address, &target);
+                    assert_eq!(reply.status, 200, "{degrees}°: {}", reply.text());
+                    assert!(reply.image() == expected, "{degrees}°: not the frame rendered alone");
+                }
+            })
+        })
+        .collect();
+    for client in clients {
+        client.join().expect("both clients get their frames");
+    }
     assert_eq!(viewer.stop().0, 0);
 }
 

@@ -7,7 +7,7 @@ use serde_json::json;
 
 /// The longest side of a rendered image, in pixels.
 pub const MAX_SIDE: usize = 1024;
-/// The most pixels a render may have (a render holds the one render thread for its whole duration).
+/// The most pixels a render may have (a render holds a render thread for its whole duration).
 pub const MAX_PIXELS: usize = 512 * 512;
 
 /// An output the page can show, by the name the page and the endpoint use.

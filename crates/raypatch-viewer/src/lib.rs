@@ -2,9 +2,10 @@
 //! names them only by index), encodes each scene once per model, and serves a page that flies a camera around
 //! them while one engine renders: a lower resolution while the camera moves, the full size when it stops.
 //!
-//! Threads: the caller's thread owns the engine and renders (`queue.rs`: the newest camera per client); one
-//! I/O thread owns every connection, collecting request heads and writing responses on non-blocking sockets
-//! (`conn.rs`); a fixed pool of HTTP workers (`server.rs`) answers complete heads and encodes PNGs.
+//! Threads: the caller's thread owns the engine and renders, with one more render thread, so that one render is
+//! submitted while the other is read back (`queue.rs`: the newest camera per client); one I/O thread owns every
+//! connection, collecting request heads and writing responses on non-blocking sockets (`conn.rs`); a fixed pool
+//! of HTTP workers (`server.rs`) answers complete heads and encodes PNGs.
 
 mod catalog;
 mod conn;

@@ -1,4 +1,4 @@
-//! Renders waiting for the one render thread: at most one per client (its newest camera: an older one still
+//! Renders waiting for the render threads (`serve.rs`): at most one per client (its newest camera: an older one still
 //! waiting is answered 409 and dropped, not rendered), a queue bounded in renders and in pixels, and frame
 //! rates bounded per client.
 

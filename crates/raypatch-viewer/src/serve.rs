@@ -1,5 +1,5 @@
 //! `render-frame --serve`'s flags and its run: load, encode each scene once per model, start the HTTP side,
-//! render on the caller's thread until Ctrl-C.
+//! render on the caller's thread and one more until Ctrl-C.
 
 use std::net::{IpAddr, SocketAddr, TcpListener};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -18,6 +18,11 @@ use crate::conn::Limits;
 use crate::http::HttpError;
 use crate::queue::{Frame, Job, Reply};
 use crate::server::{Http, Shared, CLIENT_FRAMES_PER_SECOND};
+
+/// Threads taking renders from the queue, the caller's among them. Two keep the GPU busy: while one waits for
+/// its render and reads it back, the other's render is submitted (the engine runs renders of one plan at once,
+/// each with its own staging), so the GPU does not idle between frames.
+const RENDER_THREADS: usize = 2;
 
 /// Render plans kept per encoded scene (one per size and output asked for); past this they are dropped, so
 /// that requests for ever new sizes cannot grow GPU memory.
@@ -118,12 +123,14 @@ fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Resu
         scene_data.len(),
         start.elapsed().as_secs_f64()
     );
-    while let Some(job) = shared.queue.next() {
-        let reply = catch_unwind(AssertUnwindSafe(|| render(&job, &scenes, &shared.scenes)))
-            .unwrap_or_else(|_| Err(HttpError::new(500, "render: the engine failed on this request")));
-        // The client may have gone; its worker then no longer waits.
-        let _ = job.reply.send(reply);
-    }
+    std::thread::scope(|scope| {
+        for i in 1..RENDER_THREADS {
+            let thread = std::thread::Builder::new().name(format!("viewer-render-{i}"));
+            // Without it the caller's thread renders alone, as well but with the GPU idle between frames.
+            let _ = thread.spawn_scoped(scope, || render_jobs(&shared, &scenes));
+        }
+        render_jobs(&shared, &scenes);
+    });
     http.stop(Duration::from_secs(2));
     println!("raypatch viewer: stopped");
     Ok(())
@@ -144,6 +151,16 @@ fn encode_all<'m>(models: &'m [Model], scenes: &[(String, SceneData)]) -> Result
                 .collect()
         })
         .collect()
+}
+
+/// Renders the queue's jobs until it stops.
+fn render_jobs(shared: &Shared, scenes: &[Vec<Scene>]) {
+    while let Some(job) = shared.queue.next() {
+        let reply = catch_unwind(AssertUnwindSafe(|| render(&job, scenes, &shared.scenes)))
+            .unwrap_or_else(|_| Err(HttpError::new(500, "render: the engine failed on this request")));
+        // The client may have gone; its worker then no longer waits.
+        let _ = job.reply.send(reply);
+    }
 }
 
 /// One render: the camera the job asks for, through its model's encoding of its scene.

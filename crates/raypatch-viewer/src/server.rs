@@ -1,6 +1,6 @@
 //! The HTTP side: the I/O thread (`conn.rs`) owns every socket and hands complete request heads to a fixed
 //! pool of workers, which answer them through the routes here. Workers never touch a socket or the engine:
-//! renders go through the [`RenderQueue`] to the render thread.
+//! renders go through the [`RenderQueue`] to the render threads.
 
 use std::net::{IpAddr, TcpListener};
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -3,7 +3,7 @@
 'use strict';
 
 const SETTLE_MS = 250;       // after this long without camera moves, the full size is rendered
-const MAX_IN_FLIGHT = 3;     // one rendering, one waiting, one replacing the waiting one on the server
+const MAX_IN_FLIGHT = 4;     // two rendering (the server's two render threads), one waiting, one replacing it
 const MIN_SEND_MS = 20;      // at most 50 requests a second: under the server's 60 per client
 const UP = [0, 0, 1];
 
