@@ -7,6 +7,8 @@ use std::sync::Arc;
 
 use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
 use raypatch_model::error::Quoted;
+use raypatch_model::pinhole::{Pinhole, PinholeRays};
+use raypatch_model::TargetRays;
 
 use crate::error::{Error, Result};
 pub use raypatch_model::RayKind;
@@ -204,11 +206,18 @@ impl Camera {
     }
 
     /// This camera as the engine's one-view render target, with rays of the model's kind (see
-    /// [`rays_of`](Self::rays_of)).
+    /// [`rays_of`](Self::rays_of)): a pinhole camera's as the camera itself (a render makes its rays on the GPU:
+    /// the same rays), given rays as values.
     pub fn target_views_of(&self, kind: RayKind) -> raypatch_model::TargetViews {
         let (width, height) = self.ray_grid_size();
-        let mut rays = vec![0.0; width * height * 3];
-        self.write_rays(kind, &mut rays);
+        let rays = match self.pinhole_rays(kind) {
+            Some(pinhole) => TargetRays::Pinhole(vec![pinhole]),
+            None => {
+                let mut rays = vec![0.0; width * height * 3];
+                self.write_rays(kind, &mut rays);
+                TargetRays::Given(rays)
+            }
+        };
         raypatch_model::TargetViews {
             count: 1,
             camera_pos: self.position().as_vec3().to_array().to_vec(),
@@ -219,6 +228,15 @@ impl Camera {
             images: None,
             masks: None,
         }
+    }
+
+    /// A pinhole camera's rays of `kind` in the form both the host and the GPU make them from
+    /// ([`raypatch_model::pinhole`]); `None` for given rays.
+    pub fn pinhole_rays(&self, kind: RayKind) -> Option<PinholeRays> {
+        let Projection::Pinhole { intrinsics: k, rotation } = &self.projection else { return None };
+        let pinhole = Pinhole { width: k.width, height: k.height, fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy };
+        let axes = [rotation.x_axis, rotation.y_axis, rotation.z_axis].map(|a| a.to_array());
+        Some(PinholeRays::new(kind, &pinhole, axes, self.position.to_array()))
     }
 
     /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
@@ -411,42 +429,32 @@ impl Camera {
 
     /// Writes the rays [`rays_of`](Self::rays_of) gives, row-major, 3 floats a ray, into `out` (the
     /// [`ray_grid_size`](Self::ray_grid_size)'s rays × 3 values), without building the grid: a pinhole camera's
-    /// large images (a render's targets) are computed a band of rows per core, each ray as `rays_of` makes it.
+    /// large images are computed a band of rows per core, each ray as the GPU makes it
+    /// ([`raypatch_model::pinhole`]).
     pub fn write_rays(&self, kind: RayKind, out: &mut [f32]) {
         let (width, height) = self.ray_grid_size();
         assert_eq!(out.len(), width * height * 3, "write_rays: room for {width}x{height} rays");
-        let (k, rotation) = match &self.projection {
+        let pinhole = match &self.projection {
             Projection::Rays { grid, turn, .. } => {
                 for (o, d) in out.chunks_exact_mut(3).zip(&grid.rays) {
                     o.copy_from_slice(&turned_ray(*d, *turn).to_array());
                 }
                 return;
             }
-            Projection::Pinhole { intrinsics, rotation } => (intrinsics, *rotation),
-        };
-        let row = |i: usize, values: &mut [f32]| {
-            for (j, value) in values.chunks_exact_mut(3).enumerate() {
-                let camera = DVec3::new((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy, 1.0);
-                let world = rotation * camera;
-                let ray = match kind {
-                    RayKind::UnitDirection => world.normalize().as_vec3(),
-                    RayKind::UnitDepthPoint => (self.position + world).as_vec3(),
-                };
-                value.copy_from_slice(&ray.to_array());
-            }
+            Projection::Pinhole { .. } => self.pinhole_rays(kind).expect("a pinhole camera"),
         };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         if threads == 1 || width * height < PARALLEL_RAYS {
-            out.chunks_exact_mut(width * 3).enumerate().for_each(|(i, values)| row(i, values));
+            pinhole.write_rows(0..height, out);
             return;
         }
         let rows_each = height.div_ceil(threads);
         std::thread::scope(|scope| {
             for (band, values) in out.chunks_mut(rows_each * width * 3).enumerate() {
+                let pinhole = &pinhole;
                 scope.spawn(move || {
-                    for (r, values) in values.chunks_exact_mut(width * 3).enumerate() {
-                        row(band * rows_each + r, values);
-                    }
+                    let first = band * rows_each;
+                    pinhole.write_rows(first..first + values.len() / (width * 3), values);
                 });
             }
         });
@@ -544,8 +552,8 @@ mod tests {
             assert!(((p.as_dvec3() - centre).dot(-turn.z_axis) - 1.0).abs() < 1e-6);
         }
         let views = camera.target_views_of(RayKind::UnitDepthPoint);
-        assert_eq!(views.rays[..3], points.rays[0].to_array());
-        assert_eq!(camera.target_views().rays[..3], directions.rays[0].to_array());
+        assert_eq!(views.ray_values()[..3], points.rays[0].to_array());
+        assert_eq!(camera.target_views().ray_values()[..3], directions.rays[0].to_array());
         // Given rays are used as given, whatever the kind, and orbit as points do.
         let given = Camera::from_rays(centre, points.clone()).unwrap();
         assert_eq!(given.rays_of(RayKind::UnitDirection), points);
@@ -560,7 +568,8 @@ mod tests {
     }
 
     /// A large image's rays, written a band of rows per core, are each pixel's own ray: no band shifted,
-    /// repeated or left out (the image is above PARALLEL_RAYS, its height not a multiple of the cores).
+    /// repeated or left out (the image is above PARALLEL_RAYS, its height not a multiple of the cores), and
+    /// within one float32 rounding of the float64 ray.
     #[test]
     fn rays_written_in_bands_are_each_pixels_own() {
         let (width, height) = (331, 257);
@@ -570,16 +579,20 @@ mod tests {
         let (_, pose) = camera.as_pinhole().unwrap();
         let rotation = DMat3::from_mat4(pose);
         for kind in [RayKind::UnitDirection, RayKind::UnitDepthPoint] {
+            let pinhole = camera.pinhole_rays(kind).unwrap();
             let mut written = vec![f32::NAN; width * height * 3];
             camera.write_rays(kind, &mut written);
             for (i, ray) in written.chunks_exact(3).enumerate() {
-                let (u, v) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);
+                let (row, column) = (i / width, i % width);
+                assert_eq!(ray, pinhole.ray(row, column), "{kind:?} ray {i}");
+                let (u, v) = (column as f64 + 0.5, row as f64 + 0.5);
                 let world = rotation * DVec3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
                 let want = match kind {
                     RayKind::UnitDirection => world.normalize(),
                     RayKind::UnitDepthPoint => camera.position() + world,
                 };
-                assert_eq!(ray, want.as_vec3().to_array(), "{kind:?} ray {i}");
+                let off = (Vec3::from_slice(ray).as_dvec3() - want).abs().max_element();
+                assert!(off <= want.abs().max_element() * f64::from(f32::EPSILON), "{kind:?} ray {i}: {off}");
             }
         }
     }

@@ -130,9 +130,10 @@ impl SceneData {
                 ),
             }));
         };
+        let rays = t.ray_values();
         let targets = (0..t.count)
             .map(|i| {
-                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&t.rays, i, gh, gw), per_ray)
+                let camera = Camera::from_patch_rays(position(&t.camera_pos, i), grid(&rays, i, gh, gw), per_ray)
                     .map_err(in_file("target_rays", "target view", i))?;
                 let image = t
                     .images

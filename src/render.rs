@@ -104,6 +104,7 @@ impl Engine {
                 matmul: options.matmul,
                 pipeline_cache: options.pipeline_cache,
                 without_subgroups: false,
+                rays_on_host: false,
             })?),
             load: LoadOptions { precision: options.precision },
         })

@@ -312,8 +312,10 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     scene.render(camera, &Request::default()).unwrap();
     scene.render(camera, &interior(17)).unwrap();
     let (plans, before) = (scene.cached_plans(), engine.counters());
-    // Another camera of the same size, and the same-sized region elsewhere: the same two plans.
-    let other = Camera::msn(DVec3::new(-6.0, 5.0, 2.0), camera.width(), camera.height()).unwrap();
+    // Another camera of the same size, and the same-sized region elsewhere: the same two plans. (Given rays, as
+    // the scene's camera: a pinhole camera's rays are made on the GPU, by plans of their own.)
+    let msn = Camera::msn(DVec3::new(-6.0, 5.0, 2.0), camera.width(), camera.height()).unwrap();
+    let other = Camera::from_rays(msn.position(), msn.rays()).unwrap();
     scene.render(&other, &Request::default()).unwrap();
     scene.render(camera, &interior(21)).unwrap();
     let after = engine.counters();
@@ -326,6 +328,37 @@ fn rendering_reuses_the_encoded_scene_and_the_plan() {
     let larger = Camera::msn(DVec3::new(-6.0, 5.0, 2.0), camera.width() * 2, camera.height() + 8).unwrap();
     scene.render(&larger, &Request::default()).unwrap();
     assert_eq!(engine.counters().pipelines_compiled, after.pipelines_compiled, "another size compiled pipelines");
+}
+
+/// A pinhole camera's rays are made on the GPU (nothing per pixel is uploaded), bit-equal to the host's: its
+/// render is the render of the same rays given, pixel for pixel, whole, in a region, and several views at once.
+#[test]
+fn a_pinhole_camera_renders_the_pixels_of_its_rays_given() {
+    for case in ["rpsrt_k4", "srt_k1_depth", "rposrt_k8", "define"] {
+        let engine = engine();
+        let model = engine.load(golden(case).join("model.safetensors")).unwrap();
+        let data = SceneData::load(golden(case).join("scene.safetensors")).unwrap();
+        let scene = model.encode(&data.inputs).unwrap();
+        let (width, height) = (data.targets[0].camera.width(), data.targets[0].camera.height());
+        let pinholes: Vec<Camera> = [DVec3::new(4.0, -3.0, 2.5), DVec3::new(-2.0, 5.5, 1.0)]
+            .iter()
+            .map(|p| Camera::msn(*p, width, height).unwrap().orbited(17.0))
+            .collect();
+        let given: Vec<Camera> =
+            pinholes.iter().map(|c| Camera::from_rays(c.position(), c.rays_of(model.ray_kind())).unwrap()).collect();
+        let region = Request { region: Some(Region { x: 3, y: 5, width: 9, height: 7 }), ..Request::default() };
+        for request in [Request::default(), region] {
+            let (a, b) = (scene.render(&pinholes[0], &request).unwrap(), scene.render(&given[0], &request).unwrap());
+            for output in model.outputs().iter() {
+                assert_eq!(a.get(output), b.get(output), "{case}: {} of a pinhole camera", output.name());
+            }
+        }
+        let all = Request::default();
+        let (a, b) = (scene.render_batch(&pinholes, &all).unwrap(), scene.render_batch(&given, &all).unwrap());
+        for (a, b) in a.iter().zip(&b) {
+            assert_eq!(a.get(Output::Rgb), b.get(Output::Rgb), "{case}: a batch of pinhole cameras");
+        }
+    }
 }
 
 /// The first render's pipelines compile while the GPU encodes: a render of the inputs' size compiles none.

@@ -9,6 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use raypatch_engine::{Gpu, GpuOptions, Model, Output, Outputs, Region, Request};
+use raypatch_model::TargetRays;
 
 fn case(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/golden").join(name)
@@ -141,16 +142,15 @@ fn views_come_apart_as_read_and_non_finite_inputs_never_reach_a_kernel() {
     let scene = raypatch_model::load_scene(case("rpsrt_k4").join("scene.safetensors")).unwrap();
     let encoded = model.encode(&scene.inputs).unwrap();
     let mut two = scene.targets.view(0);
-    two.count = 2;
-    two.camera_pos.extend_from_within(..);
-    two.rays.extend_from_within(..);
+    two.append(scene.targets.view(0));
     let joined = encoded.render(&two, Outputs::default()).unwrap();
     let each = encoded.render_each(&two, Outputs::default()).unwrap();
     let rgb = joined.get(Output::Rgb).unwrap();
     assert_eq!(each.len(), 2);
     assert_eq!([each[0].get(Output::Rgb).unwrap(), each[1].get(Output::Rgb).unwrap()].concat(), rgb);
 
-    two.rays[7] = f32::NAN;
+    let TargetRays::Given(rays) = &mut two.rays else { panic!("a scene file's rays are values") };
+    rays[7] = f32::NAN;
     let submits = gpu.counters().submits;
     let err = encoded.render(&two, Outputs::default()).unwrap_err().to_string();
     assert!(err.contains("target_rays") && err.contains("finite"), "{err}");
@@ -198,4 +198,34 @@ fn the_readout_packs_the_window_and_flags_non_finite_values_in_it() {
     assert_eq!(run(&values).1, 0, "a NaN outside the window raised the flag");
     values[pixel(1, 2, 1) + 2] = f32::INFINITY;
     assert_eq!(run(&values).1, 1, "an infinity in the window did not raise the flag");
+}
+
+/// A pinhole camera's rays are made on the GPU where it makes them bit-equal to the host's (lavapipe does),
+/// else on the host (`GpuOptions::rays_on_host` stands for such a GPU): one or the other, the same pixels, and
+/// only the GPU's plan has the rays op and uploads no ray.
+#[test]
+fn pinhole_rays_made_on_the_gpu_or_the_host_render_the_same_pixels() {
+    let render = |rays_on_host: bool| {
+        let gpu = Arc::new(Gpu::new(&GpuOptions { rays_on_host, ..GpuOptions::default() }).expect("no GPU adapter"));
+        let model = Model::load(gpu.clone(), case("rposrt_k8").join("model.safetensors")).unwrap();
+        let scene = raypatch_model::load_scene(case("rposrt_k8").join("scene.safetensors")).unwrap();
+        let encoded = model.encode(&scene.inputs).unwrap();
+        let (height, width) = (scene.inputs.height, scene.inputs.width);
+        let cameras = [glam::DVec3::new(4.0, -3.0, 2.5), glam::DVec3::new(-1.0, 5.0, 3.0)]
+            .map(|p| raypatch::Camera::msn(p, width, height).unwrap().target_views_of(model.config.ray_kind()));
+        let [mut targets, second] = cameras;
+        targets.append(second);
+        assert!(matches!(targets.rays, TargetRays::Pinhole(_)));
+        let labels = encoded.render_op_labels(&targets, Outputs::default()).unwrap();
+        let stats = encoded.render_stats(&targets, Outputs::default()).unwrap();
+        let frame = encoded.render(&targets, Outputs::default()).unwrap();
+        (frame, labels.iter().any(|l| l == "target_rays"), stats.staging_bytes)
+    };
+    let (on_gpu, gpu_op, gpu_staging) = render(false);
+    let (on_host, host_op, host_staging) = render(true);
+    assert!(gpu_op && !host_op, "the rays op runs where the GPU makes the rays, and only there");
+    assert!(gpu_staging < host_staging, "the GPU's rays were uploaded ({gpu_staging} >= {host_staging} bytes)");
+    for output in [Output::Rgb, Output::Segmentation] {
+        assert_eq!(on_gpu.get(output), on_host.get(output), "{}", output.name());
+    }
 }

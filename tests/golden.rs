@@ -241,7 +241,7 @@ fn patch_rays_are_bit_exact() {
         let (n, from) = (t.count, (t.rays_height, t.rays_width));
         bilinear(&mut b, "patch_rays", ResizeArgs { x: src, n, from, out: dst, to: (ph, pw), accumulate: false });
         let plan = b.build(&gpu).unwrap();
-        gpu.write(&plan.tensor(rays), &t.rays);
+        gpu.write(&plan.tensor(rays), &t.ray_values());
         plan.execute(&gpu);
         let got = gpu.read(&plan.tensor(patch)).unwrap();
         let differing = got.iter().zip(&want.data).filter(|(a, b)| a.to_bits() != b.to_bits()).count();

@@ -1,24 +1,39 @@
 //! A sequence of cameras rendered a batch at a time ([`Scene::render_path`](super::Scene::render_path)), each
 //! batch's targets made as the engine takes them, one batch kept in flight.
 
-use raypatch_model::RayKind;
+use raypatch_model::pinhole::PinholeRays;
+use raypatch_model::{RayKind, TargetRays};
 
 use super::Rendered;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 
-/// `cameras` (one size) as one batch of the engine's render targets, with rays of `kind`.
+/// `cameras` (one size) as one batch of the engine's render targets, with rays of `kind`: pinhole cameras as
+/// such (their rays made on the GPU), else every camera's rays as values.
 fn targets_of(cameras: &[Camera], kind: RayKind) -> raypatch_model::TargetViews {
-    let mut targets = cameras[0].target_views_of(kind);
-    let per_view = targets.rays.len();
-    targets.count = cameras.len();
-    targets.rays.resize(per_view * cameras.len(), 0.0);
-    targets.camera_pos.reserve(3 * (cameras.len() - 1));
-    for (camera, rays) in cameras[1..].iter().zip(targets.rays[per_view..].chunks_exact_mut(per_view)) {
-        targets.camera_pos.extend(camera.position().as_vec3().to_array());
-        camera.write_rays(kind, rays);
+    let (width, height) = cameras[0].ray_grid_size();
+    let pinholes: Option<Vec<PinholeRays>> = cameras.iter().map(|c| c.pinhole_rays(kind)).collect();
+    let rays = match pinholes {
+        Some(pinholes) => TargetRays::Pinhole(pinholes),
+        None => {
+            let per_view = width * height * 3;
+            let mut rays = vec![0.0; per_view * cameras.len()];
+            for (camera, rays) in cameras.iter().zip(rays.chunks_exact_mut(per_view)) {
+                camera.write_rays(kind, rays);
+            }
+            TargetRays::Given(rays)
+        }
+    };
+    raypatch_model::TargetViews {
+        count: cameras.len(),
+        camera_pos: cameras.iter().flat_map(|c| c.position().as_vec3().to_array()).collect(),
+        rays,
+        rays_height: height,
+        rays_width: width,
+        declared_size: Some((cameras[0].height(), cameras[0].width())),
+        images: None,
+        masks: None,
     }
-    targets
 }
 
 /// A path's batches of render targets, made as the engine takes them: `batch` cameras each, the last filled

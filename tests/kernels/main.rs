@@ -17,6 +17,7 @@ mod multiply_adds;
 mod norm;
 mod pool;
 mod posenc;
+mod rays;
 mod resize;
 mod shaders;
 mod softmax;

@@ -281,7 +281,7 @@ pub fn synthetic_scene(
     let target = TargetViews {
         count: targets,
         camera_pos: positions,
-        rays,
+        rays: raypatch_model::TargetRays::Given(rays),
         rays_height: th,
         rays_width: tw,
         declared_size: Some(target_size),
@@ -301,7 +301,7 @@ pub fn scene_file(inputs: &InputViews, targets: &TargetViews) -> Result<Vec<u8>,
         ("input_camera_pos".to_string(), vec![n, 3], inputs.camera_pos.clone()),
         ("input_rays".to_string(), vec![n, h, w, 3], inputs.rays.clone()),
         ("target_camera_pos".to_string(), vec![t, 3], targets.camera_pos.clone()),
-        ("target_rays".to_string(), vec![t, th, tw, 3], targets.rays.clone()),
+        ("target_rays".to_string(), vec![t, th, tw, 3], targets.ray_values().into_owned()),
     ];
     let metadata = json!({"format": "raypatch-scene/1"});
     let metadata = metadata
@@ -324,11 +324,11 @@ mod tests {
         for case in ["srt_k1", "rpsrt_k4"] {
             let scene = raypatch_model::load_scene(dir.join(case).join("scene.safetensors")).unwrap();
             let t = &scene.targets;
-            let per_view = t.rays_height * t.rays_width * 3;
+            let (per_view, values) = (t.rays_height * t.rays_width * 3, t.ray_values());
             for v in 0..t.count {
                 let position = [t.camera_pos[3 * v], t.camera_pos[3 * v + 1], t.camera_pos[3 * v + 2]];
                 let rays = camera_rays(position, t.rays_width, t.rays_height).unwrap();
-                let want = &t.rays[v * per_view..(v + 1) * per_view];
+                let want = &values[v * per_view..(v + 1) * per_view];
                 // numpy sums the pixel offsets in another order: allow one f32 rounding step (2^-24 relative).
                 let err = rays.iter().zip(want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
                 assert!(err <= 1.2e-7, "{case} view {v}: rays differ from tools/reference/cameras.py by {err:e}");

@@ -8,12 +8,13 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 
-use raypatch_model::{InputViews, TargetGrid, TargetViews};
+use raypatch_model::{InputViews, RaySource, TargetGrid, TargetViews};
 
 use crate::error::{EngineError, Result};
 use crate::frame::{Crop, Frame, Output, Outputs, Region, RenderStats, Request};
 use crate::gpu::storage_usage;
 use crate::graph::{Graph, HostInput, ImageSize};
+use crate::kernels::rays;
 use crate::model::{EncodePlan, Model};
 use crate::models::LightField;
 use crate::plan::{PlanBuilder, TensorId};
@@ -246,7 +247,7 @@ impl EncodedScene<'_> {
 
     /// Pixels along each axis that one given ray covers: k for patch rays, else 1.
     fn per_ray(&self, crop: &Crop) -> usize {
-        if crop.image.rays_are_patches {
+        if crop.image.rays == RaySource::Patches {
             self.model.family.patch_size()
         } else {
             1
@@ -345,7 +346,10 @@ impl EncodedScene<'_> {
     fn crop(&self, targets: &TargetViews, request: &Request) -> Result<Crop> {
         let family = &*self.model.family;
         let k = family.patch_size();
-        let image = targets.grid_for(&self.model.config, "target views")?;
+        let mut image = targets.grid_for(&self.model.config, "target views")?;
+        if image.rays == RaySource::Pinhole && !rays::exact_on(self.model.gpu()) {
+            image.rays = RaySource::Pixels; // the host makes them (Crop::rays)
+        }
         let outputs = request.outputs;
         if outputs.is_empty() {
             let names: Vec<&str> = family.outputs().iter().map(Output::name).collect();
@@ -370,11 +374,7 @@ impl EncodedScene<'_> {
         }
         let (py0, py1) = family.patch_span(region.y, region.y + region.height - 1, image.height / k);
         let (px0, px1) = family.patch_span(region.x, region.x + region.width - 1, image.width / k);
-        let grid = TargetGrid {
-            height: (py1 + 1 - py0) * k,
-            width: (px1 + 1 - px0) * k,
-            rays_are_patches: image.rays_are_patches,
-        };
+        let grid = TargetGrid { height: (py1 + 1 - py0) * k, width: (px1 + 1 - px0) * k, rays: image.rays };
         Ok(Crop { image, region, y0: py0 * k, x0: px0 * k, grid })
     }
 
@@ -486,7 +486,7 @@ fn record_render(
     Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
 }
 
-/// The recording of what a first render of `(height, width)` likely is: one view, rgb
+/// The recording of what a first render of `(height, width)` likely is: one view from a pinhole camera, rgb
 /// where the model has it, over a scene whose cached tensors are `cached`; `None` for a size that no render
 /// computes whole. Its pipelines are compiled before that render asks for them (`model.rs`).
 pub(crate) fn first_render(
@@ -499,7 +499,7 @@ pub(crate) fn first_render(
     if !height.is_multiple_of(k) || !width.is_multiple_of(k) {
         return None;
     }
-    let grid = TargetGrid { height, width, rays_are_patches: false };
+    let grid = TargetGrid { height, width, rays: RaySource::Pinhole };
     let rgb = Outputs::of(&[Output::Rgb]);
     let outputs = if family.outputs().contains(Output::Rgb) { rgb } else { family.outputs() };
     Some(record_render(g, family, cached, 1, grid, outputs).builder)

@@ -1,7 +1,8 @@
 //! What a render is asked for and what it returns: the outputs (a named set), the region, the frame of
 //! rendered outputs, and the crop of the target image a render computes.
 
-use raypatch_model::{TargetGrid, TargetViews};
+use raypatch_model::pinhole::{PinholeRays, TERM_FLOATS};
+use raypatch_model::{TargetGrid, TargetRays, TargetViews};
 
 /// An output a model can render.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -230,15 +231,38 @@ impl Crop {
         [r.y - self.y0, r.x - self.x0, r.height, r.width].map(|v| v as u32)
     }
 
-    /// The rays of the computed pixels, one 3-float slice each, view by view and row by row; `per_ray` is the
-    /// number of pixels along each axis one ray covers (1 for full-resolution rays, k for patch rays). Read in
-    /// place: nothing is copied.
-    pub fn ray_rows<'t>(&self, targets: &'t TargetViews, per_ray: usize) -> impl Iterator<Item = &'t [f32]> + 't {
+    /// The given rays of the computed pixels (`[views, height, width, 3]` values), view by view and row by row;
+    /// `per_ray` is the number of pixels along each axis one ray covers (1 for full-resolution rays, k for
+    /// patch rays). Read in place: nothing is copied.
+    pub fn given_rays<'t>(&self, values: &'t [f32], per_ray: usize) -> impl Iterator<Item = [f32; 3]> + 't {
         let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
         let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
         let (h, w) = (self.grid.height / per_ray, self.grid.width / per_ray);
-        (0..targets.count)
+        let views = values.len() / (rh * rw * 3);
+        (0..views)
             .flat_map(move |v| (y0..y0 + h).map(move |row| ((v * rh + row) * rw + x0) * 3))
-            .flat_map(move |start| targets.rays[start..start + w * 3].chunks_exact(3))
+            .flat_map(move |start| values[start..start + w * 3].chunks_exact(3))
+            .map(|ray| [ray[0], ray[1], ray[2]])
+    }
+
+    /// Pinhole cameras' rays of the computed pixels, made by the host: for a GPU that does not make them
+    /// (`kernels::rays::exact_on`).
+    pub fn host_pinhole_rays<'t>(&self, cameras: &'t [PinholeRays]) -> impl Iterator<Item = [f32; 3]> + 't {
+        let (x0, y0, w, h) = (self.x0, self.y0, self.grid.width, self.grid.height);
+        cameras.iter().flat_map(move |c| (y0..y0 + h).flat_map(move |i| (x0..x0 + w).map(move |j| c.ray(i, j))))
+    }
+
+    /// The pinhole cameras' terms of the computed pixels as the GPU reads them (`kernels::rays`): view by view,
+    /// the columns' terms, then the rows'. Empty for given rays.
+    pub fn pinhole_terms<'t>(&self, targets: &'t TargetViews) -> impl Iterator<Item = [f32; TERM_FLOATS]> + 't {
+        let (x0, y0, w, h) = (self.x0, self.y0, self.grid.width, self.grid.height);
+        let cameras: &[PinholeRays] = match &targets.rays {
+            TargetRays::Pinhole(cameras) => cameras,
+            TargetRays::Given(_) => &[],
+        };
+        cameras
+            .iter()
+            .flat_map(move |c| c.columns[x0..x0 + w].iter().chain(&c.rows[y0..y0 + h]))
+            .map(|term| PinholeRays::gpu_term(*term))
     }
 }

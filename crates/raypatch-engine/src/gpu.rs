@@ -75,6 +75,9 @@ pub struct GpuOptions {
     /// Leave the adapter's subgroup operations unused: the kernels run their variants without them (flash
     /// attention a query row per invocation; no `matmul_lanes`), to compare the two on one adapter.
     pub without_subgroups: bool,
+    /// Make pinhole cameras' rays on the host and upload them, as on a GPU whose rays are not bit-equal to the
+    /// host's (`kernels::rays::exact_on`), to compare the two on one adapter.
+    pub rays_on_host: bool,
     /// Where compiled pipelines are kept between runs, on backends with a pipeline cache (Vulkan); see
     /// [`pipeline_cache`].
     pub pipeline_cache: PipelineCacheDir,
@@ -132,6 +135,9 @@ pub struct Gpu {
     readback: Mutex<Option<wgpu::Buffer>>,
     pub counters: GpuCounters,
     pub(crate) timestamps: Mutex<Timestamps>,
+    /// Whether this GPU makes a pinhole camera's rays bit-equal to the host's: probed on first use
+    /// (`kernels::rays::exact_on`).
+    pub(crate) exact_pinhole_rays: std::sync::OnceLock<bool>,
 }
 
 /// Features the engine uses when the adapter has them: GPU timestamps around plans and between their ops,
@@ -273,6 +279,7 @@ impl Gpu {
             pipeline_cache,
             kept_textures: Mutex::new(Vec::new()),
             readback: Mutex::new(None),
+            exact_pinhole_rays: if options.rays_on_host { false.into() } else { std::sync::OnceLock::new() },
             counters: GpuCounters::default(),
             timestamps: Mutex::new(Timestamps::default()),
         })

@@ -84,6 +84,9 @@ pub enum HostInput {
     TargetCameraPos,
     /// Target rays of the computed crop, one per pixel or per patch as the target grid gives them.
     TargetRays,
+    /// The pinhole cameras' column and row terms of the computed crop, from which `kernels::rays` makes the
+    /// target rays (`[views * (width + height), TERM_FLOATS]`).
+    TargetPinholes,
     /// Where the requested region lies in the computed crop, as u32 words (`kernels::readout`).
     ReadWindow,
     /// Zeros: a flag the plan's ops raise.

@@ -11,7 +11,8 @@
 
 use std::sync::{Arc, Mutex};
 
-use raypatch_model::TargetViews;
+use raypatch_model::pinhole::PinholeRays;
+use raypatch_model::{TargetRays, TargetViews};
 
 use crate::error::{EngineError, Result};
 use crate::frame::{Crop, Frame, Output, OutputValues, Region};
@@ -177,8 +178,22 @@ impl RenderPlan {
                 rest = after;
                 let (rows, _) = part.into_chunks::<16>();
                 match input {
-                    HostInput::TargetCameraPos => finite &= write_rows(rows, targets.camera_pos.chunks_exact(3)),
-                    HostInput::TargetRays => finite &= write_rows(rows, crop.ray_rows(targets, per_ray)),
+                    HostInput::TargetCameraPos => {
+                        let positions = targets.camera_pos.chunks_exact(3).map(|p| [p[0], p[1], p[2]]);
+                        finite &= write_rows(rows, positions)
+                    }
+                    HostInput::TargetRays => {
+                        finite &= match &targets.rays {
+                            TargetRays::Given(values) => write_rows(rows, crop.given_rays(values, per_ray)),
+                            TargetRays::Pinhole(cameras) => write_rows(rows, crop.host_pinhole_rays(cameras)),
+                        }
+                    }
+                    HostInput::TargetPinholes => {
+                        if let TargetRays::Pinhole(cameras) = &targets.rays {
+                            finite &= cameras.iter().all(PinholeRays::is_finite);
+                        }
+                        rows.write_iter(crop.pinhole_terms(targets).flat_map(bytemuck::cast::<_, [[u8; 16]; 2]>));
+                    }
                     HostInput::ReadWindow => rows.write_iter([bytemuck::cast(crop.read_window())]),
                     HostInput::Zeros => rows.write_iter(std::iter::repeat_n([0u8; 16], bytes / 16)),
                     other => unreachable!("a render reads only target views, not {other:?}"),
@@ -202,7 +217,11 @@ impl RenderPlan {
             let tensor = self.plan.tensor(*id);
             let values: Vec<f32> = match input {
                 HostInput::TargetCameraPos => targets.camera_pos.clone(),
-                HostInput::TargetRays => crop.ray_rows(targets, per_ray).flatten().copied().collect(),
+                HostInput::TargetRays => match &targets.rays {
+                    TargetRays::Given(values) => crop.given_rays(values, per_ray).flatten().collect(),
+                    TargetRays::Pinhole(cameras) => crop.host_pinhole_rays(cameras).flatten().collect(),
+                },
+                HostInput::TargetPinholes => crop.pinhole_terms(targets).flatten().collect(),
                 HostInput::ReadWindow => crop.read_window().map(f32::from_bits).to_vec(),
                 HostInput::Zeros => vec![0.0; tensor.rows * tensor.cols],
                 other => unreachable!("a render reads only target views, not {other:?}"),
@@ -215,7 +234,7 @@ impl RenderPlan {
 
 /// Writes rows of three floats as rows of four (the fourth zero: the engine's row padding); whether every
 /// value was finite. `rows` must give exactly as many rows as `dst` holds.
-fn write_rows<'a>(dst: wgpu::WriteOnly<'_, [[u8; 16]]>, rows: impl Iterator<Item = &'a [f32]>) -> bool {
+fn write_rows(dst: wgpu::WriteOnly<'_, [[u8; 16]]>, rows: impl Iterator<Item = [f32; 3]>) -> bool {
     let mut finite = true;
     dst.write_iter(rows.map(|r| {
         finite &= r[0].is_finite() & r[1].is_finite() & r[2].is_finite();

@@ -7,6 +7,7 @@ pub mod error;
 pub mod files;
 pub mod layout;
 pub mod official;
+pub mod pinhole;
 pub mod rays;
 pub mod tensor_file;
 pub mod views;
@@ -20,5 +21,5 @@ pub use config::{
 };
 pub use error::ModelError;
 pub use tensor_file::{HostTensor, TensorFile, MODEL_FORMAT};
-pub use views::{load_scene, InputViews, SceneFile, TargetGrid, TargetViews};
+pub use views::{load_scene, InputViews, RaySource, SceneFile, TargetGrid, TargetRays, TargetViews};
 pub use weights::{load_model, LoadedModel};

@@ -1,9 +1,11 @@
 //! Scene files: posed input views and the target cameras to render (docs/FORMATS.md).
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
+use crate::pinhole::PinholeRays;
 use crate::tensor_file::{HostTensor, TensorFile};
 
 /// Posed input views: images `[N,H,W,3]` in [0,1], camera centres `[N,3]`, unit rays `[N,H,W,3]`.
@@ -17,13 +19,13 @@ pub struct InputViews {
     pub rays: Vec<f32>,
 }
 
-/// Target cameras: centres `[T,3]` and a ray grid `[T,rays_height,rays_width,3]`, full resolution or one
-/// ray per patch.
+/// Target cameras: centres `[T,3]` and their rays on a `rays_height` × `rays_width` grid, full resolution or
+/// one ray per patch.
 #[derive(Clone, Debug)]
 pub struct TargetViews {
     pub count: usize,
     pub camera_pos: Vec<f32>,
-    pub rays: Vec<f32>,
+    pub rays: TargetRays,
     pub rays_height: usize,
     pub rays_width: usize,
     /// The size of the image to render when the file says it (`target_images` or `target_size` metadata).
@@ -34,13 +36,49 @@ pub struct TargetViews {
     pub masks: Option<Vec<u32>>,
 }
 
+/// The rays of target views: given as values, or as pinhole cameras whose rays are made where they are used
+/// (a render makes them on the GPU: nothing per pixel crosses the bus).
+#[derive(Clone, Debug)]
+pub enum TargetRays {
+    /// `[T, rays_height, rays_width, 3]`: a scene file's, or an API caller's.
+    Given(Vec<f32>),
+    /// One pinhole camera per view, one ray per pixel.
+    Pinhole(Vec<PinholeRays>),
+}
+
+impl TargetRays {
+    /// The rays as values, `(height, width)` rays a view.
+    pub fn values(&self, (height, width): (usize, usize)) -> Cow<'_, [f32]> {
+        match self {
+            TargetRays::Given(values) => values.into(),
+            TargetRays::Pinhole(cameras) => {
+                let mut values = vec![0.0; cameras.len() * height * width * 3];
+                for (camera, out) in cameras.iter().zip(values.chunks_exact_mut(height * width * 3)) {
+                    camera.write_rows(0..height, out);
+                }
+                values.into()
+            }
+        }
+    }
+}
+
 /// How a target ray grid maps onto the image to render, for a given patch size.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TargetGrid {
     pub height: usize,
     pub width: usize,
-    /// The rays are one per k×k patch (used as given) rather than one per pixel.
-    pub rays_are_patches: bool,
+    pub rays: RaySource,
+}
+
+/// Where a render's rays come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RaySource {
+    /// Given, one per pixel.
+    Pixels,
+    /// Given, one per k×k patch (used as given).
+    Patches,
+    /// Made from pinhole cameras ([`TargetRays::Pinhole`]), one per pixel.
+    Pinhole,
 }
 
 #[derive(Clone, Debug)]
@@ -183,7 +221,7 @@ pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
             camera_pos: target_pos.data,
             rays_height: target_rays.shape[1],
             rays_width: target_rays.shape[2],
-            rays: target_rays.data,
+            rays: TargetRays::Given(target_rays.data),
             declared_size,
             images: target_images.map(|t| t.data),
             masks,
@@ -322,17 +360,48 @@ fn non_finite(values: &[f32], per_view: usize) -> Option<String> {
 impl TargetViews {
     /// Target view `v` alone (its camera and rays; no ground truth), as a batch of one.
     pub fn view(&self, v: usize) -> TargetViews {
-        let per_view = self.rays.len() / self.count;
+        let rays = match &self.rays {
+            TargetRays::Given(values) => {
+                let per_view = values.len() / self.count;
+                TargetRays::Given(values[v * per_view..(v + 1) * per_view].to_vec())
+            }
+            TargetRays::Pinhole(cameras) => TargetRays::Pinhole(vec![cameras[v].clone()]),
+        };
         TargetViews {
             count: 1,
             camera_pos: self.camera_pos[3 * v..3 * v + 3].to_vec(),
-            rays: self.rays[v * per_view..(v + 1) * per_view].to_vec(),
+            rays,
             rays_height: self.rays_height,
             rays_width: self.rays_width,
             declared_size: self.declared_size,
             images: None,
             masks: None,
         }
+    }
+
+    /// Appends `more`'s views (of the same ray grid) after these: pinhole cameras stay cameras when both are,
+    /// else every ray becomes a value.
+    pub fn append(&mut self, more: TargetViews) {
+        assert_eq!((self.rays_height, self.rays_width), (more.rays_height, more.rays_width), "append: one ray grid");
+        self.camera_pos.extend(more.camera_pos);
+        let rays = std::mem::replace(&mut self.rays, TargetRays::Given(Vec::new()));
+        self.rays = match (rays, more.rays) {
+            (TargetRays::Pinhole(mut a), TargetRays::Pinhole(b)) => {
+                a.extend(b);
+                TargetRays::Pinhole(a)
+            }
+            (a, b) => {
+                let grid = (self.rays_height, self.rays_width);
+                TargetRays::Given([a.values(grid), b.values(grid)].concat())
+            }
+        };
+        self.count += more.count;
+    }
+
+    /// The rays as values, `[T, rays_height, rays_width, 3]`: given ones as they are, a pinhole camera's made
+    /// here (the same values a render makes on the GPU).
+    pub fn ray_values(&self) -> Cow<'_, [f32]> {
+        self.rays.values((self.rays_height, self.rays_width))
     }
 
     /// Checks that every camera position and ray is finite. The engine checks as it uploads them (in the same
@@ -342,8 +411,18 @@ impl TargetViews {
         if let Some(reason) = non_finite(&self.camera_pos, 3) {
             return err("target_camera_pos", reason);
         }
-        if let Some(reason) = non_finite(&self.rays, self.rays.len() / self.count.max(1)) {
-            return err("target_rays", reason);
+        match &self.rays {
+            TargetRays::Given(values) => {
+                if let Some(reason) = non_finite(values, values.len() / self.count.max(1)) {
+                    return err("target_rays", reason);
+                }
+            }
+            TargetRays::Pinhole(cameras) => {
+                if let Some(v) = cameras.iter().position(|c| !c.is_finite()) {
+                    let reason = format!("view {v}: the pinhole camera's rays are not finite in float32 (too far out)");
+                    return err("target_rays", reason);
+                }
+            }
         }
         Ok(())
     }
@@ -360,12 +439,20 @@ impl TargetViews {
         let (rh, rw) = (self.rays_height, self.rays_width);
         let (height, width) = self.declared_size.unwrap_or((rh, rw));
         let err = |reason: String| ModelError::Value { path: path.into(), key: "target_rays".into(), reason };
-        let per_view = rh * rw * 3;
-        if self.count == 0 || self.camera_pos.len() != self.count * 3 || self.rays.len() != self.count * per_view {
+        let rays_fit = match &self.rays {
+            TargetRays::Given(values) => values.len() == self.count * rh * rw * 3,
+            TargetRays::Pinhole(cameras) => {
+                cameras.len() == self.count && cameras.iter().all(|c| (c.height(), c.width()) == (rh, rw))
+            }
+        };
+        if self.count == 0 || self.camera_pos.len() != self.count * 3 || !rays_fit {
+            let rays = match &self.rays {
+                TargetRays::Given(values) => format!("{} ray values", values.len()),
+                TargetRays::Pinhole(cameras) => format!("{} pinhole cameras", cameras.len()),
+            };
             return Err(err(format!(
-                "{} camera positions and {} ray values for {} views of {rw}x{rh} rays",
+                "{} camera positions and {rays} for {} views of {rw}x{rh} rays",
                 self.camera_pos.len() / 3,
-                self.rays.len(),
                 self.count
             )));
         }
@@ -379,19 +466,25 @@ impl TargetViews {
                 "target size {width}x{height} (width x height) is smaller than one patch (k={k})"
             )));
         }
-        let rays_are_patches = if (rh, rw) == (height, width) {
-            false
-        } else if (rh, rw) == (height / k, width / k) {
-            true
+        let pinhole = matches!(self.rays, TargetRays::Pinhole(_));
+        let rays = if (rh, rw) == (height, width) {
+            if pinhole {
+                RaySource::Pinhole
+            } else {
+                RaySource::Pixels
+            }
+        } else if (rh, rw) == (height / k, width / k) && !pinhole {
+            RaySource::Patches
         } else {
             return Err(err(format!(
                 "ray grid {rw}x{rh} matches neither the target size {width}x{height} nor its patch grid {}x{} \
-                 (width x height, k={k})",
+                 (width x height, k={k}{})",
                 width / k,
-                height / k
+                height / k,
+                if pinhole { "; a pinhole camera's rays are one per pixel" } else { "" }
             )));
         };
-        Ok(TargetGrid { height, width, rays_are_patches })
+        Ok(TargetGrid { height, width, rays })
     }
 }
 

@@ -260,10 +260,7 @@ impl Bench {
             (0..targets.count).step_by(batch).map(move |first| {
                 let mut views = targets.view(first);
                 for v in first + 1..(first + batch).min(targets.count) {
-                    let more = targets.view(v);
-                    views.camera_pos.extend(more.camera_pos);
-                    views.rays.extend(more.rays);
-                    views.count += 1;
+                    views.append(targets.view(v));
                 }
                 views
             })

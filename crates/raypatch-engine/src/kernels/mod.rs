@@ -73,6 +73,7 @@ pub mod norm;
 pub mod pack;
 pub mod pool;
 pub mod posenc;
+pub mod rays;
 pub mod readout;
 pub mod resize;
 pub mod softmax;
@@ -306,6 +307,7 @@ shaders! {
         CONCAT = "concat" [] => concat::ConcatParams;
         COPY = "copy" [] => copy::CopyParams;
         READOUT = "readout" [] => readout::ReadoutParams;
+        RAYS = "rays" [] => rays::RaysParams;
         GRU = "gru" ["activation"] => gru::GruParams;
     }
     variants {

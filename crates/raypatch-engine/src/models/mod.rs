@@ -12,12 +12,14 @@ pub mod srt;
 
 use std::ops::Range;
 
-use raypatch_model::{Family, LoadedModel, ModelConfig, TargetGrid};
+use raypatch_model::pinhole::TERM_FLOATS;
+use raypatch_model::{Family, LoadedModel, ModelConfig, RayKind, RaySource, TargetGrid};
 
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
 use crate::graph::{Graph, HostInput, ImageSize, Tensor};
 use crate::kernels::elementwise::{map_columns, Map, MapColumnsArgs};
+use crate::kernels::rays::{pinhole_rays, PinholeRaysArgs};
 use crate::kernels::resize::ResizeArgs;
 use crate::nn::{self, ReadLimits, Source, Vars, WeightSet};
 use crate::plan::PlanBuilder;
@@ -107,23 +109,35 @@ impl QueryRows {
 
 /// The queries of a render of `views` target views on `grid` and their grid: one query per pixel (k = 1), or
 /// per k×k patch, the patch rays made from full-resolution rays by the Ray-Patch decoder's resize unless the
-/// grid holds patch rays already.
+/// grid holds patch rays already. A pinhole camera's full-resolution rays (of the family's `kind`) are made on
+/// the GPU from the host's terms.
 pub fn target_queries(
     g: &mut Graph,
     ray_patch: Option<&RayPatchDecoder>,
     k: usize,
+    kind: RayKind,
     views: usize,
     grid: TargetGrid,
 ) -> (QueryRows, ImageSize) {
     let patches = ImageSize { n: views, h: grid.height / k, w: grid.width / k };
+    let full = ImageSize { n: views, h: grid.height, w: grid.width };
     let camera_pos = g.input("target_camera_pos", views, 3, HostInput::TargetCameraPos, None);
-    let rays = match ray_patch {
-        Some(rp) if !grid.rays_are_patches => {
-            let full = ImageSize { n: views, h: grid.height, w: grid.width };
-            let rays = g.input("target_rays", full.pixels(), 3, HostInput::TargetRays, Some(full));
-            rp.patch_rays(g, rays, patches)
+    let rays = match grid.rays {
+        RaySource::Patches => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
+        RaySource::Pixels => g.input("target_rays", full.pixels(), 3, HostInput::TargetRays, Some(full)),
+        RaySource::Pinhole => {
+            let terms = views * (full.h + full.w);
+            let terms = g.input("target_pinholes", terms, TERM_FLOATS, HostInput::TargetPinholes, None);
+            let rays = g.image("target_rays", full, 3);
+            let args =
+                PinholeRaysArgs { terms: terms.view, views, height: full.h, width: full.w, kind, out: rays.view };
+            pinhole_rays(&mut g.b, "target_rays", args);
+            rays
         }
-        _ => g.input("target_rays", patches.pixels(), 3, HostInput::TargetRays, Some(patches)),
+    };
+    let rays = match ray_patch {
+        Some(rp) if grid.rays != RaySource::Patches => rp.patch_rays(g, rays, patches),
+        _ => rays,
     };
     (QueryRows { camera_pos, per_view: patches.h * patches.w, start: 0, rays }, patches)
 }

@@ -24,7 +24,7 @@ mod osrt;
 mod ray_patch;
 mod srt;
 
-use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews};
+use raypatch_model::{Family, InputViews, LoadedModel, ModelConfig, ModelError, RaySource, TargetViews};
 
 use raypatch_engine::error::EngineError;
 use raypatch_engine::graph::Param;
@@ -469,10 +469,10 @@ impl ReferenceModel {
         let k = self.config.patch_size();
         let grid = targets.grid_for(&self.config, "target views")?;
         let (views, ph, pw) = (targets.count, grid.height / k, grid.width / k);
-        let rays = if k > 1 && !grid.rays_are_patches {
+        let rays = if k > 1 && grid.rays != RaySource::Patches {
             ray_patch::patch_rays(targets, ph, pw, self.argument)
         } else {
-            f64s(&targets.rays)
+            f64s(&targets.ray_values())
         };
         let queries = views * ph * pw;
         let positions = f64s(&targets.camera_pos);

@@ -54,7 +54,7 @@ impl ConvDecoder {
 /// loader makes them ([`resized_rays`]).
 pub(super) fn patch_rays(targets: &TargetViews, ph: usize, pw: usize, argument: Argument) -> Vec<f64> {
     let (views, rh, rw) = (targets.count, targets.rays_height, targets.rays_width);
-    resized_rays(&targets.rays, views, (rh, rw), (ph, pw), argument)
+    resized_rays(&targets.ray_values(), views, (rh, rw), (ph, pw), argument)
 }
 
 /// Ray grids `[n·hi·wi, 3]` bilinearly resized to `ho × wo` as PyTorch resizes them (the official loader's
