@@ -16,9 +16,8 @@ use crate::gpu::storage_usage;
 use crate::graph::{Graph, HostInput, ImageSize};
 use crate::kernels::rays;
 use crate::model::{EncodePlan, Model};
-use crate::models::LightField;
-use crate::plan::{PlanBuilder, TensorId};
-use crate::render_io::{record_readouts, RenderIo, RenderPlan, Sink, Submitted};
+use crate::plan::TensorId;
+use crate::render_io::{first_render, record_render, Recorded, RenderPlan, Sink, Submitted};
 use crate::tensor::GpuTensor;
 
 /// Each op's label and wall time, in plan order (from the profiling entry points).
@@ -467,48 +466,6 @@ impl EncodedScene<'_> {
         let mut plans = self.render_plans.lock().expect("render plan cache poisoned");
         Ok(plans.entry(key).or_insert(plan).clone())
     }
-}
-
-/// Records the render of `views` target views on `grid` of a scene whose cached tensors are `cached`.
-fn record_render(
-    mut g: Graph,
-    family: &dyn LightField,
-    cached: &[GpuTensor],
-    views: usize,
-    grid: TargetGrid,
-    outputs: Outputs,
-) -> Recorded {
-    let rendered = family.render(&mut g, cached, views, grid, outputs);
-    let (outputs, flag) = record_readouts(&mut g, views, (grid.height, grid.width), &rendered);
-    let Graph { b, host_inputs, .. } = g;
-    let k = family.patch_size();
-    let queries = views * (grid.height / k) * (grid.width / k);
-    Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
-}
-
-/// The recording of what a first render of `(height, width)` likely is: one view from a pinhole camera, rgb
-/// where the model has it, over a scene whose cached tensors are `cached`; `None` for a size that no render
-/// computes whole. Its pipelines are compiled before that render asks for them (`model.rs`).
-pub(crate) fn first_render(
-    g: Graph,
-    family: &dyn LightField,
-    cached: &[GpuTensor],
-    (height, width): (usize, usize),
-) -> Option<PlanBuilder> {
-    let k = family.patch_size();
-    if !height.is_multiple_of(k) || !width.is_multiple_of(k) {
-        return None;
-    }
-    let grid = TargetGrid { height, width, rays: RaySource::Pinhole };
-    let rgb = Outputs::of(&[Output::Rgb]);
-    let outputs = if family.outputs().contains(Output::Rgb) { rgb } else { family.outputs() };
-    Some(record_render(g, family, cached, 1, grid, outputs).builder)
-}
-
-/// A render recorded but not built.
-struct Recorded {
-    builder: PlanBuilder,
-    io: RenderIo,
 }
 
 /// The bands of a render, submitted and not read yet.

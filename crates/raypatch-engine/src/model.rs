@@ -12,7 +12,6 @@ use std::thread::JoinHandle;
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
-use crate::encoded::first_render;
 use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
@@ -20,6 +19,7 @@ use crate::graph::{Graph, HostInput, ImageSize};
 use crate::models::{self, LightField};
 use crate::nn::ReadLimits;
 use crate::plan::{Plan, TensorId};
+use crate::render_io::first_render;
 use crate::tensor::GpuTensor;
 use crate::weights::{GpuWeights, KeptF32, LoadOptions};
 

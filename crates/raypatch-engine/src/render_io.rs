@@ -1,6 +1,8 @@
-//! What the host writes into a render plan and reads out of it, through staging buffers kept with the plan:
-//! - the target cameras and rays are written straight into the plan's mapped upload buffer (rows padded as
-//!   they are copied; a NaN or infinity is caught in that same pass, so no kernel ever sees one);
+//! A render's recording (`record_render`: the family's render and a readout per output) and what the host
+//! writes into a render plan and reads out of it, through staging buffers kept with the plan:
+//! - the target cameras and given rays are written straight into the plan's mapped upload buffer (rows padded
+//!   as they are copied; a NaN or infinity is caught in that same pass, so no kernel ever sees one); a pinhole
+//!   camera's rays are made on the GPU from its column and row terms (`kernels::rays`);
 //! - one submit copies them in, runs the plan, and copies out each output's region, which the plan's readout
 //!   ops (`kernels::readout`) packed densely on the GPU, with a flag raised for any non-finite value;
 //! - the host copies each view's values once out of the mapped readback buffer into the vectors it returns.
@@ -12,14 +14,16 @@
 use std::sync::{Arc, Mutex};
 
 use raypatch_model::pinhole::PinholeRays;
-use raypatch_model::{TargetRays, TargetViews};
+use raypatch_model::{RaySource, TargetGrid, TargetRays, TargetViews};
 
 use crate::error::{EngineError, Result};
-use crate::frame::{Crop, Frame, Output, OutputValues, Region};
+use crate::frame::{Crop, Frame, Output, OutputValues, Outputs, Region};
 use crate::gpu::{Gpu, Staging};
 use crate::graph::{Graph, HostInput, Tensor};
 use crate::kernels::readout::{read_region, ReadoutArgs, WINDOW_WORDS};
+use crate::models::LightField;
 use crate::plan::{Plan, PlanBuilder, TensorId};
+use crate::tensor::GpuTensor;
 
 /// Bytes the readback buffer holds ahead of the outputs: the non-finite flag (one word, padded).
 const FLAG_BYTES: u64 = 16;
@@ -76,6 +80,48 @@ pub(crate) fn record_readouts(
         readouts.push(Readout { output, channels, dense: dense.id() });
     }
     (readouts, flag.id())
+}
+
+/// Records the render of `views` target views on `grid` of a scene whose cached tensors are `cached`.
+pub(crate) fn record_render(
+    mut g: Graph,
+    family: &dyn LightField,
+    cached: &[GpuTensor],
+    views: usize,
+    grid: TargetGrid,
+    outputs: Outputs,
+) -> Recorded {
+    let rendered = family.render(&mut g, cached, views, grid, outputs);
+    let (outputs, flag) = record_readouts(&mut g, views, (grid.height, grid.width), &rendered);
+    let Graph { b, host_inputs, .. } = g;
+    let k = family.patch_size();
+    let queries = views * (grid.height / k) * (grid.width / k);
+    Recorded { builder: b, io: RenderIo { host_inputs, outputs, flag, queries } }
+}
+
+/// The recording of what a first render of `(height, width)` likely is: one view from a pinhole camera, rgb
+/// where the model has it, over a scene whose cached tensors are `cached`; `None` for a size that no render
+/// computes whole. Its pipelines are compiled before that render asks for them (`model.rs`).
+pub(crate) fn first_render(
+    g: Graph,
+    family: &dyn LightField,
+    cached: &[GpuTensor],
+    (height, width): (usize, usize),
+) -> Option<PlanBuilder> {
+    let k = family.patch_size();
+    if !height.is_multiple_of(k) || !width.is_multiple_of(k) {
+        return None;
+    }
+    let grid = TargetGrid { height, width, rays: RaySource::Pinhole };
+    let rgb = Outputs::of(&[Output::Rgb]);
+    let outputs = if family.outputs().contains(Output::Rgb) { rgb } else { family.outputs() };
+    Some(record_render(g, family, cached, 1, grid, outputs).builder)
+}
+
+/// A render recorded but not built.
+pub(crate) struct Recorded {
+    pub builder: PlanBuilder,
+    pub io: RenderIo,
 }
 
 /// A run submitted and not read yet.
