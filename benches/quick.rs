@@ -12,7 +12,9 @@ fn main() -> ExitCode {
         adapter: None,
         matmul: None,
         without_subgroups: false,
+        rays_on_host: false,
         repeats: None,
+        repeat_seconds: None,
         max_render_seconds: None,
         max_reference_gmac: None,
         pytorch: true,
@@ -21,6 +23,7 @@ fn main() -> ExitCode {
         models: Vec::new(),
         scene: None,
         only: Vec::new(),
+        sizes: Vec::new(),
         views: Vec::new(),
         command: "cargo bench".into(),
     };

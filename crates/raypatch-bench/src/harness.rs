@@ -40,6 +40,8 @@ pub struct Options {
     pub matmul: Option<MatmulKernel>,
     /// Leave the adapter's subgroup operations unused (`GpuOptions::without_subgroups`).
     pub without_subgroups: bool,
+    /// Make pinhole cameras' rays on the host and upload them (`GpuOptions::rays_on_host`).
+    pub rays_on_host: bool,
     /// Measured runs per configuration (default 5, quick 3).
     pub repeats: Option<usize>,
     /// Stop repeating a configuration once its measured runs took this long, in seconds (default 30, quick 2).
@@ -151,6 +153,7 @@ pub fn run(options: &Options) -> Result<()> {
         adapter,
         matmul: options.matmul,
         without_subgroups: options.without_subgroups,
+        rays_on_host: options.rays_on_host,
         ..Default::default()
     };
     let gpu = Arc::new(Gpu::new(&gpu_options)?);

@@ -44,6 +44,10 @@ struct Args {
     /// a query row per invocation; no `lanes` kernel), to compare the two.
     #[arg(long)]
     no_subgroups: bool,
+    /// Make the target cameras' rays on the host and upload them, as on a GPU that does not make them bit-equal
+    /// to the host's, to compare the two (by default a render makes a pinhole camera's rays on the GPU).
+    #[arg(long)]
+    rays_on_host: bool,
     /// Do not time PyTorch even if it is installed.
     #[arg(long)]
     no_pytorch: bool,
@@ -130,6 +134,7 @@ fn main() -> ExitCode {
         adapter: args.adapter,
         matmul: args.matmul_kernel,
         without_subgroups: args.no_subgroups,
+        rays_on_host: args.rays_on_host,
         repeats: args.repeats,
         repeat_seconds: args.repeat_seconds,
         max_render_seconds: args.max_render_seconds,

@@ -3,8 +3,10 @@
 //! them) and scenes seen by MSN-Easy cameras (`tools/reference/cameras.py`).
 
 use raypatch_engine::EngineError;
+use raypatch_model::pinhole::{Pinhole, PinholeRays};
 use raypatch_model::{
-    official, InputViews, LoadedModel, ModelConfig, ModelError, TargetViews, TensorFile, MODEL_FORMAT,
+    official, InputViews, LoadedModel, ModelConfig, ModelError, RayKind, TargetRays, TargetViews, TensorFile,
+    MODEL_FORMAT,
 };
 use raypatch_reference::Rng;
 use safetensors::tensor::TensorView;
@@ -166,12 +168,10 @@ pub fn look_at_position(azimuth_deg: f64, distance: f64, elevation_deg: f64) -> 
     [(distance * e.cos() * a.cos()) as f32, (distance * e.cos() * a.sin()) as f32, (distance * e.sin()) as f32]
 }
 
-/// Unit rays `[height, width, 3]` of a pinhole camera at `position` looking at the origin with +z up, through
-/// the pixel centres, row 0 at the top: the official `get_camera_rays` (focal 0.035, sensor width 0.032),
-/// computed in f64 and rounded to f32 like the official loader. A camera on the z axis has no look-at frame.
-pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Vec<f32>, String> {
-    const FOCAL: f64 = 0.035;
-    const SENSOR_WIDTH: f64 = 0.032;
+/// The MSN look-at frame of a camera at `position` looking at the origin with +z up, as columns: right, down,
+/// forward (the official `get_camera_rays`'s horizontal, vertical and direction). A camera on the z axis has
+/// no look-at frame.
+fn look_at_frame(position: [f32; 3]) -> Result<[[f64; 3]; 3], String> {
     let c = position.map(f64::from);
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     let scale = |v: [f64; 3], s: f64| v.map(|x| x * s);
@@ -184,7 +184,18 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
     }
     let horizontal = scale(horizontal, 1.0 / norm(horizontal));
     let vertical = cross(dir, horizontal);
-    let vertical = scale(vertical, 1.0 / norm(vertical));
+    Ok([horizontal, scale(vertical, 1.0 / norm(vertical)), dir])
+}
+
+const FOCAL: f64 = 0.035;
+const SENSOR_WIDTH: f64 = 0.032;
+
+/// Unit rays `[height, width, 3]` of a pinhole camera at `position` looking at the origin with +z up, through
+/// the pixel centres, row 0 at the top: the official `get_camera_rays` (focal 0.035, sensor width 0.032),
+/// computed in f64 and rounded to f32 like the official loader.
+pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Vec<f32>, String> {
+    let [horizontal, vertical, dir] = look_at_frame(position)?;
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     let sensor_height = SENSOR_WIDTH / width as f64 * height as f64;
     // Pixel centres: the midpoints of linspace(-1, 1, n + 1) · sensor / 2.
     let centre = |i: usize, n: usize, sensor: f64| (-1.0 + (2 * i + 1) as f64 / n as f64) * sensor / 2.0;
@@ -199,6 +210,14 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
         }
     }
     Ok(rays)
+}
+
+/// The same camera as [`camera_rays`]'s, as a pinhole camera whose rays a render makes on the GPU (within one
+/// float32 rounding of those).
+pub fn look_at_camera(position: [f32; 3], width: usize, height: usize) -> Result<PinholeRays, String> {
+    let f = FOCAL / SENSOR_WIDTH * width as f64;
+    let pinhole = Pinhole { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 };
+    Ok(PinholeRays::new(RayKind::UnitDirection, &pinhole, look_at_frame(position)?, position.map(f64::from)))
 }
 
 /// A smooth colour image `[height, width, 3]` in [0, 1] with a few flat discs (like make_golden's images).
@@ -244,8 +263,8 @@ impl Default for CameraRig {
     }
 }
 
-/// A scene: `inputs` views of `input_size` and `targets` target cameras of `target_size` (full-resolution
-/// rays), cameras placed by `rig`.
+/// A scene: `inputs` views of `input_size` and `targets` target cameras of `target_size` (pinhole cameras,
+/// whose rays a render makes on the GPU, as for the API's cameras), cameras placed by `rig`.
 pub fn synthetic_scene(
     seed: u64,
     inputs: usize,
@@ -272,16 +291,16 @@ pub fn synthetic_scene(
     }
     let input = InputViews { count: inputs, height: h, width: w, images, camera_pos: positions, rays };
     let (th, tw) = target_size;
-    let (mut positions, mut rays) = (Vec::new(), Vec::new());
+    let (mut positions, mut cameras) = (Vec::new(), Vec::new());
     for _ in 0..targets {
         let p = camera(&mut rng);
-        rays.extend(camera_rays(p, tw, th)?);
+        cameras.push(look_at_camera(p, tw, th)?);
         positions.extend(p);
     }
     let target = TargetViews {
         count: targets,
         camera_pos: positions,
-        rays: raypatch_model::TargetRays::Given(rays),
+        rays: TargetRays::Pinhole(cameras),
         rays_height: th,
         rays_width: tw,
         declared_size: Some(target_size),
@@ -333,6 +352,19 @@ mod tests {
                 let err = rays.iter().zip(want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
                 assert!(err <= 1.2e-7, "{case} view {v}: rays differ from tools/reference/cameras.py by {err:e}");
             }
+        }
+    }
+
+    /// The benchmark's target cameras are the look-at cameras of `camera_rays`, their rays made as the GPU
+    /// makes them: within one float32 rounding of the official rays.
+    #[test]
+    fn look_at_cameras_give_the_official_rays() {
+        for (position, (w, h)) in [([4.0, -3.0, 2.5], (16, 12)), ([-1.5, 0.2, 9.0], (7, 5))] {
+            let official = camera_rays(position, w, h).unwrap();
+            let camera = &look_at_camera(position, w, h).unwrap();
+            let ours: Vec<f32> = (0..h).flat_map(|i| (0..w).flat_map(move |j| camera.ray(i, j))).collect();
+            let err = ours.iter().zip(&official).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(err <= 1.2e-7, "{position:?}: {err:e}");
         }
     }
 
