@@ -16,6 +16,7 @@ use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
 use crate::graph::{Graph, HostInput, ImageSize};
+use crate::kernels::rays;
 use crate::models::{self, LightField};
 use crate::nn::ReadLimits;
 use crate::plan::{Plan, TensorId};
@@ -142,7 +143,8 @@ fn nominal_size(config: &ModelConfig) -> Option<(usize, usize)> {
 }
 
 /// Starts compiling, on a thread of its own, the pipelines of encoding one input view of `(height, width)`
-/// and of a first render of that size (the encoder's first: the first encode asks for them first). `None`
+/// and of a first render of that size (the encoder's first: the first encode asks for them first), then
+/// probes whether the GPU makes pinhole rays (`kernels::rays::exact_on`). `None`
 /// where no thread could be started: the plans then compile them when built.
 fn start_warm_up(
     gpu: &Arc<Gpu>,
@@ -168,6 +170,8 @@ fn start_warm_up(
             .collect();
         let render = first_render(graph(&gpu, &weights), &*family, &cached, (height, width));
         gpu.compile_pipelines(encoder.pipelines().chain(render.iter().flat_map(|r| r.pipelines())));
+        // Whether this GPU makes pinhole rays (a probe run once per GPU): found here, not in the first render.
+        rays::exact_on(&gpu);
     };
     std::thread::Builder::new().name("raypatch-warm-up".into()).spawn(warm).ok()
 }
