@@ -11,7 +11,7 @@ use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::padded_cols;
-use raypatch_engine::GpuTensor;
+use raypatch_engine::{Gpu, GpuOptions, GpuTensor};
 use raypatch_reference as reference;
 
 use crate::common::*;
@@ -525,7 +525,8 @@ fn attention_kept_scene_keys_values() {
     // Two plans on one constant kv tensor: the first makes scratch texture 0 and the two kept packings, the
     // second only its scratch texture, and both give the same output.
     if matmul_kernels().contains(&MatmulKernel::Lanes) {
-        let gpu = gpu();
+        // A GPU of its own: the textures counter of the shared one counts the other tests' textures too.
+        let gpu = &Gpu::new(&GpuOptions::default()).expect("no GPU adapter");
         let host = &case.tensors[kv];
         let kv_tensor = gpu.upload("kv", host.rows, host.cols, &host.data).unwrap();
         let q_host = &case.tensors[case.q.tensor];
@@ -551,7 +552,7 @@ fn attention_kept_scene_keys_values() {
             };
             attention(&mut plan, "attn", args);
             let before = gpu.counters().textures_created;
-            run(plan);
+            plan.build(gpu).expect("plan build").execute(gpu);
             (gpu.counters().textures_created - before, gpu.read(&out_tensor).unwrap())
         };
         let (first_textures, first) = render();
