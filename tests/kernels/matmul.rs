@@ -8,7 +8,7 @@ use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::{padded_cols, Dtype};
-use raypatch_engine::Precision;
+use raypatch_engine::{Gpu, GpuOptions, Precision};
 use raypatch_reference::matmul as reference;
 use raypatch_reference::norm::layernorm;
 
@@ -545,7 +545,8 @@ fn gelu_erf_accuracy() {
 /// compiles nothing new. Each result is checked against the float64 reference.
 #[test]
 fn a_shaped_pipeline_serves_every_row_count() {
-    let gpu = gpu();
+    // A GPU of its own: the shared one's counter counts the pipelines other tests compile at the same time.
+    let gpu = &Gpu::new(&GpuOptions::default()).expect("no GPU adapter");
     let (k, n) = (512, 40);
     let mut rng = Rng::new(7);
     let mut values = |count: usize| -> Vec<f32> { (0..count).map(|_| rng.uniform(-1.0, 1.0) as f32).collect() };
@@ -567,7 +568,7 @@ fn a_shaped_pipeline_serves_every_row_count() {
         let args =
             LinearArgs { x: x_view, weight: w_id, bias: None, out: out_view, act, accumulate: false, norm: None };
         linear(&mut plan, "linear", args);
-        run(plan);
+        plan.build(gpu).expect("plan build").execute(gpu);
         compiled.push(gpu.counters().pipelines_compiled - before);
         let got = gpu.read_rows(&out_t.buffer, 0, m, padded_cols(n)).unwrap();
         let got: Vec<f32> = got.chunks(padded_cols(n)).flat_map(|row| row[..n].to_vec()).collect();
