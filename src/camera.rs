@@ -186,10 +186,6 @@ fn turned_ray(ray: Vec3, turn: DMat3) -> Vec3 {
     }
 }
 
-/// Rays of a pinhole camera from which [`Camera::write_rays`] shares the work among the cores (below, the
-/// threads would cost more than they save: a ray takes some 10 ns).
-const PARALLEL_RAYS: usize = 1 << 16;
-
 fn finite_vec(v: DVec3, what: &str) -> Result<DVec3> {
     if v.is_finite() {
         Ok(v)
@@ -434,30 +430,14 @@ impl Camera {
     pub fn write_rays(&self, kind: RayKind, out: &mut [f32]) {
         let (width, height) = self.ray_grid_size();
         assert_eq!(out.len(), width * height * 3, "write_rays: room for {width}x{height} rays");
-        let pinhole = match &self.projection {
+        match &self.projection {
             Projection::Rays { grid, turn, .. } => {
                 for (o, d) in out.chunks_exact_mut(3).zip(&grid.rays) {
                     o.copy_from_slice(&turned_ray(*d, *turn).to_array());
                 }
-                return;
             }
-            Projection::Pinhole { .. } => self.pinhole_rays(kind).expect("a pinhole camera"),
-        };
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        if threads == 1 || width * height < PARALLEL_RAYS {
-            pinhole.write_rows(0..height, out);
-            return;
+            Projection::Pinhole { .. } => self.pinhole_rays(kind).expect("a pinhole camera").write(out),
         }
-        let rows_each = height.div_ceil(threads);
-        std::thread::scope(|scope| {
-            for (band, values) in out.chunks_mut(rows_each * width * 3).enumerate() {
-                let pinhole = &pinhole;
-                scope.spawn(move || {
-                    let first = band * rows_each;
-                    pinhole.write_rows(first..first + values.len() / (width * 3), values);
-                });
-            }
-        });
     }
 
     /// Checks the rays this camera was given against `kind` (see [`raypatch_model::rays::check_ray_kind`]):
@@ -573,7 +553,7 @@ mod tests {
     #[test]
     fn rays_written_in_bands_are_each_pixels_own() {
         let (width, height) = (331, 257);
-        assert!(width * height >= PARALLEL_RAYS);
+        assert!(width * height >= raypatch_model::pinhole::PARALLEL_RAYS);
         let k = Intrinsics { width, height, fx: 300.0, fy: 310.0, cx: 160.0, cy: 131.5 };
         let camera = Camera::look_at(DVec3::new(4.0, -3.0, 2.5), DVec3::ZERO, DVec3::Z, k).unwrap();
         let (_, pose) = camera.as_pinhole().unwrap();

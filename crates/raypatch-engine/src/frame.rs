@@ -231,9 +231,9 @@ impl Crop {
         [r.y - self.y0, r.x - self.x0, r.height, r.width].map(|v| v as u32)
     }
 
-    /// The given rays of the computed pixels (`[views, height, width, 3]` values), view by view and row by row;
-    /// `per_ray` is the number of pixels along each axis one ray covers (1 for full-resolution rays, k for
-    /// patch rays). Read in place: nothing is copied.
+    /// The rays of the computed pixels out of all views' ray values (`[views, height, width, 3]`), view by view
+    /// and row by row; `per_ray` is the number of pixels along each axis one ray covers (1 for full-resolution
+    /// rays, k for patch rays). Read in place: nothing is copied.
     pub fn given_rays<'t>(&self, values: &'t [f32], per_ray: usize) -> impl Iterator<Item = [f32; 3]> + 't {
         let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
         let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
@@ -243,13 +243,6 @@ impl Crop {
             .flat_map(move |v| (y0..y0 + h).map(move |row| ((v * rh + row) * rw + x0) * 3))
             .flat_map(move |start| values[start..start + w * 3].chunks_exact(3))
             .map(|ray| [ray[0], ray[1], ray[2]])
-    }
-
-    /// Pinhole cameras' rays of the computed pixels, made by the host: for a GPU that does not make them
-    /// (`kernels::rays::exact_on`).
-    pub fn host_pinhole_rays<'t>(&self, cameras: &'t [PinholeRays]) -> impl Iterator<Item = [f32; 3]> + 't {
-        let (x0, y0, w, h) = (self.x0, self.y0, self.grid.width, self.grid.height);
-        cameras.iter().flat_map(move |c| (y0..y0 + h).flat_map(move |i| (x0..x0 + w).map(move |j| c.ray(i, j))))
     }
 
     /// The pinhole cameras' terms of the computed pixels as the GPU reads them (`kernels::rays`): view by view,

@@ -229,10 +229,8 @@ impl RenderPlan {
                         finite &= write_rows(rows, positions)
                     }
                     HostInput::TargetRays => {
-                        finite &= match &targets.rays {
-                            TargetRays::Given(values) => write_rows(rows, crop.given_rays(values, per_ray)),
-                            TargetRays::Pinhole(cameras) => write_rows(rows, crop.host_pinhole_rays(cameras)),
-                        }
+                        // Pinhole cameras' rays land here only on a GPU that does not make them: made on the host.
+                        finite &= write_rows(rows, crop.given_rays(&targets.ray_values(), per_ray))
                     }
                     HostInput::TargetPinholes => {
                         if let TargetRays::Pinhole(cameras) = &targets.rays {
@@ -263,10 +261,7 @@ impl RenderPlan {
             let tensor = self.plan.tensor(*id);
             let values: Vec<f32> = match input {
                 HostInput::TargetCameraPos => targets.camera_pos.clone(),
-                HostInput::TargetRays => match &targets.rays {
-                    TargetRays::Given(values) => crop.given_rays(values, per_ray).flatten().collect(),
-                    TargetRays::Pinhole(cameras) => crop.host_pinhole_rays(cameras).flatten().collect(),
-                },
+                HostInput::TargetRays => crop.given_rays(&targets.ray_values(), per_ray).flatten().collect(),
                 HostInput::TargetPinholes => crop.pinhole_terms(targets).flatten().collect(),
                 HostInput::ReadWindow => crop.read_window().map(f32::from_bits).to_vec(),
                 HostInput::Zeros => vec![0.0; tensor.rows * tensor.cols],

@@ -43,6 +43,10 @@ pub struct Pinhole {
 /// Floats a term takes in a GPU upload: hi (x, y, z, 0), then lo (x, y, z, 0).
 pub const TERM_FLOATS: usize = 8;
 
+/// Rays from which [`PinholeRays::write`] shares the work among the cores (below, the threads would cost more
+/// than they save: a ray takes some 250 ns).
+pub const PARALLEL_RAYS: usize = 1 << 14;
+
 impl PinholeRays {
     /// The rays of `kind` of a camera at `position` with world-from-camera rotation `rotation` (its columns:
     /// the camera's x, y and z axes in the world) and intrinsics `pinhole`.
@@ -86,6 +90,24 @@ impl PinholeRays {
                 world.map(|w| w.mul(inverse_norm).round())
             }
         }
+    }
+
+    /// Writes every ray, row-major, 3 floats a ray, into `out`: a band of rows per core for large images.
+    pub fn write(&self, out: &mut [f32]) {
+        let (width, height) = (self.width(), self.height());
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        if threads == 1 || width * height < PARALLEL_RAYS {
+            return self.write_rows(0..height, out);
+        }
+        let rows_each = height.div_ceil(threads);
+        std::thread::scope(|scope| {
+            for (band, values) in out.chunks_mut(rows_each * width * 3).enumerate() {
+                scope.spawn(move || {
+                    let first = band * rows_each;
+                    self.write_rows(first..first + values.len() / (width * 3), values);
+                });
+            }
+        });
     }
 
     /// Writes the rays of rows `rows` (all columns), 3 floats a ray, into `out`.

@@ -54,7 +54,7 @@ impl TargetRays {
             TargetRays::Pinhole(cameras) => {
                 let mut values = vec![0.0; cameras.len() * height * width * 3];
                 for (camera, out) in cameras.iter().zip(values.chunks_exact_mut(height * width * 3)) {
-                    camera.write_rows(0..height, out);
+                    camera.write(out);
                 }
                 values.into()
             }
