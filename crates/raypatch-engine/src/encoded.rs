@@ -347,7 +347,7 @@ impl EncodedScene<'_> {
         let k = family.patch_size();
         let mut image = targets.grid_for(&self.model.config, "target views")?;
         if image.rays == RaySource::Pinhole && !rays::exact_on(self.model.gpu()) {
-            image.rays = RaySource::Pixels; // the host makes them (Crop::rays)
+            image.rays = RaySource::Pixels; // made by the host as the plan's inputs are written (render_io)
         }
         let outputs = request.outputs;
         if outputs.is_empty() {

@@ -234,7 +234,7 @@ impl Crop {
     /// The rays of the computed pixels out of all views' ray values (`[views, height, width, 3]`), view by view
     /// and row by row; `per_ray` is the number of pixels along each axis one ray covers (1 for full-resolution
     /// rays, k for patch rays). Read in place: nothing is copied.
-    pub fn given_rays<'t>(&self, values: &'t [f32], per_ray: usize) -> impl Iterator<Item = [f32; 3]> + 't {
+    pub fn rays<'t>(&self, values: &'t [f32], per_ray: usize) -> impl Iterator<Item = [f32; 3]> + 't {
         let (rh, rw) = (self.image.height / per_ray, self.image.width / per_ray);
         let (y0, x0) = (self.y0 / per_ray, self.x0 / per_ray);
         let (h, w) = (self.grid.height / per_ray, self.grid.width / per_ray);

@@ -230,7 +230,7 @@ impl RenderPlan {
                     }
                     HostInput::TargetRays => {
                         // Pinhole cameras' rays land here only on a GPU that does not make them: made on the host.
-                        finite &= write_rows(rows, crop.given_rays(&targets.ray_values(), per_ray))
+                        finite &= write_rows(rows, crop.rays(&targets.ray_values(), per_ray))
                     }
                     HostInput::TargetPinholes => {
                         if let TargetRays::Pinhole(cameras) = &targets.rays {
@@ -261,7 +261,7 @@ impl RenderPlan {
             let tensor = self.plan.tensor(*id);
             let values: Vec<f32> = match input {
                 HostInput::TargetCameraPos => targets.camera_pos.clone(),
-                HostInput::TargetRays => crop.given_rays(&targets.ray_values(), per_ray).flatten().collect(),
+                HostInput::TargetRays => crop.rays(&targets.ray_values(), per_ray).flatten().collect(),
                 HostInput::TargetPinholes => crop.pinhole_terms(targets).flatten().collect(),
                 HostInput::ReadWindow => crop.read_window().map(f32::from_bits).to_vec(),
                 HostInput::Zeros => vec![0.0; tensor.rows * tensor.cols],
