@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
 use raypatch_model::error::Quoted;
-use raypatch_model::pinhole::{Pinhole, PinholeRays};
+use raypatch_model::pinhole::PinholeRays;
 use raypatch_model::TargetRays;
 
 use crate::error::{Error, Result};
@@ -27,89 +27,50 @@ pub const MIN_FIELD_OF_VIEW_DEGREES: f64 = 1e-3;
 /// to their length (1e-3° in radians).
 const MIN_RAY_SPREAD: f32 = (MIN_FIELD_OF_VIEW_DEGREES * std::f64::consts::PI / 180.0) as f32;
 
-/// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
-pub const MSN_FOCAL_LENGTH: f64 = 0.035;
-/// Sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
-pub const MSN_SENSOR_WIDTH: f64 = 0.032;
-
-/// Pinhole intrinsics in pixels, for an image of `width` × `height`. A pixel (column `j`, row `i`) has its
-/// centre at `(j + 0.5, i + 0.5)`; the principal point `(cx, cy)` is in the same coordinates.
+/// Pinhole intrinsics in pixels, for an image of `width` × `height` (see [`raypatch_model::pinhole::Intrinsics`]).
 ///
 /// ```
 /// use raypatch::Intrinsics;
 /// let k = Intrinsics::msn(160, 120);
 /// assert!((k.fx - 175.0).abs() < 1e-9 && k.fx == k.fy && (k.cx, k.cy) == (80.0, 60.0));
 /// ```
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Intrinsics {
-    /// Image width in pixels.
-    pub width: usize,
-    /// Image height in pixels.
-    pub height: usize,
-    /// Horizontal focal length in pixels.
-    pub fx: f64,
-    /// Vertical focal length in pixels.
-    pub fy: f64,
-    /// Principal point, column coordinate (pixels from the left edge).
-    pub cx: f64,
-    /// Principal point, row coordinate (pixels from the top edge).
-    pub cy: f64,
-}
+pub use raypatch_model::pinhole::Intrinsics;
+pub use raypatch_model::pinhole::{MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH};
 
-impl Intrinsics {
-    /// Square pixels and a centred principal point, from a focal length and sensor width in the same unit.
-    pub fn from_sensor(focal_length: f64, sensor_width: f64, width: usize, height: usize) -> Intrinsics {
-        let f = focal_length / sensor_width * width as f64;
-        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
+/// Checks that these intrinsics make rays a model can use: finite values, positive focal lengths, every
+/// ray through the image within [`MAX_RAY_ANGLE_DEGREES`] of the optical axis (a focal length too short for
+/// the image, or a principal point far outside it, sends every ray along the image plane), and an image
+/// spanning at least [`MIN_FIELD_OF_VIEW_DEGREES`] each way (a focal length too long makes every ray the
+/// same).
+fn check_intrinsics(k: &Intrinsics) -> Result<()> {
+    crate::image::check_image_size(k.width, k.height).map_err(Error::Camera)?;
+    let shown = format!("intrinsics fx={:?} fy={:?} cx={:?} cy={:?}", k.fx, k.fy, k.cx, k.cy);
+    let values = [k.fx, k.fy, k.cx, k.cy];
+    if values.iter().any(|v| !v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
+        return Err(Error::Camera(format!("{shown}: expected finite values and positive focal lengths")));
     }
-
-    /// The MultiShapeNet cameras: focal length 0.035, sensor width 0.032.
-    pub fn msn(width: usize, height: usize) -> Intrinsics {
-        Intrinsics::from_sensor(MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, width, height)
-    }
-
-    /// Square pixels and a centred principal point, from the horizontal field of view in radians (NeRF's
-    /// `camera_angle_x`).
-    pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
-        let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
-        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
-    }
-
-    /// Checks that these intrinsics make rays a model can use: finite values, positive focal lengths, every
-    /// ray through the image within [`MAX_RAY_ANGLE_DEGREES`] of the optical axis (a focal length too short for
-    /// the image, or a principal point far outside it, sends every ray along the image plane), and an image
-    /// spanning at least [`MIN_FIELD_OF_VIEW_DEGREES`] each way (a focal length too long makes every ray the
-    /// same).
-    fn check(&self) -> Result<()> {
-        crate::image::check_image_size(self.width, self.height).map_err(Error::Camera)?;
-        let shown = format!("intrinsics fx={:?} fy={:?} cx={:?} cy={:?}", self.fx, self.fy, self.cx, self.cy);
-        let values = [self.fx, self.fy, self.cx, self.cy];
-        if values.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(Error::Camera(format!("{shown}: expected finite values and positive focal lengths")));
+    // Tangents of the angles from the optical axis of the image's edges, each way.
+    let edges = |focal: f64, centre: f64, pixels: usize| [-centre / focal, (pixels as f64 - centre) / focal];
+    let (w, h) = (k.width, k.height);
+    for (axis, [first, last]) in [("x", edges(k.fx, k.cx, w)), ("y", edges(k.fy, k.cy, h))] {
+        let widest = first.abs().max(last.abs()).atan().to_degrees();
+        if widest.is_nan() || widest > MAX_RAY_ANGLE_DEGREES {
+            return Err(Error::Camera(format!(
+                "{shown} on a {w}x{h} image: rays reach {widest:.4}° from the optical axis along {axis} (at most \
+                 {MAX_RAY_ANGLE_DEGREES}°: the focal length is too short for the image, or the principal point \
+                 too far from it)"
+            )));
         }
-        // Tangents of the angles from the optical axis of the image's edges, each way.
-        let edges = |focal: f64, centre: f64, pixels: usize| [-centre / focal, (pixels as f64 - centre) / focal];
-        let (w, h) = (self.width, self.height);
-        for (axis, [first, last]) in [("x", edges(self.fx, self.cx, w)), ("y", edges(self.fy, self.cy, h))] {
-            let widest = first.abs().max(last.abs()).atan().to_degrees();
-            if widest.is_nan() || widest > MAX_RAY_ANGLE_DEGREES {
-                return Err(Error::Camera(format!(
-                    "{shown} on a {w}x{h} image: rays reach {widest:.4}° from the optical axis along {axis} (at most \
-                     {MAX_RAY_ANGLE_DEGREES}°: the focal length is too short for the image, or the principal point \
-                     too far from it)"
-                )));
-            }
-            let field = (last.atan() - first.atan()).to_degrees();
-            if field.is_nan() || field < MIN_FIELD_OF_VIEW_DEGREES {
-                return Err(Error::Camera(format!(
-                    "{shown} on a {w}x{h} image: the image spans {field:.3e}° along {axis} (at least \
-                     {MIN_FIELD_OF_VIEW_DEGREES}°: the focal length is too long for the image, every ray would be the \
-                     same)"
-                )));
-            }
+        let field = (last.atan() - first.atan()).to_degrees();
+        if field.is_nan() || field < MIN_FIELD_OF_VIEW_DEGREES {
+            return Err(Error::Camera(format!(
+                "{shown} on a {w}x{h} image: the image spans {field:.3e}° along {axis} (at least \
+                 {MIN_FIELD_OF_VIEW_DEGREES}°: the focal length is too long for the image, every ray would be the \
+                 same)"
+            )));
         }
-        Ok(())
     }
+    Ok(())
 }
 
 /// The axes of a camera frame, for poses given as camera-to-world matrices.
@@ -229,17 +190,16 @@ impl Camera {
     /// A pinhole camera's rays of `kind` in the form both the host and the GPU make them from
     /// ([`raypatch_model::pinhole`]); `None` for given rays.
     pub fn pinhole_rays(&self, kind: RayKind) -> Option<PinholeRays> {
-        let Projection::Pinhole { intrinsics: k, rotation } = &self.projection else { return None };
-        let pinhole = Pinhole { width: k.width, height: k.height, fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy };
+        let Projection::Pinhole { intrinsics, rotation } = &self.projection else { return None };
         let axes = [rotation.x_axis, rotation.y_axis, rotation.z_axis].map(|a| a.to_array());
-        Some(PinholeRays::new(kind, &pinhole, axes, self.position.to_array()))
+        Some(PinholeRays::new(kind, intrinsics, axes, self.position.to_array()))
     }
 
     /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
     /// must be 0 0 0 1) whose camera frame has the given axes. The rotation must be orthonormal and
     /// right-handed (within [`ROTATION_TOLERANCE`]): a scaled, sheared or mirrored pose is an error.
     pub fn pinhole(intrinsics: Intrinsics, camera_to_world: DMat4, axes: CameraAxes) -> Result<Camera> {
-        intrinsics.check()?;
+        check_intrinsics(&intrinsics)?;
         let m = camera_to_world;
         if !m.is_finite() {
             return Err(Error::Camera(format!(
@@ -274,7 +234,7 @@ impl Camera {
     /// A pinhole camera at `eye` looking at `target`, with `up` pointing up in the image (the MSN convention:
     /// image right = forward × up, image down = forward × right).
     pub fn look_at(eye: DVec3, target: DVec3, up: DVec3, intrinsics: Intrinsics) -> Result<Camera> {
-        intrinsics.check()?;
+        check_intrinsics(&intrinsics)?;
         let (eye, target, up) = (finite_vec(eye, "eye")?, finite_vec(target, "target")?, finite_vec(up, "up")?);
         let forward =
             (target - eye).try_normalize().ok_or_else(|| Error::Camera(format!("eye {eye} is the target")))?;

@@ -5,7 +5,7 @@
 
 use raypatch_engine::kernels::rays::{pinhole_rays, PinholeRaysArgs};
 use raypatch_engine::plan::PlanBuilder;
-use raypatch_model::pinhole::{Pinhole, PinholeRays, TERM_FLOATS};
+use raypatch_model::pinhole::{Intrinsics, PinholeRays, TERM_FLOATS};
 use raypatch_model::RayKind;
 
 use crate::common::*;
@@ -35,7 +35,7 @@ fn pinhole_rays_on_the_gpu_are_the_hosts_bit_for_bit() {
         let cameras: Vec<PinholeRays> = (0..views)
             .map(|_| {
                 let f = rng.uniform(0.3, 400.0);
-                let pinhole = Pinhole {
+                let pinhole = Intrinsics {
                     width,
                     height,
                     fx: f,
@@ -47,11 +47,7 @@ fn pinhole_rays_on_the_gpu_are_the_hosts_bit_for_bit() {
                 PinholeRays::new(kind, &pinhole, rotation(&mut rng), position)
             })
             .collect();
-        let terms: Vec<f32> = cameras
-            .iter()
-            .flat_map(|c| c.columns.iter().chain(&c.rows))
-            .flat_map(|t| PinholeRays::gpu_term(*t))
-            .collect();
+        let terms: Vec<f32> = cameras.iter().flat_map(|c| c.gpu_terms(0..width, 0..height)).flatten().collect();
         let rays = views * height * width;
         let terms = gpu.upload("terms", views * (width + height), TERM_FLOATS, &terms).unwrap();
         let out = sentinel_tensor(rays + 3, 3, SENTINEL);

@@ -3,7 +3,7 @@
 //! them) and scenes seen by MSN-Easy cameras (`tools/reference/cameras.py`).
 
 use raypatch_engine::EngineError;
-use raypatch_model::pinhole::{Pinhole, PinholeRays};
+use raypatch_model::pinhole::{Intrinsics, PinholeRays, MSN_FOCAL_LENGTH as FOCAL, MSN_SENSOR_WIDTH as SENSOR_WIDTH};
 use raypatch_model::{
     official, InputViews, LoadedModel, ModelConfig, ModelError, RayKind, TargetRays, TargetViews, TensorFile,
     MODEL_FORMAT,
@@ -187,9 +187,6 @@ fn look_at_frame(position: [f32; 3]) -> Result<[[f64; 3]; 3], String> {
     Ok([horizontal, scale(vertical, 1.0 / norm(vertical)), dir])
 }
 
-const FOCAL: f64 = 0.035;
-const SENSOR_WIDTH: f64 = 0.032;
-
 /// Unit rays `[height, width, 3]` of a pinhole camera at `position` looking at the origin with +z up, through
 /// the pixel centres, row 0 at the top: the official `get_camera_rays` (focal 0.035, sensor width 0.032),
 /// computed in f64 and rounded to f32 like the official loader.
@@ -215,9 +212,12 @@ pub fn camera_rays(position: [f32; 3], width: usize, height: usize) -> Result<Ve
 /// The same camera as [`camera_rays`]'s, as a pinhole camera whose rays a render makes on the GPU (within one
 /// float32 rounding of those).
 pub fn look_at_camera(position: [f32; 3], width: usize, height: usize) -> Result<PinholeRays, String> {
-    let f = FOCAL / SENSOR_WIDTH * width as f64;
-    let pinhole = Pinhole { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 };
-    Ok(PinholeRays::new(RayKind::UnitDirection, &pinhole, look_at_frame(position)?, position.map(f64::from)))
+    Ok(PinholeRays::new(
+        RayKind::UnitDirection,
+        &Intrinsics::msn(width, height),
+        look_at_frame(position)?,
+        position.map(f64::from),
+    ))
 }
 
 /// A smooth colour image `[height, width, 3]` in [0, 1] with a few flat discs (like make_golden's images).

@@ -253,9 +253,6 @@ impl Crop {
             TargetRays::Pinhole(cameras) => cameras,
             TargetRays::Given(_) => &[],
         };
-        cameras
-            .iter()
-            .flat_map(move |c| c.columns[x0..x0 + w].iter().chain(&c.rows[y0..y0 + h]))
-            .map(|term| PinholeRays::gpu_term(*term))
+        cameras.iter().flat_map(move |c| c.gpu_terms(x0..x0 + w, y0..y0 + h))
     }
 }

@@ -29,15 +29,47 @@ pub struct PinholeRays {
     pub rows: Vec<[f64; 3]>,
 }
 
-/// Pinhole intrinsics in pixels: focal lengths and principal point, pixel centres at `(j + 0.5, i + 0.5)`.
+/// Focal length of the MultiShapeNet cameras (metres), as in the official data loader.
+pub const MSN_FOCAL_LENGTH: f64 = 0.035;
+/// Sensor width of the MultiShapeNet cameras (metres), as in the official data loader.
+pub const MSN_SENSOR_WIDTH: f64 = 0.032;
+
+/// Pinhole intrinsics in pixels, for an image of `width` × `height`. A pixel (column `j`, row `i`) has its
+/// centre at `(j + 0.5, i + 0.5)`; the principal point `(cx, cy)` is in the same coordinates.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pinhole {
+pub struct Intrinsics {
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// Horizontal focal length in pixels.
     pub fx: f64,
+    /// Vertical focal length in pixels.
     pub fy: f64,
+    /// Principal point, column coordinate (pixels from the left edge).
     pub cx: f64,
+    /// Principal point, row coordinate (pixels from the top edge).
     pub cy: f64,
+}
+
+impl Intrinsics {
+    /// Square pixels and a centred principal point, from a focal length and sensor width in the same unit.
+    pub fn from_sensor(focal_length: f64, sensor_width: f64, width: usize, height: usize) -> Intrinsics {
+        let f = focal_length / sensor_width * width as f64;
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
+    }
+
+    /// The MultiShapeNet cameras: focal length 0.035, sensor width 0.032.
+    pub fn msn(width: usize, height: usize) -> Intrinsics {
+        Intrinsics::from_sensor(MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, width, height)
+    }
+
+    /// Square pixels and a centred principal point, from the horizontal field of view in radians (NeRF's
+    /// `camera_angle_x`).
+    pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
+        let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
+        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
+    }
 }
 
 /// Floats a term takes in a GPU upload: hi (x, y, z, 0), then lo (x, y, z, 0).
@@ -50,7 +82,7 @@ pub const PARALLEL_RAYS: usize = 1 << 14;
 impl PinholeRays {
     /// The rays of `kind` of a camera at `position` with world-from-camera rotation `rotation` (its columns:
     /// the camera's x, y and z axes in the world) and intrinsics `pinhole`.
-    pub fn new(kind: RayKind, pinhole: &Pinhole, rotation: [[f64; 3]; 3], position: [f64; 3]) -> PinholeRays {
+    pub fn new(kind: RayKind, pinhole: &Intrinsics, rotation: [[f64; 3]; 3], position: [f64; 3]) -> PinholeRays {
         let [x_axis, y_axis, z_axis] = rotation;
         let columns = (0..pinhole.width)
             .map(|j| {
@@ -131,10 +163,17 @@ impl PinholeRays {
         self.columns.iter().chain(&self.rows).flatten().all(|v| v.abs() < bound)
     }
 
-    /// Term `t` as the GPU reads it ([`TERM_FLOATS`] floats): hi, then lo.
-    pub fn gpu_term(term: [f64; 3]) -> [f32; TERM_FLOATS] {
-        let [x, y, z] = term.map(Df::split);
-        [x.hi, y.hi, z.hi, 0.0, x.lo, y.lo, z.lo, 0.0]
+    /// The terms of columns `columns` then rows `rows` as the GPU reads them (`shaders/rays.wgsl`), each
+    /// [`TERM_FLOATS`] floats: hi (x, y, z, 0), then lo (x, y, z, 0).
+    pub fn gpu_terms(
+        &self,
+        columns: std::ops::Range<usize>,
+        rows: std::ops::Range<usize>,
+    ) -> impl Iterator<Item = [f32; TERM_FLOATS]> + '_ {
+        self.columns[columns].iter().chain(&self.rows[rows]).map(|term| {
+            let [x, y, z] = term.map(Df::split);
+            [x.hi, y.hi, z.hi, 0.0, x.lo, y.lo, z.lo, 0.0]
+        })
     }
 }
 
@@ -234,7 +273,14 @@ mod tests {
     }
 
     /// The float64 ray of pixel (i, j), rounded once to float32.
-    fn float64_ray(kind: RayKind, k: &Pinhole, r: [[f64; 3]; 3], position: [f64; 3], i: usize, j: usize) -> [f32; 3] {
+    fn float64_ray(
+        kind: RayKind,
+        k: &Intrinsics,
+        r: [[f64; 3]; 3],
+        position: [f64; 3],
+        i: usize,
+        j: usize,
+    ) -> [f32; 3] {
         let (u, v) = ((j as f64 + 0.5 - k.cx) / k.fx, (i as f64 + 0.5 - k.cy) / k.fy);
         let w: [f64; 3] = std::array::from_fn(|c| r[0][c] * u + r[1][c] * v + r[2][c]);
         let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
@@ -247,9 +293,12 @@ mod tests {
     #[test]
     fn rays_are_the_float64_rays_rounded_once_but_for_rare_ties() {
         let cameras = [
-            (Pinhole { width: 160, height: 120, fx: 175.0, fy: 175.0, cx: 80.0, cy: 60.0 }, rotation(0.3, -1.1, 2.0)),
-            (Pinhole { width: 97, height: 61, fx: 13.7, fy: 11.2, cx: 40.3, cy: 33.9 }, rotation(-2.5, 0.7, 0.01)),
-            (Pinhole { width: 64, height: 64, fx: 0.05, fy: 0.05, cx: 32.0, cy: 32.0 }, rotation(1.0, 1.0, 1.0)),
+            (
+                Intrinsics { width: 160, height: 120, fx: 175.0, fy: 175.0, cx: 80.0, cy: 60.0 },
+                rotation(0.3, -1.1, 2.0),
+            ),
+            (Intrinsics { width: 97, height: 61, fx: 13.7, fy: 11.2, cx: 40.3, cy: 33.9 }, rotation(-2.5, 0.7, 0.01)),
+            (Intrinsics { width: 64, height: 64, fx: 0.05, fy: 0.05, cx: 32.0, cy: 32.0 }, rotation(1.0, 1.0, 1.0)),
         ];
         let position = [0.37, -2.9, 5.125];
         let (mut values, mut off, mut worst) = (0usize, 0usize, 0.0f64);
@@ -279,7 +328,8 @@ mod tests {
     #[test]
     fn terms_split_into_hi_and_lo_for_the_gpu() {
         let x = 1.0 / 3.0;
-        let [hi, y, _, pad, lo, ..] = PinholeRays::gpu_term([x, 2.0, 0.0]);
+        let rays = PinholeRays { kind: RayKind::UnitDirection, columns: vec![[x, 2.0, 0.0]], rows: vec![] };
+        let [hi, y, _, pad, lo, ..] = rays.gpu_terms(0..1, 0..0).next().unwrap();
         assert!((f64::from(hi) + f64::from(lo) - x).abs() < 1e-15);
         assert_eq!((y, pad), (2.0, 0.0));
     }

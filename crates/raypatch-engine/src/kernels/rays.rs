@@ -6,7 +6,7 @@ use crate::error::Result;
 use crate::gpu::Gpu;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
 use crate::tensor::padded_cols;
-use raypatch_model::pinhole::{Pinhole, PinholeRays, TERM_FLOATS};
+use raypatch_model::pinhole::{Intrinsics, PinholeRays, TERM_FLOATS};
 use raypatch_model::RayKind;
 
 params! {
@@ -79,7 +79,7 @@ pub fn exact_on(gpu: &Gpu) -> bool {
 }
 
 fn probe(gpu: &Gpu) -> Result<bool> {
-    let pinhole = Pinhole { width: 37, height: 23, fx: 29.3, fy: 31.7, cx: 17.9, cy: 12.2 };
+    let pinhole = Intrinsics { width: 37, height: 23, fx: 29.3, fy: 31.7, cx: 17.9, cy: 12.2 };
     // A rotation with no zero entry (about the axis (1, 2, 3), by 0.7 radians), as columns.
     let (axis, (s, c)) = ([1.0, 2.0, 3.0].map(|v: f64| v / 14f64.sqrt()), 0.7f64.sin_cos());
     let rotation: [[f64; 3]; 3] = std::array::from_fn(|j| {
@@ -91,8 +91,7 @@ fn probe(gpu: &Gpu) -> Result<bool> {
     for kind in [RayKind::UnitDirection, RayKind::UnitDepthPoint] {
         let camera = PinholeRays::new(kind, &pinhole, rotation, [1.7, -3.1, 2.9]);
         let (height, width) = (camera.height(), camera.width());
-        let terms: Vec<f32> =
-            camera.columns.iter().chain(&camera.rows).flat_map(|t| PinholeRays::gpu_term(*t)).collect();
+        let terms: Vec<f32> = camera.gpu_terms(0..width, 0..height).flatten().collect();
         let terms = gpu.upload("probe terms", width + height, TERM_FLOATS, &terms)?;
         let out = gpu.upload("probe rays", height * width, padded_cols(3), &vec![0.0; height * width * 4])?;
         let out = crate::tensor::GpuTensor { cols: 3, ..out };
