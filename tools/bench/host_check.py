@@ -84,23 +84,29 @@ def unmeasured(record, why_missing):
     return record.get("note") or "no time recorded"
 
 
-def criterion1(profile, loaded):
-    rows = []
+def sweep_sizes(profile, loaded):
+    """Each size of each swept model the profile has: (bench model key, title, size, its results, why missing)."""
     for name in ("rpsrt", "osrt", "define"):
         if profile[name] is None:
             continue
         key, title, sizes = profile[name]
         results, why = loaded[FOLDERS[name]]
         for size in sizes:
-            for views in VIEWS:
-                r = find(results, key, views, size)
-                wall, gpu = (median(r, "render_wall_ms"), median(r, "render_gpu_ms")) if r else (None, None)
-                label = f"{title} {views}x{size}"
-                if wall is None or gpu is None:
-                    rows.append((None, label, "-", "-", "-", unmeasured(r, why or "not in the results")))
-                    continue
-                bound = 1.15 * gpu + 0.3
-                rows.append((wall <= bound, label, f"{wall:.2f}", f"{gpu:.2f}", f"{bound:.2f}", ""))
+            yield key, title, size, results, why
+
+
+def criterion1(profile, loaded):
+    rows = []
+    for key, title, size, results, why in sweep_sizes(profile, loaded):
+        for views in VIEWS:
+            r = find(results, key, views, size)
+            wall, gpu = (median(r, "render_wall_ms"), median(r, "render_gpu_ms")) if r else (None, None)
+            label = f"{title} {views}x{size}"
+            if wall is None or gpu is None:
+                rows.append((None, label, "-", "-", "-", unmeasured(r, why or "not in the results")))
+                continue
+            bound = 1.15 * gpu + 0.3
+            rows.append((wall <= bound, label, f"{wall:.2f}", f"{gpu:.2f}", f"{bound:.2f}", ""))
     measured = [row for row in rows if row[0] is not None]
     worst = max(measured, key=lambda row: float(row[2]) / float(row[4]), default=None)
     figure = f"{len(measured)} of {len(rows)} measured"
@@ -175,22 +181,17 @@ def criterion4(profile, loaded):
 
 def criterion5(profile, loaded):
     rows = []
-    for name in ("rpsrt", "osrt", "define"):
-        if profile[name] is None:
+    for key, title, size, results, why in sweep_sizes(profile, loaded):
+        batched, path = find(results, key, 32, size), find(results, key, 32, size, group="views")
+        label = f"{title} 32x{size}"
+        one = median(batched, "render_wall_ms") if batched else None
+        each = median(path, "render_wall_ms") if path else None
+        if one is None or each is None:
+            missing = unmeasured(path if one else batched, why or "not in the results")
+            rows.append((None, label, "-", "-", "-", missing))
             continue
-        key, title, sizes = profile[name]
-        results, why = loaded[FOLDERS[name]]
-        for size in sizes:
-            batched, path = find(results, key, 32, size), find(results, key, 32, size, group="views")
-            label = f"{title} 32x{size}"
-            one = median(batched, "render_wall_ms") if batched else None
-            each = median(path, "render_wall_ms") if path else None
-            if one is None or each is None:
-                missing = unmeasured(path if one else batched, why or "not in the results")
-                rows.append((None, label, "-", "-", "-", missing))
-                continue
-            ratio = each / one
-            rows.append((ratio <= 1.3, label, f"{one:.2f}", f"{each:.2f}", f"{ratio:.2f}", path.get("note", "")))
+        ratio = each / one
+        rows.append((ratio <= 1.3, label, f"{one:.2f}", f"{each:.2f}", f"{ratio:.2f}", path.get("note", "")))
     measured = [row for row in rows if row[0] is not None]
     worst = max(measured, key=lambda row: float(row[4]), default=None)
     figure = f"{len(measured)} of {len(rows)} measured"
