@@ -6,7 +6,7 @@
 //!
 //! The families: `Rows` (storage buffers and register tiles, any adapter), `Tiled` (workgroup-memory tiles:
 //! GPUs), `Lanes` (packed textures and 8-lane subgroup broadcasts: llvmpipe), `Coop` (f16 cooperative matrices,
-//! tensor cores: opt-in, linear layers only so far). Adding a variant is an arm here,
+//! tensor cores, sized by [`CoopShape`]: the f16-act precision's kernels where the device has them). Adding a variant is an arm here,
 //! its WGSL entry point and its wrapper's dispatch; ARCHITECTURE.md "Adding a kernel variant".
 
 /// Lanes of a subgroup `matmul_lanes` needs, exactly.
@@ -32,25 +32,209 @@ pub enum MatmulKernel {
     /// ~4x faster; needs subgroups of exactly 8 lanes. Ops it does not suit (f16 weights, operands too large
     /// for its textures or grid, convolutions with few channels, heads not a multiple of 32 wide) run as `Rows`.
     Lanes,
-    /// `matmul_coop.linear_coop`: f16 cooperative matrices (tensor cores) on 64x64 tiles of out, x and w rounded to
-    /// f16 as they are staged, the products summed in f32 ([`COOP_FEATURES`]). Opt-in only (never
-    /// [`best_for`](Self::best_for)) until a GPU measurement decides; linear layers only: convolutions and
-    /// attention run as on `Tiled` ([`beyond_linear`](Self::beyond_linear)).
+    /// The tensor kernels: f16 cooperative matrices (tensor cores) sized for the adapter ([`CoopShape`]), the
+    /// operands rounded to f16 as they are staged, the products summed in f32: `linear_coop`, `conv_coop`
+    /// (`shaders/coop_tiles.wgsl`) and `attention_coop`. Where the model's precision is
+    /// `Precision::F16Activations` and the device has them ([`KernelChoice::at_precision`]), or when forced.
     Coop,
 }
 
-/// What `Coop` needs: cooperative matrices, requested only where the adapter lists 16x16x16 f16 x f16 -> f32
-/// (`Gpu::new`), f16 in shaders, and subgroups of exactly [`COOP_LANES`] lanes.
+/// What `Coop` needs: cooperative matrices (requested only where [`CoopShape::of_adapter`] finds a configuration
+/// it can use), f16 in shaders, and subgroup operations (the subgroup's id and lane).
 pub const COOP_FEATURES: wgpu::Features =
     wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX.union(wgpu::Features::SHADER_F16).union(wgpu::Features::SUBGROUP);
 
-/// Lanes of a subgroup `linear_coop` needs: its 128 invocations must be its 4 subgroups, one per quarter of the
-/// tile.
-pub const COOP_LANES: u32 = 32;
+/// How the tensor kernels (`MatmulKernel::Coop`: `shaders/coop_tiles.wgsl`, `attention_coop.wgsl`) run on an
+/// adapter: its cooperative-matrix tile and subgroup width, and the GEMM workgroups' tilings, which are the kernels'
+/// override constants ([`constants`](Self::constants)), so that a tuner tries tilings without new code.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct CoopShape {
+    /// The cooperative-matrix size, tile x tile x tile, f16 x f16 -> f32: 16 on NVIDIA and AMD, 8 on Apple and
+    /// Mesa's lavapipe.
+    pub tile: u32,
+    /// The adapter's subgroup width (4 to 64), read from the adapter, never assumed.
+    pub lanes: u32,
+    /// The GEMM tiling of each shape class ([`GemmClass`]): the defaults, or the GPU kit's tuner's
+    /// ([`COOP_TUNING_FILE`]).
+    pub tilings: [CoopTiling; 2],
+    /// The adapter's workgroup memory, in bytes: `attention_coop` runs where a head fits
+    /// ([`attention_bytes`](Self::attention_bytes)).
+    pub workgroup_bytes: u32,
+}
 
-/// Whether a cooperative-matrix configuration is `Coop`'s: 16x16x16, f16 operands, f32 accumulators.
-pub fn coop_configuration(p: &wgpu::CooperativeMatrixProperties) -> bool {
-    (p.m_size, p.n_size, p.k_size) == (16, 16, 16)
+/// A GEMM workgroup's tiling on the tensor kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct CoopTiling {
+    /// Subgroups along M and N; each computes a 2·tile x 2·tile block of out (2 x 2 accumulators).
+    pub sg_m: u32,
+    pub sg_n: u32,
+    /// Floats of K a step stages (a multiple of the tile).
+    pub bk: u32,
+}
+
+/// The GEMM shape classes the tensor kernels' tilings are tuned for, by output rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GemmClass {
+    /// Up to [`GemmClass::LARGE_ROWS`] rows: a Ray-Patch render's queries, slot attention.
+    Small,
+    /// More: per-pixel renders, encoders' pixels, batches of views.
+    Large,
+}
+
+impl GemmClass {
+    pub const LARGE_ROWS: usize = 2048;
+
+    pub fn of_rows(rows: usize) -> GemmClass {
+        if rows > GemmClass::LARGE_ROWS {
+            GemmClass::Large
+        } else {
+            GemmClass::Small
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            GemmClass::Small => "small",
+            GemmClass::Large => "large",
+        }
+    }
+}
+
+/// The file in raypatch's cache folder (`pipeline_cache::PipelineCacheDir`) where the GPU kit's tuner
+/// (`tools/bench/gpu_bench.sh OUT tensor`) keeps the fastest tiling per adapter and shape class: a line
+/// `adapter name<TAB>class<TAB>sg_m<TAB>sg_n<TAB>bk` each (class `small` or `large`); lines for other adapters,
+/// and tilings that do not fit this one, are ignored.
+pub const COOP_TUNING_FILE: &str = "coop-tuning.tsv";
+
+impl CoopShape {
+    /// The tensor kernels' shape on this adapter, or why they cannot run there: it must list an f16 x f16 -> f32
+    /// configuration of 8x8x8 or 16x16x16 (16 preferred), have f16 in shaders and subgroups of one width, at least
+    /// the tile's (an llvmpipe narrower than 256 bits lists the feature but has 4-lane subgroups, and making a
+    /// device with it fails there), and room for the workgroup.
+    pub fn of_adapter(
+        info: &wgpu::AdapterInfo,
+        features: wgpu::Features,
+        configurations: &[wgpu::CooperativeMatrixProperties],
+        limits: &wgpu::Limits,
+    ) -> Result<CoopShape, String> {
+        if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+            return Err("the adapter has no cooperative matrices".into());
+        }
+        if !features.contains(wgpu::Features::SHADER_F16 | wgpu::Features::SUBGROUP) {
+            return Err("the adapter lacks f16 in shaders or subgroup operations".into());
+        }
+        let tile = [16, 8]
+            .into_iter()
+            .find(|&t| configurations.iter().any(|c| coop_configuration(c, t)))
+            .ok_or("the adapter lists no 8x8x8 or 16x16x16 f16 x f16 -> f32 cooperative matrices")?;
+        let (lanes, max_lanes) = (info.subgroup_min_size, info.subgroup_max_size);
+        if lanes != max_lanes {
+            return Err(format!("its subgroups are {lanes} to {max_lanes} lanes wide, not one fixed width"));
+        }
+        if !(4..=64).contains(&lanes) || lanes < tile {
+            return Err(format!("its subgroups are {lanes} lanes wide, narrower than the {tile}x{tile} tile"));
+        }
+        if let Some(bits) = llvmpipe_bits(&info.name) {
+            if bits < 256 {
+                return Err(format!("llvmpipe at {bits} bits has no cooperative matrices (it needs 256: AVX2)"));
+            }
+        }
+        let tiling = CoopTiling { sg_m: 2, sg_n: 2, bk: 2 * tile };
+        let shape =
+            CoopShape { tile, lanes, tilings: [tiling; 2], workgroup_bytes: limits.max_compute_workgroup_storage_size };
+        shape.fits(tiling, limits)?;
+        Ok(shape)
+    }
+
+    /// Whether `tiling` fits the adapter's limits: its invocations and its workgroup memory.
+    pub fn fits(&self, tiling: CoopTiling, limits: &wgpu::Limits) -> Result<(), String> {
+        let invocations = tiling.sg_m * tiling.sg_n * self.lanes;
+        let rows = 2 * self.tile * (tiling.sg_m + tiling.sg_n);
+        let bytes = 2 * rows * (tiling.bk + 8) * 2 + tiling.sg_m * tiling.sg_n * self.tile * self.tile * 4 + 4;
+        if tiling.bk == 0 || tiling.bk % self.tile != 0 || tiling.sg_m == 0 || tiling.sg_n == 0 {
+            Err(format!("tiling {tiling:?}: K steps must be whole tiles of {}", self.tile))
+        } else if invocations > limits.max_compute_invocations_per_workgroup {
+            Err(format!("a workgroup of {invocations} invocations is more than the adapter's {}",
+                limits.max_compute_invocations_per_workgroup))
+        } else if bytes > limits.max_compute_workgroup_storage_size {
+            Err(format!("{bytes} bytes of workgroup memory is more than the adapter's {}",
+                limits.max_compute_workgroup_storage_size))
+        } else {
+            Ok(())
+        }
+    }
+
+    /// This shape with the tuned tilings `tuning` (the text of [`COOP_TUNING_FILE`]) lists for `adapter`, where
+    /// they fit its limits.
+    pub fn tuned(mut self, tuning: &str, adapter: &str, limits: &wgpu::Limits) -> CoopShape {
+        for line in tuning.lines() {
+            let fields: Vec<&str> = line.split('\t').collect();
+            let [name, class, sg_m, sg_n, bk] = fields[..] else { continue };
+            let class = match class {
+                "small" => GemmClass::Small,
+                "large" => GemmClass::Large,
+                _ => continue,
+            };
+            let (Ok(sg_m), Ok(sg_n), Ok(bk)) = (sg_m.parse(), sg_n.parse(), bk.parse()) else { continue };
+            let tiling = CoopTiling { sg_m, sg_n, bk };
+            if name == adapter && sg_m <= 8 && sg_n <= 8 && bk <= 256 && self.fits(tiling, limits).is_ok() {
+                self.tilings[class as usize] = tiling;
+            }
+        }
+        self
+    }
+
+    /// Bytes of workgroup memory `attention_coop` takes for heads padded to `padded_head` floats (the shader's
+    /// arrays: q, the keys or values, P, the scores or P·V, the output, the row reductions and statistics).
+    pub fn attention_bytes(&self, padded_head: usize) -> usize {
+        let (t, dh) = (self.tile as usize, padded_head);
+        let halves = t * (dh + 8) + 4 * t * (dh + 8) + t * (4 * t + 8);
+        2 * halves + 4 * (2 * t * dh + 4 * self.lanes as usize + 3 * t)
+    }
+
+    /// The head width `attention_coop` pads a head of `dim_head` floats to: whole output blocks of its four
+    /// subgroups.
+    pub fn padded_head(&self, dim_head: usize) -> usize {
+        let block = 4 * self.tile as usize;
+        dim_head.div_ceil(block) * block
+    }
+
+    /// The tiling of a GEMM with `rows` rows of out.
+    pub fn tiling(&self, rows: usize) -> CoopTiling {
+        self.tilings[GemmClass::of_rows(rows) as usize]
+    }
+
+    /// Rows and columns of out a GEMM workgroup of `tiling` computes.
+    pub fn tile_rows(&self, tiling: CoopTiling) -> usize {
+        (tiling.sg_m * 2 * self.tile) as usize
+    }
+
+    pub fn tile_cols(&self, tiling: CoopTiling) -> usize {
+        (tiling.sg_n * 2 * self.tile) as usize
+    }
+
+    /// The GEMM's override constants for `tiling` (`shaders/coop_tiles.wgsl`).
+    pub fn constants(&self, tiling: CoopTiling) -> Vec<(&'static str, f64)> {
+        vec![
+            ("COOP_LANES", f64::from(self.lanes)),
+            ("COOP_SG_M", f64::from(tiling.sg_m)),
+            ("COOP_SG_N", f64::from(tiling.sg_n)),
+            ("COOP_BK", f64::from(tiling.bk)),
+        ]
+    }
+}
+
+/// The vector width llvmpipe names in its adapter name ("llvmpipe (LLVM 19.1.7, 256 bits)"), if it is llvmpipe.
+fn llvmpipe_bits(name: &str) -> Option<u32> {
+    let rest = name.strip_prefix("llvmpipe")?;
+    let bits = rest.split(" bits").next()?.rsplit(|c: char| !c.is_ascii_digit()).next()?;
+    bits.parse().ok()
+}
+
+/// Whether a cooperative-matrix configuration is a `tile`-sized one the tensor kernels use: f16 operands, f32
+/// accumulators, at subgroup scope.
+pub fn coop_configuration(p: &wgpu::CooperativeMatrixProperties, tile: u32) -> bool {
+    (p.m_size, p.n_size, p.k_size) == (tile, tile, tile)
         && p.ab_type == wgpu::CooperativeScalarType::F16
         && p.cr_type == wgpu::CooperativeScalarType::F32
 }
@@ -100,28 +284,11 @@ impl MatmulKernel {
                 info.subgroup_min_size, info.subgroup_max_size
             )),
             MatmulKernel::Lanes => Ok(()),
-            MatmulKernel::Coop if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) => {
-                Err("the adapter has no 16x16x16 f16 cooperative matrices with f32 accumulators".into())
-            }
+            // The device has cooperative matrices only where CoopShape::of_adapter found a shape (Gpu::new).
             MatmulKernel::Coop if !features.contains(COOP_FEATURES) => {
-                Err("the adapter lacks f16 in shaders or subgroup operations".into())
-            }
-            MatmulKernel::Coop if (info.subgroup_min_size, info.subgroup_max_size) != (COOP_LANES, COOP_LANES) => {
-                Err(format!(
-                    "needs subgroups of {COOP_LANES} lanes, the adapter's are {}..{}",
-                    info.subgroup_min_size, info.subgroup_max_size
-                ))
+                Err("the device has no cooperative matrices the tensor kernels can use".into())
             }
             MatmulKernel::Coop => Ok(()),
-        }
-    }
-
-    /// The family convolutions and attention run on: `Coop` has linear layers only so far, the rest runs as on
-    /// `Tiled`.
-    pub fn beyond_linear(self) -> MatmulKernel {
-        match self {
-            MatmulKernel::Coop => MatmulKernel::Tiled,
-            other => other,
         }
     }
 }
@@ -151,12 +318,24 @@ pub struct KernelChoice {
     /// narrow layers ran there), so one pipeline serves every shape; the kernel tests set it there to check the
     /// shaped pipelines.
     pub shaped: bool,
-    /// The adapter has 16x16x16 f16 x f16 -> f32 cooperative matrices and the device was created with them
-    /// ([`COOP_FEATURES`]): `Coop` can run.
-    pub coop: bool,
+    /// The tensor kernels' shape where the device was created with cooperative matrices ([`COOP_FEATURES`],
+    /// [`CoopShape::of_adapter`]): `Coop` can run.
+    pub coop: Option<CoopShape>,
 }
 
 impl KernelChoice {
+    /// The profile a model's plans record against: under `Precision::F16Activations` (`f16_activations`) every
+    /// GEMM runs on the tensor kernels where the device has them (unless a kernel was forced: `pinned`); else
+    /// as the adapter's profile says.
+    pub fn at_precision(self, f16_activations: bool) -> KernelChoice {
+        let coop = f16_activations && self.coop.is_some() && !self.pinned;
+        KernelChoice {
+            f16_activations,
+            matmul: if coop { MatmulKernel::Coop } else { self.matmul },
+            ..self
+        }
+    }
+
     /// Whether an adapter's subgroups suit the kernels' subgroup variants: it has subgroup operations, in
     /// subgroups of at least [`FLASH_LANES`] lanes.
     pub fn subgroups_suit(info: &wgpu::AdapterInfo, features: wgpu::Features) -> bool {
@@ -181,7 +360,7 @@ pub fn linear_variant(
     match choice.matmul {
         MatmulKernel::Lanes if f32_weights && lanes_fit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
-        MatmulKernel::Tiled if narrow_on_rows(choice, cols, rows_groups) => MatmulKernel::Rows,
+        MatmulKernel::Tiled | MatmulKernel::Coop if narrow_on_rows(choice, cols, rows_groups) => MatmulKernel::Rows,
         other => other,
     }
 }
@@ -220,10 +399,10 @@ pub fn conv_variant(
     rows_groups: usize,
     lanes_suit: impl FnOnce() -> bool,
 ) -> MatmulKernel {
-    match choice.matmul.beyond_linear() {
+    match choice.matmul {
         MatmulKernel::Lanes if lanes_suit() => MatmulKernel::Lanes,
         MatmulKernel::Lanes => MatmulKernel::Rows,
-        MatmulKernel::Tiled if narrow_on_rows(choice, cout, rows_groups) => MatmulKernel::Rows,
+        MatmulKernel::Tiled | MatmulKernel::Coop if narrow_on_rows(choice, cout, rows_groups) => MatmulKernel::Rows,
         other => other,
     }
 }
@@ -251,7 +430,7 @@ pub enum TileElement {
 /// compile a pipeline in milliseconds, once, then from the pipeline cache, and given the dimensions as constants
 /// unroll and fold the K loop's bounds and strides).
 pub fn fixed_shapes(choice: &KernelChoice, variant: MatmulKernel) -> bool {
-    variant == MatmulKernel::Tiled && choice.shaped
+    matches!(variant, MatmulKernel::Tiled | MatmulKernel::Coop) && choice.shaped
 }
 
 /// Whether the kernels that reduce along rows (layer norm: `shaders/layernorm.wgsl`'s `layernorm_wide`; a row
@@ -259,7 +438,7 @@ pub fn fixed_shapes(choice: &KernelChoice, variant: MatmulKernel) -> bool {
 /// rather than an invocation per row: on `Tiled`, the GPUs' family, where 300 rows on as many invocations would
 /// leave a GPU idle while each walks its row; not on CPU adapters, whose invocations are SIMD lanes.
 pub fn reduce_rows_per_workgroup(choice: &KernelChoice) -> bool {
-    choice.matmul.beyond_linear() == MatmulKernel::Tiled
+    matches!(choice.matmul, MatmulKernel::Tiled | MatmulKernel::Coop)
 }
 
 /// How attention runs ([`attention_variant`]).
@@ -272,20 +451,38 @@ pub enum AttentionVariant<L> {
     Flash { lanes: usize },
     /// Scores, softmax and weighted values as batched `matmul_lanes` GEMMs, laid out as `L` says.
     Lanes(L),
+    /// `attention_coop`: flash attention with both products on cooperative matrices, the online softmax in f32
+    /// between them, for heads of up to [`COOP_MAX_DIM_HEAD`] floats whose tiles fit the workgroup memory.
+    Coop(CoopShape),
 }
 
-/// The variant of an attention op with `queries` query rows: `lanes_layout` lays it out on `matmul_lanes`,
-/// or says it does not suit it (asked only on `Lanes`).
+/// The widest head `attention_coop` takes (its workgroup memory holds a query tile's head and output).
+pub const COOP_MAX_DIM_HEAD: usize = 128;
+
+/// The variant of an attention op with `queries` query rows and heads `dim_head` wide: `lanes_layout` lays it
+/// out on `matmul_lanes`, or says it does not suit it (asked only on `Lanes`). On `Coop`, heads wider than
+/// [`COOP_MAX_DIM_HEAD`] run as on `Tiled`.
 pub fn attention_variant<L>(
     choice: &KernelChoice,
     queries: usize,
+    dim_head: usize,
     lanes_layout: impl FnOnce() -> Option<L>,
 ) -> AttentionVariant<L> {
-    match choice.matmul.beyond_linear() {
+    let flash = AttentionVariant::Flash { lanes: if choice.subgroups { FLASH_LANES } else { 1 } };
+    match choice.matmul {
         _ if queries == 0 => AttentionVariant::Fused,
-        MatmulKernel::Tiled => AttentionVariant::Flash { lanes: if choice.subgroups { FLASH_LANES } else { 1 } },
+        MatmulKernel::Coop => match choice.coop {
+            Some(shape)
+                if dim_head <= COOP_MAX_DIM_HEAD
+                    && shape.attention_bytes(shape.padded_head(dim_head)) <= shape.workgroup_bytes as usize =>
+            {
+                AttentionVariant::Coop(shape)
+            }
+            _ => flash,
+        },
+        MatmulKernel::Tiled => flash,
         MatmulKernel::Lanes => lanes_layout().map_or(AttentionVariant::Fused, AttentionVariant::Lanes),
-        MatmulKernel::Rows | MatmulKernel::Coop => AttentionVariant::Fused,
+        MatmulKernel::Rows => AttentionVariant::Fused,
     }
 }
 

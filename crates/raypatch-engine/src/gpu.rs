@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 
-use crate::device::{coop_configuration, KernelChoice, MatmulKernel};
+use crate::device::{CoopShape, KernelChoice, MatmulKernel, COOP_TUNING_FILE};
 
 mod pipelines;
 mod staging;
@@ -123,6 +123,9 @@ pub struct Gpu {
     pub max_buffer_bytes: u64,
     /// Kernel variants plans record on this adapter.
     pub kernels: KernelChoice,
+    /// Why the tensor kernels (`MatmulKernel::Coop`) cannot run here, where they cannot: the f16-act precision
+    /// then runs on the adapter's other kernels (`--timings` says so).
+    pub without_coop: Option<String>,
     pipelines: Mutex<Pipelines>,
     /// Each shader's module, parsed and validated once for all its entry points and constants.
     modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
@@ -208,11 +211,21 @@ impl Gpu {
         if options.without_subgroups {
             features.remove(wgpu::Features::SUBGROUP);
         }
-        // Cooperative matrices (MatmulKernel::Coop) only where the adapter lists Coop's configuration: an experimental
-        // feature, so it is asked for nowhere else (lavapipe has none).
-        let mut coop = adapter.features().contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX)
-            && features.contains(wgpu::Features::SHADER_F16)
-            && adapter.cooperative_matrix_properties().iter().any(coop_configuration);
+        // Cooperative matrices (MatmulKernel::Coop) only where the tensor kernels have a shape for the adapter: an
+        // experimental feature, asked for nowhere else (wgpu lists it on an llvmpipe too narrow for it, where
+        // making the device would panic; CoopShape::of_adapter rules that out).
+        let coop_shape = CoopShape::of_adapter(
+            &info,
+            adapter.features() & (features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX),
+            &adapter.cooperative_matrix_properties(),
+            &limits,
+        );
+        // The GPU kit's tuned tilings for this adapter, where its tuner wrote them.
+        let tuning = options.pipeline_cache.resolve().ok().and_then(|dir| std::fs::read_to_string(dir.join(COOP_TUNING_FILE)).ok());
+        let coop_shape = coop_shape.map(|shape| match &tuning {
+            Some(tuning) => shape.tuned(tuning, &info.name, &limits),
+            None => shape,
+        });
         let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let request = |features: wgpu::Features, experimental_features| {
             pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
@@ -223,24 +236,27 @@ impl Gpu {
                 ..Default::default()
             }))
         };
-        let with_coop = if coop {
+        let with_coop = match &coop_shape {
             // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation; only
-            // the opt-in `Coop` kernel uses this one, and its tests check its results on the GPUs that have it.
-            let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
-            request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental).ok()
-        } else {
-            None
+            // the tensor kernels use this one, and their tests check their results on every adapter that has it
+            // (.ci/coop.sh: Mesa's lavapipe with Khronos' validation layer).
+            Ok(_) => {
+                let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
+                request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental)
+                    .map_err(|e| format!("the device could not be made with cooperative matrices: {e}"))
+            }
+            Err(why) => Err(why.clone()),
         };
         // Where the experimental feature cannot be had after all, the device is made without it (no `Coop`).
-        let (device, queue) = match with_coop {
-            Some(device) => {
+        let (device, queue, coop) = match with_coop {
+            Ok((device, queue)) => {
                 features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
-                device
+                (device, queue, coop_shape.map_err(|_| String::new()))
             }
-            None => {
-                coop = false;
-                request(features, wgpu::ExperimentalFeatures::disabled())
-                    .map_err(|e| EngineError::Device(e.to_string()))?
+            Err(why) => {
+                let (device, queue) = request(features, wgpu::ExperimentalFeatures::disabled())
+                    .map_err(|e| EngineError::Device(e.to_string()))?;
+                (device, queue, Err(why))
             }
         };
         let adapter_max = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
@@ -272,8 +288,9 @@ impl Gpu {
                 pinned: false,
                 subgroups,
                 shaped,
-                coop,
+                coop: coop.as_ref().ok().copied(),
             },
+            without_coop: coop.err(),
             pipelines: Mutex::new(HashMap::new()),
             modules: Mutex::new(HashMap::new()),
             pipeline_cache,

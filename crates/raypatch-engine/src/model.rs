@@ -129,7 +129,7 @@ impl Model {
 /// A plan recording over `weights`, against the GPU's kernel choice at the weights' precision.
 fn graph<'a>(gpu: &'a Gpu, weights: &'a GpuWeights) -> Graph<'a> {
     let mut g = Graph::new(gpu, &weights.tensors);
-    g.b.kernels.f16_activations = weights.f16_activations;
+    g.b.kernels = g.b.kernels.at_precision(weights.f16_activations);
     g
 }
 

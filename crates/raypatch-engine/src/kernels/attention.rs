@@ -5,10 +5,10 @@
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
 use super::{
-    ATTENTION, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8, ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16,
+    ATTENTION, ATTENTION_COOP, ATTENTION_COOP_8, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8, ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16,
     ATTENTION_FLASH_LANES_8,
 };
-use crate::device::{attention_variant, splits_to_fill, AttentionVariant, FLASH_LANES};
+use crate::device::{attention_variant, splits_to_fill, AttentionVariant, CoopShape, FLASH_LANES};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
@@ -123,9 +123,10 @@ pub fn attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs) {
         );
     }
     assert_eq!(plan.cols(out.id), inner, "{label}: output must have heads*dim_head = {inner} columns");
-    match attention_variant(&plan.kernels, q.rows, || LanesLayout::of(plan, &args)) {
+    match attention_variant(&plan.kernels, q.rows, dim_head, || LanesLayout::of(plan, &args)) {
         AttentionVariant::Lanes(layout) => return attention_on_lanes(plan, label, args, layout),
         AttentionVariant::Flash { lanes } => return flash_attention(plan, label, args, lanes),
+        AttentionVariant::Coop(shape) => return coop_attention(plan, label, args, shape),
         AttentionVariant::Fused => {}
     }
 
@@ -161,6 +162,63 @@ pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usi
     let split_keys = nkv.div_ceil(wanted).div_ceil(tile_keys) * tile_keys;
     (split_keys, nkv.div_ceil(split_keys))
 }
+
+/// Flash attention on the tensor kernels (`shaders/attention_coop.wgsl`): a workgroup per (query tile of `tile`
+/// rows, head, key split), the head padded to whole output blocks of its four subgroups; with the keys split, the
+/// splits' partials merged by `attention_flash.wgsl`'s `combine`.
+fn coop_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, shape: CoopShape) {
+    let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
+    let tile = shape.tile as usize;
+    let block_keys = COOP_SUBGROUPS * tile;
+    let padded_head = shape.padded_head(dim_head);
+    let query_tiles = q.rows.div_ceil(tile);
+    let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, block_keys);
+    let partial_cols = heads * (dim_head + 2);
+    let params = AttentionParams {
+        split_keys: split_keys as u32,
+        splits: splits as u32,
+        query_tiles: query_tiles as u32,
+        partial_ld: padded_cols(partial_cols) as u32,
+        ..AttentionParams::of(plan, &args)
+    };
+    let shader = if shape.tile == 8 { &ATTENTION_COOP_8 } else { &ATTENTION_COOP };
+    let constants = vec![("COOP_LANES", f64::from(shape.lanes)), ("COOP_DH", padded_head as f64)];
+    let multiply_adds = 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64);
+    let inputs = [(q, Access::Read), (k, Access::Read), (v, Access::Read)];
+    let written = if splits == 1 {
+        out
+    } else {
+        let partials = plan.transient(&format!("{label}.partials"), splits * q.rows, partial_cols);
+        plan.all(partials)
+    };
+    plan.push(Op {
+        label: if splits == 1 { label.to_string() } else { format!("{label}.split") },
+        shader,
+        entry: "attention_coop",
+        params: params.words(),
+        bindings: [&inputs[..], &[(written, Access::Write)]].concat(),
+        textures: Vec::new(),
+        workgroups: grid(query_tiles * heads * splits),
+        constants,
+        multiply_adds,
+    });
+    if splits > 1 {
+        plan.push(Op {
+            label: format!("{label}.combine"),
+            shader: &ATTENTION_FLASH,
+            entry: "combine",
+            params: params.words(),
+            bindings: vec![(written, Access::Read), (out, Access::Write)],
+            textures: Vec::new(),
+            workgroups: grid((q.rows * params.out_ld as usize).div_ceil(COMBINE_WG)),
+            constants: Vec::new(),
+            multiply_adds: 0,
+        });
+    }
+}
+
+/// Subgroups of an `attention_coop` workgroup (`COOP_SUBGROUPS` in the shader).
+const COOP_SUBGROUPS: usize = 4;
 
 /// Flash attention on GPUs (`shaders/attention_flash.wgsl`), each query row on `lanes` invocations (1, or
 /// [`FLASH_LANES`] lanes of a subgroup): one dispatch, or with the keys split, one

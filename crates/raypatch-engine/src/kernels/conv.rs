@@ -7,9 +7,9 @@
 //! `conv.wgsl`'s register-blocked `conv2d`.
 
 use crate::device::{conv_variant, MatmulKernel};
-use crate::kernels::matmul::{gemm_lanes, lanes_fit, split_k, LANES_COLS, TILED_TILE};
+use crate::kernels::matmul::{gemm_lanes, lanes_fit, split_k, split_k_in_steps, LANES_COLS, TILED_TILE};
 use crate::kernels::pack::Packing;
-use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV};
+use crate::kernels::{conv_output_size, Conv2dArgs, Window, CONV, CONV_COOP, CONV_COOP_8};
 use crate::plan::{grid, Access, Op, PlanBuilder};
 use crate::tensor::padded_cols;
 
@@ -125,17 +125,25 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
     let cout4 = padded_cols(cout) / 4;
     let rows_grid = (cout4.div_ceil(COUT_VEC4S_PER_INVOCATION), npix.div_ceil(64 * PIXELS_PER_INVOCATION));
     let variant = conv_variant(&plan.kernels, cout, rows_grid.0 * rows_grid.1, || lanes_suit(plan, &args));
-    let (shader, entry, cout_tiles, pixel_tiles) = match variant {
-        MatmulKernel::Lanes => return gemm_lanes(plan, label, args),
-        // conv_variant runs `Coop`'s convolutions on `Tiled` (MatmulKernel::beyond_linear).
-        MatmulKernel::Tiled | MatmulKernel::Coop => {
-            (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE))
+    let coop = plan.kernels.coop.filter(|_| variant == MatmulKernel::Coop);
+    let (shader, entry, cout_tiles, pixel_tiles) = match (variant, coop) {
+        (MatmulKernel::Lanes, _) => return gemm_lanes(plan, label, args),
+        (MatmulKernel::Tiled, _) => (&CONV, "conv_tiled", cout4.div_ceil(TILED_TILE / 4), npix.div_ceil(TILED_TILE)),
+        (MatmulKernel::Coop, Some(shape)) => {
+            let shader = if shape.tile == 8 { &CONV_COOP_8 } else { &CONV_COOP };
+            let tiling = shape.tiling(npix);
+            (shader, "conv_coop", cout.div_ceil(shape.tile_cols(tiling)), npix.div_ceil(shape.tile_rows(tiling)))
         }
-        MatmulKernel::Rows => (&CONV, "conv2d", rows_grid.0, rows_grid.1),
+        (MatmulKernel::Coop, None) => panic!("{label}: the tensor kernels run only where the device has them"),
+        (MatmulKernel::Rows, _) => (&CONV, "conv2d", rows_grid.0, rows_grid.1),
     };
     // Split K where the output's tiles are too few to fill a GPU (an encoder's 30x40 layers: 20 tiles).
     let k4 = taps * padded_cols(cin) / 4;
-    let (splits, k_split4) = if entry == "conv_tiled" { split_k(pixel_tiles * cout_tiles, k4) } else { (1, k4) };
+    let (splits, k_split4) = match (entry, coop) {
+        ("conv_tiled", _) => split_k(pixel_tiles * cout_tiles, k4),
+        (_, Some(shape)) => split_k_in_steps(pixel_tiles * cout_tiles, k4, shape.tiling(npix).bk as usize / 4),
+        _ => (1, k4),
+    };
     let (act_code, slope) = act.params();
     let params = ConvParams {
         h: h as u32,
@@ -178,7 +186,7 @@ pub fn conv2d(plan: &mut PlanBuilder, label: &str, args: Conv2dArgs) {
         bindings: vec![(x, Access::Read), (weight_view, Access::Read), (bias_view, Access::Read), written],
         textures: Vec::new(),
         workgroups: grid(pixel_tiles * cout_tiles * splits),
-        constants: Vec::new(),
+        constants: coop.map_or(Vec::new(), |shape| shape.constants(shape.tiling(npix))),
         multiply_adds,
     });
     if splits > 1 {

@@ -1,17 +1,19 @@
 //! Linear layers: a matmul with bias, fused activation and an optional in-place residual add, in four
 //! kernels that compute the same sums ([`MatmulKernel`]): `shaders/matmul.wgsl`'s `linear` (register tiles,
 //! buffers only) and `linear_tiled` (workgroup-memory tiles, for GPUs), `shaders/matmul_coop.wgsl`'s `linear_coop`
-//! (f16 cooperative matrices, opt-in), and `shaders/matmul_lanes.wgsl` (for
+//! (f16 cooperative matrices: the f16-act precision's tensor kernels, `shaders/coop_tiles.wgsl`), and `shaders/matmul_lanes.wgsl` (for
 //! CPU adapters: textures and subgroup broadcasts), an implicit GEMM that runs convolutions too
 //! (`gemm_lanes`, called by `kernels::conv` as well) and batches of GEMMs (`gemm_lanes_batched`: attention's
 //! heads, `kernels::attention`).
 
-use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, MatmulKernel, TileElement};
+use crate::device::{fixed_shapes, linear_tiles, linear_variant, splits_to_fill, CoopShape, MatmulKernel, TileElement};
+use crate::gpu::Shader;
 use crate::kernels::norm::{check_affine, layernorm, row_stats, LayerNormArgs};
 use crate::kernels::pack::{self, Packing, Source};
 use crate::kernels::{conv_output_size, Conv2dArgs, ConvMode};
 use crate::kernels::{
-    Activation, Window, MATMUL, MATMUL_COOP, MATMUL_COOP_F16, MATMUL_F16, MATMUL_F16_ACT, MATMUL_LANES,
+    Activation, Window, MATMUL, MATMUL_COOP, MATMUL_COOP_8, MATMUL_COOP_F16, MATMUL_COOP_F16_8, MATMUL_F16,
+    MATMUL_F16_ACT, MATMUL_LANES,
 };
 use crate::plan::{grid, Access, Op, PlanBuilder, TensorId, TextureRef, View, MAX_GROUPS_PER_DIM};
 use crate::tensor::{padded_cols, Dtype};
@@ -30,8 +32,6 @@ const ROWS_TILE: (usize, usize) = (256, 8);
 /// Rows and columns of `out` one workgroup of `linear_tiled` or `conv_tiled` computes (`TILE` in
 /// `shaders/tiles.wgsl`).
 pub(crate) const TILED_TILE: usize = 128;
-/// Rows and columns of `out` one workgroup of `linear_coop` computes (`COOP_TILE` in `shaders/matmul_coop.wgsl`).
-const COOP_TILE: usize = 64;
 
 params! {
     /// The uniform of `shaders/matmul.wgsl` (and its f16 variant).
@@ -161,21 +161,25 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let f32_weights = plan.dtype(w) == Dtype::F32;
     let variant = linear_variant(&plan.kernels, n, rows_groups, f32_weights, || lanes_fit(plan, &as_conv));
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
-    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, variant == MatmulKernel::Tiled) {
+    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, matches!(variant, MatmulKernel::Tiled | MatmulKernel::Coop)) {
         let normed = plan.transient(&format!("{label}.norm"), m, k);
         let normed = plan.all(normed);
         layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
         return linear(plan, label, LinearArgs { x: normed, norm: None, ..args });
     }
-    let (entry, (tile_rows, tile_cols)) = match variant {
-        MatmulKernel::Lanes => return gemm_lanes(plan, label, as_conv),
-        MatmulKernel::Tiled => ("linear_tiled", (TILED_TILE, TILED_TILE)),
-        MatmulKernel::Rows => ("linear", ROWS_TILE),
-        MatmulKernel::Coop => ("linear_coop", (COOP_TILE, COOP_TILE)),
+    let coop = plan.kernels.coop.filter(|_| variant == MatmulKernel::Coop);
+    let (entry, (tile_rows, tile_cols)) = match (variant, coop) {
+        (MatmulKernel::Lanes, _) => return gemm_lanes(plan, label, as_conv),
+        (MatmulKernel::Tiled, _) => ("linear_tiled", (TILED_TILE, TILED_TILE)),
+        (MatmulKernel::Coop, Some(shape)) => {
+            let tiling = shape.tiling(m);
+            ("linear_coop", (shape.tile_rows(tiling), shape.tile_cols(tiling)))
+        }
+        (MatmulKernel::Coop, None) => panic!("linear {label}: the tensor kernels run only where the device has them"),
+        (MatmulKernel::Rows, _) => ("linear", ROWS_TILE),
     };
     let shader = match (variant, plan.dtype(w), tiles) {
-        (MatmulKernel::Coop, Dtype::F32, _) => &MATMUL_COOP,
-        (MatmulKernel::Coop, Dtype::F16, _) => &MATMUL_COOP_F16,
+        (MatmulKernel::Coop, dtype, _) => coop_shader(plan.kernels.coop, dtype),
         (_, Dtype::F32, _) => &MATMUL,
         (_, Dtype::F16, TileElement::F32) => &MATMUL_F16,
         (_, Dtype::F16, TileElement::F16) => &MATMUL_F16_ACT,
@@ -185,8 +189,8 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let out_access = if accumulate { Access::ReadWrite } else { Access::Write };
     let (weight, bias) = (plan.all(w), plan.all(bias.unwrap_or(w)));
     let mut bindings = vec![(x, Access::Read), (weight, Access::Read), (bias, Access::Read)];
-    if variant == MatmulKernel::Tiled {
-        // linear_tiled's layer norm: gamma and beta at 5 and 6, the rows' statistics at 7 (w again when there is
+    if matches!(variant, MatmulKernel::Tiled | MatmulKernel::Coop) {
+        // linear_tiled's and linear_coop's layer norm: gamma and beta at 5 and 6, the rows' statistics at 7 (w again when there is
         // no norm, unread).
         let (gamma, beta, stats) = match norm {
             Some(RowNorm { gamma, beta, eps }) => {
@@ -202,7 +206,11 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         bindings.extend([(gamma, Access::Read), (beta, Access::Read), (stats, Access::Read)]);
     }
     let multiply_adds = (m as u64) * (n as u64) * (k as u64);
-    let (splits, k_split4) = if variant == MatmulKernel::Tiled { split_k(groups, k4) } else { (1, k4) };
+    let (splits, k_split4) = match (variant, coop) {
+        (MatmulKernel::Tiled, _) => split_k(groups, k4),
+        (_, Some(shape)) => split_k_in_steps(groups, k4, shape.tiling(m).bk as usize / 4),
+        _ => (1, k4),
+    };
     (params.splits, params.k_split4) = (splits as u32, k_split4 as u32);
     // Split K: each range's raw sums into the partials, then one pass adding them up into out.
     let (written, op_label, op_groups) = if splits == 1 {
@@ -212,7 +220,8 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
         ((plan.all(partials), Access::Write), format!("{label}.split"), groups * splits)
     };
     bindings.insert(3, written);
-    let constants = if fixed_shapes(&plan.kernels, variant) { fixed_shape(&params) } else { Vec::new() };
+    let mut constants = if fixed_shapes(&plan.kernels, variant) { fixed_shape(&params) } else { Vec::new() };
+    constants.extend(coop.iter().flat_map(|shape| shape.constants(shape.tiling(m))));
     plan.push(Op {
         label: op_label,
         shader,
@@ -277,8 +286,23 @@ pub fn k_splits(groups: usize, k4: usize) -> usize {
 /// cuts a K of `k4` vec4s: ([`k_splits`] ranges of whole steps, vec4s a range), the last range possibly shorter;
 /// (1, k4) when the tiles are enough.
 pub fn split_k(groups: usize, k4: usize) -> (usize, usize) {
-    let k_split4 = k4.div_ceil(k_splits(groups, k4)).div_ceil(TILED_K4) * TILED_K4;
+    split_k_in_steps(groups, k4, TILED_K4)
+}
+
+/// [`split_k`] for a GEMM whose steps are `step4` vec4s of K (the tensor kernels' `COOP_BK / 4`).
+pub fn split_k_in_steps(groups: usize, k4: usize, step4: usize) -> (usize, usize) {
+    let k_split4 = k4.div_ceil(k_splits(groups, k4)).div_ceil(step4) * step4;
     (k4.div_ceil(k_split4), k_split4)
+}
+
+/// The tensor kernels' linear layer for the device's cooperative-matrix size and the weights' type.
+fn coop_shader(coop: Option<CoopShape>, weights: Dtype) -> &'static Shader {
+    match (coop.map(|shape| shape.tile), weights) {
+        (Some(8), Dtype::F32) => &MATMUL_COOP_8,
+        (Some(8), Dtype::F16) => &MATMUL_COOP_F16_8,
+        (_, Dtype::F32) => &MATMUL_COOP,
+        (_, Dtype::F16) => &MATMUL_COOP_F16,
+    }
 }
 
 params! {

@@ -275,6 +275,13 @@ const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias Weight
 /// products summed in f32 (`Precision::F16Activations`).
 const F16_TILES: (&str, &str) = ("alias TileFloat = f32;", "alias TileFloat = f16;");
 
+/// The replacements that make the tensor kernels' cooperative matrices 8x8 (`shaders/coop_tiles.wgsl`'s `CT` and
+/// aliases, and `attention_coop.wgsl`'s).
+const COOP_8: &[(&str, &str)] = &[(
+    "const CT: u32 = 16u;\nalias CoopA = coop_mat16x16<f16, A>;\nalias CoopB = coop_mat16x16<f16, B>;\nalias CoopC = coop_mat16x16<f32, C>;",
+    "const CT: u32 = 8u;\nalias CoopA = coop_mat8x8<f16, A>;\nalias CoopB = coop_mat8x8<f16, B>;\nalias CoopC = coop_mat8x8<f32, C>;",
+)];
+
 /// The replacements that size `shaders/attention_flash.wgsl`'s registers for heads of up to 64 and 32 floats.
 const CHUNKS_16: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 16u;");
 const CHUNKS_8: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 = 8u;");
@@ -282,10 +289,17 @@ const CHUNKS_8: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 =
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
-        /// `matmul` with `linear_coop` (`MatmulKernel::Coop`: f16 cooperative matrices), which comes first for its
-        /// `enable` directives.
-        MATMUL_COOP = "matmul" as "matmul_coop" ["matmul_coop", "activation", "tiles"] needs COOP_FEATURES
+        /// `matmul` with `linear_coop` (`MatmulKernel::Coop`: the cooperative-matrix GEMM of `coop_tiles`, which
+        /// comes first for its `enable` directives), 16x16 tiles.
+        MATMUL_COOP = "matmul" as "matmul_coop" ["coop_tiles", "matmul_coop", "activation", "tiles"] needs COOP_FEATURES
             => matmul::MatmulParams;
+        /// `conv` with `conv_coop`, 16x16 tiles.
+        CONV_COOP = "conv" as "conv_coop" ["coop_tiles", "conv_coop", "activation", "tiles"] needs COOP_FEATURES
+            => conv::ConvParams;
+        /// Flash attention on cooperative matrices (`attention_coop`), 16x16 tiles: its file first, for its `enable`
+        /// directives, then the attention kernels' Params.
+        ATTENTION_COOP = "attention_params" as "attention_coop" ["attention_coop"] needs COOP_FEATURES
+            => attention::AttentionParams;
         /// The linear layer for CPU adapters: see `tools/codegen/gen_matmul_lanes.py`.
         MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
             => matmul::MatmulLanesParams;
@@ -332,6 +346,31 @@ shaders! {
             replace: &[F16_WEIGHTS],
             features: COOP_FEATURES,
         } => matmul::MatmulParams;
+        /// The tensor kernels on 8x8 cooperative matrices (Apple's, Mesa lavapipe's).
+        MATMUL_COOP_8 = MATMUL_COOP {
+            name: "matmul_coop_8",
+            prefix: "",
+            replace: COOP_8,
+            features: COOP_FEATURES,
+        } => matmul::MatmulParams;
+        MATMUL_COOP_F16_8 = MATMUL_COOP {
+            name: "matmul_coop_f16_8",
+            prefix: "",
+            replace: &[F16_WEIGHTS, COOP_8[0]],
+            features: COOP_FEATURES,
+        } => matmul::MatmulParams;
+        CONV_COOP_8 = CONV_COOP {
+            name: "conv_coop_8",
+            prefix: "",
+            replace: COOP_8,
+            features: COOP_FEATURES,
+        } => conv::ConvParams;
+        ATTENTION_COOP_8 = ATTENTION_COOP {
+            name: "attention_coop_8",
+            prefix: "",
+            replace: COOP_8,
+            features: COOP_FEATURES,
+        } => attention::AttentionParams;
         /// `attention_flash` with registers for heads of up to 64 floats.
         ATTENTION_FLASH_16 = ATTENTION_FLASH {
             name: "attention_flash_16",
