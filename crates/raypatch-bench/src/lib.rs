@@ -4,6 +4,7 @@
 //! reference, against PyTorch and against ground truth; results as JSON, CSV, Markdown tables and PNG plots.
 //! `raypatch-bench --quick --out DIR` is the smoke test.
 
+pub mod coop_tune;
 pub mod flops;
 pub mod gemm;
 pub mod gemm_lab;

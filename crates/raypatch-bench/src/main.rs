@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use raypatch_bench::pytorch::{self, Device, Torch};
-use raypatch_engine::{AdapterChoice, Gpu, GpuOptions, MatmulKernel};
+use raypatch_engine::{AdapterChoice, Gpu, GpuOptions, MatmulKernel, PipelineCacheDir, Precision};
 
 #[derive(Parser)]
 #[command(version, about = "Benchmark raypatch: run time against error, memory, FLOPs; JSON, CSV and plots")]
@@ -59,6 +59,26 @@ struct Args {
     /// Time PyTorch under torch.compile too (beside eager), where it compiles.
     #[arg(long)]
     pytorch_compile: bool,
+    /// Run PyTorch eager under torch.autocast with bfloat16 too (its time, and its error against the float64
+    /// model where that is computed).
+    #[arg(long)]
+    pytorch_autocast: bool,
+    /// Measure every sweep model at exactly these precisions (comma-separated: f32, f16, f16-act; default: f32,
+    /// and f16 for SRT). f16-act runs every GEMM on the tensor kernels (cooperative matrices) where the device has
+    /// them, else on the adapter's other kernels.
+    #[arg(long = "precision", value_name = "P,...", value_delimiter = ',',
+        value_parser = PossibleValuesParser::new(Precision::ALL.map(Precision::name))
+            .map(|name: String| Precision::from_name(&name).unwrap_or_default()))]
+    precisions: Vec<Precision>,
+    /// Leave the tensor kernels (cooperative matrices) unused: f16-act then runs on the adapter's other kernels,
+    /// as on a device without them.
+    #[arg(long)]
+    no_coop: bool,
+    /// The accuracy run: each official family (SRT, RP-SRT k=8, OSRT, RP-OSRT k=8, DeFiNe, RP-DeFiNe k=16) at a
+    /// small target size, rgb, log-depth and segmentation against the float64 model, PyTorch float32 and bf16
+    /// autocast on the same inputs; one timed run. With --precision (default: the sweep's), --only, --no-pytorch.
+    #[arg(long)]
+    accuracy: bool,
     /// A model file to measure too (repeatable), e.g. a trained model.
     #[arg(long = "model")]
     models: Vec<PathBuf>,
@@ -90,6 +110,20 @@ struct Args {
     /// With --gemm-lab: only the kernels whose names contain one of these (comma-separated)
     #[arg(long, value_name = "NAME,...", value_delimiter = ',', requires = "gemm_lab")]
     lab_only: Vec<String>,
+    /// Tune the tensor kernels' GEMM (f16 cooperative matrices, the f16-act precision's) on this adapter: time
+    /// every workgroup tiling that fits on the official models' GEMM shapes of each class (small: at most 2048
+    /// rows, large: more), keep the fastest per class in the engine's tuning file (raypatch's cache folder's
+    /// coop-tuning.tsv, or --tuning-file; this adapter's lines replaced), then time 4096^3: coop-tune.md and
+    /// coop-tune.json in --out. With --quick: small stand-in shapes and 512^3 (for CPU adapters).
+    #[arg(long)]
+    coop_tune: bool,
+    /// With --coop-tune: the tuning file to write [default: coop-tuning.tsv in $RAYPATCH_CACHE_DIR, else
+    /// $XDG_CACHE_HOME/raypatch, else ~/.cache/raypatch: where the engine reads it].
+    #[arg(long, value_name = "FILE", requires = "coop_tune")]
+    tuning_file: Option<PathBuf>,
+    /// With --coop-tune: try no new tiling once this many seconds have passed (those tried decide).
+    #[arg(long, value_name = "S", requires = "coop_tune")]
+    tune_seconds: Option<f64>,
     /// Measure nothing: write tables.md and the plots into --out again from this results.json. Repeatable:
     /// later files' configurations replace earlier ones' (and the merged results are written too).
     #[arg(long, value_name = "RESULTS_JSON")]
@@ -119,7 +153,11 @@ fn main() -> ExitCode {
             }
         };
     }
-    if args.gemm || args.gemm_lab.is_some() {
+    if args.tune_seconds.is_some_and(|s| !(s.is_finite() && s > 0.0)) {
+        eprintln!("raypatch-bench: --tune-seconds must be a number above 0");
+        return ExitCode::from(2);
+    }
+    if args.gemm || args.gemm_lab.is_some() || args.coop_tune {
         return match gemm(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
@@ -142,6 +180,10 @@ fn main() -> ExitCode {
         pytorch: !args.no_pytorch,
         pytorch_device: args.pytorch_device,
         pytorch_compile: args.pytorch_compile,
+        pytorch_autocast: args.pytorch_autocast,
+        precisions: args.precisions,
+        no_coop: args.no_coop,
+        accuracy: args.accuracy,
         models: args.models,
         scene: args.scene,
         only: args.only,
@@ -162,6 +204,26 @@ fn gemm(args: &Args) -> anyhow::Result<()> {
     use anyhow::Context;
     std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
+    if args.coop_tune {
+        // The tuner's hundreds of pipelines stay out of the pipeline cache on disk.
+        let gpu = Gpu::new(&GpuOptions { adapter, pipeline_cache: PipelineCacheDir::Off, ..Default::default() })?;
+        let tuning_file = match &args.tuning_file {
+            Some(file) => file.clone(),
+            None => PipelineCacheDir::Auto
+                .resolve()
+                .map_err(|why| anyhow::anyhow!("no cache folder for the tuning file ({why}): give --tuning-file"))?
+                .join(raypatch_engine::device::COOP_TUNING_FILE),
+        };
+        let options = raypatch_bench::coop_tune::TuneOptions {
+            quick: args.quick,
+            budget: args.tune_seconds.map(std::time::Duration::from_secs_f64),
+            tuning_file: &tuning_file,
+            out: &args.out,
+        };
+        let report = raypatch_bench::coop_tune::run(&gpu, &options)?;
+        println!("\n{}", raypatch_bench::coop_tune::markdown(&report));
+        return Ok(());
+    }
     let gpu = Gpu::new(&GpuOptions { adapter, ..Default::default() })?;
     if let Some(dir) = &args.gemm_lab {
         println!("raypatch-bench --gemm-lab {} on {}", dir.display(), gpu.describe());
