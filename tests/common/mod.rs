@@ -8,6 +8,7 @@ use std::ops::Range;
 use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::plan::{Plan, PlanBuilder};
 use raypatch_engine::tensor::padded_cols;
+use raypatch_engine::gpu::Shader;
 use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};
 
 #[allow(unused_imports)]
@@ -109,4 +110,44 @@ pub fn validate_wgsl(name: &str, source: &str, features: wgpu::Features) -> (nag
         .validate(&module)
         .unwrap_or_else(|e| panic!("{name}: {e:?}"));
     (module, info)
+}
+
+/// `base` with `from` replaced by `to` in its source, under a name of its own (pipelines are cached by name): a
+/// broken kernel for the mutation checks, which must fail the test it is substituted into
+/// (`PlanBuilder::substitute_shader`).
+pub fn mutated(base: &'static Shader, from: &str, to: &str) -> &'static Shader {
+    assert_eq!(base.source.matches(from).count(), 1, "{}: the mutation's text must occur once", base.name);
+    let name = Box::leak(format!("{}_mutated_{}", base.name, from.len() * 31 + to.len()).into_boxed_str());
+    let replace = [base.replace, &[(Box::leak(from.to_string().into_boxed_str()) as &str, Box::leak(to.to_string().into_boxed_str()) as &str)]].concat();
+    Box::leak(Box::new(Shader { name, replace: Box::leak(replace.into_boxed_slice()), ..*base }))
+}
+
+/// Whether the adapter runs the tensor kernels (`MatmulKernel::Coop`); says why not where it does not.
+pub fn coop_runs() -> bool {
+    let gpu = gpu();
+    match (&gpu.kernels.coop, &gpu.without_coop) {
+        (Some(shape), _) => {
+            eprintln!("tensor kernels: {}x{} tiles, {}-lane subgroups", shape.tile, shape.tile, shape.lanes);
+            true
+        }
+        (None, why) => {
+            eprintln!("tensor kernels not tested on {}: {}", gpu.describe(), why.as_deref().unwrap_or("unknown"));
+            false
+        }
+    }
+}
+
+/// Runs `check` expecting it to fail on its values (a mutation check): the failure must be a wrong value (an
+/// assert_close or an assertion on what was written), not a kernel that does not compile.
+pub fn fails_on_values(what: &str, check: impl FnOnce()) {
+    // The expected panic prints its message like any other (the panic hook is the process's, shared by the tests).
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(check));
+    let payload = result.err().unwrap_or_else(|| panic!("{what}: the check passed"));
+    let message = payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_default();
+    let on_values = ["max abs error", "padding", "outside the view", "changed", "tolerance"];
+    assert!(on_values.iter().any(|m| message.contains(m)), "{what}: failed, but not on its values: {message}");
 }

@@ -9,6 +9,7 @@
 use raypatch_engine::device::KernelChoice;
 use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
+use raypatch_engine::kernels::{ATTENTION_COOP, ATTENTION_COOP_8};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::padded_cols;
 use raypatch_engine::{Gpu, GpuOptions, GpuTensor};
@@ -74,6 +75,11 @@ impl Case {
     /// the rows around the view alone and that it ran on `matmul_lanes` or flash attention's subgroup variant
     /// where it should, and returns the view's rows (unpadded) and the bytes the plan allocated.
     fn run_gpu(&self, choice: KernelChoice) -> (Vec<f32>, u64) {
+        self.run_gpu_mutated(choice, None)
+    }
+
+    /// [`run_gpu`](Self::run_gpu), with `attention_coop` replaced by `mutation` (from, to) of it where given.
+    fn run_gpu_mutated(&self, choice: KernelChoice, mutation: Option<(&str, &str)>) -> (Vec<f32>, u64) {
         let kernel = choice.matmul;
         let gpu = gpu();
         let inner = self.heads * self.dim_head;
@@ -118,7 +124,14 @@ impl Case {
         attention(&mut plan, "attn", args);
         let on_lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
-        let on_flash = plan.op_kernels().any(|k| k.starts_with("attention_flash"));
+        let on_flash = plan.op_kernels().any(|k| k.starts_with("attention_flash") && k.ends_with(".flash"));
+        let on_coop = plan.op_kernels().any(|k| k.ends_with(".attention_coop"));
+        assert_eq!(on_coop, kernel == MatmulKernel::Coop, "{kernel:?}: {}", self.describe());
+        if let Some((from, to)) = mutation {
+            for shader in [&ATTENTION_COOP, &ATTENTION_COOP_8] {
+                plan.substitute_shader(shader, mutated(shader, from, to));
+            }
+        }
         assert_eq!(on_flash, kernel == MatmulKernel::Tiled, "{kernel:?}: {}", self.describe());
         let on_subgroups = plan.op_kernels().any(|k| k.starts_with("attention_flash_lanes"));
         assert_eq!(on_subgroups, on_flash && choice.subgroups, "{choice:?}: {}", self.describe());
@@ -241,6 +254,26 @@ impl Case {
 
     fn check(&self) {
         self.check_within(&vec![0.0; self.nq * self.heads]);
+    }
+
+    /// The case with q, k and v rounded to f16, as the tensor kernels stage them.
+    fn rounded_to_f16(&self) -> Case {
+        let tensors = self
+            .tensors
+            .iter()
+            .map(|h| Host { data: h.data.iter().map(|&x| half::f16::from_f32(x).to_f32()).collect(), ..*h })
+            .collect();
+        Case { tensors, ..*self }
+    }
+
+    /// Checks the tensor kernels' attention (`attention_coop`, with `mutation` of it where given) against the
+    /// float64 attention of the f16-rounded q, k and v: within TOL_V·max |v|, plus the rounding of the softmax
+    /// weights P to f16 for the second product (each off by 2^-11 of itself, so the output by 2^-11·max |v|).
+    fn check_coop(&self, mutation: Option<(&str, &str)>) {
+        let want = self.rounded_to_f16().reference();
+        let (got, _) = self.run_gpu_mutated(KernelChoice { matmul: MatmulKernel::Coop, pinned: true, ..gpu().kernels }, mutation);
+        let tol = (TOL_V + 2f64.powi(-11)) * self.v_max();
+        assert_close(&format!("Coop: {}", self.describe()), &got, &want, tol, 0.0);
     }
 }
 
@@ -559,5 +592,44 @@ fn attention_kept_scene_keys_values() {
         let (second_textures, second) = render();
         assert_eq!((first_textures, second_textures), (3, 1), "textures made by the first and second plan");
         assert_eq!(first, second);
+    }
+}
+
+/// The tensor kernels' attention (`attention_coop`: Q·Kᵀ and P·V on f16 cooperative matrices, the online softmax in
+/// f32), where the device has them (`.ci/coop.sh`): every layout, heads from 1 to 128 floats wide (padded to whole
+/// output blocks), queries past a tile's edge, keys past a block's edge and split across workgroups.
+#[test]
+fn attention_coop() {
+    if !coop_runs() {
+        return;
+    }
+    let mut rng = Rng::new(0xC00B);
+    let layouts = [Layout::FusedQkv, Layout::CachedKv, Layout::Separate];
+    for (n, &dim_head) in [1, 5, 16, 31, 32, 64, 100, 128].iter().cycle().take(16).enumerate() {
+        let heads = rng.range(1, 4);
+        let budget = 20_000_000 / (heads * dim_head);
+        let nq = rng.range(1, 300.min(budget));
+        let nkv = if n % 3 == 0 { nq } else { rng.range(1, 700.min(budget / nq)) };
+        let layout = if nkv == nq { layouts[n % 3] } else { layouts[1 + n % 2] };
+        random_case(&mut rng, layout, nq, nkv, heads, dim_head).check_coop(None);
+    }
+}
+
+/// The mutation check of `attention_coop`: a wrong key-fragment index, a skipped key block or a skipped output
+/// block must fail its check.
+#[test]
+fn attention_coop_mutations_fail() {
+    if !coop_runs() {
+        return;
+    }
+    let mutations = [
+        ("let k_at = sg * CT * QK_LD + d0;", "let k_at = d0;"),
+        ("base < key_end; base += BC)", "base < key_end; base += 2u * BC)"),
+        ("let f = fi * COOP_SUBGROUPS + sg;", "let f = fi * COOP_SUBGROUPS;"),
+    ];
+    for (from, to) in mutations {
+        // Enough keys that each of the splits (flash_splits) walks several key blocks.
+        let case = random_case(&mut Rng::new(9), Layout::CachedKv, 200, 2000, 2, 32);
+        fails_on_values(&format!("attention_coop with {from:?} replaced by {to:?}"), || case.check_coop(Some((from, to))));
     }
 }

@@ -3,7 +3,7 @@
 use raypatch_engine::device::KernelChoice;
 use raypatch_engine::device::MatmulKernel;
 use raypatch_engine::kernels::conv::{conv2d, pack_conv};
-use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode};
+use raypatch_engine::kernels::{conv_output_size, Conv2dArgs, ConvMode, CONV_COOP, CONV_COOP_8};
 use raypatch_engine::kernels::{Activation, Window};
 use raypatch_engine::plan::{PlanBuilder, View};
 use raypatch_engine::tensor::padded_cols;
@@ -86,6 +86,11 @@ impl Case {
     /// Runs the case on the GPU with `kernel` as the plan's GEMM kernel and returns (gpu, reference)
     /// outputs and whether `matmul_lanes` ran it.
     fn run(&self, rng: &mut Rng, kernel: MatmulKernel) -> (Vec<f32>, Vec<f64>, bool) {
+        self.run_mutated(rng, kernel, None)
+    }
+
+    /// [`run`](Self::run), with the tensor kernels' shaders replaced by `mutation` (from, to) of them where given.
+    fn run_mutated(&self, rng: &mut Rng, kernel: MatmulKernel, mutation: Option<(&str, &str)>) -> (Vec<f32>, Vec<f64>, bool) {
         let &Case { n, h, w, cin, cout, window, upsample, act, bias, mode } = self;
         let k = window.kernel;
         let (ho, wo) = conv_output_size(h, w, window, upsample).expect("the case's window fits");
@@ -117,13 +122,27 @@ impl Case {
         let lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         let tiled = plan.op_kernels().any(|k| k.ends_with(".conv_tiled"));
         assert_eq!(tiled, kernel == MatmulKernel::Tiled, "{kernel:?} {self:?}: GPUs' implicit GEMM");
+        let coop = plan.op_kernels().any(|k| k.ends_with(".conv_coop"));
+        assert_eq!(coop, kernel == MatmulKernel::Coop, "{kernel:?} {self:?}: the tensor kernels' implicit GEMM");
+        if let Some((from, to)) = mutation {
+            for shader in [&CONV_COOP, &CONV_COOP_8] {
+                plan.substitute_shader(shader, mutated(shader, from, to));
+            }
+        }
         run(plan);
         let got = op.read_view(&format!("{self:?}"));
 
         let mut expected = to_f64(&init);
-        let (weight, bias) = (to_f64(&weight_data), bias_data.map(|b| to_f64(&b)));
+        let (mut weight, bias) = (to_f64(&weight_data), bias_data.map(|b| to_f64(&b)));
+        let mut x = to_f64(&x);
+        if kernel == MatmulKernel::Coop {
+            // The tensor kernels round x and w to f16 as they stage them: the float64 product of the rounded
+            // operands, within the same f32 summation bound.
+            let round = |v: &mut f64| *v = half::f16::from_f64(*v).to_f64();
+            x.iter_mut().chain(weight.iter_mut()).for_each(round);
+        }
         reference::conv2d(
-            &to_f64(&x),
+            &x,
             (n, h, w),
             cin,
             &weight,
@@ -141,9 +160,14 @@ impl Case {
     /// Checks the case on every GEMM kernel the adapter runs (the same data for each); returns whether
     /// `matmul_lanes` ran it.
     fn check(&self, rng: &mut Rng) -> bool {
+        self.check_on(rng, &matmul_kernels())
+    }
+
+    /// [`check`](Self::check) on `kernels`.
+    fn check_on(&self, rng: &mut Rng, kernels: &[MatmulKernel]) -> bool {
         let seed = rng.next_u64();
         let mut lanes = false;
-        for kernel in matmul_kernels() {
+        for &kernel in kernels {
             let (got, expected, ran) = self.run(&mut Rng::new(seed), kernel);
             // f32 accumulation of K = k²·cin products (|x| <= 1, weights scaled so outputs are O(1)): the
             // error grows like sqrt(K)·2^-24; measured at most 2.2e-6 (3×3, cin = 800) on lavapipe, so 1e-5
@@ -399,5 +423,73 @@ fn tiled_profile_leaves_narrow_convolutions_to_rows() {
     for cout in [32, 16, 3, 1] {
         assert_eq!(entry((240, 320), cout), "conv.conv2d", "{cout} output channels at 480x640");
         assert_eq!(entry((30, 40), cout), "conv.conv_tiled", "{cout} output channels at 60x80");
+    }
+}
+
+/// The tensor kernels' convolution (`conv_coop`, an implicit GEMM on f16 cooperative matrices), where the device has
+/// them (`.ci/coop.sh`): against the float64 convolution of the f16-rounded input and weights, within f32 summation's
+/// bound; random 3x3 shapes with every option, other windows, strides and paddings, the ResNet stem, upsampling, and
+/// a deep K whose few tiles split it.
+#[test]
+fn conv_coop() {
+    if !coop_runs() {
+        return;
+    }
+    let mut rng = Rng::new(11);
+    let coop = [MatmulKernel::Coop];
+    for case in 0..24 {
+        let kernel = [3, 1, 5, 7][case % 4];
+        let padding = rng.range(0, kernel / 2);
+        let c = Case {
+            n: rng.range(1, 3),
+            h: rng.range(kernel, 24),
+            w: rng.range(kernel, 24),
+            cin: rng.range(1, 70),
+            cout: rng.range(1, 70),
+            window: Window { kernel, stride: 1 + case % 2, padding },
+            upsample: (case / 2) % 2 == 1,
+            bias: (case / 4) % 2 == 1,
+            mode: MODES[(case / 8) % 3],
+            act: ACTS[case % 3],
+        };
+        c.check_on(&mut rng, &coop);
+    }
+    let (relu, residual) = (Activation::Relu, ConvMode::Residual);
+    let stem = Window { kernel: 7, stride: 2, padding: 3 };
+    Case { n: 1, h: 45, w: 61, cin: 3, cout: 64, window: stem, upsample: false, act: relu, bias: true, mode: ConvMode::Overwrite }
+        .check_on(&mut rng, &coop);
+    Case { n: 1, h: 6, w: 5, cin: 300, cout: 20, window: k3(1), upsample: false, act: relu, bias: true, mode: residual }
+        .check_on(&mut rng, &coop);
+}
+
+/// The mutation check of `conv_coop`: a wrong fragment index, a skipped K step or a skipped output block must fail
+/// its check.
+#[test]
+fn conv_coop_mutations_fail() {
+    if !coop_runs() {
+        return;
+    }
+    let mutations = [
+        ("let a1_at = a_base + (sr + CT) * COOP_LD + kk;", "let a1_at = a_base + sr * COOP_LD + kk;"),
+        ("if (step + 1u < t.steps) {", "if (step + 2u < t.steps) {"),
+        ("coop_emit(t, sr, sc + CT, at, lane);", ""),
+    ];
+    for (from, to) in mutations {
+        let case = Case {
+            n: 1,
+            h: 9,
+            w: 11,
+            cin: 40,
+            cout: 36,
+            window: k3(1),
+            upsample: false,
+            act: Activation::None,
+            bias: true,
+            mode: ConvMode::Overwrite,
+        };
+        fails_on_values(&format!("conv_coop with {from:?} replaced by {to:?}"), || {
+            let (got, expected, _) = case.run_mutated(&mut Rng::new(3), MatmulKernel::Coop, Some((from, to)));
+            assert_close("conv_coop mutated", &got, &expected, 1e-5, 1e-6);
+        });
     }
 }

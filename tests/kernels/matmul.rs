@@ -8,6 +8,7 @@ use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::{padded_cols, Dtype};
+use raypatch_engine::kernels::{MATMUL_COOP, MATMUL_COOP_8, MATMUL_COOP_F16, MATMUL_COOP_F16_8};
 use raypatch_engine::{Gpu, GpuOptions, Precision};
 use raypatch_reference::matmul as reference;
 use raypatch_reference::norm::layernorm;
@@ -49,6 +50,18 @@ fn check_with(case: &Case, rng: &mut Rng, precision: Precision) {
 
 /// [`check_with`] on `kernels`.
 fn check_on(case: &Case, rng: &mut Rng, precision: Precision, kernels: &[MatmulKernel]) {
+    check_mutated(case, rng, precision, kernels, None);
+}
+
+/// [`check_on`], with the op's shader replaced by `mutation` (from, to) of it where given: the check must then
+/// fail (the tensor kernels' mutation checks).
+fn check_mutated(
+    case: &Case,
+    rng: &mut Rng,
+    precision: Precision,
+    kernels: &[MatmulKernel],
+    mutation: Option<(&str, &str)>,
+) {
     let Case { m, k, n, act, .. } = *case;
     let weights = if precision.f16_weights() { Dtype::F16 } else { Dtype::F32 };
     let f16_activations = precision == Precision::F16Activations;
@@ -104,10 +117,17 @@ fn check_on(case: &Case, rng: &mut Rng, precision: Precision, kernels: &[MatmulK
     if case.norm {
         x = layernorm(&x, k, &to_f64(&gamma), &to_f64(&beta), f64::from(NORM_EPS));
     }
-    if f16_activations {
+    // The tensor kernels round x (normalised, where it is) and w to f16 as they stage them: the reference takes
+    // the float64 product of the rounded operands.
+    let coop = kernels == [MatmulKernel::Coop];
+    let x_exact = x.clone();
+    if f16_activations || coop {
         x.iter_mut().for_each(|v| *v = half::f16::from_f64(*v).to_f64());
     }
-    let w64 = to_f64(&w);
+    let mut w64 = to_f64(&w);
+    if coop {
+        w64.iter_mut().for_each(|v| *v = half::f16::from_f64(*v).to_f64());
+    }
     let bias64 = bias.as_ref().map(|b| to_f64(b));
     let residual = residual.map(|r| to_f64(&r));
     let expected = reference::linear(&x, m, k, &w64, n, bias64.as_deref(), act, residual.as_deref());
@@ -140,11 +160,16 @@ fn check_on(case: &Case, rng: &mut Rng, precision: Precision, kernels: &[MatmulK
             norm,
         };
         linear(&mut plan, "linear", args);
-        if f16_activations {
+        if f16_activations && kernel == MatmulKernel::Tiled {
             assert!(plan.op_kernels().any(|k| k.starts_with("matmul_f16_act")), "f16 activations did not run");
         }
         if kernel == MatmulKernel::Coop {
             assert!(plan.op_kernels().any(|k| k.contains("linear_coop")), "linear_coop did not run");
+        }
+        if let Some((from, to)) = mutation {
+            for shader in [&MATMUL_COOP, &MATMUL_COOP_F16, &MATMUL_COOP_8, &MATMUL_COOP_F16_8] {
+                plan.substitute_shader(shader, mutated(shader, from, to));
+            }
         }
         run(plan);
         let got = gpu.read_rows(&out_t.buffer, 0, out_rows, ldo).unwrap();
@@ -185,20 +210,19 @@ fn check_on(case: &Case, rng: &mut Rng, precision: Precision, kernels: &[MatmulK
             let w_sum = (0..n).map(|j| w[j * k..(j + 1) * k].iter().map(|v| v.abs()).sum::<f64>()).fold(0.0, f64::max);
             tol += normed_err * w_sum;
         }
-        if f16_activations {
+        if f16_activations && !coop {
             // x rounded to f16 as it is staged (w is f16 already, in the reference too): each product is off by at
             // most 2^-11 of itself, so a sum by 2^-11·Σ|x·w|; c = 4, as above.
             tol += 4.0 * 2f64.powi(-11) * magnitude;
         }
-        if kernel == MatmulKernel::Coop {
-            // x and w rounded to f16 as they are staged (the reference keeps them exact): each operand is off by at
-            // most u16 = 2^-11 of itself, or 2^-25 where it is below f16's normal range, so a product by
-            // (2·u16 + u16²)·|x·w| + 2^-25·(|x| + |w|); the sums are f32, bounded above. A single wrong product
-            // (~Σ|x·w|/K, K < 600 here) still fails.
-            let u16 = 2f64.powi(-11);
-            let x_max = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            let w_max = w.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            tol += (2.0 * u16 + u16 * u16) * magnitude + k as f64 * 2f64.powi(-25) * (x_max + w_max);
+        if coop && case.norm {
+            // The kernel normalises in f32 and then rounds: where its normalised value and the float64 one lie on
+            // either side of a rounding boundary, the staged f16 differs by one f16 step (2^-11 relative).
+            let flips: f64 = (0..m)
+                .flat_map(|i| (0..n).map(move |j| (i, j)))
+                .map(|(i, j)| (0..k).map(|l| (x_exact[i * k + l] * w[j * k + l]).abs()).sum::<f64>())
+                .fold(0.0, f64::max);
+            tol += 2f64.powi(-11) * flips;
         }
         assert_close(&what, &values, &expected, tol, 0.0);
     }
@@ -230,19 +254,19 @@ fn linear_random_shapes() {
     }
 }
 
-/// `Coop` (`linear_coop`: f16 cooperative matrices), where the adapter has them (`MatmulKernel::supported`; not
-/// lavapipe): random shapes with tails of its 64x64 tiles and 32-float K steps, every activation, bias, accumulate,
-/// views, a layer norm first, f32 and f16 weights.
+/// The tensor kernels' linear layer (`linear_coop`: f16 cooperative matrices, the adapter's tile), where the device
+/// has them (`.ci/coop.sh` runs it on Mesa 26's lavapipe): against the float64 product of the f16-rounded operands,
+/// within f32 summation's K-dependent bound; random shapes with tails of its workgroup tiles and K steps, every
+/// activation, bias, accumulate, views (rows around them checked untouched), a layer norm first, f32 and f16 weights,
+/// and the split K of a few tiles with a deep K.
 #[test]
 fn linear_coop() {
-    let gpu = gpu();
-    if let Err(why) = MatmulKernel::Coop.supported(&gpu.info, gpu.features) {
-        eprintln!("linear_coop not tested on {}: {why}", gpu.describe());
+    if !coop_runs() {
         return;
     }
     let mut rng = Rng::new(6);
-    for i in 0..32 {
-        let k = if i < 4 { [1, 16, 33, 64][i] } else { rng.range(1, 600) };
+    for i in 0..36 {
+        let k = if i < 4 { [1, 16, 33, 64][i] } else if i >= 32 { rng.range(1500, 3000) } else { rng.range(1, 600) };
         let case = Case {
             m: rng.range(1, 300),
             k,
@@ -256,6 +280,39 @@ fn linear_coop() {
         };
         let precision = if i % 2 == 1 { Precision::F16Weights } else { Precision::F32 };
         check_on(&case, &mut rng, precision, &[MatmulKernel::Coop]);
+    }
+}
+
+/// The mutation check of the tensor kernels' GEMM: `linear_coop` with a wrong fragment index, a skipped K step, a
+/// skipped output block or a misplaced row tile must fail `linear_coop`'s check (a test that passes them would
+/// pass a broken kernel).
+#[test]
+fn linear_coop_mutations_fail() {
+    if !coop_runs() {
+        return;
+    }
+    let mutations = [
+        ("let b1_at = b_base + (sc + CT) * COOP_LD + kk;", "let b1_at = b_base + sc * COOP_LD + kk;"),
+        ("if (step + 1u < t.steps) {", "if (step + 2u < t.steps) {"),
+        ("coop_emit(t, sr + CT, sc + CT, at, lane);", ""),
+        ("return CoopTile((rest % row_tiles) * COOP_BM,", "return CoopTile((rest % row_tiles) * COOP_BN / 2u,"),
+    ];
+    for (from, to) in mutations {
+        let mut rng = Rng::new(7);
+        let case = Case {
+            m: 150,
+            k: 200,
+            n: 90,
+            act: Activation::None,
+            bias: true,
+            accumulate: false,
+            view: false,
+            norm: false,
+            shaped: false,
+        };
+        fails_on_values(&format!("linear_coop with {from:?} replaced by {to:?}"), || {
+            check_mutated(&case, &mut rng, Precision::F16Weights, &[MatmulKernel::Coop], Some((from, to)))
+        });
     }
 }
 

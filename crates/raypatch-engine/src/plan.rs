@@ -232,6 +232,14 @@ impl PlanBuilder {
         self.ops.push(op);
     }
 
+    /// Records the ops recorded so far with shader `from` on `to` instead; returns how many. How the kernel tests
+    /// check that they would catch a broken kernel (a shader with a wrong index or a skipped tile must fail them).
+    #[doc(hidden)]
+    pub fn substitute_shader(&mut self, from: &'static Shader, to: &'static Shader) -> usize {
+        let ops = self.ops.iter_mut().filter(|op| std::ptr::eq(op.shader, from));
+        ops.map(|op| op.shader = to).count()
+    }
+
     /// The kernel of each op recorded so far, as `shader.entry` (what profiles name them).
     pub fn op_kernels(&self) -> impl Iterator<Item = String> + '_ {
         self.ops.iter().map(|op| format!("{}.{}", op.shader.name, op.entry))
