@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use raypatch::metrics::fg_ari;
-use raypatch_engine::{Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs};
+use raypatch_engine::{Frame, Gpu, GpuOptions, LoadOptions, MatmulKernel, Model, Output, Outputs, Precision};
 use raypatch_model::TensorFile;
 
 const OUTPUT_MAX_ABS: f64 = 1e-4;
@@ -25,10 +25,41 @@ fn max_abs(a: &[f32], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(x, y)| if x.is_finite() { (x - y).abs() as f64 } else { f64::INFINITY }).fold(0.0, f64::max)
 }
 
+/// What a case must meet: max abs error of rgb, segmentation and DeFiNe's log-depth, relative error of the latent
+/// and SRT's log-depth.
+#[derive(Clone, Copy)]
+struct Budget {
+    output_max_abs: f64,
+    latent_max_rel: f64,
+}
+
+/// f32: parity with PyTorch within f32 rounding.
+const F32_BUDGET: Budget = Budget { output_max_abs: OUTPUT_MAX_ABS, latent_max_rel: LATENT_MAX_REL };
+
+/// The tensor path (`Precision::F16Activations` on cooperative matrices: every GEMM's operands rounded to f16, sums
+/// in f32). Measured on Mesa 26's lavapipe (8x8 tiles): rgb 2.3e-3 to 4.5e-3 on the Ray-Patch SRT and OSRT cases,
+/// 6.3e-3 to 9.3e-3 on per-pixel SRT, 8.3e-3 to 1.9e-2 on DeFiNe (its 1146-wide Perceiver cross-attention logits);
+/// segmentation up to 5.4e-3, DeFiNe's log-depth up to 1.9e-2, latents up to 3.6e-3 relative. The budget is 2.5e-2
+/// abs (PyTorch's bf16 autocast: 2.6e-2 on RP-SRT) and 1e-2 relative: it catches a broken kernel, not a regression
+/// of a few 1e-3, which the benchmark's accuracy columns track (issue 47 asks for 5e-3 on rgb: not met yet by
+/// SRT and DeFiNe).
+const TENSOR_BUDGET: Budget = Budget { output_max_abs: 2.5e-2, latent_max_rel: 1e-2 };
+
 /// Encodes and renders one case and returns what is out of tolerance.
 fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
+    check_case_at(gpu, dir, Precision::F32, F32_BUDGET)
+}
+
+/// [`check_case`] at `precision`, within `budget`.
+fn check_case_at(gpu: &Arc<Gpu>, dir: &Path, precision: Precision, budget: Budget) -> Vec<String> {
+    let Budget { output_max_abs, latent_max_rel } = budget;
     let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-    let model = Model::load(gpu.clone(), dir.join("model.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let loaded = raypatch_model::load_model(dir.join("model.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let model = Model::from_loaded_with(gpu.clone(), &loaded, &LoadOptions { precision })
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    if precision == Precision::F16Activations {
+        assert_eq!(model.kernel_family(), MatmulKernel::Coop, "{name}: f16-act did not run on the tensor kernels");
+    }
     let scene = raypatch_model::load_scene(dir.join("scene.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
     let expected = TensorFile::open(&dir.join("expected.safetensors")).unwrap_or_else(|e| panic!("{name}: {e}"));
     let bounded_log_depth = model.config.base() == "define";
@@ -75,9 +106,9 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
         let (err, tol, kind) = match output {
             Output::LogDepth if !bounded_log_depth => {
                 let scale = want.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
-                (max_abs(got, &want.data) / scale, LATENT_MAX_REL, "relative")
+                (max_abs(got, &want.data) / scale, latent_max_rel, "relative")
             }
-            _ => (max_abs(got, &want.data), OUTPUT_MAX_ABS, "max abs"),
+            _ => (max_abs(got, &want.data), output_max_abs, "max abs"),
         };
         errors.push((output, err, tol, kind));
     }
@@ -93,8 +124,8 @@ fn check_case(gpu: &Arc<Gpu>, dir: &Path) -> Vec<String> {
     if expected.contains("fg_ari") {
         failures.extend(check_fg_ari(&name, &expected, &scene, &frame));
     }
-    if latent_err > LATENT_MAX_REL {
-        failures.push(format!("{name}: latent relative error {latent_err:e} > {LATENT_MAX_REL:e}"));
+    if latent_err > latent_max_rel {
+        failures.push(format!("{name}: latent relative error {latent_err:e} > {latent_max_rel:e}"));
     }
     for (output, err, tol, kind) in errors {
         if err > tol {
@@ -157,8 +188,7 @@ fn golden_cases_match_pytorch() {
     let mut failures = Vec::new();
     for kernel in MatmulKernel::ALL {
         if kernel == MatmulKernel::Coop {
-            // Its f16 operands are outside the f32 tolerances of these cases; its own budget is issue 42's work.
-            eprintln!("golden cases not run on Coop: f16 operands, no golden tolerance for them yet");
+            // Its f16 operands are outside the f32 tolerances: golden_cases_on_the_tensor_path has its budget.
             continue;
         }
         let gpu = match Gpu::new(&GpuOptions { matmul: Some(kernel), ..Default::default() }) {
@@ -171,6 +201,27 @@ fn golden_cases_match_pytorch() {
         eprintln!("matmul kernel {kernel:?}:");
         failures.extend(cases.iter().flat_map(|dir| check_case(&gpu, dir)).map(|f| format!("{kernel:?}: {f}")));
     }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Every golden case at the f16-act precision on the tensor kernels (cooperative matrices), where the device has
+/// them (`.ci/coop.sh` runs it on Mesa 26's lavapipe), within [`TENSOR_BUDGET`].
+#[test]
+fn golden_cases_on_the_tensor_path() {
+    let gpu = shared_gpu();
+    if gpu.kernels.coop.is_none() {
+        let why = gpu.without_coop.as_deref().unwrap_or("unknown");
+        eprintln!("golden cases not run on the tensor kernels on {}: {why}", gpu.describe());
+        return;
+    }
+    let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
+        .expect("assets/golden is missing")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.join("expected.safetensors").exists())
+        .collect();
+    cases.sort();
+    let failures: Vec<String> =
+        cases.iter().flat_map(|dir| check_case_at(&gpu, dir, Precision::F16Activations, TENSOR_BUDGET)).collect();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 

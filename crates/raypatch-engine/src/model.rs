@@ -12,6 +12,7 @@ use std::thread::JoinHandle;
 
 use raypatch_model::{LoadedModel, ModelConfig};
 
+use crate::device::MatmulKernel;
 use crate::error::Result;
 use crate::frame::Outputs;
 use crate::gpu::Gpu;
@@ -118,6 +119,12 @@ impl Model {
     /// Bytes of GPU memory the weights take.
     pub fn weight_bytes(&self) -> u64 {
         self.weights.bytes
+    }
+
+    /// The kernel family this model's GEMMs run on: the adapter's, or the tensor kernels (`MatmulKernel::Coop`)
+    /// under `Precision::F16Activations` where the device has them (`KernelChoice::at_precision`).
+    pub fn kernel_family(&self) -> MatmulKernel {
+        self.gpu.kernels.at_precision(self.weights.f16_activations).matmul
     }
 
     /// Linear layers whose weights stay f32 under an f16 precision (a weight beyond f16's range).
