@@ -2,6 +2,10 @@
 cuBLAS without TF32) on the shapes raypatch-bench --gemm measures, for the GMAC/s table of docs/PERFORMANCE.md:
 
     python3 tools/bench/bench_gemm_pytorch.py --shape 300x1536x1536 [--shape MxKxN ...] [--repeats N] [--device cuda]
+                                              [--dtype float32|float16|bfloat16]
+
+--dtype float16 or bfloat16: x, weight and bias in that type (cuBLAS's tensor-core GEMMs on a GPU; the tensor
+step of tools/bench/gpu_bench.sh compares them with the engine's tensor GEMM).
 
 Prints one JSON object: the torch version, its thread count, the device, and per shape (M x K x N: x [M, K],
 weight [N, K]) the median, min and max wall time in ms over the runs after one warm-up, each run waited for.
@@ -38,6 +42,7 @@ def main():
     parser.add_argument("--shape", type=shape, action="append", required=True)
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--dtype", choices=["float32", "float16", "bfloat16"], default="float32")
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be at least 1")
@@ -45,12 +50,13 @@ def main():
     torch.manual_seed(0)
     results = []
     for m, k, n in args.shape:
-        x, w, b = (torch.randn(*shape).to(device) for shape in ((m, k), (n, k), (n,)))
+        dtype = getattr(torch, args.dtype)
+        x, w, b = (torch.randn(*shape).to(device, dtype) for shape in ((m, k), (n, k), (n,)))
         with torch.no_grad():
             _, times = timed(lambda: torch.nn.functional.linear(x, w, b), args.repeats, device)
         results.append({"m": m, "k": k, "n": n, **summary(times)})
     print(json.dumps({"torch": torch.__version__, "threads": torch.get_num_threads(), "device": device_name(device),
-                      "shapes": results}))
+                      "dtype": args.dtype, "shapes": results}))
 
 
 if __name__ == "__main__":

@@ -237,7 +237,8 @@ fn time_tiling(
     let out_id = plan.output("out", m, n);
     let (x, out) = (plan.all(x), plan.all(out_id));
     for i in 0..reps.max(1) {
-        let args = LinearArgs { x, weight, bias: Some(bias), out, act: Activation::None, accumulate: false, norm: None };
+        let args =
+            LinearArgs { x, weight, bias: Some(bias), out, act: Activation::None, accumulate: false, norm: None };
         linear(&mut plan, &format!("linear{i}"), args);
     }
     let plan = plan.build(gpu)?;
@@ -248,11 +249,14 @@ fn time_tiling(
         // f32 sums of exact f16 products: K-dependent rounding only.
         let bound = 1e-6 * k as f64 + 1e-5;
         for (i, j) in samples {
-            let expected = f64::from(bs[j])
-                + (0..k).map(|c| f64::from(xs[i * k + c]) * f64::from(ws[j * k + c])).sum::<f64>();
+            let expected =
+                f64::from(bs[j]) + (0..k).map(|c| f64::from(xs[i * k + c]) * f64::from(ws[j * k + c])).sum::<f64>();
             let e = (f64::from(got[i * n + j]) - expected).abs();
             if !(e <= bound) {
-                bail!("{m}x{k}x{n}: out[{i}, {j}] = {} where float64 gives {expected:.6} (error {e:.2e})", got[i * n + j]);
+                bail!(
+                    "{m}x{k}x{n}: out[{i}, {j}] = {} where float64 gives {expected:.6} (error {e:.2e})",
+                    got[i * n + j]
+                );
             }
         }
     }
@@ -375,11 +379,8 @@ pub fn run(gpu: &Gpu, options: &TuneOptions) -> Result<TuneReport> {
     }
     let mut best = Vec::new();
     for ((class, _), result) in classes.iter().zip(&mut results) {
-        let fastest = result
-            .candidates
-            .iter()
-            .filter_map(|c| Some((c.tiling, c.total_ms?)))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let fastest =
+            result.candidates.iter().filter_map(|c| Some((c.tiling, c.total_ms?))).min_by(|a, b| a.1.total_cmp(&b.1));
         result.best = fastest.map(|(t, _)| t);
         if let Some(t) = result.best {
             best.push((*class, CoopTiling::from(t)));
@@ -393,7 +394,8 @@ pub fn run(gpu: &Gpu, options: &TuneOptions) -> Result<TuneReport> {
     let side = if options.quick { QUICK_SQUARE } else { SQUARE };
     let large = best.iter().find(|(c, _)| *c == GemmClass::Large).map_or(default_tiling(shape.tile), |b| b.1);
     let reps = reps_for(on_cpu, side * side * side);
-    let square = time_tiling(gpu, shape, large, (side, side, side), (reps, runs), warm_for(gpu.info.device_type), false);
+    let square =
+        time_tiling(gpu, shape, large, (side, side, side), (reps, runs), warm_for(gpu.info.device_type), false);
     let (square, square_error) = match square {
         Ok(ms) => {
             let tflops = 2.0 * (side as f64).powi(3) / (ms * 1e-3) / 1e12;
@@ -515,7 +517,8 @@ mod tests {
     fn the_merge_replaces_only_this_adapters_lines_of_the_classes_written() {
         let small = CoopTiling { sg_m: 1, sg_n: 4, bk: 32 };
         let large = CoopTiling { sg_m: 4, sg_n: 2, bk: 64 };
-        let existing = "GPU A\tsmall\t2\t2\t32\nGPU B\tsmall\t1\t1\t16\nGPU A\tlarge\t2\t2\t32\n\nGPU B\tlarge\t4\t4\t64\n";
+        let existing =
+            "GPU A\tsmall\t2\t2\t32\nGPU B\tsmall\t1\t1\t16\nGPU A\tlarge\t2\t2\t32\n\nGPU B\tlarge\t4\t4\t64\n";
         let merged = merge_tuning(existing, "GPU A", &[(GemmClass::Small, small), (GemmClass::Large, large)]).unwrap();
         assert_eq!(
             merged,
@@ -538,8 +541,12 @@ mod tests {
         let limits = wgpu::Limits { max_compute_workgroup_storage_size: 49152, ..wgpu::Limits::default() };
         let small = CoopTiling { sg_m: 1, sg_n: 2, bk: 16 };
         let large = CoopTiling { sg_m: 2, sg_n: 1, bk: 64 };
-        let text = merge_tuning("other\tsmall\t1\t1\t16\n", "lavapipe", &[(GemmClass::Small, small), (GemmClass::Large, large)])
-            .unwrap();
+        let text = merge_tuning(
+            "other\tsmall\t1\t1\t16\n",
+            "lavapipe",
+            &[(GemmClass::Small, small), (GemmClass::Large, large)],
+        )
+        .unwrap();
         let tuned = shape(16, 32).tuned(&text, "lavapipe", &limits);
         assert_eq!(tuned.tilings, [small, large]);
         assert_eq!(shape(16, 32).tuned(&text, "other", &limits).tilings[1], default_tiling(16));
