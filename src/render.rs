@@ -238,6 +238,12 @@ impl Model {
         self.inner.weight_bytes()
     }
 
+    /// Its precision and the kernel family its GEMMs run on (the tensor kernels under f16-act where the device has
+    /// them; where not, why): what `render-frame --timings` prints.
+    pub fn computes_as(&self) -> String {
+        self.inner.computes_as()
+    }
+
     /// Encodes posed input images into a [`Scene`]: the latent tokens and each decoder layer's keys and
     /// values, computed once and kept for every render. All views must have the same size (any size: each
     /// conv block halves it, rounding up, as in PyTorch), values in [0, 1], and cameras of that size with one

@@ -143,8 +143,9 @@ def _intrinsics(name: str, intrinsics, count: int) -> list:
 class Engine:
     """One GPU adapter: a real GPU when there is one, else a CPU one (lavapipe). ``adapter`` picks by name
     (case-insensitive substring); ``matmul`` forces a kernel family ("rows", "tiled", "lanes"); ``precision`` is
-    "f32" (default), "f16" (f16 linear weights) or "f16-act" (and, on GPUs, f16 inputs to the linear layers:
-    faster, rgb within ~1e-2); f16 needs the adapter's shader-f16."""
+    "f32" (default), "f16" (f16 linear weights) or "f16-act" (the tensor path: every GEMM on cooperative
+    matrices where the device has them, operands rounded to f16, sums in f32; rgb within ~2e-2); f16 needs the
+    adapter's shader-f16."""
 
     def __init__(self, adapter: Optional[str] = None, matmul: Optional[str] = None, precision: str = "f32"):
         self._inner = _raypatch.Engine(_text("adapter", adapter, True), _text("matmul", matmul, True),

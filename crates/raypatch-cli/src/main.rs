@@ -145,8 +145,9 @@ struct Args {
     #[arg(long, value_name = "KERNEL", value_parser = PossibleValuesParser::new(MatmulKernel::ALL.map(MatmulKernel::name))
         .map(|name: String| MatmulKernel::from_name(&name).unwrap_or_default()))]
     matmul_kernel: Option<MatmulKernel>,
-    /// `f32` (default); `f16`: linear weights stored as f16; `f16-act`: and, on GPUs, the linear layers' inputs
-    /// staged as f16 (sums in f32; rgb within ~1e-2). f16 needs shader-f16.
+    /// `f32` (default); `f16`: linear weights stored as f16; `f16-act`: the tensor path: every GEMM (linear layers,
+    /// convolutions, attention) on cooperative matrices (tensor cores) where the device has them, operands rounded to
+    /// f16, sums in f32 (rgb within ~1e-2; --timings says which kernels ran). f16 needs shader-f16.
     #[arg(long, value_name = "P", default_value = "f32", value_parser = PossibleValuesParser::new(Precision::ALL.map(Precision::name))
         .map(|name: String| Precision::from_name(&name).unwrap_or_default()))]
     precision: Precision,
@@ -376,6 +377,7 @@ fn run(args: &Args) -> Result<()> {
         println!("{line}");
     }
     if args.timings {
+        println!("{}", model.computes_as());
         println!(
             "load {:.1} ms, encode {:.1} ms, first render {:.1} ms (with its plan: buffers allocated, pipelines \
              compiled)",

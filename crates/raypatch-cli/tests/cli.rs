@@ -65,6 +65,7 @@ fn target_views_match_pytorch_with_metrics_and_raw_output() {
         "SSIM",
         "planned peak GPU memory",
         "pipelines: ",
+        "precision f32, ",
     ] {
         assert!(r.stdout.contains(text), "no {text:?} in {}", r.stdout);
     }
@@ -598,4 +599,19 @@ fn timings_name_the_pipeline_cache_in_raypatch_cache_dir() {
         assert!(timed(cache.as_os_str()).ends_with(" KiB read)"));
     }
     assert!(timed("off".as_ref()).ends_with("no pipeline cache: RAYPATCH_CACHE_DIR=off"));
+}
+
+/// `--timings` says which precision and kernel family ran: at f16-act, the tensor kernels where the device has
+/// cooperative matrices, else the adapter's kernels and why (the host's lavapipe; `.ci/coop.sh`'s has them).
+#[test]
+fn timings_name_the_precision_and_the_kernel_family() {
+    let dir = TempDir::new().unwrap();
+    let (model, scene) = (golden("rpsrt_k2", "model.safetensors"), golden("rpsrt_k2", "scene.safetensors"));
+    let r = run(dir.path(), &["--model", &model, "--scene", &scene, "--precision", "f16-act", "--timings", "--out", "v.png"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let line = r.stdout.lines().find(|l| l.starts_with("precision f16-act, ")).unwrap_or_else(|| panic!("{}", r.stdout));
+    assert!(
+        line.contains("coop kernels (cooperative matrices") || line.contains("no tensor kernels on this device ("),
+        "{line}"
+    );
 }

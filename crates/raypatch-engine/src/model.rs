@@ -23,7 +23,7 @@ use crate::nn::ReadLimits;
 use crate::plan::{Plan, TensorId};
 use crate::render_io::first_render;
 use crate::tensor::GpuTensor;
-use crate::weights::{GpuWeights, KeptF32, LoadOptions};
+use crate::weights::{GpuWeights, KeptF32, LoadOptions, Precision};
 
 /// A loaded model with its weights on the GPU.
 pub struct Model {
@@ -31,6 +31,7 @@ pub struct Model {
     pub config: ModelConfig,
     pub path: String,
     pub parameter_count: usize,
+    pub precision: Precision,
     /// Shared with the load's warm-up thread, which a dropped model leaves to finish on its own.
     pub(crate) family: Arc<dyn LightField>,
     pub(crate) weights: Arc<GpuWeights>,
@@ -79,6 +80,7 @@ impl Model {
             config: loaded.config.clone(),
             path: loaded.path.clone(),
             parameter_count: loaded.parameter_count(),
+            precision: options.precision,
             family,
             weights,
             encode_plan: Mutex::new(None),
@@ -125,6 +127,24 @@ impl Model {
     /// under `Precision::F16Activations` where the device has them (`KernelChoice::at_precision`).
     pub fn kernel_family(&self) -> MatmulKernel {
         self.gpu.kernels.at_precision(self.weights.f16_activations).matmul
+    }
+
+    /// How this model computes, for `--timings`, the benchmark's records and logs: its precision and the kernel
+    /// family its GEMMs run on, and, where f16-act cannot have the tensor kernels, why.
+    pub fn computes_as(&self) -> String {
+        let family = self.kernel_family();
+        let mut text = format!("precision {}, {} kernels", self.precision.name(), family.name());
+        match (self.gpu.kernels.coop, family) {
+            (Some(shape), MatmulKernel::Coop) => {
+                text += &format!(" (cooperative matrices {0}x{0}x{0}, {1}-lane subgroups)", shape.tile, shape.lanes)
+            }
+            _ if self.precision == Precision::F16Activations => {
+                let why = self.gpu.without_coop.as_deref().unwrap_or("the kernel family was forced");
+                text += &format!(": no tensor kernels on this device ({why}), so f16-act runs on these")
+            }
+            _ => {}
+        }
+        text
     }
 
     /// Linear layers whose weights stay f32 under an f16 precision (a weight beyond f16's range).

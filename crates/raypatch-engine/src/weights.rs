@@ -18,10 +18,12 @@ pub enum Precision {
     /// arithmetic. A layer with a weight beyond f16's range (|w| > 65504, which f16 would turn into infinity)
     /// stays f32 and is listed in [`GpuWeights::kept_f32`].
     F16Weights,
-    /// [`F16Weights`](Self::F16Weights), and where linear layers run on the GPUs' kernel (`MatmulKernel::Tiled`)
-    /// their inputs are rounded to f16 too as they are staged in workgroup memory (half its traffic), the
-    /// products summed in f32 (`shaders/tiles.wgsl`). Inputs beyond f16's range become infinite. Other kernels
-    /// compute as under `F16Weights`.
+    /// The tensor path: [`F16Weights`](Self::F16Weights), and where the device has cooperative matrices every GEMM
+    /// (linear layers, convolutions, attention's two products) runs on the tensor kernels (`MatmulKernel::Coop`,
+    /// `KernelChoice::at_precision`), its operands rounded to f16 as they are staged, the products summed in f32, the
+    /// values between ops f32. Elsewhere, linear layers on the GPUs' kernel (`MatmulKernel::Tiled`) round their
+    /// inputs to f16 as they stage them (`shaders/tiles.wgsl`) and other kernels compute as under `F16Weights`.
+    /// Values beyond f16's range become infinite.
     F16Activations,
 }
 
