@@ -50,19 +50,33 @@
 #               after every command into OUT_DIR and the archive's host/ folder: a run cut short keeps what it
 #               measured. RAYPATCH_GPU_BENCH_QUICK=1: small random models stand in for the official ones at one
 #               size each, PyTorch wherever it runs, to try the step where no GPU is (minutes on lavapipe)
+#     tensor    issue 47's tensor path (--precision f16-act on cooperative matrices) in one call, alone (its
+#               commands' limits add up to 480 s, clipped to a deadline of RAYPATCH_GPU_BENCH_TENSOR_SECONDS,
+#               default 480): the tensor tests (kernels `coop`, golden renders on the tensor path); the tuner
+#               (raypatch-bench --coop-tune: every tiling that fits, on the official models' GEMM shapes, the fastest
+#               per shape class written into the run's RAYPATCH_CACHE_DIR/coop-tuning.tsv, which the later
+#               commands read, copied into OUT_DIR; and the tensor GEMM's TFLOP/s at 4096^3); the official SRT at
+#               120x160 and RP-SRT k=8 with 32 views of 120x160, at f32 and f16-act, PyTorch eager and compiled
+#               (fp32, and bf16 autocast where the bench has it) beside the f32 records; cuBLAS f16 and bf16 at
+#               4096^3 and the tuned shapes (tools/bench/bench_gemm_pytorch.py). tools/bench/tensor_check.py
+#               writes tensor-check.md (a row per figure: figure, bound, PASS/FAIL/NOT MEASURED, source file)
+#               after every command into OUT_DIR and the archive's tensor/ folder. RAYPATCH_GPU_BENCH_QUICK=1:
+#               small random models, the tuner's stand-in shapes and 512^3 (lavapipe: about 5 minutes).
+#               RAYPATCH_GPU_BENCH_CHROOT=DIR: the engine's binaries run in the chroot DIR (.ci/coop-chroot.sh's
+#               Mesa 26 lavapipe, this checkout mounted at the same path), the Python parts here
 # OUT_DIR gets two files, rewritten as each step finishes (a run cut short still returns what it did):
 # gpu-bench.log (everything printed) and gpu-bench.tar.gz (each step's results folder and log). The exit code
 # is the number of commands that failed (0: all ran).
 set -u
-out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|breakdown|variants|rpsrt|srt|families|viewer|host ...]}
+out=${1:?usage: bash tools/bench/gpu_bench.sh OUT_DIR [info|tests|gemm|lab|breakdown|variants|rpsrt|srt|families|viewer|host|tensor ...]}
 shift
 steps=("$@")
 [ ${#steps[@]} -eq 0 ] && steps=(info tests gemm lab breakdown variants rpsrt srt families viewer)
 for s in "${steps[@]}"; do
     case $s in
-        info | tests | gemm | lab | breakdown | variants | rpsrt | srt | families | viewer | host) ;;
+        info | tests | gemm | lab | breakdown | variants | rpsrt | srt | families | viewer | host | tensor) ;;
         *)
-            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, breakdown, variants, rpsrt, srt, families, viewer or host" >&2
+            echo "gpu_bench: unknown step $s: expected info, tests, gemm, lab, breakdown, variants, rpsrt, srt, families, viewer, host or tensor" >&2
             exit 2
             ;;
     esac
@@ -73,7 +87,17 @@ if [ ! -f .gpu/kit.tar.xz ]; then
 fi
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
-work=$(mktemp -d)
+# RAYPATCH_GPU_BENCH_CHROOT=DIR: the engine's binaries run in that chroot (the checkout mounted at the same path, as
+# .ci/coop.sh mounts it), so the work folder lies in the checkout where both see it.
+chroot_dir=${RAYPATCH_GPU_BENCH_CHROOT:-}
+device=()
+if [ -n "$chroot_dir" ]; then
+    mkdir -p .gpu/work
+    work=$(mktemp -d -p "$(pwd)/.gpu/work")
+    device=(chroot "$chroot_dir" env -C "$(pwd)" HOME=/tmp)
+else
+    work=$(mktemp -d)
+fi
 kit=$work/kit
 mkdir -p "$kit" "$work/results"
 if ! tar -xJf .gpu/kit.tar.xz -C "$kit"; then
@@ -83,8 +107,8 @@ if ! tar -xJf .gpu/kit.tar.xz -C "$kit"; then
 fi
 bin=$kit/bin
 
-# The Vulkan loader and glvnd, unpacked from the kit where the system lacks them.
-if ! ldconfig -p | grep -q 'libvulkan\.so\.1' || ! ldconfig -p | grep -q 'libGLdispatch\.so\.0'; then
+# The Vulkan loader and glvnd, unpacked from the kit where the system lacks them (a chroot has its own).
+if [ -z "$chroot_dir" ] && { ! ldconfig -p | grep -q 'libvulkan\.so\.1' || ! ldconfig -p | grep -q 'libGLdispatch\.so\.0'; }; then
     for deb in "$kit"/debs/*.deb; do
         dpkg -x "$deb" /
     done
@@ -238,6 +262,100 @@ host() {
     cat "$r/host-check.md"
 }
 
+# The tensor step: issue 47's tensor path (the header says what it runs). Its estimate on an H100 (no measurement yet;
+# from the host step's figures: the official RP-SRT k=8 at 120x160 renders in ~1-5 ms, each PyTorch run with
+# torch.compile takes ~20-40 s, and a pipeline compiles in ~50 ms):
+#   nvidia-smi, the adapters                                                          ~2 s (limits 10 + 10)
+#   tests: kernels `coop`, golden renders on the tensor path                          ~40 s (limits 45 + 45)
+#   tune: up to 27 tilings x 9 shapes, a pipeline each, 10 runs of <= 2 GMAC; 4096^3  ~60 s (limit 120, no new
+#     tiling after 80 s)
+#   srt: SRT 120x160 at f32 (PyTorch eager, compiled, autocast) and f16-act            ~60 s (limit 80)
+#   rpsrt: RP-SRT k=8 120x160, 1 and 32 views, f32 (PyTorch beside) and f16-act         ~90 s (limit 120)
+#   cublas: f16 and bf16, 4096^3 and the tuned shapes                                  ~15 s (limits 15 + 15)
+# In all ~270 s expected, 480 s at most (limits 460): one device call of 600 s with the machine's start.
+tensor() {
+    local r=$work/results/tensor quick=${RAYPATCH_GPU_BENCH_QUICK:-}
+    deadline=$((SECONDS + ${RAYPATCH_GPU_BENCH_TENSOR_SECONDS:-480}))
+    mkdir -p "$r"
+    # The run's cache folder: the tuner writes its tilings there, every later command reads them.
+    local cache=$work/tensor-cache
+    mkdir -p "$cache"
+    export RAYPATCH_CACHE_DIR=$cache
+    # The models and sizes; quick: small random models (PyTorch wherever it runs), the tuner's stand-in shapes.
+    local srt=(--only official:1) rpsrt=(--only official:8) tune=() side=4096
+    local common=(--sizes 120x160 --max-reference-gmac 0 --repeats 20 --repeat-seconds 3 --pytorch-compile)
+    local limits=(45 45 120 80 120 15)
+    if [ -n "$quick" ]; then
+        srt=(--only small:1) rpsrt=(--only small:8) tune=(--quick) side=512
+        common=(--sizes 120x160 --max-reference-gmac 0 --repeats 3 --repeat-seconds 1 --pytorch-compile)
+        limits=(240 240 150 150 150 60)
+    fi
+    # f16-act beside f32 (PyTorch is timed beside the f32 records): `--precision` where the bench has it, else the
+    # sweep's own choice, which adds f16-act where the linear layers run on `tiled` (GPUs; lavapipe: asked for).
+    local help
+    help=$("${device[@]}" "$bin/raypatch-bench" --help 2>&1)
+    if ! grep -q -- --coop-tune <<<"$help"; then
+        echo "gpu_bench: the kit's raypatch-bench has no --coop-tune: run tools/bench/gpu_kit.sh again"
+    fi
+    if grep -q -- '--precision' <<<"$help"; then
+        common+=(--precision f32 --precision f16-act)
+    elif [ -n "$quick" ]; then
+        common+=(--matmul-kernel tiled)
+    fi
+    grep -q -- '--pytorch-autocast' <<<"$help" && common+=(--pytorch-autocast)
+    if command -v nvidia-smi >/dev/null; then
+        run tensor 10 nvidia-smi
+    fi
+    run tensor 10 "${device[@]}" "$bin/render-frame" --list-adapters
+    : >"$r/tests.tsv"
+    tensor_test "kernels coop" "${limits[0]}" "$kit/tests/kernels" coop
+    tensor_test "golden tensor path" "${limits[1]}" "$kit/tests/golden" golden_cases_on_the_tensor_path
+    tensor_check "$r"
+    run tensor "${limits[2]}" "${device[@]}" "$bin/raypatch-bench" --coop-tune "${tune[@]}" --tune-seconds \
+        $((limits[2] * 2 / 3)) --out "$r/tune"
+    [ -f "$cache/coop-tuning.tsv" ] && cp "$cache/coop-tuning.tsv" "$r/coop-tuning.tsv" &&
+        cp "$cache/coop-tuning.tsv" "$out/coop-tuning.tsv"
+    tensor_check "$r"
+    run tensor "${limits[3]}" "${device[@]}" "$bin/raypatch-bench" "${srt[@]}" "${common[@]}" --out "$r/srt"
+    tensor_check "$r"
+    run tensor "${limits[4]}" "${device[@]}" "$bin/raypatch-bench" "${rpsrt[@]}" --views 32 "${common[@]}" \
+        --out "$r/rpsrt"
+    tensor_check "$r"
+    # cuBLAS's f16 and bf16 GEMMs (PyTorch here, on CUDA where it has it): the square and the tuner's shapes.
+    local shapes=(--shape "${side}x${side}x${side}") cuda=cpu
+    if [ -z "$quick" ]; then
+        shapes+=(--shape 300x1536x1536 --shape 4800x768x2304 --shape 19200x1536x1536)
+    fi
+    python3 -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)' 2>/dev/null && cuda=cuda
+    for dtype in float16 bfloat16; do
+        run tensor "${limits[5]}" sh -c 'python3 tools/bench/bench_gemm_pytorch.py "$@" >"$0.part" && mv "$0.part" "$0"' \
+            "$r/cublas-$dtype.json" --device "$cuda" --dtype "$dtype" --repeats 20 "${shapes[@]}"
+    done
+    tensor_check "$r"
+    deadline=
+    unset RAYPATCH_CACHE_DIR
+    cat "$r/tensor-check.md"
+}
+
+# tensor_test NAME SECONDS BINARY FILTER: one tensor test binary's tests matching FILTER; its exit code, seconds,
+# limit and tests passed into tests.tsv.
+tensor_test() {
+    local name=$1 seconds=$2 binary=$3 filter=$4 log=$work/results/tensor-test.log
+    run tensor-test "$seconds" "${device[@]}" "$binary" --test-threads 4 "$filter"
+    cat "$log" >>"$work/results/tensor.log"
+    local passed
+    passed=$(grep -o '[0-9]* passed' "$log" | tail -n 1 | cut -d' ' -f1)
+    rm -f "$log"
+    printf '%s\t%s\t%s\t%s\t%s\n' "$name" "$code" "$took" "$limit" "${passed:-0}" >>"$work/results/tensor/tests.tsv"
+}
+
+# tensor_check DIR: tensor-check.md from what the tensor step measured so far, into DIR, OUT_DIR and the archive.
+tensor_check() {
+    python3 tools/bench/tensor_check.py "$1" ${RAYPATCH_GPU_BENCH_QUICK:+--quick} &&
+        cp "$1/tensor-check.md" "$out/tensor-check.md"
+    save
+}
+
 # host_check DIR: host-check.md from what the host step measured so far, into DIR, OUT_DIR and the archive.
 host_check() {
     python3 tools/bench/host_check.py "$1" ${RAYPATCH_GPU_BENCH_QUICK:+--quick} &&
@@ -300,6 +418,7 @@ torch.cuda.is_available() and torch.cuda.get_device_name(0))"
             families) sweep families 210 25 --only official-osrt:8 --only official-define:16 --views 8,32 ;;
             viewer) viewer ;;
             host) host ;;
+            tensor) tensor ;;
         esac
         save
     done

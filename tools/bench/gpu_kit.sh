@@ -7,6 +7,8 @@
 #   debs/   the Vulkan loader and glvnd (libvulkan1, libglvnd0, libegl1, libgl1, libglx0, libopengl0,
 #           libgles2): NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs libGLdispatch from glvnd, and without
 #           it wgpu sees no adapter
+# The tensor step (gpu_bench.sh OUT tensor) needs nothing more: raypatch-bench --coop-tune, the kernels and golden
+# binaries (their `coop` and tensor-path tests), tools/bench/*.py from the checkout.
 # Run from the repository root where cargo and apt-get work (Debian 12 here; the binaries need glibc 2.36 or
 # later), then carry .gpu to the GPU machine (the device tool: carry [".gpu"]) and run tools/bench/gpu_bench.sh.
 set -euo pipefail

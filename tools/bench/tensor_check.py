@@ -152,7 +152,11 @@ def engine_row(results, why, key, title, views):
     wall = median(r, "render_wall_ms")
     shape = f"{title} {views}x{SIZE} f16-act"
     if wall is None:
-        return NOT_MEASURED, f"{shape}: {why_not(r, why or 'no f16-act record in the results')}", r, f32
+        missing = why or "no f16-act record in the results"
+        if results and r is None and f32 is not None and views > 1:
+            missing = (f"no f16-act record of {views} views (the sweep renders --views at f32 only: "
+                       "harness/sweep.rs, many_views under f32_weights)")
+        return NOT_MEASURED, f"{shape}: {why_not(r, missing)}", r, f32
     gpu = median(r, "render_gpu_ms")
     kernel = r.get("kernel")
     extra = (f", GPU {gpu:.3f} ms" if gpu is not None else "") + (f", GEMMs on {kernel}" if kernel else "")
