@@ -179,6 +179,8 @@ fn hostile_requests_get_one_line_errors_and_the_viewer_keeps_serving() {
     let info: serde_json::Value = serde_json::from_slice(&get(address, "/api/info").body).unwrap();
     assert_eq!(info["models"][0]["k"], 4);
     assert_eq!(info["models"][0]["outputs"], serde_json::json!(["rgb"]));
+    // Which precision and kernels render (the viewer's --precision, f32 by default).
+    assert!(info["models"][0]["computes"].as_str().unwrap().starts_with("precision f32, "), "{info}");
     // Names, never paths: nothing the page sees says where the files lie.
     assert!(!info.to_string().contains("assets/"), "{info}");
     assert_eq!(info["scenes"][0]["sizes"][0], serde_json::json!([80, 60]));

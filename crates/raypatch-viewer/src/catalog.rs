@@ -47,12 +47,20 @@ pub struct ModelEntry {
     pub family: String,
     pub k: usize,
     pub outputs: Vec<ViewOutput>,
+    /// Its precision and the kernels its GEMMs run on (`Model::computes_as`).
+    pub computes: String,
 }
 
 impl ModelEntry {
     pub fn of(model: &Model) -> ModelEntry {
         let outputs = ViewOutput::ALL.into_iter().filter(|o| model.outputs().contains(o.output())).collect();
-        ModelEntry { name: file_name(model.path()), family: model.config().name(), k: model.patch_size(), outputs }
+        ModelEntry {
+            name: file_name(model.path()),
+            family: model.config().name(),
+            k: model.patch_size(),
+            outputs,
+            computes: model.computes_as(),
+        }
     }
 }
 
@@ -127,7 +135,7 @@ pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, li
     json!({
         "adapter": adapter,
         "models": models.iter().map(|m| json!({
-            "name": m.name, "family": m.family, "k": m.k,
+            "name": m.name, "family": m.family, "k": m.k, "computes": m.computes,
             "outputs": m.outputs.iter().map(|o| o.name()).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "scenes": scenes.iter().map(|s| json!({

@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use raypatch::{AdapterChoice, Engine, EngineOptions, Model, Outputs, Request, Scene, SceneData};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use raypatch::{AdapterChoice, Engine, EngineOptions, Model, Outputs, Precision, Request, Scene, SceneData};
 use serde_json::json;
 
 use crate::catalog::{info_json, ModelEntry, SceneEntry, MAX_PIXELS, MAX_SIDE};
@@ -56,6 +57,11 @@ struct ServeArgs {
     /// Adapter to use: the first whose name contains this text (default: a real GPU, else lavapipe).
     #[arg(long)]
     adapter: Option<String>,
+    /// `f32` (default), `f16` (f16 linear weights) or `f16-act` (the tensor path: cooperative matrices where the
+    /// device has them), as render-frame's --precision; the page shows which kernels ran.
+    #[arg(long, value_name = "P", default_value = "f32", value_parser = PossibleValuesParser::new(Precision::ALL.map(Precision::name))
+        .map(|name: String| Precision::from_name(&name).unwrap_or_default()))]
+    precision: Precision,
 }
 
 /// Whether the command line asks for the viewer (`--serve` anywhere among the arguments).
@@ -80,7 +86,8 @@ pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
 
 fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Result<()> {
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
-    let engine = Engine::new(EngineOptions { adapter, ..Default::default() }).context("--adapter")?;
+    let options = EngineOptions { adapter, precision: args.precision, ..Default::default() };
+    let engine = Engine::new(options).context("--adapter")?;
     let models: Vec<Model> = if args.models.is_empty() {
         vec![engine.load_bytes(default_model.0, default_model.1)?]
     } else {

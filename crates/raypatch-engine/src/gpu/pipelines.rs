@@ -80,10 +80,18 @@ impl Gpu {
         if let Some(module) = self.modules.lock().expect("module cache poisoned").get(shader.name) {
             return module.clone();
         }
-        let module = Arc::new(self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(shader.name),
-            source: wgpu::ShaderSource::Wgsl(shader.wgsl()),
-        }));
+        let descriptor =
+            wgpu::ShaderModuleDescriptor { label: Some(shader.name), source: wgpu::ShaderSource::Wgsl(shader.wgsl()) };
+        let module = Arc::new(if shader.features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+            // SAFETY: the tensor kernels index in range by construction (shaders/coop_tiles.wgsl: the operands are
+            // staged with zeros past their edges, every fragment load reads staged memory, every store is checked
+            // against out's size; attention_coop.wgsl likewise), and their tests put NaN around the operands and a
+            // sentinel around the outputs (tests/kernels, `coop`). Runtime bounds checks cost a GEMM 17-40%
+            // (gpuweb #1202) and do not cover the tile a cooperative load reads.
+            unsafe { self.device.create_shader_module_trusted(descriptor, wgpu::ShaderRuntimeChecks::unchecked()) }
+        } else {
+            self.device.create_shader_module(descriptor)
+        });
         self.modules.lock().expect("module cache poisoned").entry(shader.name).or_insert(module).clone()
     }
 

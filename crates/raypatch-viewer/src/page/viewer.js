@@ -139,7 +139,7 @@ function show(seq, blob, renderMs, params, w, h) {
   const now = performance.now();
   view.frameTimes = view.frameTimes.filter((t) => now - t < 1000).concat([now]);
   const m = view.info.models[view.model];
-  $('stats').textContent = `${m.name} (${m.family}, k=${m.k}) on ${view.info.adapter} · ${w}x${h} · ` +
+  $('stats').textContent = `${m.name} (${m.family}, k=${m.k}; ${m.computes}) on ${view.info.adapter} · ${w}x${h} · ` +
     `render ${(+renderMs).toFixed(1)} ms · ${view.frameTimes.length} fps`;
   $('error').classList.remove('shown');
 }
