@@ -3,6 +3,7 @@ raypatch-bench, which runs it on the same weights and inputs as the engine in th
 
     python3 tools/bench/bench_pytorch.py --model M.safetensors --scene S.safetensors [--repeats N] [--threads T]
                                    [--device cpu|cuda] [--compile] [--out-rgb O.safetensors]
+                                   [--autocast-bf16 --out-autocast A.safetensors]
 
 Prints one JSON object: the torch version, its thread count, the device, and the wall times in ms (median, min,
 max over the runs after one warm-up) of encoding the input views and of rendering the target views, as the
@@ -11,7 +12,10 @@ read; TF32 off, so that the products are float32 as on the CPU). With --compile 
 encode and render_views under torch.compile (the first, compiling, call is the warm-up), or why it failed. The
 model is SRT / RP-SRT, OSRT / RP-OSRT or DeFiNe / RP-DeFiNe, by the config's `base`
 (raypatch_reference.build_model); OSRT's render_views computes its segmentation beside rgb, as the official
-OSRT.decoder does, and it is timed with it. With --out-rgb it also writes the (eager) rendered `rgb` [T, Ht, Wt, 3].
+OSRT.decoder does, and it is timed with it. With --out-rgb it also writes the (eager) rendered `rgb` [T, Ht, Wt, 3]
+(and `logdepth` [T, Ht, Wt], `segmentation` [T, Ht, Wt, S] where the model returns them). With --autocast-bf16 the
+eager model runs once more under `torch.autocast(device, dtype=torch.bfloat16)` (PyTorch's mixed precision: matrix
+products and convolutions in bfloat16), timed as "autocast", its outputs (as float32) written to --out-autocast.
 Exit code 3 when PyTorch cannot be imported or has no such device, 2 on a bad input.
 """
 
@@ -105,6 +109,16 @@ def device_name(device):
     return torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
 
 
+OUTPUT_NAMES = ("rgb", "logdepth", "segmentation")
+
+
+def output_tensors(views):
+    """The first batch item of render_views' (rgb, logdepth[, segmentation]) by name, float32 on the CPU, the
+    outputs the model does not have (None) left out."""
+    return {name: tensor[0].detach().float().cpu().contiguous()
+            for name, tensor in zip(OUTPUT_NAMES, views) if tensor is not None}
+
+
 def summary(times):
     return {"median_ms": statistics.median(times), "min_ms": min(times), "max_ms": max(times), "runs": len(times)}
 
@@ -118,6 +132,9 @@ def main(argv=None):
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--compile", action="store_true", help="also time encode and render under torch.compile")
     parser.add_argument("--out-rgb", type=Path, default=None)
+    parser.add_argument("--autocast-bf16", action="store_true",
+                        help="also run (and time) the eager model under torch.autocast with bfloat16")
+    parser.add_argument("--out-autocast", type=Path, default=None, help="where --autocast-bf16 writes its outputs")
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -133,17 +150,17 @@ def main(argv=None):
     def batch(name):
         return scene[name][None].to(device)
 
-    def time_model(encode, render_views):
-        """(rgb, encode times, render times) of one way of running the model."""
-        with torch.no_grad():
+    def time_model(encode, render_views, autocast=False):
+        """(outputs, encode times, render times) of one way of running the model."""
+        with torch.no_grad(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=autocast):
             z, encode_times = timed(lambda: encode(batch("input_images").permute(0, 1, 4, 2, 3),
                                                    batch("input_camera_pos"), batch("input_rays")), args.repeats, device)
             # SRT returns (rgb, logdepth), OSRT (rgb, logdepth, segmentation).
             views, render_times = timed(lambda: render_views(z, batch("target_camera_pos"), batch("target_rays"),
                                                              size), args.repeats, device)
-        return views[0], summary(encode_times), summary(render_times)
+        return output_tensors(views), summary(encode_times), summary(render_times)
 
-    rgb, encode, render = time_model(model.encode, model.render_views)
+    outputs, encode, render = time_model(model.encode, model.render_views)
     # The vector ISA PyTorch's CPU kernels use (AVX2, AVX512, ...): CPU ratios depend on it, as lavapipe's do not
     # in the same way (llvmpipe runs 256-bit vectors on both).
     result = {"torch_version": torch.__version__, "threads": torch.get_num_threads(),
@@ -155,8 +172,13 @@ def main(argv=None):
             result["compiled"] = {"encode": encode, "render": render}
         except Exception as error:  # noqa: BLE001 -- any failure of the compiler is reported, not fatal
             result["compile_error"] = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+    if args.autocast_bf16:
+        autocast_outputs, encode, render = time_model(model.encode, model.render_views, autocast=True)
+        result["autocast"] = {"dtype": "bfloat16", "encode": encode, "render": render}
+        if args.out_autocast is not None:
+            save_safetensors(args.out_autocast, autocast_outputs, {"format": "raypatch-bench-pytorch/1"})
     if args.out_rgb is not None:
-        save_safetensors(args.out_rgb, {"rgb": rgb[0].cpu()}, {"format": "raypatch-bench-pytorch/1"})
+        save_safetensors(args.out_rgb, outputs, {"format": "raypatch-bench-pytorch/1"})
     print(json.dumps(result))
     return 0
 

@@ -11,7 +11,7 @@ mod sweep;
 pub use replot::replot;
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -20,7 +20,7 @@ use raypatch_engine::{
     AdapterChoice, EncodedScene, Frame, Gpu, GpuOptions, MatmulKernel, Model, Output, Outputs, Precision, Request,
 };
 use raypatch_model::{InputViews, LoadedModel, ModelConfig, TargetViews};
-use raypatch_reference::model::{Argument, ReferenceModel, ReferenceScene};
+use raypatch_reference::model::{Argument, ReferenceFrame, ReferenceModel, ReferenceScene};
 use serde::{Deserialize, Serialize};
 
 use crate::flops;
@@ -59,6 +59,18 @@ pub struct Options {
     pub pytorch_device: Option<pytorch::Device>,
     /// Time PyTorch under torch.compile too.
     pub pytorch_compile: bool,
+    /// Run PyTorch eager under bf16 autocast too, its error against the float64 model recorded.
+    pub pytorch_autocast: bool,
+    /// Measure every sweep model at exactly these precisions (empty: the sweep's own choice: f32, and f16 for
+    /// SRT where the adapter has shader-f16).
+    pub precisions: Vec<Precision>,
+    /// Leave the tensor kernels unused: f16-act runs on the adapter's other kernels, as where the device has no
+    /// cooperative matrices (the bench clears the GPU's `KernelChoice::coop`).
+    pub no_coop: bool,
+    /// The accuracy run: every official family at a small target size ([`sweep`]'s `ACCURACY`), each output
+    /// against the float64 model (its f32-rounded twin not computed), PyTorch f32 and bf16 autocast beside,
+    /// one timed run; with `--only`, `--precision`.
+    pub accuracy: bool,
     /// Model files to measure too (e.g. trained models), with `scene` (or a synthetic scene).
     pub models: Vec<PathBuf>,
     pub scene: Option<PathBuf>,
@@ -103,6 +115,10 @@ struct Bench {
     sizes: Vec<Size>,
     /// Target views rendered at once too (`Options::views`).
     views: Vec<usize>,
+    /// `Options::precisions`.
+    precisions: Vec<Precision>,
+    /// `Options::accuracy`.
+    accuracy: bool,
 }
 
 /// The results file.
@@ -118,8 +134,45 @@ struct Results {
     paper_comparison: Vec<paper::Comparison>,
 }
 
-/// Both float64 references of a model (f32-rounded and float64 encoding arguments) with their encodings.
-type References = (ReferenceModel, ReferenceScene, ReferenceModel, ReferenceScene);
+/// The float64 references of a model with their encodings: f32-rounded encoding arguments (not in the accuracy
+/// run) and float64 ones (the float64 model), and their renders so far, which every precision shares.
+struct References {
+    rounded: Option<(ReferenceModel, ReferenceScene)>,
+    exact: (ReferenceModel, ReferenceScene),
+    renders: Mutex<Vec<(TargetKey, Arc<ReferenceRender>)>>,
+}
+
+/// Which targets a reference render was of: views, height, width and the rays' first and last values (the
+/// bench's scenes are the same cameras at each size).
+type TargetKey = (usize, usize, usize, u32, u32);
+
+/// A reference render: with f32-rounded arguments (where computed) and of the float64 model.
+struct ReferenceRender {
+    rounded: Option<ReferenceFrame>,
+    exact: ReferenceFrame,
+}
+
+impl References {
+    /// The references' render of `targets`, computed once.
+    fn render(&self, targets: &TargetViews) -> Result<Arc<ReferenceRender>> {
+        let rays = targets.ray_values();
+        let bits = |v: Option<&f32>| v.map_or(0, |v| v.to_bits());
+        let key = (targets.count, targets.rays_height, targets.rays_width, bits(rays.first()), bits(rays.last()));
+        if let Some((_, done)) =
+            self.renders.lock().expect("reference renders poisoned").iter().find(|(k, _)| *k == key)
+        {
+            return Ok(done.clone());
+        }
+        let rounded = match &self.rounded {
+            Some((model, scene)) => Some(model.render(scene, targets)?),
+            None => None,
+        };
+        let exact = self.exact.0.render(&self.exact.1, targets)?;
+        let render = Arc::new(ReferenceRender { rounded, exact });
+        self.renders.lock().expect("reference renders poisoned").push((key, render.clone()));
+        Ok(render)
+    }
+}
 
 /// A model's float64 references, or why there are none (e.g. `too slow at this size`), for the records' notes.
 type MaybeReferences = std::result::Result<References, String>;
@@ -156,7 +209,12 @@ pub fn run(options: &Options) -> Result<()> {
         rays_on_host: options.rays_on_host,
         ..Default::default()
     };
-    let gpu = Arc::new(Gpu::new(&gpu_options)?);
+    let mut gpu = Gpu::new(&gpu_options)?;
+    if options.no_coop && gpu.kernels.coop.is_some() {
+        gpu.kernels.coop = None;
+        gpu.without_coop = Some("--no-coop".into());
+    }
+    let gpu = Arc::new(gpu);
     let timestamps = gpu.set_timestamps(TimestampMode::Plan).is_ok();
     let env = Environment {
         adapter: gpu.info.name.clone(),
@@ -171,10 +229,17 @@ pub fn run(options: &Options) -> Result<()> {
         Some(Err(why)) => Err(why),
         Some(Ok(installed)) => {
             let on_gpu = gpu.info.device_type != wgpu::DeviceType::Cpu;
-            Ok(pytorch::Torch::choose(installed, options.pytorch_device, on_gpu, options.pytorch_compile)?)
+            let torch = pytorch::Torch::choose(installed, options.pytorch_device, on_gpu, options.pytorch_compile)?;
+            Ok(pytorch::Torch { autocast: options.pytorch_autocast || options.accuracy, ..torch })
         }
     };
-    let runs = options.repeats.unwrap_or(if options.quick { 3 } else { 5 });
+    let runs = options.repeats.unwrap_or(if options.accuracy {
+        1
+    } else if options.quick {
+        3
+    } else {
+        5
+    });
     let warm_for = measure::warm_for(gpu.info.device_type);
     let bench = Bench {
         gpu,
@@ -190,13 +255,19 @@ pub fn run(options: &Options) -> Result<()> {
         } else {
             120.0
         })),
-        reference_macs: (options.max_reference_gmac.unwrap_or(if options.quick { 2.0 } else { 60.0 }) * 1e9) as u64,
+        reference_macs: match (options.max_reference_gmac, options.accuracy) {
+            (Some(gmac), _) => (gmac * 1e9) as u64,
+            (None, true) => u64::MAX,
+            (None, false) => (if options.quick { 2.0 } else { 60.0 } * 1e9) as u64,
+        },
         torch,
         scratch,
         quick: options.quick,
         only: options.only.clone(),
         sizes: options.sizes.clone(),
         views: options.views.clone(),
+        precisions: options.precisions.clone(),
+        accuracy: options.accuracy,
         env,
     };
     let timing = bench.timing();
@@ -221,7 +292,7 @@ pub fn run(options: &Options) -> Result<()> {
     let started = report::started();
     let mut records = Vec::new();
     let mut kernels = Vec::new();
-    if options.only.is_empty() {
+    if options.only.is_empty() && !options.accuracy {
         bench.golden(&mut records)?;
     }
     // After each model, the results so far: a run cut short (a device call's time limit) keeps its tables.
@@ -321,14 +392,21 @@ impl Bench {
         if model.encode_multiply_adds(inputs.count, inputs.height, inputs.width) > self.reference_macs {
             return Ok(Err("too slow at this size".into()));
         }
-        let f32_args = match ReferenceModel::new(loaded, Argument::RoundedToF32) {
+        let f64_args = match ReferenceModel::new(loaded, Argument::Float64) {
             Ok(reference) => reference,
             Err(e) if loaded.config.srt().is_none() => return Ok(Err(e.to_string())),
             Err(e) => return Err(e.into()),
         };
-        let f64_args = ReferenceModel::new(loaded, Argument::Float64)?;
-        let (a, b) = (f32_args.encode(inputs)?, f64_args.encode(inputs)?);
-        Ok(Ok((f32_args, a, f64_args, b)))
+        // The accuracy run compares with the float64 model only (the encode of the largest models takes minutes).
+        let rounded = if self.accuracy {
+            None
+        } else {
+            let f32_args = ReferenceModel::new(loaded, Argument::RoundedToF32)?;
+            let scene = f32_args.encode(inputs)?;
+            Some((f32_args, scene))
+        };
+        let exact = f64_args.encode(inputs)?;
+        Ok(Ok(References { rounded, exact: (f64_args, exact), renders: Mutex::new(Vec::new()) }))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -377,6 +455,7 @@ impl Bench {
             decoder: cfg.name(),
             k,
             precision: s.precision.name().into(),
+            kernel: format!("{:?}", s.model.kernel_family()),
             variant: variant.to_string(),
             parameters: s.loaded.parameter_count(),
             weight_bytes: s.model.weight_bytes(),
@@ -438,13 +517,26 @@ impl Bench {
         let mut frame = self.time_render(s, targets, model_outputs(&s.loaded.config).into(), &mut record)?;
         let rgb = frame.take(Output::Rgb).context("a default render has rgb")?;
         let render_macs = (record.render_gflop / 2.0 * 1e9) as u64;
+        let mut reference = None;
         let no_reference = match &s.references {
-            Ok((f32_args, f32_scene, f64_args, f64_scene)) if render_macs <= self.reference_macs => {
-                let want = f32_args.render(f32_scene, targets)?;
-                record.max_err_f64_reference = Some(measure::max_abs_error(&rgb, &want.rgb));
-                record.rms_err_f64_reference = Some(measure::rms_error(&rgb, &want.rgb));
-                let exact = f64_args.render(f64_scene, targets)?;
-                record.max_err_f64_model = Some(measure::max_abs_error(&rgb, &exact.rgb));
+            Ok(references) if render_macs <= self.reference_macs => {
+                let render = references.render(targets)?;
+                if let Some(want) = &render.rounded {
+                    record.max_err_f64_reference = Some(measure::max_abs_error(&rgb, &want.rgb));
+                    record.rms_err_f64_reference = Some(measure::rms_error(&rgb, &want.rgb));
+                }
+                record.max_err_f64_model = Some(measure::max_abs_error(&rgb, &render.exact.rgb));
+                // The other outputs against the float64 model: from the timed frame where it has them, else
+                // from a render of them alone (the timed request is what the official forward returns).
+                let others = other_outputs(s.model.outputs());
+                let missing: Vec<Output> = others.iter().copied().filter(|&o| frame.get(o).is_none()).collect();
+                let extra =
+                    if missing.is_empty() { None } else { Some(s.encoded.render(targets, Outputs::of(&missing))?) };
+                let get = |o: Output| frame.get(o).or_else(|| extra.as_ref().and_then(|e| e.get(o)));
+                record.max_err_logdepth_f64_model = compare(get(Output::LogDepth), render.exact.logdepth.as_deref());
+                record.max_err_segmentation_f64_model =
+                    compare(get(Output::Segmentation), render.exact.segmentation.as_deref());
+                reference = Some(render);
                 None
             }
             Ok(_) => Some("too slow at this size"),
@@ -461,7 +553,8 @@ impl Bench {
         }
         if with_torch {
             // PyTorch failing (e.g. out of memory at a large size) is reported in the record, not fatal.
-            if let Err(e) = self.time_pytorch(s, targets, &rgb, &mut record) {
+            let exact = reference.as_ref().map(|r| &r.exact);
+            if let Err(e) = self.time_pytorch(s, targets, &rgb, exact, &mut record) {
                 record.note = format!("{} PyTorch failed: {e:#}", record.note).trim().to_string();
             }
         }
@@ -469,7 +562,14 @@ impl Bench {
         Ok(record)
     }
 
-    fn time_pytorch(&self, s: &Subject, targets: &TargetViews, rgb: &[f32], record: &mut Record) -> Result<()> {
+    fn time_pytorch(
+        &self,
+        s: &Subject,
+        targets: &TargetViews,
+        rgb: &[f32],
+        exact: Option<&ReferenceFrame>,
+        record: &mut Record,
+    ) -> Result<()> {
         let (Ok(torch), Some(file)) = (&self.torch, s.file) else {
             return Ok(());
         };
@@ -487,8 +587,23 @@ impl Bench {
             (false, pytorch::Device::Cpu) => 3,
             (false, pytorch::Device::Cuda) => 20,
         };
+        let repeats = if self.accuracy { 1 } else { repeats };
         let run = pytorch::run(torch, &model_path, &scene_path, repeats)?;
-        record.max_err_pytorch = Some(max_abs_f32(rgb, &run.rgb));
+        record.max_err_pytorch = Some(max_abs_f32(rgb, &run.outputs.rgb));
+        if let Some(exact) = exact {
+            record.max_err_pytorch_f64_model = compare(Some(&run.outputs.rgb), Some(&exact.rgb));
+            if let Some((_, autocast)) = &run.autocast {
+                record.max_err_autocast_f64_model = compare(Some(&autocast.rgb), Some(&exact.rgb));
+                record.max_err_autocast_logdepth_f64_model =
+                    compare(autocast.logdepth.as_deref(), exact.logdepth.as_deref());
+                record.max_err_autocast_segmentation_f64_model =
+                    compare(autocast.segmentation.as_deref(), exact.segmentation.as_deref());
+            }
+        }
+        if let Some((phases, _)) = &run.autocast {
+            (record.pytorch_autocast_encode_ms, record.pytorch_autocast_render_ms) =
+                (Some(phases.encode), Some(phases.render));
+        }
         record.pytorch_over_ours = record.render_wall_ms.map(|ours| run.eager.render.median_ms / ours.median_ms);
         let on = match torch.device {
             pytorch::Device::Cpu => match &run.cpu_capability {
@@ -519,6 +634,21 @@ fn set_times(record: &mut Record, wall: Stats, gpu: Option<Stats>) {
     record.fps = Some(1e3 * record.target_views as f64 / render.median_ms);
 }
 
+/// max |a − b| of an output both sides have, of the same size; `None` where either lacks it (or they differ
+/// in size: not the same output).
+fn compare(a: Option<&[f32]>, b: Option<&[f64]>) -> Option<f64> {
+    match (a, b) {
+        (Some(a), Some(b)) if a.len() == b.len() && !a.is_empty() => Some(measure::max_abs_error(a, b)),
+        _ => None,
+    }
+}
+
+/// The outputs beside rgb compared with the float64 model, of those `outputs` a model has: log-depth and
+/// OSRT's segmentation.
+fn other_outputs(outputs: Outputs) -> Vec<Output> {
+    [Output::LogDepth, Output::Segmentation].into_iter().filter(|&o| outputs.contains(o)).collect()
+}
+
 fn max_abs_f32(a: &[f32], b: &[f32]) -> f64 {
     let b: Vec<f64> = b.iter().map(|&v| v as f64).collect();
     measure::max_abs_error(a, &b)
@@ -542,5 +672,29 @@ fn model_outputs(config: &ModelConfig) -> Outputs {
         Outputs::of(&[Output::Rgb, Output::LogDepth])
     } else {
         Outputs::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_are_compared_only_where_both_sides_have_them() {
+        assert_eq!(compare(Some(&[0.5, 1.0]), Some(&[0.25, 1.0])), Some(0.25));
+        assert_eq!(compare(None, Some(&[0.25])), None);
+        assert_eq!(compare(Some(&[0.5]), None), None);
+        assert_eq!(compare(Some(&[0.5, 1.0]), Some(&[0.25])), None);
+        assert_eq!(compare(Some(&[]), Some(&[])), None);
+        assert_eq!(compare(Some(&[f32::NAN]), Some(&[0.0])), Some(f64::INFINITY));
+    }
+
+    #[test]
+    fn the_other_outputs_are_log_depth_and_segmentation() {
+        let osrt = Outputs::of(&[Output::Rgb, Output::Segmentation]);
+        assert_eq!(other_outputs(osrt), [Output::Segmentation]);
+        let define = Outputs::of(&[Output::Rgb, Output::LogDepth, Output::Depth]);
+        assert_eq!(other_outputs(define), [Output::LogDepth]);
+        assert!(other_outputs(Outputs::of(&[Output::Rgb])).is_empty());
     }
 }

@@ -47,11 +47,13 @@ struct Series {
     tags: Vec<String>,
     color: RGBColor,
     dashed: bool,
+    /// Points drawn as crosses, without a line (a point set of another kind: PyTorch's beside the engine's).
+    cross: bool,
 }
 
 impl Series {
     fn new(label: String, color: RGBColor) -> Series {
-        Series { label, points: Vec::new(), tags: Vec::new(), color, dashed: false }
+        Series { label, points: Vec::new(), tags: Vec::new(), color, dashed: false, cross: false }
     }
 }
 
@@ -120,9 +122,11 @@ type DrawResult = std::result::Result<(), DrawingAreaErrorKind<<BitMapBackend<'s
 fn legend(area: &Area, series: &[Series], front: bool) -> DrawResult {
     let grey = RGBColor(190, 190, 190);
     let mut y = 60;
-    let mut entry = |label: &str, color: RGBColor, dashed: bool, thick: bool| -> DrawResult {
+    let mut entry = |label: &str, color: RGBColor, (dashed, cross): (bool, bool), thick: bool| -> DrawResult {
         let style = color.stroke_width(if thick { 8 } else { 2 });
-        if dashed {
+        if cross {
+            area.draw(&Cross::new((17, y), 6, color.stroke_width(3)))?;
+        } else if dashed {
             area.draw(&PathElement::new(vec![(8, y), (14, y)], style))?;
             area.draw(&PathElement::new(vec![(20, y), (26, y)], style))?;
         } else {
@@ -134,10 +138,10 @@ fn legend(area: &Area, series: &[Series], front: bool) -> DrawResult {
         Ok(())
     };
     if front {
-        entry("Pareto front (per model)", grey, false, true)?;
+        entry("Pareto front (per model)", grey, (false, false), true)?;
     }
     for s in series {
-        entry(&s.label, s.color, s.dashed, false)?;
+        entry(&s.label, s.color, (s.dashed, s.cross), false)?;
     }
     Ok(())
 }
@@ -172,7 +176,9 @@ fn chart(
     }
     for s in series {
         let style = s.color.stroke_width(2);
-        if s.dashed {
+        if s.cross {
+            chart.draw_series(s.points.iter().map(|&p| Cross::new(p, 7, s.color.stroke_width(3))))?;
+        } else if s.dashed {
             chart.draw_series(DashedLineSeries::new(s.points.iter().copied(), 6, 6, style))?;
         } else {
             let line = if s.tags.is_empty() { s.points.clone() } else { Vec::new() };
@@ -227,36 +233,84 @@ fn pareto_front(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
     front
 }
 
+/// The Pareto plot's records: sweep records of one target view at 120x160 or, for a (model, k) not rendered
+/// there (the accuracy run's small per-pixel renders, RP-DeFiNe), at its smallest size measured.
+fn pareto_records(records: &[Record]) -> Vec<&Record> {
+    let sweep: Vec<&Record> = records.iter().filter(|r| r.group == "sweep" && r.target_views == 1).collect();
+    let pixels = |r: &Record| r.pixels;
+    sweep
+        .iter()
+        .copied()
+        .filter(|r| {
+            let same = |o: &&&Record| o.model == r.model && o.k == r.k && o.max_err_f64_model.is_some();
+            let sizes: Vec<&Record> = sweep.iter().filter(same).copied().collect();
+            match sizes.iter().find(|o| o.target_size == PARETO_SIZE) {
+                Some(_) => r.target_size == PARETO_SIZE,
+                None => sizes.iter().map(|o| pixels(o)).min() == Some(r.pixels),
+            }
+        })
+        .collect()
+}
+
+const PARETO_SIZE: &str = "120x160";
+
+/// A series' label in the Pareto plot: model and precision, with the kernel family for f16-act (the tensor
+/// kernels or not).
+fn pareto_label(r: &Record) -> String {
+    if r.precision == "f16-act" && !r.kernel.is_empty() {
+        format!("{} f16-act {}", r.model, r.kernel)
+    } else {
+        format!("{} {}", r.model, r.precision)
+    }
+}
+
+/// A point's tag: k (or the per-pixel decoder), and the size where it is not the plot's.
+fn pareto_tag(r: &Record) -> String {
+    let config = if r.k == 1 { r.decoder.clone() } else { format!("k={}", r.k) };
+    if r.target_size == PARETO_SIZE {
+        format!(" {config}")
+    } else {
+        format!(" {config} {}", r.target_size)
+    }
+}
+
 pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
-    // Render time against error at one target size (the paper's 120×160), over k and precision.
-    let size = "120x160";
+    // Render time against rgb error against the float64 model, at one target size (the paper's 120×160; a model
+    // not rendered there at its smallest), over k, precision and kernels; PyTorch's bf16 autocast at its own
+    // render time, where measured.
     let mut pareto: Vec<Series> = Vec::new();
-    for r in records.iter().filter(|r| r.group == "sweep" && r.target_size == size && r.target_views == 1) {
-        if let (Some(t), Some(e)) = (r.render_ms, r.max_err_f64_reference) {
-            let label = format!("{} {}", r.model, r.precision);
-            let tag = if r.k == 1 { format!(" {}", r.decoder) } else { format!(" k={}", r.k) };
-            let p = (t.median_ms, e.max(1e-9));
-            let next = COLORS[pareto.len() % COLORS.len()];
-            let s = match pareto.iter_mut().position(|s| s.label == label) {
-                Some(i) => &mut pareto[i],
-                None => {
-                    pareto.push(Series::new(label, next));
-                    pareto.last_mut().expect("just pushed")
-                }
-            };
-            s.points.push(p);
-            s.tags.push(tag);
+    let mut add = |label: String, point: (f64, f64), tag: String, cross: bool| {
+        let next = COLORS[pareto.len() % COLORS.len()];
+        let s = match pareto.iter_mut().position(|s| s.label == label) {
+            Some(i) => &mut pareto[i],
+            None => {
+                pareto.push(Series { cross, ..Series::new(label, next) });
+                pareto.last_mut().expect("just pushed")
+            }
+        };
+        s.points.push(point);
+        s.tags.push(tag);
+    };
+    let chosen = pareto_records(records);
+    for r in &chosen {
+        if let (Some(t), Some(e)) = (r.render_ms, r.max_err_f64_model) {
+            add(pareto_label(r), (t.median_ms, e.max(1e-9)), pareto_tag(r), false);
         }
     }
-    // One front per model: the choices (k, precision) for a given model.
-    let mut models: Vec<&str> = pareto.iter().filter_map(|s| s.label.split(' ').next()).collect();
+    for r in &chosen {
+        if let (Some(t), Some(e)) = (r.pytorch_autocast_render_ms, r.max_err_autocast_f64_model) {
+            add(format!("{} PyTorch bf16 autocast", r.model), (t.median_ms, e.max(1e-9)), pareto_tag(r), true);
+        }
+    }
+    // One front per model over the engine's choices (k, precision, kernels): not PyTorch's points.
+    let mut models: Vec<&str> = pareto.iter().filter(|s| !s.cross).filter_map(|s| s.label.split(' ').next()).collect();
     models.dedup();
     let fronts: Vec<Vec<(f64, f64)>> = models
         .iter()
         .map(|m| {
             let points: Vec<(f64, f64)> = pareto
                 .iter()
-                .filter(|s| s.label.starts_with(&format!("{m} ")))
+                .filter(|s| !s.cross && s.label.starts_with(&format!("{m} ")))
                 .flat_map(|s| s.points.clone())
                 .collect();
             pareto_front(&points)
@@ -264,9 +318,9 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
         .collect();
     draw(
         &out.join(FILES[0]),
-        &format!("Render time against error at {size}"),
+        &format!("Render time against rgb error vs the float64 model ({PARETO_SIZE}, or each model's smallest size)"),
         "render time (ms)",
-        "max |rgb - float64 reference|",
+        "max |rgb - float64 model|",
         &pareto,
         &fronts,
     )?;
@@ -300,7 +354,47 @@ pub fn draw_all(records: &[Record], out: &Path) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::pareto_front;
+    use super::{pareto_front, pareto_label, pareto_records, pareto_tag};
+    use crate::report::Record;
+
+    fn record(model: &str, k: usize, size: &str, pixels: usize, err: Option<f64>) -> Record {
+        Record {
+            group: "sweep".into(),
+            model: model.into(),
+            decoder: if k == 1 { "SRT".into() } else { "RP-SRT".into() },
+            k,
+            precision: "f32".into(),
+            target_views: 1,
+            target_size: size.into(),
+            pixels,
+            max_err_f64_model: err,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn the_pareto_plot_takes_120x160_or_each_model_s_smallest_size() {
+        let records = [
+            record("official", 8, "120x160", 19200, Some(1e-3)),
+            record("official", 8, "240x320", 76800, Some(1e-3)),
+            record("official", 1, "60x80", 4800, None),
+            record("official", 1, "24x32", 768, Some(3e-4)),
+            record("official", 1, "48x64", 3072, Some(3e-4)),
+            Record { target_views: 8, ..record("official", 1, "24x32", 768, Some(3e-4)) },
+        ];
+        let chosen: Vec<(usize, &str)> =
+            pareto_records(&records).iter().map(|r| (r.k, r.target_size.as_str())).collect();
+        assert_eq!(chosen, [(8, "120x160"), (1, "24x32")]);
+        assert_eq!(pareto_tag(&records[0]), " k=8");
+        assert_eq!(pareto_tag(&records[3]), " SRT 24x32");
+    }
+
+    #[test]
+    fn f16_act_series_name_their_kernels() {
+        let coop = Record { precision: "f16-act".into(), kernel: "Coop".into(), ..record("official", 8, "", 0, None) };
+        assert_eq!(pareto_label(&coop), "official f16-act Coop");
+        assert_eq!(pareto_label(&record("official", 8, "", 0, None)), "official f32");
+    }
 
     #[test]
     fn the_front_keeps_only_undominated_points() {

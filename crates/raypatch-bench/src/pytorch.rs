@@ -80,6 +80,9 @@ pub struct Torch {
     pub device_name: String,
     /// Time `torch.compile` too.
     pub compile: bool,
+    /// Run the eager model once more under `torch.autocast(device, dtype=torch.bfloat16)` (PyTorch's mixed
+    /// precision), timed, its outputs kept for their error against the float64 model.
+    pub autocast: bool,
 }
 
 impl Torch {
@@ -98,7 +101,7 @@ impl Torch {
             Device::Cuda => installed.cuda.unwrap_or_default(),
             Device::Cpu => "cpu".to_string(),
         };
-        Ok(Torch { version: installed.version, device, device_name, compile })
+        Ok(Torch { version: installed.version, device, device_name, compile, autocast: false })
     }
 
     /// One line for the tables and results.json, e.g. `torch 2.5.1 on cuda (NVIDIA H100 80GB HBM3), eager and
@@ -109,7 +112,8 @@ impl Torch {
             Device::Cuda => format!("cuda ({})", self.device_name),
         };
         let how = if self.compile { "eager and torch.compile" } else { "eager" };
-        format!("torch {} on {on}, float32, {how}", self.version)
+        let autocast = if self.autocast { "; eager under bf16 autocast too" } else { "" };
+        format!("torch {} on {on}, float32, {how}{autocast}", self.version)
     }
 
     /// The script's arguments for the device and compilation.
@@ -117,6 +121,9 @@ impl Torch {
         let mut args = vec!["--device", self.device.name()];
         if self.compile {
             args.push("--compile");
+        }
+        if self.autocast {
+            args.push("--autocast-bf16");
         }
         args
     }
@@ -151,6 +158,8 @@ struct RunJson {
     eager: PhasesJson,
     compiled: Option<PhasesJson>,
     compile_error: Option<String>,
+    /// The eager model under bf16 autocast (`--autocast-bf16`).
+    autocast: Option<PhasesJson>,
 }
 
 /// Encode and render times of one way of running the model.
@@ -166,6 +175,30 @@ impl From<PhasesJson> for Phases {
     }
 }
 
+/// What one way of running the model rendered: `rgb` `[T, Ht, Wt, 3]`, and where the model returns them
+/// `logdepth` `[T, Ht, Wt]` and OSRT's `segmentation` `[T, Ht, Wt, slots]`, as float32.
+#[derive(Clone, Debug, Default)]
+pub struct TorchOutputs {
+    pub rgb: Vec<f32>,
+    pub logdepth: Option<Vec<f32>>,
+    pub segmentation: Option<Vec<f32>>,
+}
+
+impl TorchOutputs {
+    /// The outputs the script wrote to `path` (rgb required, the others where present).
+    fn read(path: &Path) -> Result<TorchOutputs> {
+        let file = raypatch_model::TensorFile::open(path)?;
+        let optional = |key: &str| -> Result<Option<Vec<f32>>> {
+            Ok(if file.contains(key) { Some(file.f32(key)?.data) } else { None })
+        };
+        Ok(TorchOutputs {
+            rgb: file.f32("rgb")?.data,
+            logdepth: optional("logdepth")?,
+            segmentation: optional("segmentation")?,
+        })
+    }
+}
+
 /// PyTorch's times and output on one model and scene.
 pub struct TorchRun {
     pub threads: usize,
@@ -173,33 +206,54 @@ pub struct TorchRun {
     pub eager: Phases,
     /// Under torch.compile, when asked for and it ran; else why not (when asked for).
     pub compiled: std::result::Result<Option<Phases>, String>,
-    /// `[T, Ht, Wt, 3]`, eager.
-    pub rgb: Vec<f32>,
+    /// Eager float32.
+    pub outputs: TorchOutputs,
+    /// Eager under bf16 autocast, when asked for ([`Torch::autocast`]): its times and outputs.
+    pub autocast: Option<(Phases, TorchOutputs)>,
 }
 
-/// Runs the script on files `model` and `scene`, writing its rgb next to them.
+/// Runs the script on files `model` and `scene`, writing its outputs next to them (and reading them back).
 pub fn run(torch: &Torch, model: &Path, scene: &Path, repeats: usize) -> Result<TorchRun> {
     let rgb_path = scene.with_extension("pytorch-rgb.safetensors");
-    let out = Command::new("python3")
+    let autocast_path = scene.with_extension("pytorch-autocast.safetensors");
+    let mut command = Command::new("python3");
+    command
         .arg(source_file("tools/bench/bench_pytorch.py"))
         .args(["--model".as_ref(), model.as_os_str(), "--scene".as_ref(), scene.as_os_str()])
         .args(torch.args())
         .args(["--repeats", &repeats.to_string(), "--out-rgb"])
-        .arg(&rgb_path)
-        .output()
-        .context("running python3 tools/bench/bench_pytorch.py")?;
+        .arg(&rgb_path);
+    if torch.autocast {
+        command.arg("--out-autocast").arg(&autocast_path);
+    }
+    let out = command.output().context("running python3 tools/bench/bench_pytorch.py")?;
     if !out.status.success() {
         bail!("tools/bench/bench_pytorch.py failed: {}", String::from_utf8_lossy(&out.stderr).trim());
     }
     let json: RunJson =
         serde_json::from_slice(&out.stdout).context("tools/bench/bench_pytorch.py printed no result")?;
-    let rgb = raypatch_model::TensorFile::open(&rgb_path)?.f32("rgb")?.data;
+    let outputs = TorchOutputs::read(&rgb_path)?;
     std::fs::remove_file(&rgb_path).ok();
+    let autocast = match json.autocast {
+        Some(phases) if torch.autocast => {
+            let outputs = TorchOutputs::read(&autocast_path)?;
+            std::fs::remove_file(&autocast_path).ok();
+            Some((phases.into(), outputs))
+        }
+        _ => None,
+    };
     let compiled = match (json.compiled, json.compile_error) {
         (_, Some(why)) => Err(why),
         (compiled, None) => Ok(compiled.map(Phases::from)),
     };
-    Ok(TorchRun { threads: json.threads, cpu_capability: json.cpu_capability, eager: json.eager.into(), compiled, rgb })
+    Ok(TorchRun {
+        threads: json.threads,
+        cpu_capability: json.cpu_capability,
+        eager: json.eager.into(),
+        compiled,
+        outputs,
+        autocast,
+    })
 }
 
 #[cfg(test)]
@@ -230,6 +284,33 @@ mod tests {
         assert_eq!(torch.args(), ["--device", "cuda", "--compile"]);
         let cpu = Torch::choose(installed(None), None, true, false).unwrap();
         assert_eq!(cpu.describe(), "torch 2.5.1 on the CPU, float32, eager");
+        let autocast = Torch { autocast: true, ..cpu };
+        assert_eq!(autocast.describe(), "torch 2.5.1 on the CPU, float32, eager; eager under bf16 autocast too");
+        assert_eq!(autocast.args(), ["--device", "cpu", "--autocast-bf16"]);
+    }
+
+    #[test]
+    fn script_outputs_read_back_with_the_optional_ones() {
+        let dir = std::env::temp_dir().join(format!("raypatch-bench-outputs-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let tensor = |name: &str, values: &[f32], shape: Vec<usize>| -> crate::synthetic::Tensor {
+            (name.into(), shape, values.to_vec())
+        };
+        let rgb = tensor("rgb", &[0.5; 6], vec![1, 1, 2, 3]);
+        let with = crate::synthetic::serialize(
+            &[rgb.clone(), tensor("logdepth", &[1.0, 2.0], vec![1, 1, 2])],
+            Default::default(),
+        )
+        .unwrap();
+        let path = dir.join("with.safetensors");
+        std::fs::write(&path, with).unwrap();
+        let read = TorchOutputs::read(&path).unwrap();
+        assert_eq!((read.rgb.len(), read.logdepth, read.segmentation), (6, Some(vec![1.0, 2.0]), None));
+        let without = crate::synthetic::serialize(&[rgb], Default::default()).unwrap();
+        std::fs::write(&path, without).unwrap();
+        let read = TorchOutputs::read(&path).unwrap();
+        assert!(read.logdepth.is_none() && read.segmentation.is_none());
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
@@ -245,5 +326,11 @@ mod tests {
         assert_eq!(compiled.compiled.unwrap().encode.runs, 3);
         let failed: RunJson = serde_json::from_str(&format!(r#"{{{eager}, "compile_error": "no compiler"}}"#)).unwrap();
         assert_eq!(failed.compile_error.as_deref(), Some("no compiler"));
+        assert!(failed.autocast.is_none());
+        let autocast: RunJson = serde_json::from_str(&format!(
+            r#"{{{eager}, "autocast": {{"dtype": "bfloat16", "encode": {times}, "render": {times}}}}}"#
+        ))
+        .unwrap();
+        assert_eq!(autocast.autocast.unwrap().render.median_ms, 2.0);
     }
 }

@@ -42,9 +42,15 @@ pub struct Record {
     /// `SRT`, `RP-SRT`, `OSRT` or `RP-OSRT`.
     pub decoder: String,
     pub k: usize,
-    /// `f32`; `f16`: f16 linear weights, f32 arithmetic; `f16-act`: f16 weights and, on GPUs' `Tiled` kernel,
-    /// linear layers' inputs staged as f16, the sums in f32 (`Precision`).
+    /// `f32`; `f16`: f16 linear weights, f32 arithmetic; `f16-act`: f16 weights and every GEMM's operands
+    /// rounded to f16 as they are staged, the sums in f32: on the tensor kernels (`Coop`) where the device has
+    /// cooperative matrices, else on `Tiled`, and elsewhere as `f16` (`Precision`).
     pub precision: String,
+    /// The kernel family the model's plans record their GEMMs on at this precision (`MatmulKernel`: `Coop`,
+    /// the tensor kernels; `Tiled`, `Lanes`, `Rows`; ops whose shape suits another family still run there).
+    /// Empty in results from before it was recorded.
+    #[serde(default)]
+    pub kernel: String,
     /// For the skips group: what is skipped or not.
     pub variant: String,
     pub parameters: usize,
@@ -113,8 +119,26 @@ pub struct Record {
     pub rms_err_f64_reference: Option<f64>,
     /// max |rgb − reference| against the float64 model (float64 encoding arguments).
     pub max_err_f64_model: Option<f64>,
+    /// max |log-depth − float64 model| where the model has log-depth (DeFiNe's depth head, a 4-channel SRT or
+    /// OSRT), and max |segmentation − float64 model| (OSRT's slot weights per pixel, the mask): from a render of
+    /// those outputs beside the timed one.
+    #[serde(default)]
+    pub max_err_logdepth_f64_model: Option<f64>,
+    #[serde(default)]
+    pub max_err_segmentation_f64_model: Option<f64>,
     /// max |rgb − PyTorch float32| (the golden files, or PyTorch run by this harness).
     pub max_err_pytorch: Option<f64>,
+    /// PyTorch float32's own max |rgb − float64 model| on the same inputs.
+    #[serde(default)]
+    pub max_err_pytorch_f64_model: Option<f64>,
+    /// PyTorch eager under `torch.autocast(device, dtype=torch.bfloat16)` (`--pytorch-autocast`, `--accuracy`)
+    /// against the float64 model on the same inputs: rgb, log-depth and segmentation where the model has them.
+    #[serde(default)]
+    pub max_err_autocast_f64_model: Option<f64>,
+    #[serde(default)]
+    pub max_err_autocast_logdepth_f64_model: Option<f64>,
+    #[serde(default)]
+    pub max_err_autocast_segmentation_f64_model: Option<f64>,
     /// PSNR against the scene's ground truth.
     pub psnr_db: Option<f64>,
     pub pytorch_encode_ms: Option<Stats>,
@@ -122,6 +146,11 @@ pub struct Record {
     /// The same under torch.compile (`--pytorch-compile`).
     pub pytorch_compiled_encode_ms: Option<Stats>,
     pub pytorch_compiled_render_ms: Option<Stats>,
+    /// The same eager under bf16 autocast (`--pytorch-autocast`).
+    #[serde(default)]
+    pub pytorch_autocast_encode_ms: Option<Stats>,
+    #[serde(default)]
+    pub pytorch_autocast_render_ms: Option<Stats>,
     /// PyTorch's median render wall time over ours.
     pub pytorch_over_ours: Option<f64>,
     pub note: String,
@@ -342,6 +371,26 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             .collect(),
     );
 
+    let accuracy = accuracy_rows(records);
+    if !accuracy.is_empty() {
+        out += "### Accuracy against the float64 model (max abs error: rgb / log-depth / mask; - where the model has no such output or it was not run)\n\n";
+        table(
+            &mut out,
+            &[
+                "model",
+                "decoder",
+                "k",
+                "target",
+                "f16-act, tensor kernels (Coop)",
+                "f16-act, other kernels",
+                "PyTorch bf16 autocast",
+                "f32",
+                "PyTorch f32",
+            ],
+            accuracy,
+        );
+    }
+
     let paths: Vec<&Record> = records.iter().filter(|r| r.group == "views").collect();
     if !paths.is_empty() {
         out += "### Several views: one batched call against a frame per view (`render-frame --view all`'s path: batches under the memory budget, each submitted before the last is read back); wall ms\n\n";
@@ -554,6 +603,63 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
     out
 }
 
+/// A record's errors against the float64 model as `rgb / log-depth / mask` (`-` for each it lacks).
+fn error_triple(rgb: Option<f64>, logdepth: Option<f64>, mask: Option<f64>) -> String {
+    if (rgb, logdepth, mask) == (None, None, None) {
+        return "-".into();
+    }
+    format!("{} / {} / {}", sci(rgb), sci(logdepth), sci(mask))
+}
+
+/// The accuracy table's rows: per sweep configuration of one target view (model, decoder, k, size) that has an
+/// f16-act record or PyTorch's autocast error, the errors against the float64 model of f16-act on the tensor
+/// kernels (`Coop`) and on the other kernels (which, in brackets), PyTorch under bf16 autocast, the engine in
+/// f32, and PyTorch in f32 (rgb). Where several records give a column (merged runs), the first with a value.
+pub fn accuracy_rows(records: &[Record]) -> Vec<Vec<String>> {
+    let sweep: Vec<&Record> = records.iter().filter(|r| r.group == "sweep" && r.target_views == 1).collect();
+    let mut keys: Vec<(&str, &str, usize, &str)> = Vec::new();
+    for r in &sweep {
+        let key = (r.model.as_str(), r.decoder.as_str(), r.k, r.target_size.as_str());
+        if (r.precision == "f16-act" || r.max_err_autocast_f64_model.is_some()) && !keys.contains(&key) {
+            keys.push(key);
+        }
+    }
+    keys.into_iter()
+        .map(|(model, decoder, k, size)| {
+            let of = |r: &&&Record| r.model == model && r.decoder == decoder && r.k == k && r.target_size == size;
+            let own = |r: &Record| {
+                error_triple(r.max_err_f64_model, r.max_err_logdepth_f64_model, r.max_err_segmentation_f64_model)
+            };
+            let measured = |r: &&&Record| r.max_err_f64_model.is_some();
+            let coop =
+                sweep.iter().filter(of).filter(measured).find(|r| r.precision == "f16-act" && r.kernel == "Coop");
+            let other =
+                sweep.iter().filter(of).filter(measured).find(|r| r.precision == "f16-act" && r.kernel != "Coop");
+            let autocast = sweep.iter().filter(of).find(|r| r.max_err_autocast_f64_model.is_some());
+            let f32 = sweep.iter().filter(of).filter(measured).find(|r| r.precision == "f32");
+            let torch = sweep.iter().filter(of).find_map(|r| r.max_err_pytorch_f64_model);
+            let kernel = |r: &Record| if r.kernel.is_empty() { String::new() } else { format!(" ({})", r.kernel) };
+            vec![
+                model.to_string(),
+                decoder.to_string(),
+                k.to_string(),
+                size.to_string(),
+                coop.map_or("-".into(), |r| own(r)),
+                other.map_or("-".into(), |r| own(r) + &kernel(r)),
+                autocast.map_or("-".into(), |r| {
+                    error_triple(
+                        r.max_err_autocast_f64_model,
+                        r.max_err_autocast_logdepth_f64_model,
+                        r.max_err_autocast_segmentation_f64_model,
+                    )
+                }),
+                f32.map_or("-".into(), |r| own(r)),
+                sci(torch),
+            ]
+        })
+        .collect()
+}
+
 /// When the run started, for the progress lines.
 pub fn started() -> std::time::Instant {
     static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
@@ -584,7 +690,7 @@ pub fn print_row(r: &Record) {
         );
     }
     println!(
-        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>2}x{:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}{compared}",
+        "  [{:>5.0} s] {:<12} {:<7} k={:<2} {} {:>2}x{:>9} {:<32} render {:>9.2} ms ({:>8.1} fps), encode {:>8.1} ms, peak {:>9}, err {}{}{compared}",
         started().elapsed().as_secs_f64(),
         r.model,
         r.decoder,
@@ -598,5 +704,88 @@ pub fn print_row(r: &Record) {
         r.encode_ms.map_or(0.0, |e| e.median_ms),
         r.render_peak_bytes.map_or("-".into(), bytes),
         sci(r.max_err_f64_reference),
+        error_vs_model(r),
     );
+}
+
+/// The progress line's errors against the float64 model (rgb, and log-depth and mask where measured).
+fn error_vs_model(r: &Record) -> String {
+    let mut text = String::new();
+    if let Some(e) = r.max_err_f64_model {
+        text += &format!(" (vs f64 model {e:.1e}");
+        for (name, e) in [("log-depth", r.max_err_logdepth_f64_model), ("mask", r.max_err_segmentation_f64_model)] {
+            if let Some(e) = e {
+                text += &format!(", {name} {e:.1e}");
+            }
+        }
+        text += ")";
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(model: &str, k: usize, precision: &str, kernel: &str) -> Record {
+        Record {
+            group: "sweep".into(),
+            model: model.into(),
+            decoder: if k == 1 { "OSRT".into() } else { "RP-OSRT".into() },
+            k,
+            precision: precision.into(),
+            kernel: kernel.into(),
+            target_views: 1,
+            target_size: "24x32".into(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn accuracy_rows_put_each_precision_and_kernel_in_its_column() {
+        let mut f32 = record("official-osrt", 1, "f32", "Lanes");
+        (f32.max_err_f64_model, f32.max_err_segmentation_f64_model) = (Some(3e-4), Some(1e-5));
+        (f32.max_err_autocast_f64_model, f32.max_err_autocast_segmentation_f64_model) = (Some(2.6e-2), Some(4e-3));
+        f32.max_err_pytorch_f64_model = Some(3.1e-4);
+        let mut coop = record("official-osrt", 1, "f16-act", "Coop");
+        (coop.max_err_f64_model, coop.max_err_segmentation_f64_model) = (Some(2e-3), Some(5e-4));
+        let mut lanes = record("official-osrt", 1, "f16-act", "Lanes");
+        lanes.max_err_f64_model = Some(1.5e-3);
+        // Not in the table: no f16-act and no autocast (k=8), several views, another group.
+        let mut plain = record("official-osrt", 8, "f32", "Lanes");
+        plain.max_err_f64_model = Some(1e-3);
+        let views = Record { target_views: 8, ..coop.clone() };
+        let golden = Record { group: "golden".into(), ..coop.clone() };
+        let rows = accuracy_rows(&[f32, coop, lanes, plain, views, golden]);
+        assert_eq!(
+            rows,
+            vec![vec![
+                "official-osrt".to_string(),
+                "OSRT".into(),
+                "1".into(),
+                "24x32".into(),
+                "2.0e-3 / - / 5.0e-4".into(),
+                "1.5e-3 / - / - (Lanes)".into(),
+                "2.6e-2 / - / 4.0e-3".into(),
+                "3.0e-4 / - / 1.0e-5".into(),
+                "3.1e-4".into(),
+            ]]
+        );
+        let tables = markdown(&rows_records(), &[], "torch");
+        assert!(tables.contains("### Accuracy against the float64 model"), "{tables}");
+        assert!(!markdown(&[], &[], "torch").contains("### Accuracy"));
+    }
+
+    fn rows_records() -> Vec<Record> {
+        let mut r = record("official", 8, "f16-act", "Coop");
+        r.max_err_f64_model = Some(1e-3);
+        vec![r]
+    }
+
+    #[test]
+    fn a_merged_record_without_an_f16_act_value_leaves_its_column_empty() {
+        let unmeasured = record("official", 1, "f16-act", "Coop");
+        let rows = accuracy_rows(&[unmeasured]);
+        assert_eq!(rows[0][4..], ["-", "-", "-", "-", "-"]);
+    }
 }

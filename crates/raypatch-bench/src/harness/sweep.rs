@@ -29,6 +29,17 @@ pub(crate) const DEFINE: &str = "official-define";
 /// up to the paper's Figure 2's 960x1280 (the smaller ones predict the larger renders' time).
 const DEFINE_INPUTS: (usize, Size) = (2, (128, 192));
 const DEFINE_SIZES: [Size; 4] = [(120, 160), (240, 320), (480, 640), (960, 1280)];
+/// The accuracy run's models (`--accuracy`): each official family at a target size whose float64 render takes
+/// seconds on 2 cores (the per-pixel decoders at 24x32, the Ray-Patch ones at a size of their official k's
+/// whole patches: RP-SRT and RP-OSRT k=8 at 120x160, RP-DeFiNe k=16 at 240x320), as (group, k, size).
+pub(crate) const ACCURACY: [(&str, usize, Size); 6] = [
+    ("official", 1, (24, 32)),
+    ("official", 8, (120, 160)),
+    (OSRT, 1, (24, 32)),
+    (OSRT, 8, (120, 160)),
+    (DEFINE, 1, (24, 32)),
+    (DEFINE, 16, (240, 320)),
+];
 
 /// One model of the sweep: its group, k and config, its input views (count, size) and its target sizes.
 struct Spec<'a> {
@@ -65,7 +76,22 @@ impl Bench {
             let config = if k == 1 { synthetic::official_srt_config() } else { synthetic::official_rpsrt_config(k) };
             specs.push(spec("official", k, config, sizes));
         }
-        if !self.quick || !self.only.is_empty() {
+        if self.accuracy {
+            specs = ACCURACY
+                .iter()
+                .map(|(name, k, size)| {
+                    let config = match *name {
+                        "official" if *k == 1 => synthetic::official_srt_config(),
+                        "official" => synthetic::official_rpsrt_config(*k),
+                        OSRT if *k == 1 => synthetic::official_osrt_config(),
+                        OSRT => synthetic::official_rposrt_config(),
+                        _ => synthetic::official_define_config(*k),
+                    };
+                    let inputs = if *name == DEFINE { DEFINE_INPUTS } else { (1, INPUT_SIZE) };
+                    Spec { name, k: *k, config, inputs, sizes: std::slice::from_ref(size) }
+                })
+                .collect();
+        } else if !self.quick || !self.only.is_empty() {
             specs.push(spec(OSRT, 1, synthetic::official_osrt_config(), &[(120, 160)]));
             specs.push(spec(OSRT, 8, synthetic::official_rposrt_config(), &[(120, 160)]));
             for k in [1, 16] {
@@ -94,6 +120,12 @@ impl Bench {
                 precisions.push(Precision::F16Weights);
                 if self.gpu.kernels.matmul == MatmulKernel::Tiled {
                     precisions.push(Precision::F16Activations);
+                }
+            }
+            if !self.precisions.is_empty() {
+                precisions = chosen_precisions(&self.precisions, f16);
+                if precisions.len() < self.precisions.len() {
+                    println!("  {name:<12} k={k:<2} f16 precisions not measured: the adapter has no shader-f16");
                 }
             }
             let mut sizes: Vec<(usize, usize)> = sizes
@@ -126,9 +158,11 @@ impl Bench {
                     references.as_ref().expect("set above").as_ref().map_err(Clone::clone),
                 )?;
                 let measured = self.sweep_sizes(&subject, (views, input_size), &sizes, records, kernels, checkpoint)?;
-                // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size.
+                // f16 at the paper's sizes that f32 rendered: precision does not change how time scales with size
+                // (with --precision, every size the first precision rendered).
                 let f16_sizes: &[(usize, usize)] = if self.quick { &[(120, 160)] } else { &[(60, 80), (120, 160)] };
-                sizes = measured.into_iter().filter(|s| f16_sizes.contains(s)).collect();
+                let explicit = !self.precisions.is_empty();
+                sizes = measured.into_iter().filter(|s| explicit || f16_sizes.contains(s)).collect();
             }
         }
         Ok(())
@@ -164,7 +198,7 @@ impl Bench {
                     continue;
                 }
             }
-            let with_torch = f32_weights && self.torch_config(name, k, size);
+            let with_torch = f32_weights && (self.accuracy || self.torch_config(name, k, size));
             let mut record = match self.measure(s, &targets, None, with_torch) {
                 Ok(record) => record,
                 // A plan needing a buffer beyond the adapter's binding limit is a result, not a failure.
@@ -191,15 +225,17 @@ impl Bench {
             if f32_weights {
                 records.extend(self.many_views(s, (views, input_size), size, macs, rate)?);
             }
-            if f32_weights && self.breakdown_config(name, k, size) {
+            // The accuracy run measures errors: none of the time breakdowns and skips.
+            let extras = f32_weights && !self.accuracy;
+            if extras && self.breakdown_config(name, k, size) {
                 kernels.extend(self.kernel_breakdown(s, &targets)?);
             }
             let skips = (name == "small" && k == 4) || (!self.quick && name == "official" && k == 8);
-            if f32_weights && skips && size == (120, 160) {
+            if extras && skips && size == (120, 160) {
                 records.extend(self.plan_and_encode_skips(s, &targets)?);
             }
             // What the segmentation costs beside rgb (RP-OSRT; OSRT's rgb render alone is minutes here).
-            if f32_weights && name == OSRT && k == 8 && size == (120, 160) {
+            if extras && name == OSRT && k == 8 && size == (120, 160) {
                 records.extend(self.segmentation_skip(s, &targets)?);
             }
             // Free this size's plan (its buffers) before the next, larger one.
@@ -322,5 +358,32 @@ impl Bench {
         }
         s.encoded.clear_render_plans();
         Ok(record)
+    }
+}
+
+/// The precisions `--precision` asked for that the adapter runs: the f16 ones only with shader-f16 (`f16`).
+fn chosen_precisions(asked: &[Precision], f16: bool) -> Vec<Precision> {
+    asked.iter().copied().filter(|&p| f16 || p == Precision::F32).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn asked_precisions_need_shader_f16_for_f16() {
+        let asked = [Precision::F32, Precision::F16Activations];
+        assert_eq!(chosen_precisions(&asked, true), asked);
+        assert_eq!(chosen_precisions(&asked, false), [Precision::F32]);
+        assert!(chosen_precisions(&[Precision::F16Weights], false).is_empty());
+    }
+
+    #[test]
+    fn the_accuracy_run_has_every_official_family_at_sizes_of_whole_patches() {
+        let families: Vec<(&str, usize)> = ACCURACY.iter().map(|(name, k, _)| (*name, *k)).collect();
+        assert_eq!(families, [("official", 1), ("official", 8), (OSRT, 1), (OSRT, 8), (DEFINE, 1), (DEFINE, 16)]);
+        for (name, k, (h, w)) in ACCURACY {
+            assert!(h % k == 0 && w % k == 0, "{name} k={k}: {h}x{w}");
+        }
     }
 }
