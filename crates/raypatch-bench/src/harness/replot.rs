@@ -10,7 +10,9 @@ use crate::{paper, plots};
 
 /// Writes tables.md and the plots again from results.json files (e.g. after changing how they are drawn).
 /// With several files, later files' records replace earlier ones of the same configuration (model, decoder,
-/// k, precision, target views and size, variant) and the others are kept: a partial run (`--only`) updates a full one.
+/// k, precision, kernel family, target views and size, variant) and the others are kept: a partial run (`--only`)
+/// updates a full one. (A record from before kernels were recorded matches any kernel: f16-act on the tensor
+/// kernels and on the others are two configurations.)
 /// The merged results.json, results.csv and kernels.csv are written into `out` too.
 pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
     let mut merged: Option<Results> = None;
@@ -21,19 +23,8 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
         merged = Some(match merged {
             None => next,
             Some(mut all) => {
-                let key = |r: &Record| {
-                    (
-                        r.model.clone(),
-                        r.decoder.clone(),
-                        r.k,
-                        r.precision.clone(),
-                        r.target_views,
-                        r.target_size.clone(),
-                        r.variant.clone(),
-                    )
-                };
                 for record in next.results {
-                    match all.results.iter_mut().find(|r| key(r) == key(&record)) {
+                    match all.results.iter_mut().find(|r| same_configuration(r, &record)) {
                         Some(old) => *old = record,
                         None => all.results.push(record),
                     }
@@ -61,4 +52,41 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
     plots::draw_all(&results.results, out)?;
     println!("wrote tables.md and {} in {}", plots::FILES.join(", "), out.display());
     Ok(())
+}
+
+/// Whether two records measured the same configuration (one replaces the other when merged).
+fn same_configuration(a: &Record, b: &Record) -> bool {
+    let key = |r: &Record| {
+        (
+            r.model.clone(),
+            r.decoder.clone(),
+            r.k,
+            r.precision.clone(),
+            r.target_views,
+            r.target_size.clone(),
+            r.variant.clone(),
+        )
+    };
+    key(a) == key(b) && (a.kernel == b.kernel || a.kernel.is_empty() || b.kernel.is_empty())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f16_act_on_two_kernel_families_is_two_configurations() {
+        let record = |precision: &str, kernel: &str| Record {
+            model: "official".into(),
+            k: 8,
+            precision: precision.into(),
+            kernel: kernel.into(),
+            target_size: "120x160".into(),
+            ..Default::default()
+        };
+        assert!(!same_configuration(&record("f16-act", "Coop"), &record("f16-act", "Lanes")));
+        assert!(same_configuration(&record("f16-act", "Lanes"), &record("f16-act", "Lanes")));
+        assert!(same_configuration(&record("f32", ""), &record("f32", "Lanes")));
+        assert!(!same_configuration(&record("f32", "Lanes"), &record("f16", "Lanes")));
+    }
 }
