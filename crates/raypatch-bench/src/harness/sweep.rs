@@ -222,7 +222,8 @@ impl Bench {
             rate = record.render_wall_ms.map(|r| macs as f64 / (r.median_ms / 1e3));
             records.push(record);
             measured.push(size);
-            if f32_weights {
+            // Many views at f32, and on the tensor path (issue 47's RP-SRT k=8 at 32 views, f16-act).
+            if f32_weights || s.precision == Precision::F16Activations {
                 records.extend(self.many_views(s, (views, input_size), size, macs, rate)?);
             }
             // The accuracy run measures errors: none of the time breakdowns and skips.
@@ -264,7 +265,8 @@ impl Bench {
                 records.push(self.skipped(s, &targets, predicted, count as u64 * macs)?);
                 continue;
             }
-            match self.measure(s, &targets, None, self.torch_config(name, k, size)) {
+            let with_torch = s.precision == Precision::F32 && self.torch_config(name, k, size);
+            match self.measure(s, &targets, None, with_torch) {
                 Ok(record) => {
                     records.push(record);
                     records.push(self.views_path(s, &targets)?);
