@@ -6,9 +6,9 @@ use std::sync::OnceLock;
 use std::ops::Range;
 
 use raypatch_engine::device::MatmulKernel;
+use raypatch_engine::gpu::Shader;
 use raypatch_engine::plan::{Plan, PlanBuilder};
 use raypatch_engine::tensor::padded_cols;
-use raypatch_engine::gpu::Shader;
 use raypatch_engine::{wgpu, Gpu, GpuOptions, GpuTensor};
 
 #[allow(unused_imports)]
@@ -118,7 +118,11 @@ pub fn validate_wgsl(name: &str, source: &str, features: wgpu::Features) -> (nag
 pub fn mutated(base: &'static Shader, from: &str, to: &str) -> &'static Shader {
     assert_eq!(base.source.matches(from).count(), 1, "{}: the mutation's text must occur once", base.name);
     let name = Box::leak(format!("{}_mutated_{}", base.name, from.len() * 31 + to.len()).into_boxed_str());
-    let replace = [base.replace, &[(Box::leak(from.to_string().into_boxed_str()) as &str, Box::leak(to.to_string().into_boxed_str()) as &str)]].concat();
+    let replace = [
+        base.replace,
+        &[(Box::leak(from.to_string().into_boxed_str()) as &str, Box::leak(to.to_string().into_boxed_str()) as &str)],
+    ]
+    .concat();
     Box::leak(Box::new(Shader { name, replace: Box::leak(replace.into_boxed_slice()), ..*base }))
 }
 

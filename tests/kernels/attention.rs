@@ -271,7 +271,8 @@ impl Case {
     /// weights P to f16 for the second product (each off by 2^-11 of itself, so the output by 2^-11·max |v|).
     fn check_coop(&self, mutation: Option<(&str, &str)>) {
         let want = self.rounded_to_f16().reference();
-        let (got, _) = self.run_gpu_mutated(KernelChoice { matmul: MatmulKernel::Coop, pinned: true, ..gpu().kernels }, mutation);
+        let (got, _) =
+            self.run_gpu_mutated(KernelChoice { matmul: MatmulKernel::Coop, pinned: true, ..gpu().kernels }, mutation);
         let tol = (TOL_V + 2f64.powi(-11)) * self.v_max();
         assert_close(&format!("Coop: {}", self.describe()), &got, &want, tol, 0.0);
     }
@@ -630,6 +631,8 @@ fn attention_coop_mutations_fail() {
     for (from, to) in mutations {
         // Enough keys that each of the splits (flash_splits) walks several key blocks.
         let case = random_case(&mut Rng::new(9), Layout::CachedKv, 200, 2000, 2, 32);
-        fails_on_values(&format!("attention_coop with {from:?} replaced by {to:?}"), || case.check_coop(Some((from, to))));
+        fails_on_values(&format!("attention_coop with {from:?} replaced by {to:?}"), || {
+            case.check_coop(Some((from, to)))
+        });
     }
 }

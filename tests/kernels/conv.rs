@@ -90,7 +90,12 @@ impl Case {
     }
 
     /// [`run`](Self::run), with the tensor kernels' shaders replaced by `mutation` (from, to) of them where given.
-    fn run_mutated(&self, rng: &mut Rng, kernel: MatmulKernel, mutation: Option<(&str, &str)>) -> (Vec<f32>, Vec<f64>, bool) {
+    fn run_mutated(
+        &self,
+        rng: &mut Rng,
+        kernel: MatmulKernel,
+        mutation: Option<(&str, &str)>,
+    ) -> (Vec<f32>, Vec<f64>, bool) {
         let &Case { n, h, w, cin, cout, window, upsample, act, bias, mode } = self;
         let k = window.kernel;
         let (ho, wo) = conv_output_size(h, w, window, upsample).expect("the case's window fits");
@@ -456,10 +461,32 @@ fn conv_coop() {
     }
     let (relu, residual) = (Activation::Relu, ConvMode::Residual);
     let stem = Window { kernel: 7, stride: 2, padding: 3 };
-    Case { n: 1, h: 45, w: 61, cin: 3, cout: 64, window: stem, upsample: false, act: relu, bias: true, mode: ConvMode::Overwrite }
-        .check_on(&mut rng, &coop);
-    Case { n: 1, h: 6, w: 5, cin: 300, cout: 20, window: k3(1), upsample: false, act: relu, bias: true, mode: residual }
-        .check_on(&mut rng, &coop);
+    Case {
+        n: 1,
+        h: 45,
+        w: 61,
+        cin: 3,
+        cout: 64,
+        window: stem,
+        upsample: false,
+        act: relu,
+        bias: true,
+        mode: ConvMode::Overwrite,
+    }
+    .check_on(&mut rng, &coop);
+    Case {
+        n: 1,
+        h: 6,
+        w: 5,
+        cin: 300,
+        cout: 20,
+        window: k3(1),
+        upsample: false,
+        act: relu,
+        bias: true,
+        mode: residual,
+    }
+    .check_on(&mut rng, &coop);
 }
 
 /// The mutation check of `conv_coop`: a wrong fragment index, a skipped K step or a skipped output block must fail

@@ -6,9 +6,9 @@ use raypatch_engine::device::KernelChoice;
 use raypatch_engine::device::{linear_variant, MatmulKernel};
 use raypatch_engine::kernels::matmul::{k_splits, linear, LinearArgs, RowNorm};
 use raypatch_engine::kernels::Activation;
+use raypatch_engine::kernels::{MATMUL_COOP, MATMUL_COOP_8, MATMUL_COOP_F16, MATMUL_COOP_F16_8};
 use raypatch_engine::plan::PlanBuilder;
 use raypatch_engine::tensor::{padded_cols, Dtype};
-use raypatch_engine::kernels::{MATMUL_COOP, MATMUL_COOP_8, MATMUL_COOP_F16, MATMUL_COOP_F16_8};
 use raypatch_engine::{Gpu, GpuOptions, Precision};
 use raypatch_reference::matmul as reference;
 use raypatch_reference::norm::layernorm;
@@ -274,7 +274,13 @@ fn linear_coop() {
     }
     let mut rng = Rng::new(6);
     for i in 0..36 {
-        let k = if i < 4 { [1, 16, 33, 64][i] } else if i >= 32 { rng.range(1500, 3000) } else { rng.range(1, 600) };
+        let k = if i < 4 {
+            [1, 16, 33, 64][i]
+        } else if i >= 32 {
+            rng.range(1500, 3000)
+        } else {
+            rng.range(1, 600)
+        };
         let case = Case {
             m: rng.range(1, 300),
             k,

@@ -607,9 +607,13 @@ fn timings_name_the_pipeline_cache_in_raypatch_cache_dir() {
 fn timings_name_the_precision_and_the_kernel_family() {
     let dir = TempDir::new().unwrap();
     let (model, scene) = (golden("rpsrt_k2", "model.safetensors"), golden("rpsrt_k2", "scene.safetensors"));
-    let r = run(dir.path(), &["--model", &model, "--scene", &scene, "--precision", "f16-act", "--timings", "--out", "v.png"]);
+    let r = run(
+        dir.path(),
+        &["--model", &model, "--scene", &scene, "--precision", "f16-act", "--timings", "--out", "v.png"],
+    );
     assert_eq!(r.code, 0, "{}", r.stderr);
-    let line = r.stdout.lines().find(|l| l.starts_with("precision f16-act, ")).unwrap_or_else(|| panic!("{}", r.stdout));
+    let line =
+        r.stdout.lines().find(|l| l.starts_with("precision f16-act, ")).unwrap_or_else(|| panic!("{}", r.stdout));
     assert!(
         line.contains("coop kernels (cooperative matrices") || line.contains("no tensor kernels on this device ("),
         "{line}"

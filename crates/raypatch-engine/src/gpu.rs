@@ -221,7 +221,11 @@ impl Gpu {
             &limits,
         );
         // The GPU kit's tuned tilings for this adapter, where its tuner wrote them.
-        let tuning = options.pipeline_cache.resolve().ok().and_then(|dir| std::fs::read_to_string(dir.join(COOP_TUNING_FILE)).ok());
+        let tuning = options
+            .pipeline_cache
+            .resolve()
+            .ok()
+            .and_then(|dir| std::fs::read_to_string(dir.join(COOP_TUNING_FILE)).ok());
         let coop_shape = coop_shape.map(|shape| match &tuning {
             Some(tuning) => shape.tuned(tuning, &info.name, &limits),
             None => shape,

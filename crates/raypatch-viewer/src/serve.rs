@@ -9,8 +9,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use clap::Parser;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
+use clap::Parser;
 use raypatch::{AdapterChoice, Engine, EngineOptions, Model, Outputs, Precision, Request, Scene, SceneData};
 use serde_json::json;
 

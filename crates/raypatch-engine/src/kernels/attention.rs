@@ -5,8 +5,8 @@
 //! (`Rows`) one fused dispatch with an online softmax and no score matrix (`shaders/attention.wgsl`).
 
 use super::{
-    ATTENTION, ATTENTION_COOP, ATTENTION_COOP_8, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8, ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16,
-    ATTENTION_FLASH_LANES_8,
+    ATTENTION, ATTENTION_COOP, ATTENTION_COOP_8, ATTENTION_FLASH, ATTENTION_FLASH_16, ATTENTION_FLASH_8,
+    ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16, ATTENTION_FLASH_LANES_8,
 };
 use crate::device::{attention_variant, splits_to_fill, AttentionVariant, CoopShape, FLASH_LANES};
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};

@@ -161,7 +161,9 @@ pub fn linear(plan: &mut PlanBuilder, label: &str, args: LinearArgs) {
     let f32_weights = plan.dtype(w) == Dtype::F32;
     let variant = linear_variant(&plan.kernels, n, rows_groups, f32_weights, || lanes_fit(plan, &as_conv));
     let tiles = linear_tiles(&plan.kernels, variant, plan.dtype(w) == Dtype::F16);
-    if let (Some(RowNorm { gamma, beta, eps }), false) = (norm, matches!(variant, MatmulKernel::Tiled | MatmulKernel::Coop)) {
+    if let (Some(RowNorm { gamma, beta, eps }), false) =
+        (norm, matches!(variant, MatmulKernel::Tiled | MatmulKernel::Coop))
+    {
         let normed = plan.transient(&format!("{label}.norm"), m, k);
         let normed = plan.all(normed);
         layernorm(plan, &format!("{label}.norm"), LayerNormArgs { x, gamma, beta, out: normed, eps });
