@@ -3,16 +3,16 @@
 // its documentation for why double-single arithmetic).
 //
 // terms holds, per view, `width` column terms R·[u_j, 0, 0] then `height` row terms R·[0, v_i, 1] (+ the
-// camera centre for unit-depth points), each as hi (x, y, z, 0) then lo (x, y, z, 0). The ray of pixel
-// (v, i, j) is column j + row i, normalised when p.kind is 0 (a unit direction), written to
+// camera centre for unit-depth points), each as hi (x, y, z, kind) then lo (x, y, z, 0): kind 0 for unit
+// directions (SRT, OSRT), 1 for unit-depth points (DeFiNe), the kind the view's terms were made for (the host
+// makes a camera's rays of its own kind; a kind from anywhere else, the model's, would make other rays). The
+// ray of pixel (v, i, j) is column j + row i, normalised when its kind is 0, written to
 // out[(v * height + i) * width + j, 0..3] (zeros in the row's padding).
 
 struct Params {
     views: u32,
     height: u32,
     width: u32,
-    // 0: unit directions (SRT, OSRT); 1: unit-depth points (DeFiNe).
-    kind: u32,
     // Floats per row of terms and of out.
     terms_ld: u32,
     out_ld: u32,
@@ -116,7 +116,8 @@ fn pinhole_rays(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     for (var c = 0u; c < 3u; c++) {
         w[c] = df_add(term(column, c), term(row, c));
     }
-    if (p.kind == 0u) {
+    // The kind of the view's camera, which every term of the view carries.
+    if (terms[column * p.terms_ld + 3u] == 0.0) {
         let n2 = df_add(df_add(df_mul(w[0], w[0]), df_mul(w[1], w[1])), df_mul(w[2], w[2]));
         let r = df_inverse_sqrt(n2);
         for (var c = 0u; c < 3u; c++) {

@@ -1,5 +1,6 @@
 //! A pinhole camera's rays made on the GPU against the host's (`raypatch_model::pinhole`): bit-equal, for
-//! random cameras of both ray kinds, with each row's padding zeroed. The host's are within one float32
+//! random cameras of both ray kinds (views of both kinds in one dispatch: each view's terms carry its kind), with
+//! each row's padding zeroed. The host's are within one float32
 //! rounding of the float64 rays (tested beside them), so this is what makes a render from a camera's pose on
 //! the GPU see the rays the host gives for it.
 
@@ -31,9 +32,10 @@ fn pinhole_rays_on_the_gpu_are_the_hosts_bit_for_bit() {
     let gpu = gpu();
     for case in 0..12 {
         let (views, width, height) = (rng.range(1, 4), rng.range(1, 90), rng.range(1, 70));
-        let kind = if case % 2 == 0 { RayKind::UnitDirection } else { RayKind::UnitDepthPoint };
         let cameras: Vec<PinholeRays> = (0..views)
-            .map(|_| {
+            .map(|v| {
+                // Cases alternate the first view's kind; the views after it alternate.
+                let kind = if (case + v) % 2 == 0 { RayKind::UnitDirection } else { RayKind::UnitDepthPoint };
                 let f = rng.uniform(0.3, 400.0);
                 let pinhole = Intrinsics {
                     width,
@@ -54,7 +56,7 @@ fn pinhole_rays_on_the_gpu_are_the_hosts_bit_for_bit() {
         let mut b = PlanBuilder::new();
         let (ti, oi) = (b.external("terms", &terms), b.external("out", &out));
         let (terms, out_view) = (b.all(ti), b.rows_of(oi, 0, rays));
-        let args = PinholeRaysArgs { terms, views, height, width, kind, out: out_view };
+        let args = PinholeRaysArgs { terms, views, height, width, out: out_view };
         pinhole_rays(&mut b, "rays", args);
         run(b);
         let got = read_written_rows(&out, 0..rays, SENTINEL);
@@ -63,10 +65,11 @@ fn pinhole_rays_on_the_gpu_are_the_hosts_bit_for_bit() {
             .flat_map(|c| (0..height).flat_map(move |i| (0..width).flat_map(move |j| c.ray(i, j))))
             .collect();
         let differ = got.iter().zip(&want).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        let kinds: Vec<RayKind> = cameras.iter().map(|c| c.kind).collect();
         assert_eq!(
             differ,
             0,
-            "{kind:?}, {views} views of {width}x{height}: {differ} of {} values differ from the host's rays",
+            "{kinds:?}, {views} views of {width}x{height}: {differ} of {} values differ from the host's rays",
             want.len()
         );
     }

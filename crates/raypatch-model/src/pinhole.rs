@@ -72,7 +72,9 @@ impl Intrinsics {
     }
 }
 
-/// Floats a term takes in a GPU upload: hi (x, y, z, 0), then lo (x, y, z, 0).
+/// Floats a term takes in a GPU upload: hi (x, y, z, kind), then lo (x, y, z, 0); kind is
+/// [`PinholeRays::gpu_kind`] (the rays' kind travels with the terms, which are made for it: the GPU makes a
+/// camera's rays of the camera's kind, as the host does, whatever the model's).
 pub const TERM_FLOATS: usize = 8;
 
 /// Rays from which [`PinholeRays::write`] shares the work among the cores (below, the threads would cost more
@@ -164,16 +166,28 @@ impl PinholeRays {
     }
 
     /// The terms of columns `columns` then rows `rows` as the GPU reads them (`shaders/rays.wgsl`), each
-    /// [`TERM_FLOATS`] floats: hi (x, y, z, 0), then lo (x, y, z, 0).
+    /// [`TERM_FLOATS`] floats: hi (x, y, z, kind), then lo (x, y, z, 0), kind [`gpu_kind`](Self::gpu_kind).
     pub fn gpu_terms(
         &self,
         columns: std::ops::Range<usize>,
         rows: std::ops::Range<usize>,
     ) -> impl Iterator<Item = [f32; TERM_FLOATS]> + '_ {
-        self.columns[columns].iter().chain(&self.rows[rows]).map(|term| {
+        let kind = self.gpu_kind();
+        self.columns[columns].iter().chain(&self.rows[rows]).map(move |term| {
             let [x, y, z] = term.map(Df::split);
-            [x.hi, y.hi, z.hi, 0.0, x.lo, y.lo, z.lo, 0.0]
+            [x.hi, y.hi, z.hi, kind, x.lo, y.lo, z.lo, 0.0]
         })
+    }
+
+    /// The rays' kind as every GPU term carries it: 0 for unit directions (normalised), 1 for unit-depth
+    /// points. The terms are made for this kind (a unit-depth point's row terms hold the camera centre), so
+    /// the GPU takes it from them, never from the model: a camera's rays are of its own kind on the GPU as on
+    /// the host ([`ray`](Self::ray)).
+    pub fn gpu_kind(&self) -> f32 {
+        match self.kind {
+            RayKind::UnitDirection => 0.0,
+            RayKind::UnitDepthPoint => 1.0,
+        }
     }
 }
 
@@ -329,9 +343,11 @@ mod tests {
     fn terms_split_into_hi_and_lo_for_the_gpu() {
         let x = 1.0 / 3.0;
         let rays = PinholeRays { kind: RayKind::UnitDirection, columns: vec![[x, 2.0, 0.0]], rows: vec![] };
-        let [hi, y, _, pad, lo, ..] = rays.gpu_terms(0..1, 0..0).next().unwrap();
+        let [hi, y, _, kind, lo, .., pad] = rays.gpu_terms(0..1, 0..0).next().unwrap();
         assert!((f64::from(hi) + f64::from(lo) - x).abs() < 1e-15);
-        assert_eq!((y, pad), (2.0, 0.0));
+        assert_eq!((y, kind, pad), (2.0, 0.0, 0.0));
+        let points = PinholeRays { kind: RayKind::UnitDepthPoint, ..rays };
+        assert!(points.gpu_terms(0..1, 0..0).all(|term| term[3] == 1.0), "a unit-depth point's terms say so");
     }
 
     #[test]

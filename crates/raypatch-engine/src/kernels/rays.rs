@@ -1,5 +1,6 @@
 //! A pinhole camera's rays made on the GPU (`shaders/rays.wgsl`) from the host's column and row terms
-//! (`raypatch_model::pinhole`): bit-equal to the rays the host makes for the same camera.
+//! (`raypatch_model::pinhole`): bit-equal to the rays the host makes for the same camera, of the camera's kind
+//! (the terms carry it: `PinholeRays::gpu_kind`).
 
 use super::RAYS;
 use crate::error::Result;
@@ -15,7 +16,6 @@ params! {
         views: u32,
         height: u32,
         width: u32,
-        kind: u32,
         terms_ld: u32,
         out_ld: u32,
         /// 0 (the shader's guard against rewrites of its error-free sums).
@@ -34,14 +34,13 @@ pub struct PinholeRaysArgs {
     pub views: usize,
     pub height: usize,
     pub width: usize,
-    pub kind: RayKind,
     /// `[views * height * width, 3]`.
     pub out: View,
 }
 
-/// `out[(v * height + i) * width + j] = ray(column j + row i)`, the ray of kind `kind`.
+/// `out[(v * height + i) * width + j] = ray(column j + row i)`, the ray of the kind view v's terms carry.
 pub fn pinhole_rays(plan: &mut PlanBuilder, label: &str, args: PinholeRaysArgs) {
-    let PinholeRaysArgs { terms, views, height, width, kind, out } = args;
+    let PinholeRaysArgs { terms, views, height, width, out } = args;
     let rays = views * height * width;
     assert_eq!(terms.rows, views * (width + height), "pinhole_rays {label}: terms are not {views} views' terms");
     assert_eq!(plan.cols(terms.id), TERM_FLOATS, "pinhole_rays {label}: a term is {TERM_FLOATS} floats");
@@ -50,10 +49,6 @@ pub fn pinhole_rays(plan: &mut PlanBuilder, label: &str, args: PinholeRaysArgs) 
         views: views as u32,
         height: height as u32,
         width: width as u32,
-        kind: match kind {
-            RayKind::UnitDirection => 0,
-            RayKind::UnitDepthPoint => 1,
-        },
         terms_ld: plan.ld(terms.id) as u32,
         out_ld: plan.ld(out.id) as u32,
         zero: 0,
@@ -97,7 +92,7 @@ fn probe(gpu: &Gpu) -> Result<bool> {
         let out = crate::tensor::GpuTensor { cols: 3, ..out };
         let mut b = PlanBuilder::new();
         let (t, o) = (b.external("terms", &terms), b.external("rays", &out));
-        let args = PinholeRaysArgs { terms: b.all(t), views: 1, height, width, kind, out: b.all(o) };
+        let args = PinholeRaysArgs { terms: b.all(t), views: 1, height, width, out: b.all(o) };
         pinhole_rays(&mut b, "probe", args);
         b.build(gpu)?.execute(gpu);
         let got = gpu.read_rows(&out.buffer, 0, height * width, padded_cols(3))?;

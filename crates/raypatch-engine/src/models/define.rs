@@ -7,7 +7,7 @@
 //! Rays are points at unit depth, not directions (the official ScanNet loader's `R·K⁻¹[u+0.5, v+0.5, 1] + t`).
 
 use raypatch_model::config::define::{DEPTH_MAX, DEPTH_MIN};
-use raypatch_model::{DefineConfig, FamilyConfig, RayFeatures, TargetGrid};
+use raypatch_model::{DefineConfig, RayFeatures, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
 use super::{in_query_chunks, resized, target_queries, Encoded, LightField, QueryRows};
@@ -282,8 +282,7 @@ impl LightField for Define {
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
         let k = self.patch_size();
-        let (queries, patches) =
-            target_queries(g, self.heads[0].ray_patch.as_ref(), k, self.config.ray_kind(), views, grid);
+        let (queries, patches) = target_queries(g, self.heads[0].ray_patch.as_ref(), k, views, grid);
         let mut rendered = Vec::new();
         for (h, head) in self.heads.iter().enumerate() {
             // A head runs only for the outputs it gives that were asked for.

@@ -13,7 +13,7 @@ pub mod srt;
 use std::ops::Range;
 
 use raypatch_model::pinhole::TERM_FLOATS;
-use raypatch_model::{Family, LoadedModel, ModelConfig, RayKind, RaySource, TargetGrid};
+use raypatch_model::{Family, LoadedModel, ModelConfig, RaySource, TargetGrid};
 
 use crate::error::Result;
 use crate::frame::{Output, Outputs};
@@ -109,13 +109,13 @@ impl QueryRows {
 
 /// The queries of a render of `views` target views on `grid` and their grid: one query per pixel (k = 1), or
 /// per k×k patch, the patch rays made from full-resolution rays by the Ray-Patch decoder's resize unless the
-/// grid holds patch rays already. A pinhole camera's full-resolution rays (of the family's `kind`) are made on
-/// the GPU from the host's terms.
+/// grid holds patch rays already. A pinhole camera's full-resolution rays are made on the GPU from the host's
+/// terms, of the kind the camera's terms carry (the host's rays for it: its own kind, which need not be the
+/// family's).
 pub fn target_queries(
     g: &mut Graph,
     ray_patch: Option<&RayPatchDecoder>,
     k: usize,
-    kind: RayKind,
     views: usize,
     grid: TargetGrid,
 ) -> (QueryRows, ImageSize) {
@@ -129,8 +129,7 @@ pub fn target_queries(
             let terms = views * (full.h + full.w);
             let terms = g.input("target_pinholes", terms, TERM_FLOATS, HostInput::TargetPinholes, None);
             let rays = g.image("target_rays", full, 3);
-            let args =
-                PinholeRaysArgs { terms: terms.view, views, height: full.h, width: full.w, kind, out: rays.view };
+            let args = PinholeRaysArgs { terms: terms.view, views, height: full.h, width: full.w, out: rays.view };
             pinhole_rays(&mut g.b, "target_rays", args);
             rays
         }

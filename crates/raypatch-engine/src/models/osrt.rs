@@ -5,7 +5,7 @@
 //! over the slots (the segmentation) → slot mix → render MLP on cat(slot mix, queries) → per-ray colour (OSRT)
 //! or patch features for the Ray-Patch decoder (RP-OSRT).
 
-use raypatch_model::{FamilyConfig, OsrtConfig, TargetGrid};
+use raypatch_model::{OsrtConfig, TargetGrid};
 
 use super::ray_patch::{bilinear_output, bilinear_patch_span, RayPatchDecoder};
 use super::srt::{RayPredictor, SrtEncoder, OUT_MLP_SLOPE};
@@ -252,8 +252,7 @@ impl LightField for Osrt {
         grid: TargetGrid,
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
-        let (queries, patches) =
-            target_queries(g, self.ray_patch.as_ref(), self.patch_size(), self.config.ray_kind(), views, grid);
+        let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let layers = scene.len() - 2;
         let scene = SceneTensors {
             kv: (0..layers).map(|l| g.scene_tensor(&format!("decoder.layers.{l}.kv"), &scene[l])).collect(),

@@ -3,7 +3,7 @@
 //! posed images → conv blocks → tokens → transformer → latent z; ray queries → input MLP → cross-attention
 //! to z → out MLP → per-ray colour (SRT) or patch features for the Ray-Patch decoder (RP-SRT).
 
-use raypatch_model::{EncoderConfig, FamilyConfig, RayPredictorConfig, SrtConfig, TargetGrid};
+use raypatch_model::{EncoderConfig, RayPredictorConfig, SrtConfig, TargetGrid};
 
 use super::ray_patch::RayPatchDecoder;
 use super::{image_output_set, image_outputs, in_query_chunks, target_queries, Encoded, LightField, QueryRows};
@@ -245,8 +245,7 @@ impl LightField for Srt {
         grid: TargetGrid,
         outputs: Outputs,
     ) -> Vec<(Output, Tensor)> {
-        let (queries, patches) =
-            target_queries(g, self.ray_patch.as_ref(), self.patch_size(), self.config.ray_kind(), views, grid);
+        let (queries, patches) = target_queries(g, self.ray_patch.as_ref(), self.patch_size(), views, grid);
         let kv: Vec<Tensor> =
             scene.iter().enumerate().map(|(l, t)| g.scene_tensor(&format!("decoder.layers.{l}.kv"), t)).collect();
         let features = g.image("decoder_features", patches, self.config.decoder.out_dims);
