@@ -95,8 +95,13 @@ fn the_fuzz_targets_survive_the_corpus_and_mutations_of_their_seeds() {
             inputs.extend(mutations(&std::fs::read(seed).unwrap(), 300));
         }
         for (i, input) in inputs.iter().enumerate() {
+            let started = std::time::Instant::now();
             let outcome = std::panic::catch_unwind(|| target(input));
             assert!(outcome.is_ok(), "{name}: input {i} ({} bytes) panicked", input.len());
+            // As .ci/fuzz.sh's -timeout: no input may take long (issue 50: a search the input made quadratic).
+            // Generous: a guard against a hang, not a timing.
+            let took = started.elapsed();
+            assert!(took.as_secs() < 20, "{name}: input {i} ({} bytes) took {took:?}", input.len());
         }
     }
 }

@@ -202,3 +202,28 @@ def test_hostile_checkpoints_are_refused(tmp_path):
             assert sorted(os.listdir(tmp_path)) == before, name
         assert not marker.exists(), "a pickle ran code"
         path.unlink()
+
+
+def test_a_comment_full_of_directory_signatures_is_read_at_once(tmp_path):
+    """Issue 50: an official-size checkpoint (150 MB: Adam's moments beside the weights) whose zip comment is 64 KB
+    of end-of-central-directory signatures made the zip library retry from each one, scanning the file each time
+    (over 120 s). Now it loads as the same checkpoint without the comment, in seconds."""
+    import struct
+    model_cfg, model = golden_model("rpsrt_k4")
+    checkpoint = lightning_checkpoint(model, model_cfg, "plain")
+    checkpoint["optimizer_states"] = [{"state": {0: {"exp_avg": torch.zeros(37_500_000)}}}]
+    (tmp_path / "clean").mkdir()
+    (tmp_path / "signed").mkdir()
+    torch.save(checkpoint, tmp_path / "clean" / "run.ckpt")
+    data = (tmp_path / "clean" / "run.ckpt").read_bytes()
+    end = data.rfind(b"PK\x05\x06")
+    assert end == len(data) - 22
+    comment = b"PK\x05\x06" * (65532 // 4)
+    (tmp_path / "signed" / "run.ckpt").write_bytes(data[:end + 20] + struct.pack("<H", len(comment)) + comment)
+    del data
+    for folder in ("clean", "signed"):
+        result = subprocess.run([str(RENDER_FRAME), "--model", tmp_path / folder / "run.ckpt", "--save-model",
+                                 tmp_path / folder / "model.safetensors"], capture_output=True, text=True, timeout=30)
+        assert result.returncode == 0, result.stderr
+    assert (tmp_path / "clean" / "model.safetensors").read_bytes() == \
+        (tmp_path / "signed" / "model.safetensors").read_bytes()

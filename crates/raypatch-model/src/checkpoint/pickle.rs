@@ -271,17 +271,16 @@ impl<'a> Machine<'a> {
     /// `BUILD`: a dict's state is its attributes (an OrderedDict's `_metadata`), except a Namespace-like dict
     /// made empty by its call, whose attributes are its items; a call keeps its state.
     fn build(&mut self, target: Id, state: Id) -> Result<(), PickleError> {
-        let state_items = match &self.nodes[state as usize] {
-            Node::Dict(items) => Some(items.clone()),
-            _ => None,
-        };
+        // The state's items are copied only into an empty dict, and charged: a copy for every BUILD, whatever its
+        // target, would let a pickle of shared references cost the product of its size and a dict's length.
+        let empty = matches!(&self.nodes[target as usize], Node::Dict(items) if items.is_empty());
+        if let (true, Node::Dict(state_items)) = (empty, &self.nodes[state as usize]) {
+            let state_items = state_items.clone();
+            self.charge(state_items.len() * 8)?;
+            self.nodes[target as usize] = Node::Dict(state_items);
+            return Ok(());
+        }
         match &mut self.nodes[target as usize] {
-            Node::Dict(items) if items.is_empty() => {
-                if let Some(state_items) = state_items {
-                    self.charge(state_items.len() * 8)?;
-                    self.nodes[target as usize] = Node::Dict(state_items);
-                }
-            }
             Node::Dict(_) => {}
             Node::Call { state: slot, .. } => *slot = Some(state),
             other => {

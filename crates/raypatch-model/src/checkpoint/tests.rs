@@ -227,6 +227,24 @@ fn hostile_pickles_hit_a_bound() {
     let cfg = cfg.op(b's').op(b's').op(b's').bytes();
     let err = super::torch::model_config(&interpret(&cfg).unwrap()).unwrap_err();
     assert!(err.contains("more than 100000 values"), "{err}");
+    // Issue 50: BUILD copied its state's items whatever its target, so a dict of n items given to n objects by
+    // memo reads cost n^2 (here 4e10 copies); now linear. A generous guard, not a timing.
+    let started = std::time::Instant::now();
+    let mut p = P::new().global("torch._utils", "_rebuild_tensor_v2").op(b')').op(b'R');
+    p = p.op(b'}').put(0).op(b'(');
+    for _ in 0..200_000 {
+        p = p.op(b'N').op(b'N');
+    }
+    p = p.op(b'u').op(b'0');
+    for _ in 0..200_000 {
+        p = p.get(0).op(b'b');
+    }
+    assert!(interpret(&p.bytes()).is_ok());
+    assert!(started.elapsed().as_secs() < 30, "{:?}", started.elapsed());
+    // A tensor of a million axes (all 1: one element) is refused before its axes are walked.
+    let axes = vec![1; 1_000_000];
+    let err = refusal(&checkpoint(|p| p.s("encoder.w").tensor("FloatStorage", "0", 1, 0, &axes, &axes)), &[("0", vec![0; 4])]);
+    assert!(err.contains("1000000 dimensions, more than the 64 read"), "{err}");
     // Nesting: a config 100 lists deep.
     let mut deep =
         P::new().op(b'}').s("hyper_parameters").op(b'}').s("cfg").op(b'}').s("base").s("srt").op(b's').s("x");

@@ -95,6 +95,9 @@ impl TensorView {
     }
 }
 
+/// The most dimensions a tensor may have (PyTorch's own kernels take at most 25; models use 4).
+pub const MAX_DIMS: usize = 64;
+
 /// A non-negative integer below 2^63 of a tensor's rebuild arguments.
 fn count(p: &Pickle, id: Id, what: &str) -> Result<u64, String> {
     match p.int(id) {
@@ -158,6 +161,11 @@ fn rebuild(p: &Pickle, args: &[Id]) -> Result<TensorView, String> {
     let key = p.str(*key).ok_or_else(|| format!("is a tensor whose storage key is {}", p.describe(*key)))?;
     if key.is_empty() || !key.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_') {
         return Err(format!("is a tensor whose storage key {key:?} is not a record name"));
+    }
+    // Bounded before the axes are read: each element's index is walked axis by axis (`materialise`), so axes
+    // beyond any model's would cost their number per element, and a shared shape tuple costs a memo read.
+    if let Some(axes) = p.items(*size).map(<[Id]>::len).filter(|&n| n > MAX_DIMS) {
+        return Err(format!("is a tensor of {axes} dimensions, more than the {MAX_DIMS} read"));
     }
     let shape = counts(p, *size, "size")?;
     let stride = counts(p, *stride, "stride")?;
