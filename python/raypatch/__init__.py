@@ -27,6 +27,12 @@ from . import _raypatch
 from ._raypatch import BUNDLED_MODELS, BUNDLED_SCENES, EngineClosed, Error, FileError, GpuError, InputError
 from ._text import excerpt, quoted
 
+# Before any engine loads a driver (issue 50): where HOME's cache folder cannot be written, Mesa's shader cache
+# goes to raypatch's cache folder, or is off, instead of Mesa saying so on stderr four times. Set through
+# os.environ (under the GIL), so Python and the driver see one environment; a variable the user set is kept.
+_DRIVER_CACHE_VARS, DRIVER_CACHE_NOTE = _raypatch.driver_cache_env()
+os.environ.update(_DRIVER_CACHE_VARS)
+
 __all__ = [
     "Engine", "Model", "Scene", "SceneData", "Rendered", "load", "bundled", "load_scene", "bundled_scene",
     "psnr", "ssim", "fg_ari", "depth_errors", "Error", "InputError", "FileError", "GpuError", "EngineClosed",

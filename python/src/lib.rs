@@ -580,6 +580,16 @@ fn save_png(py: Python<'_>, rgb: &[u8], width: i64, height: i64, path: PathBuf) 
     py.detach(|| image.save_png(&path)).map_err(to_py)
 }
 
+/// The variables that put Mesa's shader cache where it can be written, or turn it off, and a note saying so
+/// (None: nothing to change): the package sets them through `os.environ` when imported, before any engine
+/// loads a driver (issue 50). Computed here, set by Python: setting the environment from Rust while other
+/// threads may read it would not be sound.
+#[pyfunction]
+fn driver_cache_env() -> (Vec<(String, std::ffi::OsString)>, Option<String>) {
+    let (vars, note) = raypatch::raypatch_engine::pipeline_cache::mesa_cache_env();
+    (vars.into_iter().map(|(name, value)| (name.to_string(), value)).collect(), note)
+}
+
 #[pymodule]
 fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -598,6 +608,7 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Model>()?;
     m.add_class::<SceneFile>()?;
     m.add_class::<Scene>()?;
+    m.add_function(wrap_pyfunction!(driver_cache_env, m)?)?;
     m.add_function(wrap_pyfunction!(psnr, m)?)?;
     m.add_function(wrap_pyfunction!(ssim, m)?)?;
     m.add_function(wrap_pyfunction!(fg_ari, m)?)?;

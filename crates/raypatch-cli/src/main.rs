@@ -167,6 +167,10 @@ struct Args {
 const MAX_BUFFER_MIB: u64 = 1 << 20;
 
 fn main() -> ExitCode {
+    // First, while this is the process's only thread (setting the environment is sound then): Mesa's shader
+    // cache where it can be written, or off, before any wgpu instance loads a driver (issue 50). Said by
+    // --timings; the viewer started below gets the same.
+    raypatch::prepare_driver_cache();
     if raypatch_viewer::requested() {
         return raypatch_viewer::main(DEFAULT_MODEL, DEFAULT_SCENE);
     }
@@ -403,6 +407,9 @@ fn run(args: &Args) -> Result<()> {
             mib(scene.cache_bytes())
         );
         println!("{}", report::pipelines(&engine.counters(), &engine.pipeline_cache()));
+        if let Some(note) = raypatch::driver_cache_note() {
+            println!("{note}");
+        }
     }
     if args.profile {
         print_profile("encode", &model.profile_encode(&inputs)?);

@@ -507,3 +507,83 @@ fn messages_quote_bounded_excerpts_of_huge_inputs() {
         assert!(r.stderr.len() < 4000, "{:.80}: {} bytes of stderr", args.join(" "), r.stderr.len());
     }
 }
+
+/// render-frame with HOME `home` (XDG, raypatch's and Mesa's cache variables unset), optionally as another user
+/// by `setpriv` (`as_user`: its arguments), rendering into `out`, which cannot be written.
+fn render_homeless(dir: &Path, home: &Path, out: &Path, as_user: &[&str]) -> std::process::Output {
+    let bin = env!("CARGO_BIN_EXE_render-frame");
+    let mut command = if as_user.is_empty() {
+        std::process::Command::new(bin)
+    } else {
+        let mut c = std::process::Command::new("setpriv");
+        c.args(as_user).arg(bin);
+        c
+    };
+    command.args(["--model", &golden("rpsrt_k4", "model.safetensors")]);
+    command.args(["--scene", &golden("rpsrt_k4", "scene.safetensors"), "--out"]).arg(out);
+    for var in ["XDG_CACHE_HOME", "RAYPATCH_CACHE_DIR", "MESA_SHADER_CACHE_DIR", "MESA_SHADER_CACHE_DISABLE"] {
+        command.env_remove(var);
+    }
+    command.env_remove("MESA_GLSL_CACHE_DIR").env_remove("MESA_GLSL_CACHE_DISABLE");
+    command.env("HOME", home).current_dir(dir).output().unwrap()
+}
+
+#[test]
+fn a_home_that_cannot_be_written_adds_no_lines() {
+    // Issue 50: Mesa said four times that it could not make its shader cache under HOME, and raypatch once that
+    // it could not read its pipeline cache there: a one-line refusal became six lines. Mesa's cache now goes
+    // to raypatch's cache folder or is off (said by --timings), and raypatch's goes unused, unsaid.
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let file = d.join("a-file");
+    std::fs::write(&file, b"not a folder").unwrap();
+    let out = file.join("frames/out.png");
+    let r = render_homeless(d, &file.join("home"), &out, &[]);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "not one line: {stderr}");
+    assert!(stderr.contains("--out") && !stderr.contains("cache"), "{stderr}");
+    // A run that succeeds says where the caches went under --timings, and nothing about them on stderr.
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_render-frame"));
+    command.args(["--timings", "--out", "ok.png"]).env("HOME", file.join("home")).current_dir(d);
+    for var in ["XDG_CACHE_HOME", "RAYPATCH_CACHE_DIR", "MESA_SHADER_CACHE_DIR", "MESA_SHADER_CACHE_DISABLE"] {
+        command.env_remove(var);
+    }
+    let ok = command.output().unwrap();
+    let (stdout, stderr) = (String::from_utf8_lossy(&ok.stdout), String::from_utf8_lossy(&ok.stderr));
+    assert!(ok.status.success(), "{stderr}");
+    assert!(stdout.contains("\nMesa's shader cache: off (") && stdout.contains("; no pipeline cache: "), "{stdout}");
+    assert!(!stderr.contains("cache"), "{stderr}");
+    std::fs::remove_file(d.join("ok.png")).unwrap();
+    // As `nobody`, whose home does not exist, rendering into a folder it cannot write (root can give up its
+    // rights with setpriv; elsewhere this part is skipped, saying why).
+    #[cfg(unix)]
+    {
+        let nobody = ["--reuid=65534", "--regid=65534", "--clear-groups"];
+        let root = unsafe { libc::geteuid() } == 0;
+        let can = root
+            && std::process::Command::new("setpriv")
+                .args(nobody)
+                .arg(env!("CARGO_BIN_EXE_render-frame"))
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success());
+        if !can {
+            eprintln!("skipped the nobody run: needs root, setpriv, and render-frame and the golden files readable by nobody");
+            return;
+        }
+        let private = d.join("private");
+        std::fs::create_dir(&private).unwrap();
+        std::fs::set_permissions(d, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+        std::fs::set_permissions(&private, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+        let r = render_homeless(d, Path::new("/nonexistent"), &private.join("out.png"), &nobody);
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        if stderr.contains("Permission denied") && stderr.contains("golden") {
+            eprintln!("skipped the nobody run: the golden files are not readable by nobody: {stderr}");
+            return;
+        }
+        assert_eq!(r.status.code(), Some(2), "{stderr}");
+        assert_eq!(stderr.lines().count(), 1, "not one line as nobody: {stderr}");
+        assert!(!stderr.contains("cache"), "{stderr}");
+    }
+}

@@ -7,7 +7,9 @@
 //! `Gpu::save_pipeline_cache`, if pipelines were compiled since. Writes are atomic (a temporary file in the
 //! same folder, renamed over the old one), so concurrent runs leave one whole file. Data wgpu rejects (another
 //! driver version, another wgpu, garbage) starts the cache empty; no cache problem is fatal: IO errors are
-//! printed to stderr once per process.
+//! printed to stderr once per process, but a folder that cannot be written (no home, a read-only one) only
+//! means no cache, said by the status (`--timings`). [`prepare_driver_cache`] does the same for Mesa's own
+//! shader cache.
 
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
@@ -68,6 +70,115 @@ impl PipelineCacheDir {
     }
 }
 
+/// Why the folder `dir` cannot be written, if it cannot: the nearest of it and its parents that exists must be a
+/// folder this process may write into (`access(2)`: ownership, mode and read-only mounts). Asked before a
+/// cache is used, so that a home that does not exist or cannot be written costs no warning later.
+pub fn unwritable(dir: &Path) -> Option<String> {
+    let mut at = dir;
+    loop {
+        match std::fs::metadata(at) {
+            Ok(meta) if meta.is_dir() => return access_error(at),
+            Ok(_) => return Some(format!("{} is not a folder", at.display())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => match at.parent() {
+                Some(parent) if !parent.as_os_str().is_empty() => at = parent,
+                _ => return access_error(Path::new(".")),
+            },
+            Err(e) => return Some(format!("{}: {e}", at.display())),
+        }
+    }
+}
+
+#[cfg(unix)]
+fn access_error(dir: &Path) -> Option<String> {
+    use std::os::unix::ffi::OsStrExt;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: a NUL-terminated path that lives across the call, which only reads it.
+    if unsafe { libc::access(path.as_ptr(), libc::W_OK | libc::X_OK) } == 0 {
+        None
+    } else {
+        Some(format!("cannot write {}: {}", dir.display(), std::io::Error::last_os_error()))
+    }
+}
+
+#[cfg(not(unix))]
+fn access_error(_dir: &Path) -> Option<String> {
+    None
+}
+
+/// Mesa's variables for its on-disk shader cache (the GLSL names are the older spellings): one set by the user
+/// is left alone, and so are the others then.
+pub const MESA_CACHE_VARS: [&str; 4] =
+    ["MESA_SHADER_CACHE_DIR", "MESA_SHADER_CACHE_DISABLE", "MESA_GLSL_CACHE_DIR", "MESA_GLSL_CACHE_DISABLE"];
+
+/// What Mesa's shader cache needs, with the environment given by `var`: Mesa writes it under
+/// `$XDG_CACHE_HOME`, else `$HOME/.cache`, and says on stderr, once per driver it loads, where that fails (a
+/// service account whose home does not exist, a read-only container). Where that folder cannot be written, the
+/// variables that point Mesa's cache into raypatch's cache folder ([`PipelineCacheDir::Auto`], if that can be
+/// written) or turn it off; and a note saying so (for `--timings`). Nothing where a Mesa variable is set, or
+/// Mesa's folder can be written.
+pub fn mesa_cache_env_with(
+    var: impl Fn(&str) -> Option<std::ffi::OsString>,
+    unwritable: impl Fn(&Path) -> Option<String>,
+) -> (Vec<(&'static str, std::ffi::OsString)>, Option<String>) {
+    if MESA_CACHE_VARS.iter().any(|name| var(name).is_some()) {
+        return (Vec::new(), None);
+    }
+    let set = |name: &str| var(name).filter(|v| !v.is_empty());
+    let mesa = match (set("XDG_CACHE_HOME"), set("HOME")) {
+        (Some(dir), _) => Some(PathBuf::from(dir).join("mesa_shader_cache")),
+        (None, Some(home)) => Some(PathBuf::from(home).join(".cache").join("mesa_shader_cache")),
+        (None, None) => None,
+    };
+    let why = match &mesa {
+        Some(dir) => match unwritable(dir) {
+            None => return (Vec::new(), None),
+            Some(why) => why,
+        },
+        None => "XDG_CACHE_HOME and HOME are unset".to_string(),
+    };
+    let ours = PipelineCacheDir::Auto.resolve_with(&var).map(|dir| dir.join("mesa_shader_cache"));
+    match ours {
+        Ok(dir) if unwritable(&dir).is_none() => {
+            let note = format!("Mesa's shader cache: {} ({why})", dir.display());
+            let value = std::ffi::OsString::from(dir);
+            (vec![("MESA_SHADER_CACHE_DIR", value.clone()), ("MESA_GLSL_CACHE_DIR", value)], Some(note))
+        }
+        _ => (
+            vec![("MESA_SHADER_CACHE_DISABLE", "true".into()), ("MESA_GLSL_CACHE_DISABLE", "true".into())],
+            Some(format!("Mesa's shader cache: off ({why}, and raypatch's cache folder cannot hold it)")),
+        ),
+    }
+}
+
+/// [`mesa_cache_env_with`] of this process's environment.
+pub fn mesa_cache_env() -> (Vec<(&'static str, std::ffi::OsString)>, Option<String>) {
+    mesa_cache_env_with(|name| std::env::var_os(name), unwritable)
+}
+
+static DRIVER_CACHE_NOTE: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+
+/// Sets Mesa's shader cache variables as [`mesa_cache_env`] says, once per process, and gives its note. They
+/// must be set before the first wgpu instance is made (the driver reads them when it loads), and setting the
+/// environment is sound only while no other thread reads or writes it (`std::env::set_var`): call this first
+/// thing in `main`, before the program starts a thread (render-frame does, for its viewer too). Python's package
+/// sets the same variables through `os.environ` when imported, under the GIL.
+pub fn prepare_driver_cache() -> Option<&'static str> {
+    DRIVER_CACHE_NOTE
+        .get_or_init(|| {
+            let (vars, note) = mesa_cache_env();
+            for (name, value) in vars {
+                std::env::set_var(name, value);
+            }
+            note
+        })
+        .as_deref()
+}
+
+/// The note of [`prepare_driver_cache`], if it moved or turned off Mesa's cache.
+pub fn driver_cache_note() -> Option<&'static str> {
+    DRIVER_CACHE_NOTE.get().and_then(|note| note.as_deref())
+}
+
 /// What a `Gpu` does with compiled pipelines (`Gpu::pipeline_cache_status`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum PipelineCacheStatus {
@@ -95,6 +206,8 @@ impl std::fmt::Display for PipelineCacheStatus {
 
 /// The file the adapter's cache would be in, or why there is none: asked before the device is created, as
 /// the device needs `PIPELINE_CACHE` requested.
+/// A folder that cannot be written (no home, a read-only one) means no cache, said by the status (`--timings`),
+/// not by a warning on a run that may be failing for another reason.
 pub(crate) fn cache_file(dir: &PipelineCacheDir, adapter: &wgpu::Adapter) -> Result<PathBuf, String> {
     let info = adapter.get_info();
     if !adapter.features().contains(wgpu::Features::PIPELINE_CACHE) {
@@ -103,7 +216,11 @@ pub(crate) fn cache_file(dir: &PipelineCacheDir, adapter: &wgpu::Adapter) -> Res
     let Some(key) = wgpu::util::pipeline_cache_key(&info) else {
         return Err(format!("wgpu names no cache file for the {:?} backend", info.backend));
     };
-    Ok(dir.resolve()?.join(key))
+    let dir = dir.resolve()?;
+    if let Some(why) = unwritable(&dir) {
+        return Err(why);
+    }
+    Ok(dir.join(key))
 }
 
 /// The features to request for the cache planned by [`cache_file`].
@@ -306,5 +423,47 @@ mod tests {
         assert!(resolve(&auto, &[]).is_err());
         assert!(resolve(&PipelineCacheDir::Off, &all).is_err());
         assert_eq!(resolve(&PipelineCacheDir::Dir("/d".into()), &all), Ok(PathBuf::from("/d")));
+    }
+
+    #[test]
+    fn mesa_cache_goes_where_it_can_be_written_or_off() {
+        let env = |vars: &[(&str, &str)], bad: &[&str]| {
+            let bad: Vec<PathBuf> = bad.iter().map(PathBuf::from).collect();
+            let (set, note) = mesa_cache_env_with(
+                |name| vars.iter().find(|(n, _)| *n == name).map(|(_, v)| OsString::from(v)),
+                |dir| bad.iter().any(|b| dir.starts_with(b)).then(|| format!("cannot write {}", dir.display())),
+            );
+            let set: Vec<(String, String)> =
+                set.into_iter().map(|(k, v)| (k.to_string(), v.to_string_lossy().into_owned())).collect();
+            (set, note.unwrap_or_default())
+        };
+        // Mesa's own folder can be written: left alone; so is anything the user set.
+        assert_eq!(env(&[("HOME", "/h")], &[]), (vec![], String::new()));
+        assert_eq!(env(&[("HOME", "/h"), ("MESA_SHADER_CACHE_DIR", "/m")], &["/h", "/m"]), (vec![], String::new()));
+        assert_eq!(env(&[("HOME", "/h"), ("MESA_GLSL_CACHE_DISABLE", "0")], &["/h"]), (vec![], String::new()));
+        // HOME cannot be written, raypatch's folder can: Mesa's cache goes there.
+        let (set, note) = env(&[("HOME", "/h"), ("RAYPATCH_CACHE_DIR", "/r")], &["/h"]);
+        let dir = "/r/mesa_shader_cache".to_string();
+        assert_eq!(set, [("MESA_SHADER_CACHE_DIR".into(), dir.clone()), ("MESA_GLSL_CACHE_DIR".into(), dir)]);
+        assert!(note.contains("/r/mesa_shader_cache (cannot write /h/.cache/mesa_shader_cache)"), "{note}");
+        // XDG_CACHE_HOME first, as Mesa reads it.
+        assert_eq!(env(&[("HOME", "/h"), ("XDG_CACHE_HOME", "/x")], &["/h"]).0, vec![]);
+        // Neither can be written, or raypatch's cache is off: Mesa's is off.
+        for vars in [&[("HOME", "/h")][..], &[("HOME", "/h"), ("RAYPATCH_CACHE_DIR", "off")], &[]] {
+            let (set, note) = env(vars, &["/h"]);
+            assert_eq!(set.len(), 2, "{vars:?}");
+            assert!(set.iter().all(|(k, v)| k.ends_with("_DISABLE") && v == "true"), "{set:?}");
+            assert!(note.starts_with("Mesa's shader cache: off ("), "{note}");
+        }
+    }
+
+    #[test]
+    fn unwritable_folders_are_named() {
+        let file = std::env::temp_dir().join(format!("raypatch-unwritable-{}", std::process::id()));
+        std::fs::write(&file, b"x").unwrap();
+        let why = unwritable(&file.join("home/.cache")).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        assert!(why.contains("Not a directory") || why.contains("not a folder"), "{why}");
+        assert_eq!(unwritable(&std::env::temp_dir().join("raypatch-none/a/b")), None);
     }
 }

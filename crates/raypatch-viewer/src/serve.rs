@@ -74,6 +74,9 @@ pub type Bundled = (&'static str, &'static [u8]);
 
 /// `render-frame --serve`: parses the flags, serves until Ctrl-C; exit code 2 with one line on any error.
 pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
+    // Before any thread or wgpu instance (a no-op where render-frame's main did it already): Mesa's shader cache
+    // where it can be written, or off (issue 50).
+    raypatch::prepare_driver_cache();
     let args = ServeArgs::parse();
     match run(&args, default_model, default_scene) {
         Ok(()) => ExitCode::SUCCESS,
