@@ -6,8 +6,7 @@
 //!
 //! Errors are measured relative to max |v|: the output is a convex combination of the rows of v.
 
-use raypatch_engine::device::KernelChoice;
-use raypatch_engine::device::MatmulKernel;
+use raypatch_engine::device::{attention_variant, AttentionVariant, KernelChoice, MatmulKernel};
 use raypatch_engine::kernels::attention::{attention, flash_splits, AttentionArgs, LANES_SCORES_BYTES};
 use raypatch_engine::kernels::{ATTENTION_COOP, ATTENTION_COOP_8};
 use raypatch_engine::plan::PlanBuilder;
@@ -125,14 +124,18 @@ impl Case {
         let on_lanes = plan.op_kernels().any(|k| k == "matmul_lanes.gemm");
         assert_eq!(on_lanes, kernel == MatmulKernel::Lanes && self.fits_lanes(), "{kernel:?}: {}", self.describe());
         let on_flash = plan.op_kernels().any(|k| k.starts_with("attention_flash") && k.ends_with(".flash"));
+        // The tensor kernels' attention where the device's choice says (heads whose tiles fit its workgroup memory).
+        let coop_fits =
+            matches!(attention_variant(&choice, self.nq, self.dim_head, || None::<()>), AttentionVariant::Coop(_));
         let on_coop = plan.op_kernels().any(|k| k.ends_with(".attention_coop"));
-        assert_eq!(on_coop, kernel == MatmulKernel::Coop, "{kernel:?}: {}", self.describe());
+        assert_eq!(on_coop, kernel == MatmulKernel::Coop && coop_fits, "{kernel:?}: {}", self.describe());
         if let Some((from, to)) = mutation {
             for shader in [&ATTENTION_COOP, &ATTENTION_COOP_8] {
                 plan.substitute_shader(shader, mutated(shader, from, to));
             }
         }
-        assert_eq!(on_flash, kernel == MatmulKernel::Tiled, "{kernel:?}: {}", self.describe());
+        let flash_expected = kernel == MatmulKernel::Tiled || (kernel == MatmulKernel::Coop && !coop_fits);
+        assert_eq!(on_flash, flash_expected, "{kernel:?}: {}", self.describe());
         let on_subgroups = plan.op_kernels().any(|k| k.starts_with("attention_flash_lanes"));
         assert_eq!(on_subgroups, on_flash && choice.subgroups, "{choice:?}: {}", self.describe());
         let plan = run(plan);
@@ -629,8 +632,9 @@ fn attention_coop_mutations_fail() {
         ("let f = fi * COOP_SUBGROUPS + sg;", "let f = fi * COOP_SUBGROUPS;"),
     ];
     for (from, to) in mutations {
-        // Enough keys that each of the splits (flash_splits) walks several key blocks.
-        let case = random_case(&mut Rng::new(9), Layout::CachedKv, 200, 2000, 2, 32);
+        // Enough query tiles and keys that each of the splits (flash_splits) walks several key blocks, with 8x8 and
+        // with 16x16 tiles.
+        let case = random_case(&mut Rng::new(9), Layout::CachedKv, 512, 2000, 4, 64);
         fails_on_values(&format!("attention_coop with {from:?} replaced by {to:?}"), || {
             case.check_coop(Some((from, to)))
         });
