@@ -22,20 +22,13 @@ use raypatch_engine::Gpu;
 use raypatch_reference::Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::gemm::SHAPES;
 use crate::measure::warm_for;
 use crate::report::write_file;
 
-/// (M, K, N, where) of each class: x `[M, K]`, weight `[N, K]`; the official srt_MDBN_32 and rpsrt_MDBN_8_32
-/// at 120x160 (`gemm::SHAPES`, and the renders with many query rows).
-pub const SMALL_SHAPES: [(usize, usize, usize, &str); 2] = [
-    (300, 180, 1536, "RP-SRT k=8 render: out_mlp.0 (300 patch queries)"),
-    (300, 1536, 1536, "RP-SRT k=8 render: out_mlp hidden layers"),
-];
-pub const LARGE_SHAPES: [(usize, usize, usize, &str); 7] = [
-    (4800, 768, 2304, "encode: transformer to_qkv (4800 tokens)"),
-    (4800, 768, 768, "encode: transformer to_out"),
-    (4800, 768, 1536, "encode: transformer MLP up"),
-    (4800, 1536, 768, "encode: transformer MLP down"),
+/// (M, K, N, where) of the renders with many query rows, beside the GEMM benchmark's official shapes
+/// (`gemm::SHAPES`: srt_MDBN_32 and rpsrt_MDBN_8_32 at 120x160); x `[M, K]`, weight `[N, K]`.
+const MANY_QUERY_SHAPES: [(usize, usize, usize, &str); 3] = [
     (9600, 1536, 1536, "RP-SRT k=8, 32 views: out_mlp hidden layers (9600 patch queries)"),
     (19200, 180, 1536, "SRT 120x160 render: out_mlp.0 (19200 queries)"),
     (19200, 1536, 1536, "SRT 120x160 render: out_mlp hidden layers"),
@@ -130,15 +123,10 @@ pub struct TuneOptions<'a> {
     pub out: &'a Path,
 }
 
-/// The engine's default tiling for a tile size (`CoopShape::of_adapter`).
-pub fn default_tiling(tile: u32) -> CoopTiling {
-    CoopTiling { sg_m: 2, sg_n: 2, bk: 2 * tile }
-}
-
 /// The tilings to try on `shape`'s adapter: the engine's default first, then every sg_m, sg_n in {1, 2, 4} and
 /// bk in {tile, 2·tile, 4·tile} that fits the adapter's limits.
 pub fn candidates(shape: &CoopShape, limits: &wgpu::Limits) -> Vec<CoopTiling> {
-    let mut all = vec![default_tiling(shape.tile)];
+    let mut all: Vec<CoopTiling> = shape.default_tiling(limits).into_iter().collect();
     for sg_m in [1, 2, 4] {
         for sg_n in [1, 2, 4] {
             for bk in [shape.tile, 2 * shape.tile, 4 * shape.tile] {
@@ -293,7 +281,9 @@ pub fn class_shapes(quick: bool) -> Vec<(GemmClass, Vec<(usize, usize, usize, &'
     if quick {
         vec![(GemmClass::Small, vec![QUICK_SHAPES[0]]), (GemmClass::Large, vec![QUICK_SHAPES[1]])]
     } else {
-        vec![(GemmClass::Small, SMALL_SHAPES.to_vec()), (GemmClass::Large, LARGE_SHAPES.to_vec())]
+        let all = SHAPES.iter().chain(&MANY_QUERY_SHAPES);
+        let of = |class| all.clone().filter(|&&(m, ..)| GemmClass::of_rows(m) == class).copied().collect();
+        vec![(GemmClass::Small, of(GemmClass::Small)), (GemmClass::Large, of(GemmClass::Large))]
     }
 }
 
@@ -390,9 +380,10 @@ pub fn run(gpu: &Gpu, options: &TuneOptions) -> Result<TuneReport> {
         write_tuning(options.tuning_file, &gpu.info.name, &best)?;
         println!("coop-tune: wrote {} ({} lines for this adapter)", options.tuning_file.display(), best.len());
     }
-    // The square GEMM on the large class's tiling (the default's where none was timed).
+    // The square GEMM on the large class's tiling (the engine's where none was timed).
     let side = if options.quick { QUICK_SQUARE } else { SQUARE };
-    let large = best.iter().find(|(c, _)| *c == GemmClass::Large).map_or(default_tiling(shape.tile), |b| b.1);
+    let large =
+        best.iter().find(|(c, _)| *c == GemmClass::Large).map_or(shape.tiling(GemmClass::LARGE_ROWS + 1), |b| b.1);
     let reps = reps_for(on_cpu, side * side * side);
     let square =
         time_tiling(gpu, shape, large, (side, side, side), (reps, runs), warm_for(gpu.info.device_type), false);
@@ -494,7 +485,7 @@ mod tests {
     use super::*;
 
     fn shape(tile: u32, lanes: u32) -> CoopShape {
-        let t = default_tiling(tile);
+        let t = CoopTiling::preferred(tile)[0];
         CoopShape { tile, lanes, tilings: [t; 2], workgroup_bytes: 32768 }
     }
 
@@ -502,7 +493,7 @@ mod tests {
     fn candidates_start_with_the_default_and_fit_the_limits() {
         let limits = wgpu::Limits { max_compute_workgroup_storage_size: 49152, ..wgpu::Limits::default() };
         let c = candidates(&shape(16, 32), &limits);
-        assert_eq!(c[0], default_tiling(16));
+        assert_eq!(c[0], CoopTiling::preferred(16)[0]);
         assert!(c.len() > 1 && c.len() <= 27);
         let s = shape(16, 32);
         assert!(c.iter().all(|&t| s.fits(t, &limits).is_ok()));
@@ -549,7 +540,7 @@ mod tests {
         .unwrap();
         let tuned = shape(16, 32).tuned(&text, "lavapipe", &limits);
         assert_eq!(tuned.tilings, [small, large]);
-        assert_eq!(shape(16, 32).tuned(&text, "other", &limits).tilings[1], default_tiling(16));
+        assert_eq!(shape(16, 32).tuned(&text, "other", &limits).tilings[1], CoopTiling::preferred(16)[0]);
     }
 
     #[test]
@@ -559,7 +550,7 @@ mod tests {
         let t = CoopTiling { sg_m: 2, sg_n: 4, bk: 32 };
         write_tuning(&path, "A", &[(GemmClass::Small, t)]).unwrap();
         write_tuning(&path, "B", &[(GemmClass::Large, t)]).unwrap();
-        write_tuning(&path, "A", &[(GemmClass::Small, default_tiling(16))]).unwrap();
+        write_tuning(&path, "A", &[(GemmClass::Small, CoopTiling::preferred(16)[0])]).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         assert_eq!(text, "B\tlarge\t2\t4\t32\nA\tsmall\t2\t2\t32\n");
         std::fs::remove_dir_all(&dir).unwrap();

@@ -72,6 +72,14 @@ pub struct CoopTiling {
     pub bk: u32,
 }
 
+impl CoopTiling {
+    /// The tilings an adapter starts from, best first: 2x2 subgroups staging two tiles of K a step, then one, then a
+    /// single subgroup (WebGPU's default 16 KiB of workgroup memory).
+    pub fn preferred(tile: u32) -> [CoopTiling; 3] {
+        [(2, 2, 2 * tile), (2, 2, tile), (1, 1, tile)].map(|(sg_m, sg_n, bk)| CoopTiling { sg_m, sg_n, bk })
+    }
+}
+
 /// The GEMM shape classes the tensor kernels' tilings are tuned for, by output rows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GemmClass {
@@ -139,19 +147,23 @@ impl CoopShape {
                 return Err(format!("llvmpipe at {bits} bits has no cooperative matrices (it needs 256: AVX2)"));
             }
         }
-        // The default tiling: 2x2 subgroups staging 2 tiles of K a step, or less where the workgroup memory is
-        // small (WebGPU's default 16 KiB).
+        let preferred = CoopTiling::preferred(tile)[0];
         let mut shape = CoopShape {
             tile,
             lanes,
-            tilings: [CoopTiling { sg_m: 2, sg_n: 2, bk: 2 * tile }; 2],
+            tilings: [preferred; 2],
             workgroup_bytes: limits.max_compute_workgroup_storage_size,
         };
-        let candidates =
-            [(2, 2, 2 * tile), (2, 2, tile), (1, 1, tile)].map(|(sg_m, sg_n, bk)| CoopTiling { sg_m, sg_n, bk });
-        let tiling = candidates.into_iter().find(|&t| shape.fits(t, limits).is_ok());
-        shape.tilings = [tiling.ok_or_else(|| shape.fits(candidates[2], limits).unwrap_err())?; 2];
+        shape.tilings = [shape.default_tiling(limits)?; 2];
         Ok(shape)
+    }
+
+    /// The untuned tiling on an adapter with `limits`: the first of [`CoopTiling::preferred`] that fits them, or why
+    /// none does.
+    pub fn default_tiling(&self, limits: &wgpu::Limits) -> Result<CoopTiling, String> {
+        let preferred = CoopTiling::preferred(self.tile);
+        let fitting = preferred.into_iter().find(|&t| self.fits(t, limits).is_ok());
+        fitting.ok_or_else(|| self.fits(preferred[2], limits).unwrap_err())
     }
 
     /// Whether `tiling` fits the adapter's limits: its invocations and its workgroup memory.
