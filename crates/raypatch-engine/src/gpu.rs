@@ -240,22 +240,21 @@ impl Gpu {
                 ..Default::default()
             }))
         };
-        let with_coop = match &coop_shape {
+        let with_coop = coop_shape.and_then(|shape| {
             // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation; only
             // the tensor kernels use this one, and their tests check their results on every adapter that has it
             // (.ci/coop.sh: Mesa's lavapipe with Khronos' validation layer).
-            Ok(_) => {
-                let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
-                request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental)
-                    .map_err(|e| format!("the device could not be made with cooperative matrices: {e}"))
-            }
-            Err(why) => Err(why.clone()),
-        };
-        // Where the experimental feature cannot be had after all, the device is made without it (no `Coop`).
+            let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
+            let device = request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental);
+            device
+                .map(|(device, queue)| (device, queue, shape))
+                .map_err(|e| format!("the device could not be made with cooperative matrices: {e}"))
+        });
+        // Where the experimental feature cannot be had, the device is made without it (no `Coop`), and why is kept.
         let (device, queue, coop) = match with_coop {
-            Ok((device, queue)) => {
+            Ok((device, queue, shape)) => {
                 features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
-                (device, queue, coop_shape.map_err(|_| String::new()))
+                (device, queue, Ok(shape))
             }
             Err(why) => {
                 let (device, queue) = request(features, wgpu::ExperimentalFeatures::disabled())
