@@ -1,13 +1,10 @@
-enable f16;
-enable wgpu_cooperative_matrix;
-
 // `attention_coop` (MatmulKernel::Coop): flash attention with both products on f16 cooperative matrices and the
 // online softmax in f32 between them: out[i, h*dh ..] = Σ_j softmax_j(scale · q_i,h · k_j,h) · v_j,h.
 //
 // Work split, as attention_flash.wgsl's: a workgroup serves one (query tile, head, key split); with several splits
 // each writes its unnormalised output with its running max m and sum l to the partials, and attention_flash's
-// `combine` merges them. A query tile is CT rows (the adapter's cooperative-matrix size: 16, or 8 in the 8x8
-// variant, which replaces CT and the aliases); the keys go COOP_SUBGROUPS·CT at a time (a key block), one CT-wide
+// `combine` merges them. A query tile is CT rows (the adapter's cooperative-matrix size, coop_size.wgsl, a prelude
+// before attention_params.wgsl and this file); the keys go COOP_SUBGROUPS·CT at a time (a key block), one CT-wide
 // column of them per subgroup. The head is padded with zeros to COOP_DH floats (a multiple of COOP_SUBGROUPS·CT, an
 // override constant per op), so that every subgroup has the same number of output blocks.
 //
@@ -20,11 +17,6 @@ enable wgpu_cooperative_matrix;
 //      its output blocks s, s + COOP_SUBGROUPS, .., to `sp`;
 //   6. O = O · rescale + P · V, in f32, in workgroup memory.
 // Numbers: q, k, v and P rounded to f16 as they are staged, the scores, the softmax and the sums in f32.
-
-const CT: u32 = 16u;
-alias CoopA = coop_mat16x16<f16, A>;
-alias CoopB = coop_mat16x16<f16, B>;
-alias CoopC = coop_mat16x16<f32, C>;
 
 // The adapter's subgroup width, and the head padded (kernels::attention).
 override COOP_LANES: u32 = 32u;

@@ -1,9 +1,6 @@
-enable f16;
-enable wgpu_cooperative_matrix;
-
 // The tensor kernels' GEMM (`MatmulKernel::Coop`): f16 cooperative matrices (tensor cores) with f32 accumulators,
-// staged through workgroup memory. This prelude comes first in its shaders (for the `enable` directives), before
-// the file whose entry point calls `coop_gemm`: matmul_coop.wgsl (linear layers: x · wᵀ) and conv_coop.wgsl
+// staged through workgroup memory. This prelude comes after coop_size.wgsl (the tile size CT and the matrix
+// aliases) and before the file whose entry point calls `coop_gemm`: matmul_coop.wgsl (linear layers: x · wᵀ) and conv_coop.wgsl
 // (convolutions as an implicit GEMM). The includer defines the GEMM's operands and its epilogue:
 //   coop_m(), coop_n(), coop_k4(): out is M x N, a sum over K (in vec4s);
 //   coop_splits(), coop_k_split4(): K cut into ranges of k_split4 vec4s (a multiple of COOP_BK / 4), one per
@@ -16,8 +13,8 @@ enable wgpu_cooperative_matrix;
 // Numbers: A and B are rounded to f16 as they are staged (values beyond f16's range become infinite), the
 // products summed in f32, the epilogue in f32 (`Precision::F16Activations`).
 //
-// Tiling. The adapter's tile is CT x CT x CT (16 on NVIDIA and AMD; 8 on Apple and Mesa's lavapipe: the 8x8
-// variants replace CT and the three aliases below). A workgroup is COOP_SG_M x COOP_SG_N subgroups of
+// Tiling. The adapter's tile is CT x CT x CT (coop_size.wgsl: 16 on NVIDIA and AMD; 8 on Apple and Mesa's
+// lavapipe). A workgroup is COOP_SG_M x COOP_SG_N subgroups of
 // COOP_LANES lanes (the adapter's subgroup width, read at run time: device::CoopShape) and computes a
 // COOP_BM x COOP_BN tile of out; each subgroup a 2CT x 2CT block of it in 2 x 2 accumulators, its A fragments
 // reused across its columns and its B fragments across its rows. The tile's shape is override constants, so a
@@ -32,12 +29,6 @@ enable wgpu_cooperative_matrix;
 //
 // Epilogue. Each subgroup stores its accumulators one at a time into its own CT x CT f32 tile of workgroup
 // memory, and its lanes finish whole vec4s of out from there with store_sum (bounds-checked).
-
-// The adapter's cooperative-matrix size (kernels/mod.rs's COOP_8 replaces these four lines' sizes).
-const CT: u32 = 16u;
-alias CoopA = coop_mat16x16<f16, A>;
-alias CoopB = coop_mat16x16<f16, B>;
-alias CoopC = coop_mat16x16<f32, C>;
 
 // The workgroup's shape (kernels::coop_constants, from device::CoopShape).
 override COOP_LANES: u32 = 32u;

@@ -275,8 +275,8 @@ const F16_WEIGHTS: (&str, &str) = ("alias WeightVec = vec4<f32>;", "alias Weight
 /// products summed in f32 (`Precision::F16Activations`).
 const F16_TILES: (&str, &str) = ("alias TileFloat = f32;", "alias TileFloat = f16;");
 
-/// The replacements that make the tensor kernels' cooperative matrices 8x8 (`shaders/coop_tiles.wgsl`'s `CT` and
-/// aliases, and `attention_coop.wgsl`'s).
+/// The replacement that makes the tensor kernels' cooperative matrices 8x8 (`shaders/coop_size.wgsl`'s `CT` and
+/// aliases).
 const COOP_8: &[(&str, &str)] = &[(
     "const CT: u32 = 16u;\nalias CoopA = coop_mat16x16<f16, A>;\nalias CoopB = coop_mat16x16<f16, B>;\nalias CoopC = coop_mat16x16<f32, C>;",
     "const CT: u32 = 8u;\nalias CoopA = coop_mat8x8<f16, A>;\nalias CoopB = coop_mat8x8<f16, B>;\nalias CoopC = coop_mat8x8<f32, C>;",
@@ -289,16 +289,15 @@ const CHUNKS_8: (&str, &str) = ("const CHUNKS: u32 = 32u;", "const CHUNKS: u32 =
 shaders! {
     shaders {
         MATMUL = "matmul" ["activation", "tiles"] => matmul::MatmulParams;
-        /// `matmul` with `linear_coop` (`MatmulKernel::Coop`: the cooperative-matrix GEMM of `coop_tiles`, which
-        /// comes first for its `enable` directives), 16x16 tiles.
-        MATMUL_COOP = "matmul" as "matmul_coop" ["coop_tiles", "matmul_coop", "activation", "tiles"] needs COOP_FEATURES
-            => matmul::MatmulParams;
+        /// `matmul` with `linear_coop` (`MatmulKernel::Coop`: the cooperative-matrix GEMM of `coop_tiles`, after
+        /// `coop_size`, which comes first for its `enable` directives), 16x16 tiles.
+        MATMUL_COOP = "matmul" as "matmul_coop" ["coop_size", "coop_tiles", "matmul_coop", "activation", "tiles"]
+            needs COOP_FEATURES => matmul::MatmulParams;
         /// `conv` with `conv_coop`, 16x16 tiles.
-        CONV_COOP = "conv" as "conv_coop" ["coop_tiles", "conv_coop", "activation", "tiles"] needs COOP_FEATURES
-            => conv::ConvParams;
-        /// Flash attention on cooperative matrices (`attention_coop`), 16x16 tiles: its file first, for its `enable`
-        /// directives, then the attention kernels' Params.
-        ATTENTION_COOP = "attention_params" as "attention_coop" ["attention_coop"] needs COOP_FEATURES
+        CONV_COOP = "conv" as "conv_coop" ["coop_size", "coop_tiles", "conv_coop", "activation", "tiles"]
+            needs COOP_FEATURES => conv::ConvParams;
+        /// Flash attention on cooperative matrices (`attention_coop`), 16x16 tiles.
+        ATTENTION_COOP = "attention_coop" ["coop_size", "attention_params"] needs COOP_FEATURES
             => attention::AttentionParams;
         /// The linear layer for CPU adapters: see `tools/codegen/gen_matmul_lanes.py`.
         MATMUL_LANES = "matmul_lanes" ["activation", "texels"] needs wgpu::Features::SUBGROUP
