@@ -9,6 +9,7 @@ use super::{
     ATTENTION_FLASH_LANES, ATTENTION_FLASH_LANES_16, ATTENTION_FLASH_LANES_8,
 };
 use crate::device::{attention_variant, splits_to_fill, AttentionVariant, CoopShape, FLASH_LANES};
+use crate::gpu::Shader;
 use crate::kernels::matmul::{gemm_lanes_batched, lanes_batch_fits, LanesBatch};
 use crate::kernels::pack::{pack_softmax_rows, pack_source, packed, Layout, Packing, Source};
 use crate::plan::{grid, Access, Op, PlanBuilder, TextureRef, View};
@@ -167,54 +168,11 @@ pub fn flash_splits(query_tiles: usize, heads: usize, nkv: usize, tile_keys: usi
 /// rows, head, key split), the head padded to whole output blocks of its four subgroups; with the keys split, the
 /// splits' partials merged by `attention_flash.wgsl`'s `combine`.
 fn coop_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, shape: CoopShape) {
-    let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
     let tile = shape.tile as usize;
-    let block_keys = COOP_SUBGROUPS * tile;
-    let padded_head = shape.padded_head(dim_head);
-    let query_tiles = q.rows.div_ceil(tile);
-    let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, block_keys);
-    let partial_cols = heads * (dim_head + 2);
-    let params = AttentionParams {
-        split_keys: split_keys as u32,
-        splits: splits as u32,
-        query_tiles: query_tiles as u32,
-        partial_ld: padded_cols(partial_cols) as u32,
-        ..AttentionParams::of(plan, &args)
-    };
     let shader = if shape.tile == 8 { &ATTENTION_COOP_8 } else { &ATTENTION_COOP };
-    let constants = vec![("COOP_LANES", f64::from(shape.lanes)), ("COOP_DH", padded_head as f64)];
-    let multiply_adds = 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64);
-    let inputs = [(q, Access::Read), (k, Access::Read), (v, Access::Read)];
-    let written = if splits == 1 {
-        out
-    } else {
-        let partials = plan.transient(&format!("{label}.partials"), splits * q.rows, partial_cols);
-        plan.all(partials)
-    };
-    plan.push(Op {
-        label: if splits == 1 { label.to_string() } else { format!("{label}.split") },
-        shader,
-        entry: "attention_coop",
-        params: params.words(),
-        bindings: [&inputs[..], &[(written, Access::Write)]].concat(),
-        textures: Vec::new(),
-        workgroups: grid(query_tiles * heads * splits),
-        constants,
-        multiply_adds,
-    });
-    if splits > 1 {
-        plan.push(Op {
-            label: format!("{label}.combine"),
-            shader: &ATTENTION_FLASH,
-            entry: "combine",
-            params: params.words(),
-            bindings: vec![(written, Access::Read), (out, Access::Write)],
-            textures: Vec::new(),
-            workgroups: grid((q.rows * params.out_ld as usize).div_ceil(COMBINE_WG)),
-            constants: Vec::new(),
-            multiply_adds: 0,
-        });
-    }
+    let constants = vec![("COOP_LANES", f64::from(shape.lanes)), ("COOP_DH", shape.padded_head(args.dim_head) as f64)];
+    let kernel = FlashKernel { shader, entry: "attention_coop", constants, combine: &ATTENTION_FLASH };
+    push_flash(plan, label, args, kernel, tile, COOP_SUBGROUPS * tile);
 }
 
 /// Subgroups of an `attention_coop` workgroup (`COOP_SUBGROUPS` in the shader).
@@ -224,7 +182,6 @@ const COOP_SUBGROUPS: usize = 4;
 /// [`FLASH_LANES`] lanes of a subgroup): one dispatch, or with the keys split, one
 /// dispatch writing each split's partial output and one merging them.
 fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, lanes: usize) {
-    let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
     // The variant whose registers hold a head (vec4s per head: 8, 16 or 32).
     let variants = match lanes {
         1 => [(8, &ATTENTION_FLASH_8), (16, &ATTENTION_FLASH_16), (32, &ATTENTION_FLASH)],
@@ -233,58 +190,74 @@ fn flash_attention(plan: &mut PlanBuilder, label: &str, args: AttentionArgs, lan
     };
     let (chunks, shader) = variants
         .into_iter()
-        .find(|(chunks, _)| 4 * chunks >= dim_head)
+        .find(|(chunks, _)| 4 * chunks >= args.dim_head)
         .expect("dim_head is at most MAX_DIM_HEAD = 128");
-    let query_tiles = q.rows.div_ceil(FLASH_ROWS);
-    let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, FLASH_TILE_VEC4S / chunks);
+    let kernel = FlashKernel { shader, entry: "flash", constants: Vec::new(), combine: shader };
+    push_flash(plan, label, args, kernel, FLASH_ROWS, FLASH_TILE_VEC4S / chunks);
+}
+
+/// A flash-attention kernel: its shader and entry point (bindings q, k, v, then the output or the partials), its
+/// override constants, and the shader whose `combine` merges its key splits.
+struct FlashKernel {
+    shader: &'static Shader,
+    entry: &'static str,
+    constants: Vec<(&'static str, f64)>,
+    combine: &'static Shader,
+}
+
+/// Records `kernel` over (query tile of `tile_rows` rows, head, key split), the keys split in whole tiles of
+/// `tile_keys` where query tiles x heads are too few to fill a GPU ([`flash_splits`]): one dispatch writing `out`,
+/// or one writing each split's partial output (each head's unnormalised output, then its m and l) and `combine`
+/// merging them.
+fn push_flash(
+    plan: &mut PlanBuilder,
+    label: &str,
+    args: AttentionArgs,
+    kernel: FlashKernel,
+    tile_rows: usize,
+    tile_keys: usize,
+) {
+    let AttentionArgs { q, k, v, out, heads, dim_head, .. } = args;
+    let query_tiles = q.rows.div_ceil(tile_rows);
+    let (split_keys, splits) = flash_splits(query_tiles, heads, k.rows, tile_keys);
     let partial_cols = heads * (dim_head + 2);
     let params = AttentionParams {
         split_keys: split_keys as u32,
         splits: splits as u32,
+        query_tiles: query_tiles as u32,
         partial_ld: padded_cols(partial_cols) as u32,
         ..AttentionParams::of(plan, &args)
     };
-    let multiply_adds = 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64);
-    let groups = grid(query_tiles * heads * splits);
-    let inputs = [(q, Access::Read), (k, Access::Read), (v, Access::Read)];
-    if splits == 1 {
+    let written = if splits == 1 {
+        out
+    } else {
+        let partials = plan.transient(&format!("{label}.partials"), splits * q.rows, partial_cols);
+        plan.all(partials)
+    };
+    plan.push(Op {
+        label: if splits == 1 { label.to_string() } else { format!("{label}.split") },
+        shader: kernel.shader,
+        entry: kernel.entry,
+        params: params.words(),
+        bindings: vec![(q, Access::Read), (k, Access::Read), (v, Access::Read), (written, Access::Write)],
+        textures: Vec::new(),
+        workgroups: grid(query_tiles * heads * splits),
+        constants: kernel.constants,
+        multiply_adds: 2 * (q.rows as u64) * (k.rows as u64) * (dim_head as u64) * (heads as u64),
+    });
+    if splits > 1 {
         plan.push(Op {
-            label: label.to_string(),
-            shader,
-            entry: "flash",
+            label: format!("{label}.combine"),
+            shader: kernel.combine,
+            entry: "combine",
             params: params.words(),
-            bindings: [&inputs[..], &[(out, Access::Write)]].concat(),
+            bindings: vec![(written, Access::Read), (out, Access::Write)],
             textures: Vec::new(),
-            workgroups: groups,
+            workgroups: grid((q.rows * params.out_ld as usize).div_ceil(COMBINE_WG)),
             constants: Vec::new(),
-            multiply_adds,
+            multiply_adds: 0,
         });
-        return;
     }
-    let partials = plan.transient(&format!("{label}.partials"), splits * q.rows, partial_cols);
-    let partials = plan.all(partials);
-    plan.push(Op {
-        label: format!("{label}.split"),
-        shader,
-        entry: "flash",
-        params: params.words(),
-        bindings: [&inputs[..], &[(partials, Access::Write)]].concat(),
-        textures: Vec::new(),
-        workgroups: groups,
-        constants: Vec::new(),
-        multiply_adds,
-    });
-    plan.push(Op {
-        label: format!("{label}.combine"),
-        shader,
-        entry: "combine",
-        params: params.words(),
-        bindings: vec![(partials, Access::Read), (out, Access::Write)],
-        textures: Vec::new(),
-        workgroups: grid((q.rows * params.out_ld as usize).div_ceil(COMBINE_WG)),
-        constants: Vec::new(),
-        multiply_adds: 0,
-    });
 }
 
 /// Bytes of scores `attention_on_lanes` materialises at a time: queries go in passes of whole 64-row blocks
