@@ -55,8 +55,9 @@ def load(host, folder):
 
 
 def median(record, field):
-    stats = record.get(field)
-    return stats["median_ms"] if stats else None
+    """The median time of a record's field (a stats object), or None where the record or the field has none."""
+    stats = record.get(field) if record else None
+    return stats["median_ms"] if isinstance(stats, dict) else None
 
 
 def find(results, key, views, size, group="sweep"):

@@ -19,7 +19,8 @@ import json
 import os
 import sys
 
-PASS, FAIL, NOT_MEASURED = "PASS", "FAIL", "NOT MEASURED"
+# The host step's checker: the verdicts and how a record's time is read, or why it has none.
+from host_check import FAIL, NOT_MEASURED, PASS, median, unmeasured
 
 SIZE = "120x160"
 VIEWS = 32
@@ -53,11 +54,6 @@ def load(folder, name):
         return None, f"{name} unreadable: {e}"
 
 
-def median(record, field):
-    stats = record.get(field) if record else None
-    return stats["median_ms"] if isinstance(stats, dict) else None
-
-
 def find(results, key, views, precision):
     """The sweep record of model `key` (model, k) rendering `views` views of 120x160 at `precision`, or None."""
     for r in (results or {}).get("results", []):
@@ -65,12 +61,6 @@ def find(results, key, views, precision):
                 and r["group"] == "sweep" and r["precision"] == precision and r.get("variant", "") == ""):
             return r
     return None
-
-
-def why_not(record, why_missing):
-    if record is None:
-        return why_missing
-    return record.get("note") or "no time recorded"
 
 
 def tests_row(folder):
@@ -156,7 +146,7 @@ def engine_row(results, why, key, title, views):
         if results and r is None and f32 is not None and views > 1:
             missing = (f"no f16-act record of {views} views (the sweep renders --views at f32 only: "
                        "harness/sweep.rs, many_views under f32_weights)")
-        return NOT_MEASURED, f"{shape}: {why_not(r, missing)}", r, f32
+        return NOT_MEASURED, f"{shape}: {unmeasured(r, missing)}", r, f32
     gpu = median(r, "render_gpu_ms")
     kernel = r.get("kernel")
     extra = (f", GPU {gpu:.3f} ms" if gpu is not None else "") + (f", GEMMs on {kernel}" if kernel else "")
