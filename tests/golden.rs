@@ -158,18 +158,24 @@ fn check_fg_ari(name: &str, expected: &TensorFile, scene: &raypatch_model::Scene
     failures
 }
 
-fn shared_gpu() -> Arc<Gpu> {
-    Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)"))
-}
-
-#[test]
-fn golden_cases_match_pytorch() {
+/// The folders of assets/golden that hold a case (an expected.safetensors), sorted.
+fn golden_cases() -> Vec<PathBuf> {
     let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
         .expect("assets/golden is missing: run python3 tools/data/make_golden.py --out assets/golden")
         .map(|e| e.unwrap().path())
         .filter(|p| p.join("expected.safetensors").exists())
         .collect();
     cases.sort();
+    cases
+}
+
+fn shared_gpu() -> Arc<Gpu> {
+    Arc::new(Gpu::new(&GpuOptions::default()).expect("no GPU adapter: install Mesa lavapipe (see .ci/run)"))
+}
+
+#[test]
+fn golden_cases_match_pytorch() {
+    let cases = golden_cases();
     let names: Vec<String> = cases.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     // The issue asks for SRT, every k, and a two-view case; make sure the assets still have them.
     for required in [
@@ -214,12 +220,7 @@ fn golden_cases_on_the_tensor_path() {
         eprintln!("golden cases not run on the tensor kernels on {}: {why}", gpu.describe());
         return;
     }
-    let mut cases: Vec<PathBuf> = std::fs::read_dir(golden_dir())
-        .expect("assets/golden is missing")
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.join("expected.safetensors").exists())
-        .collect();
-    cases.sort();
+    let cases = golden_cases();
     let failures: Vec<String> =
         cases.iter().flat_map(|dir| check_case_at(&gpu, dir, Precision::F16Activations, TENSOR_BUDGET)).collect();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
