@@ -220,15 +220,14 @@ impl Gpu {
             &adapter.cooperative_matrix_properties(),
             &limits,
         );
-        // The GPU kit's tuned tilings for this adapter, where its tuner wrote them.
-        let tuning = options
-            .pipeline_cache
-            .resolve()
-            .ok()
-            .and_then(|dir| std::fs::read_to_string(dir.join(COOP_TUNING_FILE)).ok());
-        let coop_shape = coop_shape.map(|shape| match &tuning {
-            Some(tuning) => shape.tuned(tuning, &info.name, &limits),
-            None => shape,
+        // The GPU kit's tuned tilings for this adapter, where its tuner wrote them (read only where the tensor
+        // kernels can run).
+        let coop_shape = coop_shape.map(|shape| {
+            let dir = options.pipeline_cache.resolve().ok();
+            match dir.and_then(|dir| std::fs::read_to_string(dir.join(COOP_TUNING_FILE)).ok()) {
+                Some(tuning) => shape.tuned(&tuning, &info.name, &limits),
+                None => shape,
+            }
         });
         let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let request = |features: wgpu::Features, experimental_features| {
