@@ -5,6 +5,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::font;
+#[cfg(not(target_family = "wasm"))]
 use crate::output::write_atomic;
 use crate::Region;
 
@@ -192,6 +193,7 @@ impl Image {
     }
 
     /// Writes an 8-bit RGB PNG through a temporary file and a rename (see [`write_atomic`]).
+    #[cfg(not(target_family = "wasm"))]
     pub fn save_png(&self, path: impl AsRef<Path>) -> Result<()> {
         write_atomic(path.as_ref(), &self.encode_png()?)
     }

@@ -33,6 +33,8 @@
 
 mod camera;
 mod camera_path;
+// Writing files (and removing them on signals) is the native API's: a browser's outputs go back to the page.
+#[cfg(not(target_family = "wasm"))]
 mod checkpoint;
 mod dataset;
 mod error;
@@ -43,6 +45,7 @@ mod gif;
 mod image;
 pub mod metrics;
 mod motion;
+#[cfg(not(target_family = "wasm"))]
 mod output;
 mod panels;
 mod render;
@@ -52,12 +55,14 @@ pub use camera::{
     MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
 };
 pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
+#[cfg(not(target_family = "wasm"))]
 pub use checkpoint::save_checkpoint_model;
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView, MAX_SCENE_PIXELS};
 pub use error::{Error, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
+#[cfg(not(target_family = "wasm"))]
 pub use output::{check_output_path, clean_up_on_signals, folder_of, write_all_atomic, write_atomic, Staged};
 pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::pipeline_cache::{driver_cache_note, prepare_driver_cache};
@@ -65,7 +70,9 @@ pub use raypatch_engine::{
     AdapterChoice, MatmulKernel, OpTimes, Output, Outputs, PipelineCacheDir, PipelineCacheStatus, Precision, Region,
     RenderStats, Request,
 };
-pub use render::{Adapter, Engine, EngineOptions, InputView, Model, RenderPath, Rendered, Scene};
+#[cfg(not(target_family = "wasm"))]
+pub use render::RenderPath;
+pub use render::{Adapter, Engine, EngineOptions, InputView, Model, Rendered, Scene};
 
 pub use raypatch_engine;
 pub use raypatch_model;

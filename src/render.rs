@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
 use raypatch_engine::{
-    AdapterChoice, EncodedScene, Gpu, GpuOptions, LoadOptions, MatmulKernel, OpTimes, Output, Outputs,
-    PipelineCacheDir, PipelineCacheStatus, Precision, RenderStats, Request,
+    AdapterChoice, EncodedScene, Gpu, GpuOptions, LoadOptions, MatmulKernel, Output, Outputs, PipelineCacheDir,
+    PipelineCacheStatus, Precision, RenderStats, Request,
 };
 use raypatch_model::{InputViews, ModelConfig, RayKind};
 
@@ -15,8 +15,12 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::Region;
 
+// Paths of renders are blocking iterators: native only (a browser renders a camera at a time, awaited).
+#[cfg(not(target_family = "wasm"))]
 mod path;
+#[cfg(not(target_family = "wasm"))]
 use path::Batches;
+#[cfg(not(target_family = "wasm"))]
 pub use path::RenderPath;
 
 /// How to set up the [`Engine`].
@@ -96,16 +100,25 @@ pub struct Engine {
 
 impl Engine {
     /// Opens the adapter the options ask for.
+    #[cfg(not(target_family = "wasm"))]
     pub fn new(options: EngineOptions) -> Result<Engine> {
+        pollster::block_on(Engine::new_async(options))
+    }
+
+    /// Opens the adapter the options ask for (in a browser, its WebGPU adapter), once the device is made.
+    pub async fn new_async(options: EngineOptions) -> Result<Engine> {
         Ok(Engine {
-            gpu: Arc::new(Gpu::new(&GpuOptions {
-                adapter: options.adapter,
-                max_buffer_bytes: options.max_buffer_bytes,
-                matmul: options.matmul,
-                pipeline_cache: options.pipeline_cache,
-                without_subgroups: false,
-                rays_on_host: false,
-            })?),
+            gpu: Arc::new(
+                Gpu::new_async(&GpuOptions {
+                    adapter: options.adapter,
+                    max_buffer_bytes: options.max_buffer_bytes,
+                    matmul: options.matmul,
+                    pipeline_cache: options.pipeline_cache,
+                    without_subgroups: false,
+                    rays_on_host: false,
+                })
+                .await?,
+            ),
             load: LoadOptions { precision: options.precision },
         })
     }
@@ -118,6 +131,7 @@ impl Engine {
     ///     println!("{adapter}");
     /// }
     /// ```
+    #[cfg(not(target_family = "wasm"))]
     pub fn adapters() -> Vec<Adapter> {
         raypatch_engine::gpu::list_adapters().iter().map(Adapter::from_info).collect()
     }
@@ -259,9 +273,15 @@ impl Model {
     /// # let _ = scene;
     /// # Ok::<(), raypatch::Error>(())
     /// ```
+    #[cfg(not(target_family = "wasm"))]
     pub fn encode(&self, views: &[InputView]) -> Result<Scene<'_>> {
+        pollster::block_on(self.encode_async(views))
+    }
+
+    /// [`encode`](Self::encode), ready once the GPU is done (the one a browser has).
+    pub async fn encode_async(&self, views: &[InputView]) -> Result<Scene<'_>> {
         self.check_inputs(views)?;
-        Ok(Scene { inner: self.inner.encode(&input_views(views, self.ray_kind())?)? })
+        Ok(Scene { inner: self.inner.encode_async(&input_views(views, self.ray_kind())?).await? })
     }
 
     /// Checks input views against what this model takes (see [`check_camera`](Self::check_camera)); returns
@@ -284,7 +304,8 @@ impl Model {
     }
 
     /// Encodes like [`encode`](Self::encode), op by op, and returns each op's label and time (for profiling).
-    pub fn profile_encode(&self, views: &[InputView]) -> Result<OpTimes> {
+    #[cfg(not(target_family = "wasm"))]
+    pub fn profile_encode(&self, views: &[InputView]) -> Result<raypatch_engine::OpTimes> {
         Ok(self.inner.encode_profiled(&input_views(views, self.ray_kind())?)?.1)
     }
 }
@@ -423,10 +444,16 @@ impl<'m> Scene<'m> {
     /// assert!(full.crop(corner)?.data().iter().zip(part.data()).all(|(a, b)| (a - b).abs() < 1e-6));
     /// # Ok::<(), raypatch::Error>(())
     /// ```
+    #[cfg(not(target_family = "wasm"))]
     pub fn render(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
+        pollster::block_on(self.render_async(camera, request))
+    }
+
+    /// [`render`](Self::render), ready once the GPU is done (the one a browser has).
+    pub async fn render_async(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
         let config = &self.inner.model().config;
         check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
-        let frame = self.inner.render(&self.target_views(camera), *request)?;
+        let frame = self.inner.render_async(&self.target_views(camera), *request).await?;
         Ok(Rendered { region: frame.region, outputs: frame.outputs })
     }
 
@@ -434,6 +461,7 @@ impl<'m> Scene<'m> {
     /// rendering each alone. They render as many at once (one plan, one submit) as
     /// [`views_per_batch`](Self::views_per_batch) allows, the batches one after another with the GPU kept
     /// busy ([`render_path`](Self::render_path)).
+    #[cfg(not(target_family = "wasm"))]
     pub fn render_batch(&self, cameras: &[Camera], request: &Request) -> Result<Vec<Rendered>> {
         let Some(first) = cameras.first() else {
             return Ok(Vec::new());
@@ -470,6 +498,7 @@ impl<'m> Scene<'m> {
     /// assert_eq!(scene.cached_plans(), 1); // one plan of 2 views for both batches
     /// # Ok::<(), raypatch::Error>(())
     /// ```
+    #[cfg(not(target_family = "wasm"))]
     pub fn render_path<'s>(&'s self, cameras: &'s [Camera], request: &Request, batch: usize) -> RenderPath<'s> {
         let batch = batch.max(1);
         // The first camera that cannot be rendered: the path stops before its batch.
@@ -507,7 +536,8 @@ impl<'m> Scene<'m> {
     }
 
     /// Renders op by op and returns each op's label and time (for profiling).
-    pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<OpTimes> {
+    #[cfg(not(target_family = "wasm"))]
+    pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<raypatch_engine::OpTimes> {
         Ok(self.inner.profile_render(&self.target_views(camera), *request)?)
     }
 

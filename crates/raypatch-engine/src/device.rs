@@ -284,15 +284,43 @@ impl MatmulKernel {
     }
 
     /// The kernel for this adapter: `Lanes` on CPU adapters that can run it, `Rows` on other CPU adapters
-    /// (on llvmpipe the workgroup tiles of `Tiled` are emulated memory), `Tiled` on GPUs.
-    pub fn best_for(info: &wgpu::AdapterInfo, features: wgpu::Features) -> MatmulKernel {
+    /// (on llvmpipe the workgroup tiles of `Tiled` are emulated memory; in a browser, SwiftShader) and on GPUs whose
+    /// limits `Tiled` does not fit, `Tiled` on other GPUs.
+    pub fn best_for(info: &wgpu::AdapterInfo, features: wgpu::Features, limits: &wgpu::Limits) -> MatmulKernel {
         let cpu = info.device_type == wgpu::DeviceType::Cpu;
-        if !cpu {
+        if !cpu && MatmulKernel::Tiled.fits(limits).is_ok() {
             MatmulKernel::Tiled
+        } else if !cpu {
+            MatmulKernel::Rows
         } else if MatmulKernel::Lanes.supported(info, features).is_ok() {
             MatmulKernel::Lanes
         } else {
             MatmulKernel::Rows
+        }
+    }
+
+    /// Whether a device with `limits` has room for this family's workgroups (their invocations and workgroup
+    /// memory), and if not which limit is short. `Coop`'s tilings are fitted by [`CoopShape::fits`].
+    pub fn fits(self, limits: &wgpu::Limits) -> Result<(), String> {
+        let (invocations, bytes) = match self {
+            MatmulKernel::Rows | MatmulKernel::Lanes | MatmulKernel::Coop => (ROWS_INVOCATIONS, 0),
+            MatmulKernel::Tiled => (TILED_INVOCATIONS, TILED_WORKGROUP_BYTES),
+        };
+        let name = self.name();
+        if invocations > limits.max_compute_invocations_per_workgroup {
+            Err(format!(
+                "the {name} kernels need {invocations} invocations per workgroup, the adapter's \
+                 maxComputeInvocationsPerWorkgroup is {}",
+                limits.max_compute_invocations_per_workgroup
+            ))
+        } else if bytes > limits.max_compute_workgroup_storage_size {
+            Err(format!(
+                "the {name} kernels need {bytes} bytes of workgroup memory, the adapter's \
+                 maxComputeWorkgroupStorageSize is {}",
+                limits.max_compute_workgroup_storage_size
+            ))
+        } else {
+            Ok(())
         }
     }
 
@@ -315,6 +343,34 @@ impl MatmulKernel {
             MatmulKernel::Coop => Ok(()),
         }
     }
+}
+
+/// Storage buffers one kernel binds at most (`shaders/matmul.wgsl`; `device/tests.rs` counts every shader's): an
+/// adapter needs this many per shader stage (WebGPU's default is 8; SwiftShader in Chromium has 10).
+pub const STORAGE_BUFFERS_PER_STAGE: u32 = 7;
+
+/// Invocations of the buffer kernels' workgroups (`WG` in the shaders: 64).
+pub const ROWS_INVOCATIONS: u32 = 64;
+
+/// Invocations of `Tiled`'s workgroups: 16x16 GEMM and convolution tiles, flash attention's 64 rows x 4 lanes.
+pub const TILED_INVOCATIONS: u32 = 256;
+
+/// Workgroup memory of `Tiled`'s kernels at most: flash attention's key and value tiles
+/// (`shaders/attention_flash.wgsl`, 2 x 512 vec4 of f32); the GEMM tiles (`tiles.wgsl`) take half that.
+pub const TILED_WORKGROUP_BYTES: u32 = 2 * 512 * 16;
+
+/// Whether an adapter with `limits` can run the engine's kernels at all (every family binds up to
+/// [`STORAGE_BUFFERS_PER_STAGE`] storage buffers and runs [`ROWS_INVOCATIONS`]-wide workgroups), and if not
+/// which limit is short, by its WebGPU name.
+pub fn check_limits(limits: &wgpu::Limits) -> Result<(), String> {
+    if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS_PER_STAGE {
+        return Err(format!(
+            "the kernels bind up to {STORAGE_BUFFERS_PER_STAGE} storage buffers per shader stage, the adapter's \
+             maxStorageBuffersPerShaderStage is {}",
+            limits.max_storage_buffers_per_shader_stage
+        ));
+    }
+    MatmulKernel::Rows.fits(limits)
 }
 
 /// The device profile every plan records against.

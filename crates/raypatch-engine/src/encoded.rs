@@ -1,7 +1,7 @@
-//! The scene core, the same for every model family ([`LightField`](crate::models::LightField)): [`Model::encode`] (a [`Model`] is a
+//! The scene core, the same for every model family ([`LightField`](crate::models::LightField)): [`Model::encode_async`] (a [`Model`] is a
 //! family's module tree with its weights on the GPU, `model.rs`) runs the encoder once per scene and keeps what
 //! renders read;
-//! [`EncodedScene::render`] records a render plan per (target count, computed size, outputs) on first use and
+//! [`EncodedScene::render_async`] records a render plan per (target count, computed size, outputs) on first use and
 //! reuses it, computes only the requested outputs, and for a region only the patches it depends on, in row
 //! bands when one plan would bind a buffer larger than the GPU allows.
 
@@ -59,14 +59,15 @@ struct PlanKey {
 }
 
 impl Model {
-    /// Encodes posed input views into the latent and what renders read. Waits for the GPU.
-    pub fn encode(&self, inputs: &InputViews) -> Result<EncodedScene<'_>> {
-        self.encode_inner(inputs, false).map(|(scene, _)| scene)
+    /// Encodes posed input views into the latent and what renders read, once the GPU is done.
+    pub async fn encode_async(&self, inputs: &InputViews) -> Result<EncodedScene<'_>> {
+        self.encode_inner(inputs, false).await.map(|(scene, _)| scene)
     }
 
-    /// Like [`encode`](Self::encode), running the ops one by one and timing each (slower; for profiling).
-    pub fn encode_profiled(&self, inputs: &InputViews) -> Result<(EncodedScene<'_>, OpTimes)> {
-        self.encode_inner(inputs, true)
+    /// Like [`encode_async`](Self::encode_async), running the ops one by one and timing each (slower; for
+    /// profiling).
+    pub async fn encode_profiled_async(&self, inputs: &InputViews) -> Result<(EncodedScene<'_>, OpTimes)> {
+        self.encode_inner(inputs, true).await
     }
 
     /// Multiply-adds of encoding `count` input views of `height`×`width`, counted from the encode plan's ops
@@ -77,7 +78,7 @@ impl Model {
         g.b.multiply_adds()
     }
 
-    fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
+    async fn encode_inner(&self, inputs: &InputViews, profile: bool) -> Result<(EncodedScene<'_>, OpTimes)> {
         inputs.check("input views")?;
         self.family.check_inputs(inputs.height, inputs.width).map_err(EngineError::Request)?;
         let gpu = &*self.gpu;
@@ -122,10 +123,13 @@ impl Model {
         let copies: Vec<(TensorId, &GpuTensor)> =
             std::iter::once((plan.latent, &latent)).chain(plan.cached.iter().copied().zip(&cached)).collect();
         // Profiling times the ops one by one, then runs them again as one submit for the scene's values.
-        let times = if profile { plan.plan.profile(gpu)? } else { Vec::new() };
+        let times = if profile { plan.plan.profile_async(gpu).await? } else { Vec::new() };
+        let reads = [plan.latent];
+        let reading = plan.plan.execute_and_read_async(gpu, &copies, &reads);
         // While the GPU encodes, the load's warm-up finishes, and the first encode of a size the warm-up did not
         // cover compiles the pipelines of a first render of the inputs' size (a render of another size runs the
-        // same pipelines but where its size picks another kernel variant).
+        // same pipelines but where its size picks another kernel variant). A browser has no thread for it: there
+        // it runs before the encode.
         let size_hw = (inputs.height, inputs.width);
         let warm = || {
             if self.claim_warm_up(size_hw) {
@@ -135,12 +139,21 @@ impl Model {
             }
             self.finish_warm_up();
         };
+        #[cfg(not(target_family = "wasm"))]
         let latent_values = std::thread::scope(|scope| {
             scope.spawn(warm);
-            plan.plan.execute_and_read(gpu, &copies, &[plan.latent])
-        })?
-        .remove(0);
-        plan.plan.check_finite(gpu, "encode", &latent_values)?;
+            pollster::block_on(reading)
+        });
+        #[cfg(target_family = "wasm")]
+        let latent_values = {
+            warm();
+            reading.await
+        };
+        let latent_values = latent_values?.remove(0);
+        plan.plan.check_finite_async(gpu, "encode", &latent_values).await?;
+        // Whether renders may make pinhole rays on the GPU (probed once per GPU, by the load's warm-up where it
+        // ran): known before any render is planned.
+        rays::exact_on(gpu).await;
         let scene = EncodedScene {
             model: self,
             latent,
@@ -184,49 +197,45 @@ impl EncodedScene<'_> {
 
     /// Renders the target views: the requested outputs over the requested region (see [`Request`]). The plan
     /// for this (view count, computed size, outputs) is built on first use and reused afterwards: no
-    /// allocation, no pipeline compilation, one submit. Waits for the GPU.
+    /// allocation, no pipeline compilation, one submit. Ready once the GPU is done.
     ///
     /// When a buffer of the render would exceed the GPU's binding limit ([`Gpu::max_buffer_bytes`](crate::gpu::Gpu::max_buffer_bytes): a
     /// Ray-Patch decoder keeps full-resolution features, 157 MB at 960x1280 for the official k=2), the
     /// region is rendered in row bands, each with the halo its pixels depend on, one plan and submit each,
     /// and stitched: the same pixels as one render.
-    pub fn render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
-        let pending = self.submit(targets, &request.into())?;
-        Ok(self.finish(targets, pending, false)?.remove(0))
+    pub async fn render_async(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Frame> {
+        let pending = self.submit(targets, &request.into()).await?;
+        Ok(self.finish(targets, pending, false).await?.remove(0))
     }
 
-    /// [`render`](Self::render), each view's outputs in a frame of its own (as read back: no copy splits them).
-    pub fn render_each(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<Frame>> {
-        let pending = self.submit(targets, &request.into())?;
-        self.finish(targets, pending, true)
+    /// [`render_async`](Self::render_async), each view's outputs in a frame of its own (as read back: no copy
+    /// splits them).
+    pub async fn render_each_async(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<Vec<Frame>> {
+        let pending = self.submit(targets, &request.into()).await?;
+        self.finish(targets, pending, true).await
     }
 
-    /// Renders a sequence of target batches, each as [`render_each`](Self::render_each), keeping the GPU busy:
-    /// a batch is submitted before the one before it is read back, so that the GPU renders while the host
-    /// reads (and makes the next batch's rays). Batches of one size share one plan.
-    pub fn render_sequence<I: Iterator<Item = TargetViews>>(&self, batches: I, request: Request) -> Renders<'_, I> {
-        Renders { scene: self, request, batches, pending: None }
-    }
-
-    /// Writes the inputs of every band of a render and submits them, without waiting for the GPU.
-    fn submit(&self, targets: &TargetViews, request: &Request) -> Result<Pending> {
+    /// Writes the inputs of every band of a render and submits them, without waiting for the GPU to run them.
+    pub(crate) async fn submit(&self, targets: &TargetViews, request: &Request) -> Result<Pending> {
         let bands = self.plans(targets, request)?;
         let gpu = self.model.gpu();
         let per_ray = self.per_ray(&bands[0].0);
         let region = Region { height: bands.iter().map(|(crop, _)| crop.region.height).sum(), ..bands[0].0.region };
-        let submitted =
-            bands.iter().map(|(crop, plan)| plan.submit(gpu, targets, crop, per_ray)).collect::<Result<Vec<_>>>()?;
+        let mut submitted = Vec::with_capacity(bands.len());
+        for (crop, plan) in &bands {
+            submitted.push(plan.submit(gpu, targets, crop, per_ray).await?);
+        }
         Ok(Pending { submitted, region })
     }
 
     /// Waits for a submitted render and reads it: one frame of every view, or one per view.
-    fn finish(&self, targets: &TargetViews, pending: Pending, per_view: bool) -> Result<Vec<Frame>> {
+    pub(crate) async fn finish(&self, targets: &TargetViews, pending: Pending, per_view: bool) -> Result<Vec<Frame>> {
         let Pending { submitted, region } = pending;
         let mut sink = Sink::new(submitted[0].plan(), targets.count, region, per_view);
         for band in submitted {
             let (plan, crop) = (band.plan().clone(), *band.crop());
-            if !band.finish(self.model.gpu(), &mut sink)? {
-                return Err(self.non_finite(targets, &crop, &plan));
+            if !band.finish(self.model.gpu(), &mut sink).await? {
+                return Err(self.non_finite(targets, &crop, &plan).await);
             }
         }
         Ok(sink.frames())
@@ -234,12 +243,15 @@ impl EncodedScene<'_> {
 
     /// Why a render came out NaN or infinite: its inputs written again and its plan run op by op to the first
     /// op whose output is not finite.
-    fn non_finite(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> EngineError {
+    async fn non_finite(&self, targets: &TargetViews, crop: &Crop, plan: &RenderPlan) -> EngineError {
         let gpu = self.model.gpu();
         let _turn = plan.in_use.lock().expect("render plan poisoned");
-        let replayed = gpu.wait().and_then(|()| plan.write_inputs_directly(gpu, targets, crop, self.per_ray(crop)));
+        let replayed = match gpu.finished().await {
+            Ok(()) => plan.write_inputs_directly(gpu, targets, crop, self.per_ray(crop)),
+            Err(e) => Err(e),
+        };
         match replayed {
-            Ok(()) => plan.plan.non_finite(gpu, "render"),
+            Ok(()) => plan.plan.non_finite_async(gpu, "render").await,
             Err(e) => e,
         }
     }
@@ -254,12 +266,12 @@ impl EncodedScene<'_> {
     }
 
     /// Runs the render plans op by op, timing each (slower than [`render`](Self::render); for profiling).
-    pub fn profile_render(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
+    pub async fn profile_render_async(&self, targets: &TargetViews, request: impl Into<Request>) -> Result<OpTimes> {
         let mut times = OpTimes::new();
         for (crop, plan) in self.plans(targets, &request.into())? {
             let _turn = plan.in_use.lock().expect("render plan poisoned");
             plan.write_inputs_directly(self.model.gpu(), targets, &crop, self.per_ray(&crop))?;
-            times.extend(plan.plan.profile(self.model.gpu())?);
+            times.extend(plan.plan.profile_async(self.model.gpu()).await?);
         }
         Ok(times)
     }
@@ -346,7 +358,9 @@ impl EncodedScene<'_> {
         let family = &*self.model.family;
         let k = family.patch_size();
         let mut image = targets.grid_for(&self.model.config, "target views")?;
-        if image.rays == RaySource::Pinhole && !rays::exact_on(self.model.gpu()) {
+        // Probed when the scene was encoded (`rays::exact_on`); unknown counts as not exact.
+        let exact = self.model.gpu().exact_pinhole_rays.get().copied().unwrap_or(false);
+        if image.rays == RaySource::Pinhole && !exact {
             image.rays = RaySource::Pixels; // made by the host as the plan's inputs are written (render_io)
         }
         let outputs = request.outputs;
@@ -469,38 +483,8 @@ impl EncodedScene<'_> {
 }
 
 /// The bands of a render, submitted and not read yet.
-struct Pending {
+pub(crate) struct Pending {
     submitted: Vec<Submitted>,
     /// The requested region (all bands together).
     region: Region,
-}
-
-/// The renders of [`EncodedScene::render_sequence`]: each batch's frames, one per view, in order.
-pub struct Renders<'s, I> {
-    scene: &'s EncodedScene<'s>,
-    request: Request,
-    batches: I,
-    /// The next batch, submitted (or why it could not be).
-    pending: Option<Result<(TargetViews, Pending)>>,
-}
-
-impl<I: Iterator<Item = TargetViews>> Renders<'_, I> {
-    fn submit_next(&mut self) -> Option<Result<(TargetViews, Pending)>> {
-        let targets = self.batches.next()?;
-        Some(self.scene.submit(&targets, &self.request).map(|pending| (targets, pending)))
-    }
-}
-
-impl<I: Iterator<Item = TargetViews>> Iterator for Renders<'_, I> {
-    type Item = Result<Vec<Frame>>;
-
-    fn next(&mut self) -> Option<Result<Vec<Frame>>> {
-        let current = match self.pending.take() {
-            Some(pending) => pending,
-            None => self.submit_next()?,
-        };
-        // The next batch goes to the GPU before this one is read.
-        self.pending = self.submit_next();
-        Some(current.and_then(|(targets, pending)| self.scene.finish(&targets, pending, true)))
-    }
 }

@@ -6,12 +6,14 @@ use std::sync::{Arc, Mutex, Weak};
 
 use crate::device::{CoopShape, KernelChoice, MatmulKernel, COOP_TUNING_FILE};
 
+mod mapping;
 mod pipelines;
 mod staging;
 mod timestamps;
 use crate::error::{EngineError, Result};
 use crate::pipeline_cache::{self, DiskCache, PipelineCacheDir, PipelineCacheStatus};
 use crate::tensor::{padded_cols, Dtype, GpuTensor};
+use mapping::Mapping;
 use pipelines::Pipelines;
 pub(crate) use staging::Staging;
 pub(crate) use timestamps::Timestamps;
@@ -173,9 +175,15 @@ fn adapter_rank(info: &wgpu::AdapterInfo) -> (u32, bool) {
 }
 
 /// Every adapter wgpu can see, best first.
+#[cfg(not(target_family = "wasm"))]
 pub fn list_adapters() -> Vec<wgpu::AdapterInfo> {
+    pollster::block_on(list_adapters_async())
+}
+
+/// Every adapter wgpu can see, best first (in a browser: its one adapter).
+pub async fn list_adapters_async() -> Vec<wgpu::AdapterInfo> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
-    let mut infos: Vec<_> = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()))
+    let mut infos: Vec<_> = (instance.enumerate_adapters(wgpu::Backends::all()).await)
         .into_iter()
         .filter(|a| a.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS))
         .map(|a| a.get_info())
@@ -185,9 +193,11 @@ pub fn list_adapters() -> Vec<wgpu::AdapterInfo> {
 }
 
 impl Gpu {
-    pub fn new(options: &GpuOptions) -> Result<Gpu> {
+    /// The device on the adapter `options` choose (in a browser, its WebGPU adapter), with the kernels that fit
+    /// its features and limits.
+    pub async fn new_async(options: &GpuOptions) -> Result<Gpu> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
-        let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
         adapters.retain(|a| a.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS));
         adapters.sort_by_key(|a| adapter_rank(&a.get_info()));
         let adapter = match &options.adapter {
@@ -207,6 +217,7 @@ impl Gpu {
         })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
+        crate::device::check_limits(&limits).map_err(|why| EngineError::Device(format!("{}: {why}", info.name)))?;
         let mut features = adapter.features() & OPTIONAL_FEATURES;
         if options.without_subgroups {
             features.remove(wgpu::Features::SUBGROUP);
@@ -231,24 +242,27 @@ impl Gpu {
         });
         let cache_file = pipeline_cache::cache_file(&options.pipeline_cache, &adapter);
         let request = |features: wgpu::Features, experimental_features| {
-            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            adapter.request_device(&wgpu::DeviceDescriptor {
                 label: Some("raypatch"),
                 required_features: features | pipeline_cache::features(&cache_file),
                 required_limits: limits.clone(),
                 experimental_features,
                 ..Default::default()
-            }))
+            })
         };
-        let with_coop = coop_shape.and_then(|shape| {
-            // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation; only
-            // the tensor kernels use this one, and their tests check their results on every adapter that has it
-            // (.ci/coop.sh: Mesa's lavapipe with Khronos' validation layer).
-            let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
-            let device = request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental);
-            device
-                .map(|(device, queue)| (device, queue, shape))
-                .map_err(|e| format!("the device could not be made with cooperative matrices: {e}"))
-        });
+        let with_coop = match coop_shape {
+            Ok(shape) => {
+                // SAFETY: wgpu marks its experimental features unsafe for possible bugs in their implementation;
+                // only the tensor kernels use this one, and their tests check their results on every adapter that
+                // has it (.ci/coop.sh: Mesa's lavapipe with Khronos' validation layer).
+                let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
+                let device = request(features | wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, experimental).await;
+                device
+                    .map(|(device, queue)| (device, queue, shape))
+                    .map_err(|e| format!("the device could not be made with cooperative matrices: {e}"))
+            }
+            Err(why) => Err(why),
+        };
         // Where the experimental feature cannot be had, the device is made without it (no `Coop`), and why is kept.
         let (device, queue, coop) = match with_coop {
             Ok((device, queue, shape)) => {
@@ -257,6 +271,7 @@ impl Gpu {
             }
             Err(why) => {
                 let (device, queue) = request(features, wgpu::ExperimentalFeatures::disabled())
+                    .await
                     .map_err(|e| EngineError::Device(e.to_string()))?;
                 (device, queue, Err(why))
             }
@@ -264,9 +279,9 @@ impl Gpu {
         let adapter_max = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let max_buffer_bytes = options.max_buffer_bytes.map_or(adapter_max, |m| m.min(adapter_max));
         let matmul = match options.matmul {
-            None => MatmulKernel::best_for(&info, features),
+            None => MatmulKernel::best_for(&info, features, &limits),
             Some(kernel) => {
-                if let Err(why) = kernel.supported(&info, features) {
+                if let Err(why) = kernel.supported(&info, features).and_then(|()| kernel.fits(&limits)) {
                     return Err(EngineError::Device(format!("matmul kernel {kernel:?} on {}: {why}", info.name)));
                 }
                 kernel
@@ -453,34 +468,44 @@ impl Gpu {
         self.queue.submit([encoder.finish()])
     }
 
-    /// Reads a tensor back as a row-major `[rows, cols]` matrix (row padding removed). Waits for the GPU.
-    pub fn read(&self, tensor: &GpuTensor) -> Result<Vec<f32>> {
-        self.read_rows(&tensor.buffer, 0, tensor.rows, tensor.cols)
+    /// Reads a tensor back as a row-major `[rows, cols]` matrix (row padding removed), once the GPU is done.
+    pub async fn read_async(&self, tensor: &GpuTensor) -> Result<Vec<f32>> {
+        self.read_rows_async(&tensor.buffer, 0, tensor.rows, tensor.cols).await
     }
 
     /// Reads rows `[row_start, row_start + rows)` of a `cols`-wide tensor stored in `buffer`.
-    pub fn read_rows(&self, buffer: &wgpu::Buffer, row_start: usize, rows: usize, cols: usize) -> Result<Vec<f32>> {
+    pub async fn read_rows_async(
+        &self,
+        buffer: &wgpu::Buffer,
+        row_start: usize,
+        rows: usize,
+        cols: usize,
+    ) -> Result<Vec<f32>> {
         let encoder = self.device.create_command_encoder(&Default::default());
         let part = ReadPart { buffer, row_start, rows, cols };
-        Ok(self.submit_and_read(encoder, &[part])?.remove(0))
+        Ok(self.submit_and_read(encoder, &[part]).await?.remove(0))
     }
 
     /// Appends copies of `parts` to `encoder`'s work, submits it (one submit), waits for the GPU and returns
     /// each part as a row-major `[rows, cols]` matrix (row padding removed).
-    pub(crate) fn submit_and_read(
+    pub(crate) async fn submit_and_read(
         &self,
         mut encoder: wgpu::CommandEncoder,
         parts: &[ReadPart<'_>],
     ) -> Result<Vec<Vec<f32>>> {
         let bytes = |part: &ReadPart| (part.rows * padded_cols(part.cols) * 4) as u64;
         let total: u64 = parts.iter().map(bytes).sum();
-        // One readback buffer for these reads (encodes, debugging), kept and grown as needed.
-        let mut kept = self.readback.lock().expect("readback buffer poisoned");
-        if total > 0 && kept.as_ref().is_none_or(|b| b.size() < total) {
-            let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-            *kept = Some(self.create_buffer("readback", total, usage));
-        }
-        let staging = kept.as_ref().filter(|_| total > 0);
+        // One readback buffer for these reads (encodes, debugging), kept and grown as needed; taken while in use,
+        // so that a read that waits in a browser holds no lock.
+        let kept = self.readback.lock().expect("readback buffer poisoned").take();
+        let staging = match kept {
+            _ if total == 0 => None,
+            Some(buffer) if buffer.size() >= total => Some(buffer),
+            _ => {
+                let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+                Some(self.create_buffer("readback", total, usage))
+            }
+        };
         let mut at = 0;
         for part in parts {
             let ld = padded_cols(part.cols);
@@ -495,7 +520,7 @@ impl Gpu {
             return Ok(parts.iter().map(|_| Vec::new()).collect());
         };
         let slice = staging.slice(..total);
-        self.map_for_reading(&slice, "a readback buffer")?;
+        self.map_for_reading(&slice, "a readback buffer").await?;
         let mapped = slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading back: {e}")))?;
         let mut words: &[f32] = bytemuck::cast_slice(&mapped);
         let mut out = Vec::with_capacity(parts.len());
@@ -510,24 +535,32 @@ impl Gpu {
         }
         drop(mapped);
         staging.unmap();
+        *self.readback.lock().expect("readback buffer poisoned") = Some(staging);
         Ok(out)
     }
 
-    /// Maps `slice` for reading once the GPU has finished the work submitted so far (waits for it); `what` names
-    /// the buffer in errors.
-    pub(crate) fn map_for_reading(&self, slice: &wgpu::BufferSlice<'_>, what: &str) -> Result<()> {
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|_| EngineError::Device(format!("mapping {what}: the callback was dropped")))?
-            .map_err(|e| EngineError::Device(format!("mapping {what}: {e}")))
+    /// Maps `slice` for reading once the GPU has finished the work submitted so far; `what` names the buffer
+    /// in errors.
+    pub(crate) async fn map_for_reading(&self, slice: &wgpu::BufferSlice<'_>, what: &str) -> Result<()> {
+        let mapping = Mapping::request(slice, wgpu::MapMode::Read);
+        self.poll()?;
+        match mapping.settled().await {
+            true => Ok(()),
+            false => Err(EngineError::Device(format!("mapping {what} failed"))),
+        }
     }
 
-    /// Blocks until the GPU has finished all submitted work.
-    pub fn wait(&self) -> Result<()> {
+    /// Once the GPU has finished all submitted work.
+    pub async fn finished(&self) -> Result<()> {
+        let done = Mapping::work_done(&self.queue);
+        self.poll()?;
+        done.settled().await;
+        Ok(())
+    }
+
+    /// Runs wgpu's callbacks of finished work, blocking until all submitted work is done on native; a no-op in
+    /// a browser, whose callbacks run from its event loop (the awaits of [`Mapping`]).
+    fn poll(&self) -> Result<()> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map(|_| ())

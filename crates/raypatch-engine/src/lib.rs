@@ -5,6 +5,9 @@
 //! (view count, computed size, outputs) a render plan (`scene`, recorded through `graph` into `plan`) →
 //! kernels (`kernels`, one WGSL file each in `shaders/`) → frame (`frame`).
 
+// The blocking calls of the native API (a browser has only the async ones).
+#[cfg(not(target_family = "wasm"))]
+mod blocking;
 pub mod device;
 pub mod encoded;
 pub mod error;
@@ -21,8 +24,10 @@ mod render_io;
 pub mod tensor;
 pub mod weights;
 
+#[cfg(not(target_family = "wasm"))]
+pub use blocking::Renders;
 pub use device::MatmulKernel;
-pub use encoded::{EncodedScene, OpTimes, Renders};
+pub use encoded::{EncodedScene, OpTimes};
 pub use error::{EngineError, Result};
 pub use frame::{Frame, Output, OutputValues, Outputs, Region, RenderStats, Request};
 pub use gpu::{AdapterChoice, Gpu, GpuOptions};

@@ -198,8 +198,12 @@ fn start_warm_up(
         let render = first_render(graph(&gpu, &weights), &*family, &cached, (height, width));
         gpu.compile_pipelines(encoder.pipelines().chain(render.iter().flat_map(|r| r.pipelines())));
         // Whether this GPU makes pinhole rays (a probe run once per GPU): found here, not in the first render.
-        rays::exact_on(&gpu);
+        pollster::block_on(rays::exact_on(&gpu));
     };
+    // A browser has no threads (its plans compile their pipelines when built).
+    if cfg!(target_family = "wasm") {
+        return None;
+    }
     std::thread::Builder::new().name("raypatch-warm-up".into()).spawn(warm).ok()
 }
 

@@ -157,14 +157,14 @@ impl RenderPlan {
 
     /// Writes the inputs of `views` target views of `crop` (rays `per_ray` pixels apart) and submits the run
     /// with its copies in and out. Returns without waiting for the GPU.
-    pub(crate) fn submit(
+    pub(crate) async fn submit(
         self: &Arc<Self>,
         gpu: &Gpu,
         targets: &TargetViews,
         crop: &Crop,
         per_ray: usize,
     ) -> Result<Submitted> {
-        let staging = self.take_staging(gpu)?;
+        let mut staging = self.take_staging(gpu).await?;
         if !self.write_inputs(&staging, targets, crop, per_ray)? {
             // Nothing was submitted; the staging, unmapped, is dropped. Name the value.
             targets.check_finite("target views")?;
@@ -199,9 +199,10 @@ impl RenderPlan {
 
     /// A staging whose upload buffer is mapped: a kept one, else a new one (a first run, or more runs in flight
     /// than ever before).
-    fn take_staging(&self, gpu: &Gpu) -> Result<Staging> {
-        while let Some(staging) = self.staging.lock().expect("stagings poisoned").pop() {
-            if staging.upload_ready(gpu)? {
+    async fn take_staging(&self, gpu: &Gpu) -> Result<Staging> {
+        loop {
+            let Some(staging) = self.staging.lock().expect("stagings poisoned").pop() else { break };
+            if staging.upload_ready(gpu).await? {
                 return Ok(staging);
             }
         }
@@ -334,9 +335,9 @@ impl Submitted {
 
     /// Waits for the run and copies each view's values of each output once out of the mapped readback buffer
     /// into `sink`. False when the readout flagged a NaN or infinity (nothing is copied then).
-    pub(crate) fn finish(self, gpu: &Gpu, sink: &mut Sink) -> Result<bool> {
+    pub(crate) async fn finish(self, gpu: &Gpu, sink: &mut Sink) -> Result<bool> {
         let Submitted { plan, staging, submission, crop, views } = self;
-        staging.wait_readback(gpu, submission)?;
+        staging.wait_readback(gpu, submission).await?;
         let readback = staging.readback();
         let finite = {
             let mapped = readback

@@ -93,3 +93,59 @@ fn f16_activations_run_on_the_tensor_kernels_only_where_the_device_has_them() {
     let small = KernelChoice { coop: Some(CoopShape { workgroup_bytes: 4096, ..shape }), ..coop };
     assert!(matches!(attention_variant(&small, 10, 64, || None::<()>), AttentionVariant::Flash { .. }));
 }
+
+/// SwiftShader's limits in Chromium (issue 49): a fallback adapter with 10 storage buffers per stage, 32 KiB of
+/// workgroup memory, 256 invocations, no f16 and no subgroups.
+fn swiftshader_limits() -> wgpu::Limits {
+    wgpu::Limits {
+        max_storage_buffers_per_shader_stage: 10,
+        max_compute_workgroup_storage_size: 32 << 10,
+        max_compute_invocations_per_workgroup: 256,
+        ..wgpu::Limits::defaults()
+    }
+}
+
+#[test]
+fn kernels_are_chosen_within_the_adapters_limits() {
+    let none = wgpu::Features::empty();
+    let gpu = wgpu::AdapterInfo::new(wgpu::DeviceType::Other, wgpu::Backend::BrowserWebGpu);
+    let fallback = wgpu::AdapterInfo::new(wgpu::DeviceType::Cpu, wgpu::Backend::BrowserWebGpu);
+    let webgpu_minimum = wgpu::Limits::defaults();
+    assert_eq!(check_limits(&swiftshader_limits()), Ok(()));
+    assert_eq!(check_limits(&webgpu_minimum), Ok(()));
+    assert_eq!(MatmulKernel::best_for(&fallback, none, &swiftshader_limits()), MatmulKernel::Rows);
+    assert_eq!(MatmulKernel::best_for(&gpu, none, &webgpu_minimum), MatmulKernel::Tiled);
+    let small = wgpu::Limits { max_compute_workgroup_storage_size: 8 << 10, ..webgpu_minimum.clone() };
+    assert_eq!(MatmulKernel::best_for(&gpu, none, &small), MatmulKernel::Rows);
+    let why = MatmulKernel::Tiled.fits(&small).unwrap_err();
+    assert!(why.contains("maxComputeWorkgroupStorageSize is 8192"), "{why}");
+    let few = wgpu::Limits { max_storage_buffers_per_shader_stage: 6, ..webgpu_minimum.clone() };
+    let why = check_limits(&few).unwrap_err();
+    assert!(why.contains("maxStorageBuffersPerShaderStage is 6"), "{why}");
+    let narrow = wgpu::Limits { max_compute_invocations_per_workgroup: 32, ..webgpu_minimum };
+    assert!(check_limits(&narrow).unwrap_err().contains("maxComputeInvocationsPerWorkgroup is 32"));
+}
+
+#[test]
+fn no_shader_binds_more_storage_buffers_than_the_limit_the_engine_asks_for() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shaders");
+    let mut most = 0;
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "wgsl") {
+            // Every storage buffer a module declares (an entry point binds at most these).
+            let count = std::fs::read_to_string(&path).unwrap().matches("var<storage").count() as u32;
+            assert!(count <= STORAGE_BUFFERS_PER_STAGE, "{} declares {count} storage buffers", path.display());
+            most = most.max(count);
+        }
+    }
+    assert_eq!(most, STORAGE_BUFFERS_PER_STAGE, "the constant should be the most any shader binds");
+}
+
+#[test]
+fn tiled_workgroup_memory_is_flash_attentions_tiles() {
+    let flash = include_str!("../../../../shaders/attention_flash.wgsl");
+    assert!(flash.contains("const TILE_VEC4S: u32 = 512u;"));
+    assert_eq!(flash.matches("array<vec4<f32>, TILE_VEC4S>").count(), 2);
+    assert_eq!(TILED_WORKGROUP_BYTES, 2 * 512 * 16);
+}

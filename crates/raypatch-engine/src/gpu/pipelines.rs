@@ -1,12 +1,12 @@
 //! The Gpu's compute pipelines: compiled once per shader, entry point and override constants, a plan's all at
-//! once (a thread per core), through the driver's pipeline cache on disk where there is one. Each pipeline has
+//! once (a thread per core; in a browser one after another), through the driver's pipeline cache on disk where there is one. Each pipeline has
 //! a slot that the first thread to want it compiles into while any other that wants it waits (a model's
 //! warm-up, `model.rs`, and the plans of a first encode and render may ask for the same ones at once).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, OnceLock};
-use std::time::Instant;
+use web_time::Instant;
 
 use super::{Gpu, Shader};
 
@@ -59,7 +59,9 @@ impl Gpu {
                 }
             }
         }
-        if missing.len() < 2 {
+        // A browser has no threads to spare (and wasm32 none at all): there every pipeline is compiled where it is
+        // first asked for.
+        if missing.len() < 2 || cfg!(target_family = "wasm") {
             return; // one is compiled where it is first asked for
         }
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(missing.len());

@@ -3,35 +3,19 @@
 //! into for the host to read. Nothing host-visible is allocated per run, and a run's inputs are written
 //! straight into mapped memory.
 
-use std::sync::atomic::{AtomicU8, Ordering};
-use std::sync::Arc;
-
+use super::mapping::Mapping;
 use super::Gpu;
 use crate::error::{EngineError, Result};
-
-/// Where a buffer's mapping stands (set by wgpu's map callback).
-const PENDING: u8 = 0;
-const MAPPED: u8 = 1;
-const FAILED: u8 = 2;
 
 /// An upload and a readback buffer, used by one run at a time: a plan keeps a few, so that the host can fill
 /// the next run's inputs while the last run's outputs wait to be read.
 pub(crate) struct Staging {
     /// MAP_WRITE | COPY_SRC; mapped whenever no run is using it.
     upload: wgpu::Buffer,
-    upload_state: Arc<AtomicU8>,
+    upload_mapping: Mapping,
     /// MAP_READ | COPY_DST.
     readback: wgpu::Buffer,
-    readback_state: Arc<AtomicU8>,
-}
-
-/// A mapping request whose callback records the outcome in `state`.
-fn map(buffer: &wgpu::Buffer, mode: wgpu::MapMode, state: &Arc<AtomicU8>) {
-    state.store(PENDING, Ordering::Release);
-    let state = state.clone();
-    buffer.map_async(mode, .., move |result| {
-        state.store(if result.is_ok() { MAPPED } else { FAILED }, Ordering::Release);
-    });
+    readback_mapping: Mapping,
 }
 
 impl Staging {
@@ -42,12 +26,7 @@ impl Staging {
         let upload = gpu.create_buffer_mapped("upload staging", upload_bytes, usage);
         let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
         let readback = gpu.create_buffer("readback staging", readback_bytes, usage);
-        Staging {
-            upload,
-            upload_state: Arc::new(AtomicU8::new(MAPPED)),
-            readback,
-            readback_state: Arc::new(AtomicU8::new(PENDING)),
-        }
+        Staging { upload, upload_mapping: Mapping::mapped(), readback, readback_mapping: Mapping::default() }
     }
 
     pub(crate) fn upload(&self) -> &wgpu::Buffer {
@@ -60,31 +39,31 @@ impl Staging {
 
     /// Waits until the upload buffer is mapped for writing (its last run's copies are done). False when its
     /// mapping failed: the staging is not to be used again.
-    pub(crate) fn upload_ready(&self, gpu: &Gpu) -> Result<bool> {
-        if self.upload_state.load(Ordering::Acquire) == PENDING {
-            gpu.wait()?;
+    pub(crate) async fn upload_ready(&self, gpu: &Gpu) -> Result<bool> {
+        if self.upload_mapping.outcome().is_none() {
+            gpu.poll()?;
         }
-        Ok(self.upload_state.load(Ordering::Acquire) == MAPPED)
+        Ok(self.upload_mapping.settled().await)
     }
 
     /// After the submit that copies out of the upload buffer and into the readback buffer: maps both again,
     /// each once the GPU is done with it.
-    pub(crate) fn submitted(&self) {
-        map(&self.upload, wgpu::MapMode::Write, &self.upload_state);
-        map(&self.readback, wgpu::MapMode::Read, &self.readback_state);
+    pub(crate) fn submitted(&mut self) {
+        self.upload_mapping = Mapping::request(&self.upload.slice(..), wgpu::MapMode::Write);
+        self.readback_mapping = Mapping::request(&self.readback.slice(..), wgpu::MapMode::Read);
     }
 
     /// Waits for `submission` (the run that filled the readback buffer) and its mappings.
-    pub(crate) fn wait_readback(&self, gpu: &Gpu, submission: wgpu::SubmissionIndex) -> Result<()> {
+    pub(crate) async fn wait_readback(&self, gpu: &Gpu, submission: wgpu::SubmissionIndex) -> Result<()> {
         gpu.device
             .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
             .map_err(|e| EngineError::Device(format!("waiting for the GPU: {e}")))?;
-        if self.readback_state.load(Ordering::Acquire) == PENDING {
-            gpu.wait()?;
+        if self.readback_mapping.outcome().is_none() {
+            gpu.poll()?;
         }
-        match self.readback_state.load(Ordering::Acquire) {
-            MAPPED => Ok(()),
-            _ => Err(EngineError::Device("mapping a readback buffer failed".into())),
+        match self.readback_mapping.settled().await {
+            true => Ok(()),
+            false => Err(EngineError::Device("mapping a readback buffer failed".into())),
         }
     }
 }

@@ -116,16 +116,19 @@ impl Gpu {
         Ok(())
     }
 
-    /// The GPU times of the last plan executed with timestamps on, if any since the last call. Waits for the
-    /// GPU.
-    pub fn take_timestamps(&self) -> Result<Option<GpuTimes>> {
-        let mut timestamps = self.timestamps.lock().expect("timestamps poisoned");
-        let Some((queries, names)) = timestamps.pending.take() else {
-            return Ok(None);
+    /// The GPU times of the last plan executed with timestamps on, if any since the last call, once the GPU
+    /// is done.
+    pub async fn take_timestamps_async(&self) -> Result<Option<GpuTimes>> {
+        let (queries, names, readback) = {
+            let mut timestamps = self.timestamps.lock().expect("timestamps poisoned");
+            let Some((queries, names)) = timestamps.pending.take() else {
+                return Ok(None);
+            };
+            let (_, readback) = timestamps.buffers.as_ref().expect("timestamps were resolved");
+            (queries, names, readback.clone())
         };
-        let (_, readback) = timestamps.buffers.as_ref().expect("timestamps were resolved");
         let slice = readback.slice(..queries as u64 * 8);
-        self.map_for_reading(&slice, "the timestamps")?;
+        self.map_for_reading(&slice, "the timestamps").await?;
         let ticks: Vec<u64> = {
             let mapped =
                 slice.get_mapped_range().map_err(|e| EngineError::Device(format!("reading timestamps: {e}")))?;

@@ -69,11 +69,16 @@ pub fn pinhole_rays(plan: &mut PlanBuilder, label: &str, args: PinholeRaysArgs) 
 /// Whether `gpu` makes pinhole rays bit-equal to the host's, found once per GPU by making a probe camera's rays
 /// of both kinds there. A shader compiler that rewrote the kernel's error-free sums, or a float32 operation not
 /// correctly rounded, would show in them; where it does, renders upload the rays the host makes instead.
-pub fn exact_on(gpu: &Gpu) -> bool {
-    *gpu.exact_pinhole_rays.get_or_init(|| probe(gpu).unwrap_or(false))
+pub async fn exact_on(gpu: &Gpu) -> bool {
+    if let Some(&exact) = gpu.exact_pinhole_rays.get() {
+        return exact;
+    }
+    // Two first renders at once may both probe; they find the same answer.
+    let exact = probe(gpu).await.unwrap_or(false);
+    *gpu.exact_pinhole_rays.get_or_init(|| exact)
 }
 
-fn probe(gpu: &Gpu) -> Result<bool> {
+async fn probe(gpu: &Gpu) -> Result<bool> {
     let pinhole = Intrinsics { width: 37, height: 23, fx: 29.3, fy: 31.7, cx: 17.9, cy: 12.2 };
     // A rotation with no zero entry (about the axis (1, 2, 3), by 0.7 radians), as columns.
     let (axis, (s, c)) = ([1.0, 2.0, 3.0].map(|v: f64| v / 14f64.sqrt()), 0.7f64.sin_cos());
@@ -95,7 +100,7 @@ fn probe(gpu: &Gpu) -> Result<bool> {
         let args = PinholeRaysArgs { terms: b.all(t), views: 1, height, width, out: b.all(o) };
         pinhole_rays(&mut b, "probe", args);
         b.build(gpu)?.execute(gpu);
-        let got = gpu.read_rows(&out.buffer, 0, height * width, padded_cols(3))?;
+        let got = gpu.read_rows_async(&out.buffer, 0, height * width, padded_cols(3)).await?;
         let want = (0..height).flat_map(|i| (0..width).map(move |j| (i, j))).map(|(i, j)| camera.ray(i, j));
         if !got.chunks_exact(4).zip(want).all(|(g, w)| g[..3].iter().zip(w).all(|(a, b)| a.to_bits() == b.to_bits())) {
             return Ok(false);

@@ -91,7 +91,7 @@ impl Plan {
     /// Runs every op, then copies each `(tensor, into)` of `copies` into `into` (a buffer of the same size
     /// that outlives the plan) and reads back the `reads`, all in one submit; waits for the GPU. The values
     /// are row-major `[rows, cols]` matrices, row padding removed.
-    pub fn execute_and_read(
+    pub async fn execute_and_read_async(
         &self,
         gpu: &Gpu,
         copies: &[(TensorId, &GpuTensor)],
@@ -112,7 +112,7 @@ impl Plan {
                 cols: self.infos[id.0].2,
             })
             .collect();
-        gpu.submit_and_read(encoder, &parts)
+        gpu.submit_and_read(encoder, &parts).await
     }
 
     /// Records every op into one compute pass and submits it. Returns without waiting for the GPU.
@@ -122,30 +122,31 @@ impl Plan {
 
     /// Runs the ops one submit at a time, waiting for each, and returns each op's label and wall time.
     /// Slower than [`execute`](Self::execute) (a submit and a wait per op); for finding where time goes.
-    pub fn profile(&self, gpu: &Gpu) -> Result<Vec<(String, std::time::Duration)>> {
+    pub async fn profile_async(&self, gpu: &Gpu) -> Result<Vec<(String, std::time::Duration)>> {
         let mut times = Vec::with_capacity(self.ops.len());
         for op in &self.ops {
-            let start = std::time::Instant::now();
+            let start = web_time::Instant::now();
             self.record(gpu, std::slice::from_ref(op));
-            gpu.wait()?;
+            gpu.finished().await?;
             times.push((op.label.clone(), start.elapsed()));
         }
         Ok(times)
     }
 
     /// Runs the ops one submit at a time and reads back every tensor each op wrote, in order.
-    pub fn execute_debug(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
+    pub async fn execute_debug_async(&self, gpu: &Gpu) -> Result<Vec<OpOutput>> {
         let mut outputs = Vec::new();
         self.run_debug(gpu, |output| {
             outputs.push(output);
             true
-        })?;
+        })
+        .await?;
         Ok(outputs)
     }
 
     /// Runs the ops one at a time and returns the first op output holding NaN or infinity, if any: where a
     /// render that came out non-finite went wrong.
-    pub fn first_non_finite(&self, gpu: &Gpu) -> Result<Option<OpOutput>> {
+    pub async fn first_non_finite_async(&self, gpu: &Gpu) -> Result<Option<OpOutput>> {
         let mut found = None;
         self.run_debug(gpu, |output| {
             if output.data.iter().all(|v| v.is_finite()) {
@@ -153,17 +154,18 @@ impl Plan {
             }
             found = Some(output);
             false
-        })?;
+        })
+        .await?;
         Ok(found)
     }
 
     /// Runs the ops one submit at a time, handing what each wrote to `visit` until it returns false.
-    fn run_debug(&self, gpu: &Gpu, mut visit: impl FnMut(OpOutput) -> bool) -> Result<()> {
+    async fn run_debug(&self, gpu: &Gpu, mut visit: impl FnMut(OpOutput) -> bool) -> Result<()> {
         for op in &self.ops {
             self.record(gpu, std::slice::from_ref(op));
             for view in &op.written {
                 let (name, _, cols, _) = &self.infos[view.id.0];
-                let data = gpu.read_rows(&self.buffers[view.id.0], view.row_start, view.rows, *cols)?;
+                let data = gpu.read_rows_async(&self.buffers[view.id.0], view.row_start, view.rows, *cols).await?;
                 let output =
                     OpOutput { op: op.label.clone(), tensor: name.clone(), rows: view.rows, cols: *cols, data };
                 if !visit(output) {
@@ -176,17 +178,17 @@ impl Plan {
 
     /// Checks values read back from this plan: when any is NaN or infinity, finds the op where they first
     /// appear and reports it (`what` names the render or encode).
-    pub fn check_finite(&self, gpu: &Gpu, what: &str, values: &[f32]) -> Result<()> {
+    pub async fn check_finite_async(&self, gpu: &Gpu, what: &str, values: &[f32]) -> Result<()> {
         if values.iter().all(|v| v.is_finite()) {
             return Ok(());
         }
-        Err(self.non_finite(gpu, what))
+        Err(self.non_finite_async(gpu, what).await)
     }
 
     /// The error of a run whose outputs were NaN or infinite: runs the ops one by one (on the inputs as they
     /// are) to name the op where such values first appear.
-    pub fn non_finite(&self, gpu: &Gpu, what: &str) -> EngineError {
-        let culprit = match self.first_non_finite(gpu) {
+    pub async fn non_finite_async(&self, gpu: &Gpu, what: &str) -> EngineError {
+        let culprit = match self.first_non_finite_async(gpu).await {
             Ok(culprit) => culprit,
             Err(e) => return e,
         };
