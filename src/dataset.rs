@@ -80,8 +80,7 @@ impl SceneData {
     /// Reads a scene from the bytes of a scene file (e.g. one embedded in a program); `name` stands for the
     /// file in messages.
     pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<SceneData> {
-        let file = raypatch_model::TensorFile::parse(name, bytes)?;
-        SceneData::from_scene_file(raypatch_model::views::scene_from_file(&file)?)
+        SceneData::from_scene_file(raypatch_model::views::scene_from_bytes(name, bytes)?)
     }
 
     fn from_scene_file(file: raypatch_model::SceneFile) -> Result<SceneData> {

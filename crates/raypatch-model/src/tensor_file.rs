@@ -76,6 +76,17 @@ pub struct TensorFile {
     max_tensor_bytes: u64,
 }
 
+/// A format error `e` of a file that should have been `expected`, saying what its `first` bytes look like.
+fn expected_instead(e: ModelError, first: &[u8], expected: &str) -> ModelError {
+    match e {
+        ModelError::Format { path, reason } => {
+            let looks_like = sniff(first).map_or(String::new(), |kind| format!("it looks like {kind}; "));
+            ModelError::Format { path, reason: format!("{reason} ({looks_like}expected {expected})") }
+        }
+        other => other,
+    }
+}
+
 impl TensorFile {
     /// Opens a safetensors file (a regular file, see [`crate::files`]) and reads its header.
     pub fn open(path: &Path) -> Result<TensorFile, ModelError> {
@@ -85,13 +96,12 @@ impl TensorFile {
     /// Like [`open`](Self::open), for a file that should be `expected` (e.g. "a model .safetensors file"):
     /// a file that is not safetensors at all is reported as what it looks like, and what was expected.
     pub fn open_as(path: &Path, expected: &str) -> Result<TensorFile, ModelError> {
-        Self::open_sniffing(path).map_err(|(e, first)| match e {
-            ModelError::Format { path, reason } => {
-                let looks_like = sniff(&first).map_or(String::new(), |kind| format!("it looks like {kind}; "));
-                ModelError::Format { path, reason: format!("{reason} ({looks_like}expected {expected})") }
-            }
-            other => other,
-        })
+        Self::open_sniffing(path).map_err(|(e, first)| expected_instead(e, &first, expected))
+    }
+
+    /// [`open_as`](Self::open_as) of file contents held in memory (a browser's files): the same messages.
+    pub fn parse_as(path: &str, bytes: &[u8], expected: &str) -> Result<TensorFile, ModelError> {
+        Self::parse(path, bytes).map_err(|e| expected_instead(e, &bytes[..bytes.len().min(8)], expected))
     }
 
     /// [`open`](Self::open), with the file's first bytes beside an error (to say what the file looks like).

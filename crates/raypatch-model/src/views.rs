@@ -130,7 +130,16 @@ fn check_view_count(path: &str, key: &str, views: usize) -> Result<(), ModelErro
 const SCENE_FILE: &str = "a scene .safetensors file (docs/FORMATS.md) or a folder with transforms.json";
 
 pub fn load_scene(path: impl AsRef<Path>) -> Result<SceneFile, ModelError> {
-    let file = TensorFile::open_as(path.as_ref(), SCENE_FILE)?;
+    scene_of(&TensorFile::open_as(path.as_ref(), SCENE_FILE)?)
+}
+
+/// [`load_scene`] of a file's bytes (a browser's files); `name` names it in messages.
+pub fn scene_from_bytes(name: &str, bytes: &[u8]) -> Result<SceneFile, ModelError> {
+    scene_of(&TensorFile::parse_as(name, bytes, SCENE_FILE)?)
+}
+
+/// The scene in a file that should be one (a model file is named as such).
+fn scene_of(file: &TensorFile) -> Result<SceneFile, ModelError> {
     if !file.contains("input_images") && file.metadata.contains_key("config") {
         return Err(ModelError::Value {
             path: file.path.clone(),
@@ -138,7 +147,7 @@ pub fn load_scene(path: impl AsRef<Path>) -> Result<SceneFile, ModelError> {
             reason: format!("missing: this is a model file, expected {SCENE_FILE}"),
         });
     }
-    scene_from_file(&file)
+    scene_from_file(file)
 }
 
 pub fn scene_from_file(file: &TensorFile) -> Result<SceneFile, ModelError> {
@@ -491,6 +500,23 @@ impl TargetViews {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn files_given_as_bytes_get_the_messages_of_files_given_as_paths() {
+        let dir = std::env::temp_dir().join(format!("raypatch-bytes-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let zip = b"PK\x03\x04 not really a zip";
+        let path = dir.join("bad.safetensors");
+        std::fs::write(&path, zip).unwrap();
+        let by_path = load_scene(&path).unwrap_err().to_string();
+        let by_bytes = scene_from_bytes(&path.display().to_string(), zip).unwrap_err().to_string();
+        assert_eq!(by_bytes, by_path);
+        assert!(by_bytes.contains("expected a scene .safetensors file"), "{by_bytes}");
+        let by_path = crate::load_model(&path).unwrap_err().to_string();
+        let by_bytes = crate::weights::model_from_bytes(&path.display().to_string(), zip).unwrap_err().to_string();
+        assert_eq!(by_bytes, by_path);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn target_depth_is_read_and_its_shape_checked() {

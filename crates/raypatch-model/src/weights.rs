@@ -70,7 +70,7 @@ pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
     let path = path.as_ref();
     match crate::checkpoint::open_if_checkpoint(path)? {
         Some(file) => model_from_file(file),
-        None => model_from_file(TensorFile::open_as(path, "a model .safetensors file (docs/FORMATS.md)")?),
+        None => model_from_file(TensorFile::open_as(path, MODEL_FILE)?),
     }
 }
 
@@ -78,9 +78,12 @@ pub fn load_model(path: impl AsRef<Path>) -> Result<LoadedModel, ModelError> {
 pub fn model_from_bytes(name: &str, bytes: &[u8]) -> Result<LoadedModel, ModelError> {
     match crate::checkpoint::parse_if_checkpoint(name, bytes)? {
         Some(file) => model_from_file(file),
-        None => model_from_file(TensorFile::parse(name, bytes)?),
+        None => model_from_file(TensorFile::parse_as(name, bytes, MODEL_FILE)?),
     }
 }
+
+/// What a model file must be, for messages.
+const MODEL_FILE: &str = "a model .safetensors file (docs/FORMATS.md)";
 
 /// Reads the config of a parsed model file (its tensors are checked when the model is built).
 pub fn model_from_file(file: TensorFile) -> Result<LoadedModel, ModelError> {
