@@ -3,8 +3,8 @@
 // page's floats with native `render-frame --out-raw` for the same cameras: the bundled scene's view 0 and two orbit
 // cameras, and view 0 of every golden case (assets/golden, every family), each within MAX_ABS. A corrupt model and
 // a corrupt scene, loaded through the page's file pickers, must show render-frame's message for them, and a drag
-// must render after them. A screenshot (target/web/screenshot.png) must not be blank. Ends with
-// `web: N passed, M failed`.
+// must render after them. A screenshot (target/web/screenshot.png) must not be blank; without WebGPU the page must
+// say so. Ends with `web: N passed, M failed`.
 //
 //   node web.test.mjs   (from tests/browser, after `npm ci`, `cargo build --release -p raypatch-cli` and the page's
 //                        build into target/web)
@@ -244,6 +244,21 @@ try {
 
   await test('no uncaught error on the page', async () => {
     if (pageErrors.length) throw new Error(pageErrors.join('; '));
+  });
+
+  await test('without WebGPU the page says so', async () => {
+    // Chromium without --enable-unsafe-webgpu offers no adapter here.
+    const plain = await chromium.launchPersistentContext(fs.mkdtempSync(path.join(work, 'plain-')), {
+      executablePath: chromiumPath, headless: true, args: ['--no-sandbox'],
+    });
+    try {
+      const other = await plain.newPage();
+      await other.goto(url);
+      await other.waitForSelector('#no-webgpu:not([hidden])', { timeout: WAIT_MS });
+      return `"${await other.textContent('#adapter')}"`;
+    } finally {
+      await plain.close();
+    }
   });
 } finally {
   await browser.close();
