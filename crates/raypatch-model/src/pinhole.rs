@@ -184,10 +184,15 @@ impl PinholeRays {
     /// the GPU takes it from them, never from the model: a camera's rays are of its own kind on the GPU as on
     /// the host ([`ray`](Self::ray)).
     pub fn gpu_kind(&self) -> f32 {
-        match self.kind {
-            RayKind::UnitDirection => 0.0,
-            RayKind::UnitDepthPoint => 1.0,
-        }
+        gpu_kind_of(self.kind)
+    }
+}
+
+/// A ray kind as the GPU terms carry it ([`PinholeRays::gpu_kind`]; `shaders/rays.wgsl` names them `RAY_KIND_*`).
+pub fn gpu_kind_of(kind: RayKind) -> f32 {
+    match kind {
+        RayKind::UnitDirection => 0.0,
+        RayKind::UnitDepthPoint => 1.0,
     }
 }
 
