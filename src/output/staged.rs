@@ -537,6 +537,40 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// A staged folder's files join the destination folder's at the commit (made where missing, files already
+    /// there kept); dropped, nothing of it is left; a killed run's staged folder is removed.
+    #[test]
+    fn staged_folders_merge_at_the_commit() {
+        let dir = temp_dir("folders");
+        let views = dir.join("views");
+        std::fs::create_dir_all(views.join("a")).unwrap();
+        std::fs::write(views.join("a/mine.txt"), b"mine").unwrap();
+        std::fs::write(views.join("a/view_000.png"), b"old").unwrap();
+        let stale = dir.join(format!(".views{TEMP_MARK}4294967294-0.tmp"));
+        std::fs::create_dir_all(stale.join("a")).unwrap();
+        let ours = |dir: &Path| std::fs::read_dir(dir).unwrap().flatten().filter(|e| e.path() != views).count();
+        for commit in [false, true] {
+            let mut staged = Staged::default();
+            let tmp = staged.stage_folder(&views).unwrap();
+            for scene in ["a", "b"] {
+                std::fs::create_dir_all(tmp.join(scene)).unwrap();
+                std::fs::write(tmp.join(scene).join("view_000.png"), b"new").unwrap();
+            }
+            match commit {
+                true => staged.commit().unwrap(),
+                false => drop(staged),
+            }
+            let want: &[u8] = if commit { b"new" } else { b"old" };
+            assert_eq!(std::fs::read(views.join("a/view_000.png")).unwrap(), want);
+            assert_eq!(views.join("b/view_000.png").exists(), commit);
+            assert_eq!(std::fs::read(views.join("a/mine.txt")).unwrap(), b"mine");
+            if Path::new("/proc/self").exists() {
+                assert_eq!(ours(&dir), 0, "no temporary left");
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// Streamed outputs appear only at the commit; dropped without one, nothing of them is left.
     #[test]
     fn staged_outputs_appear_all_at_the_commit_or_not_at_all() {
