@@ -178,15 +178,14 @@ pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, output
         }
         files.push(("--out-raw", path.clone()));
     }
-    let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
+    let mut inputs: Vec<(&str, &Path)> = data.files.iter().map(|f| ("--scene", f.as_path())).collect();
     let cameras = &args.cameras;
     for (flag, path) in [("--model", &args.model), ("--pose", &cameras.pose), ("--camera-path", &cameras.camera_path)] {
         if let Some(path) = path {
-            inputs.push((flag, path.clone()));
+            inputs.push((flag, path));
         }
     }
     let outputs: Vec<(&str, &Path)> = files.iter().map(|(flag, p)| (*flag, p.as_path())).collect();
-    let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(flag, p)| (*flag, p.as_path())).collect();
     let files = OutputFiles::check(&outputs, &folders, &inputs)?;
     Ok(Destinations { out, segmentation, depth, raw: args.out_raw.clone(), files })
 }
