@@ -32,6 +32,15 @@ pub enum Error {
         /// The operating system's error.
         source: std::io::Error,
     },
+    /// An output that cannot be written where it was asked (checked before anything is written): a path that is
+    /// not a regular file or whose folder is missing, an input, or the same file as another output.
+    #[error("{path}: {reason}")]
+    Output {
+        /// The output, with the flag or argument that named it where there is one (`--out x.png`).
+        path: String,
+        /// What is wrong, e.g. "would overwrite the input given by --model".
+        reason: String,
+    },
     /// An image that could not be decoded or encoded.
     #[error("{path}: {reason}")]
     Image {

@@ -58,7 +58,10 @@ pub use error::{Error, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
-pub use output::{check_output_path, clean_up_on_signals, folder_of, write_all_atomic, write_atomic, Staged};
+pub use output::{
+    check_output_path, clean_up_on_signals, clean_up_on_signals_then, folder_of, same_file, sibling, stop,
+    write_all_atomic, write_atomic, OutputFiles, Staged, MAX_NAME_BYTES, STOP_SECONDS, TEMP_MARK,
+};
 pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::pipeline_cache::{driver_cache_note, prepare_driver_cache};
 pub use raypatch_engine::{

@@ -268,13 +268,21 @@ class Rendered(dict):
 
     def save(self, path: PathLike, output: str = "rgb") -> None:
         """Writes the rgb image as a PNG (written beside, then renamed into place)."""
+        _raypatch.save_png(*self._rgb("save", output), _path("path", path))
+
+    def png(self, output: str = "rgb") -> bytes:
+        """The rgb image as the bytes of a PNG file (for raypatch.output.Staged.write)."""
+        return _raypatch.encode_png(*self._rgb("png", output))
+
+    def _rgb(self, what: str, output: str) -> tuple:
+        """The rgb image as bytes, width, height."""
         if output != "rgb" or "rgb" not in self:
-            raise InputError(f"save: needs the rgb output (rendered: {quoted(sorted(self))})")
+            raise InputError(f"{what}: needs the rgb output (rendered: {quoted(sorted(self))})")
         rgb = self["rgb"]
         if rgb.ndim != 3:
-            raise InputError("save: a batched render holds several views; save one, e.g. Rendered(rgb=r['rgb'][0])")
+            raise InputError(f"{what}: a batched render holds several views; take one, e.g. Rendered(rgb=r['rgb'][0])")
         height, width, _ = rgb.shape
-        _raypatch.save_png(_bytes(rgb), width, height, _path("path", path))
+        return _bytes(rgb), width, height
 
 
 def _rendered(raw: dict) -> Rendered:

@@ -4,6 +4,7 @@
 //! GIL is released while the engine works, so Python threads render at once.
 
 mod paths;
+mod staging;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -47,6 +48,7 @@ fn to_py(e: raypatch::Error) -> PyErr {
     match e {
         raypatch::Error::Model(_)
         | raypatch::Error::Io { .. }
+        | raypatch::Error::Output { .. }
         | raypatch::Error::Image { .. }
         | raypatch::Error::Cameras { .. } => FileError::new_err(message),
         raypatch::Error::Camera(_) | raypatch::Error::Views(_) | raypatch::Error::Metrics(_) => {
@@ -620,5 +622,14 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(paths::scene_centre, m)?)?;
     m.add_function(wrap_pyfunction!(paths::up_axis, m)?)?;
     m.add_function(wrap_pyfunction!(paths::camera_path_cameras, m)?)?;
+    m.add_class::<staging::Staged>()?;
+    m.add("TEMP_MARK", raypatch::TEMP_MARK)?;
+    m.add("MAX_NAME_BYTES", raypatch::MAX_NAME_BYTES)?;
+    m.add("STOP_SECONDS", raypatch::STOP_SECONDS)?;
+    m.add_function(wrap_pyfunction!(staging::check_outputs, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::sibling, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::encode_png, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::stop_on_signals, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::stop, m)?)?;
     Ok(())
 }

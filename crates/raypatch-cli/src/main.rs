@@ -514,7 +514,7 @@ fn is_sequence(cameras: &CameraArgs) -> bool {
 }
 
 /// The files a run wrote, for its summary line: every one, or the first and last of many.
-fn written(files: &files::OutputFiles) -> String {
+fn written(files: &raypatch::OutputFiles) -> String {
     let paths: Vec<String> = files.paths().map(|p| p.display().to_string()).collect();
     match &paths[..] {
         [first, .., last] if paths.len() > 4 => format!("{first} ... {last} ({} files)", paths.len()),
