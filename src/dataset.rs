@@ -383,11 +383,8 @@ fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std:
         }
     }
     let focal_from_angle = |key: &str, angle: f64, size: usize| {
-        if angle > 0.0 && angle < std::f64::consts::PI {
-            Ok(0.5 * size as f64 / (0.5 * angle).tan())
-        } else {
-            Err(format!("`{key}` is {angle}, expected a field of view in radians between 0 and π"))
-        }
+        let fov = crate::input::FieldOfView::radians(angle).map_err(|e| format!("`{key}` is {e}"))?;
+        Ok::<_, String>(fov.focal(size))
     };
     let fx = match (get("fl_x")?, get("camera_angle_x")?) {
         (Some(f), _) => f,
@@ -405,7 +402,8 @@ fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std:
     Camera::pinhole(intrinsics, pose(frame)?, CameraAxes::OpenGl).map_err(|e| e.to_string())
 }
 
-/// The `transform_matrix` of a frame: 4 rows of 4 finite numbers.
+/// The `transform_matrix` of a frame: 4 rows of 4 finite numbers (the JSON read here; the numbers checked by
+/// `crate::input`).
 fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
     let bad = || "`transform_matrix` must be 4 rows of 4 finite numbers".to_string();
     let rows = frame.get("transform_matrix").and_then(Value::as_array).ok_or_else(bad)?;
@@ -419,6 +417,5 @@ fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
             m[r][c] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(bad)?;
         }
     }
-    // The JSON is row-major; glam builds from columns.
-    Ok(DMat4::from_cols_array_2d(&m).transpose())
+    crate::input::pose_from_rows(&m).map_err(|e| e.to_string())
 }

@@ -19,8 +19,8 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use raypatch::raypatch_model::error::MAX_MESSAGE_CHARS;
 use raypatch::{
-    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Precision, Region, Request, SceneData,
-    SceneSource,
+    AdapterChoice, Engine, EngineOptions, ErrorKind, MatmulKernel, Output, Outputs, Precision, Region, Request,
+    SceneData, SceneSource,
 };
 
 use cameras::{check_patch_size, CameraArgs, Shot};
@@ -195,9 +195,21 @@ fn main() -> ExitCode {
                 Some(mib) => eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", one_line(&e)),
                 None => eprintln!("render-frame: error: {}", one_line(&e)),
             }
-            ExitCode::from(2)
+            exit_code(&e)
         }
     }
+}
+
+/// The exit code of a failed run, from whose fault its error is (`raypatch::Error::kind`): 2 for what was asked
+/// or given (bad input, a missing or malformed file; also render-frame's own refusals, which carry no raypatch
+/// error, and flags clap refuses), 3 for the device, 70 (EX_SOFTWARE) for a bug.
+fn exit_code(e: &anyhow::Error) -> ExitCode {
+    let kind = e.chain().find_map(|c| c.downcast_ref::<raypatch::Error>()).map(raypatch::Error::kind);
+    ExitCode::from(match kind {
+        None | Some(ErrorKind::Input | ErrorKind::File) => 2,
+        Some(ErrorKind::Device) => 3,
+        Some(ErrorKind::Internal) => 70,
+    })
 }
 
 /// A flag clap refused (or --help, --version): clap's own message, with a long value it quotes left out.
@@ -298,7 +310,7 @@ fn run(args: &Args) -> Result<()> {
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
     let (shots, path_fps) = cameras::shots(&args.cameras, &data, &views, args.view.is_some(), model.ray_kind())?;
-    check_patch_size(&shots, model.config(), args.cameras.size.is_some())?;
+    check_patch_size(&shots, model.target_sizes(), args.cameras.size.is_some())?;
     let outputs = requested_outputs(args, &shots, model.outputs())?;
     let destinations = files::destinations(args, &shots, &data, outputs)?;
     let mut warnings = model.check_inputs(&inputs)?;
