@@ -195,7 +195,7 @@ fn main() -> ExitCode {
                 Some(mib) => eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", one_line(&e)),
                 None => eprintln!("render-frame: error: {}", one_line(&e)),
             }
-            exit_code(&e)
+            ExitCode::from(exit_status(&e))
         }
     }
 }
@@ -203,13 +203,13 @@ fn main() -> ExitCode {
 /// The exit code of a failed run, from whose fault its error is (`raypatch::Error::kind`): 2 for what was asked
 /// or given (bad input, a missing or malformed file; also render-frame's own refusals, which carry no raypatch
 /// error, and flags clap refuses), 3 for the device, 70 (EX_SOFTWARE) for a bug.
-fn exit_code(e: &anyhow::Error) -> ExitCode {
+fn exit_status(e: &anyhow::Error) -> u8 {
     let kind = e.chain().find_map(|c| c.downcast_ref::<raypatch::Error>()).map(raypatch::Error::kind);
-    ExitCode::from(match kind {
+    match kind {
         None | Some(ErrorKind::Input | ErrorKind::File) => 2,
         Some(ErrorKind::Device) => 3,
         Some(ErrorKind::Internal) => 70,
-    })
+    }
 }
 
 /// A flag clap refused (or --help, --version): clap's own message, with a long value it quotes left out.
@@ -531,5 +531,22 @@ fn written(files: &files::OutputFiles) -> String {
     match &paths[..] {
         [first, .., last] if paths.len() > 4 => format!("{first} ... {last} ({} files)", paths.len()),
         _ => paths.join(", "),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raypatch::raypatch_engine::EngineError;
+
+    /// The exit status of each kind of error, found under render-frame's own context.
+    #[test]
+    fn exit_statuses_follow_the_error_kind() {
+        let status = |e: raypatch::Error| exit_status(&anyhow::Error::from(e).context("--model m.safetensors"));
+        assert_eq!(status(raypatch::Error::Input("target size 50x30".into())), 2);
+        assert_eq!(status(raypatch::Error::Cameras { path: "pose.json".into(), reason: "no".into() }), 2);
+        assert_eq!(status(raypatch::Error::Engine(EngineError::Device("lost".into()))), 3);
+        assert_eq!(status(raypatch::Error::Engine(EngineError::Bug("plan".into()))), 70);
+        assert_eq!(exit_status(&anyhow::anyhow!("--frames 0: expected at least one frame")), 2);
     }
 }
