@@ -14,12 +14,11 @@
 
 use std::path::Path;
 
-use glam::DMat4;
 use raypatch_model::error::Quoted;
 use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics};
-use crate::dataset::{number, pixels};
+use crate::dataset::{json_pose, number, pixels};
 use crate::error::{Error, Result};
 use crate::input::{FieldOfView, MAX_PATH_FRAMES};
 
@@ -94,7 +93,7 @@ pub fn load_camera_path(path: impl AsRef<Path>) -> Result<CameraPath> {
     }
     let camera = |frame: &Value| -> Result<Camera> {
         let intrinsics = intrinsics(&root, frame, width, height, nerfstudio).map_err(Error::Camera)?;
-        Camera::pinhole(intrinsics, pose(frame)?, axes)
+        Camera::pinhole(intrinsics, json_pose(frame, "camera_to_world").map_err(Error::Camera)?, axes)
     };
     let cameras = (frames.iter().enumerate())
         .map(|(i, frame)| camera(frame).map_err(|e| err(format!("`{list_key}` {i}: {}", reason(e)))))
@@ -108,27 +107,6 @@ fn reason(e: Error) -> String {
         Error::Camera(reason) => reason,
         other => other.to_string(),
     }
-}
-
-/// A frame's camera-to-world matrix: `camera_to_world` as 16 numbers (row-major) or 4 rows of 4 (the JSON read
-/// here; the numbers checked by `crate::input`).
-fn pose(frame: &Value) -> Result<DMat4> {
-    let value = frame.get("camera_to_world").ok_or_else(|| Error::Camera("no `camera_to_world`".into()))?;
-    let numbers: Vec<&Value> = match value.as_array() {
-        Some(rows) if rows.len() == 4 && rows.iter().all(Value::is_array) => {
-            rows.iter().flat_map(|r| r.as_array().map(|r| r.iter().collect::<Vec<_>>()).unwrap_or_default()).collect()
-        }
-        Some(flat) => flat.iter().collect(),
-        None => return Err(Error::Camera(format!("`camera_to_world` is {}, expected a 4x4 matrix", Quoted(value)))),
-    };
-    let values: Vec<f64> = numbers.iter().filter_map(|v| v.as_f64()).filter(|v| v.is_finite()).collect();
-    if numbers.len() != 16 || values.len() != 16 {
-        return Err(Error::Camera(format!(
-            "`camera_to_world` must hold 16 finite numbers (a 4x4 matrix), it holds {}",
-            Quoted(value)
-        )));
-    }
-    crate::input::pose_from_numbers(&values)
 }
 
 /// A frame's intrinsics: `fov` (vertical, degrees), or `fl_x`/`fl_y`/`cx`/`cy`, from the frame or else the

@@ -164,13 +164,6 @@ impl FieldOfView {
     pub fn focal(self, pixels: usize) -> f64 {
         (pixels as f64 / 2.0) / (self.radians / 2.0).tan()
     }
-
-    /// Square pixels with this vertical field of view and a centred principal point, on a `width` x `height`
-    /// image (nerfstudio's `fov`, render-frame's `--fov`).
-    pub fn vertical(self, width: usize, height: usize) -> Intrinsics {
-        let f = self.focal(height);
-        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
-    }
 }
 
 /// A camera's intrinsics resized to `width` x `height`, the one policy of every surface: resizing a camera keeps
@@ -241,8 +234,7 @@ mod tests {
             assert!(FieldOfView::degrees(bad).unwrap_err().contains("(0, 180)"), "{bad}");
         }
         assert!(FieldOfView::radians(std::f64::consts::PI).unwrap_err().contains("between 0 and π"));
-        let k = FieldOfView::degrees(90.0).unwrap().vertical(80, 60);
-        assert!((k.fy - 30.0).abs() < 1e-12 && k.fx == k.fy && (k.cx, k.cy) == (40.0, 30.0));
+        assert!((FieldOfView::degrees(90.0).unwrap().focal(60) - 30.0).abs() < 1e-12);
         let base = Intrinsics { width: 80, height: 60, fx: 70.0, fy: 70.0, cx: 40.0, cy: 30.0 };
         assert!(resized(base, None, Some(180.0)).unwrap_err().to_string().contains("fov 180"));
         assert!(check_frames(0).is_err() && check_frames(MAX_PATH_FRAMES + 1).is_err());
