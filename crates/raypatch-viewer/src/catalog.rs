@@ -45,8 +45,7 @@ impl ViewOutput {
 pub struct ModelEntry {
     pub name: String,
     pub family: String,
-    pub k: usize,
-    /// The image sizes it renders.
+    /// The image sizes it renders: its patch size k, or any size.
     pub sizes: PatchSize,
     pub outputs: Vec<ViewOutput>,
     /// Its precision and the kernels its GEMMs run on (`Model::computes_as`).
@@ -59,7 +58,6 @@ impl ModelEntry {
         ModelEntry {
             name: file_name(model.path()),
             family: model.config().name(),
-            k: model.patch_size(),
             sizes: model.target_sizes(),
             outputs,
             computes: model.computes_as(),
@@ -93,9 +91,14 @@ impl SceneEntry {
     pub fn full_size(&self, sizes: PatchSize) -> (usize, usize) {
         let (w, h) = (self.reference.width() as f64, self.reference.height() as f64);
         let shrink = (MAX_SIDE as f64 / w.max(h)).min((MAX_PIXELS as f64 / (w * h)).sqrt()).min(1.0);
-        let (w, h) = (((w * shrink) as usize).max(1), ((h * shrink) as usize).max(1));
-        let within = |&(w, h): &(usize, usize)| w.max(h) <= MAX_SIDE && w * h <= MAX_PIXELS;
-        sizes.nearest(w, h).into_iter().find(within).unwrap_or((sizes.k, sizes.k))
+        nearest_within(sizes, (w * shrink) as usize, (h * shrink) as usize)
+    }
+
+    /// The size the page renders while the camera moves: half the full size, then the nearest size the model
+    /// renders.
+    pub fn preview_size(&self, sizes: PatchSize) -> (usize, usize) {
+        let (w, h) = self.full_size(sizes);
+        nearest_within(sizes, w / 2, h / 2)
     }
 
     /// The camera at `pose` (camera-to-world, OpenGL axes as NeRF's `transform_matrix`) with an image of
@@ -109,6 +112,13 @@ impl SceneEntry {
         };
         Camera::pinhole(intrinsics, pose, CameraAxes::OpenGl)
     }
+}
+
+/// The size nearest to `width` x `height` (each side at least 1) that the model renders within the bounds on
+/// requests (`raypatch::PatchSize::nearest`).
+fn nearest_within(sizes: PatchSize, width: usize, height: usize) -> (usize, usize) {
+    let within = |&(w, h): &(usize, usize)| w.max(h) <= MAX_SIDE && w * h <= MAX_PIXELS;
+    sizes.nearest(width.max(1), height.max(1)).into_iter().find(within).unwrap_or((sizes.k, sizes.k))
 }
 
 /// A camera's camera-to-world pose in OpenGL axes (the `pose` parameter's). A camera given by rays gets the
@@ -140,7 +150,7 @@ pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, li
     json!({
         "adapter": adapter,
         "models": models.iter().map(|m| json!({
-            "name": m.name, "family": m.family, "k": m.k, "computes": m.computes,
+            "name": m.name, "family": m.family, "k": m.sizes.k, "computes": m.computes,
             "outputs": m.outputs.iter().map(|o| o.name()).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "scenes": scenes.iter().map(|s| json!({
@@ -149,6 +159,7 @@ pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, li
             "height": s.reference.height(),
             "pose": pose_of(&s.reference),
             "sizes": models.iter().map(|m| s.full_size(m.sizes)).collect::<Vec<_>>(),
+            "preview_sizes": models.iter().map(|m| s.preview_size(m.sizes)).collect::<Vec<_>>(),
             "inputs": cameras(&s.input_cameras),
             "targets": cameras(&s.target_cameras),
         })).collect::<Vec<_>>(),
@@ -195,6 +206,7 @@ mod tests {
             (scene.full_size(k(4)), scene.full_size(k(8)), scene.full_size(k(64))),
             ((80, 60), (80, 56), (64, 64))
         );
+        assert_eq!((scene.preview_size(k(4)), scene.preview_size(k(8))), ((40, 28), (40, 24)));
         assert_eq!(file_name("assets/models/a.safetensors"), "a.safetensors");
     }
 }

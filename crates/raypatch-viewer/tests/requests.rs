@@ -13,7 +13,6 @@ fn refusal(target: &str) -> HttpError {
     let models = [ModelEntry {
         name: "model.safetensors".into(),
         family: "RP-SRT k=4".into(),
-        k: 4,
         sizes: PatchSize { k: 4, any_size: false },
         outputs: vec![ViewOutput::Rgb],
         computes: "precision f32".into(),
