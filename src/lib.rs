@@ -41,6 +41,7 @@ mod font;
 pub mod fuzzing;
 mod gif;
 mod image;
+pub mod input;
 pub mod metrics;
 mod motion;
 mod output;
@@ -48,16 +49,17 @@ mod panels;
 mod render;
 
 pub use camera::{
-    Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES,
-    MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
+    Camera, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES, MSN_FOCAL_LENGTH,
+    MSN_SENSOR_WIDTH,
 };
-pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
+pub use camera_path::{load_camera_path, CameraPath};
 pub use checkpoint::save_checkpoint_model;
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView, MAX_SCENE_PIXELS};
-pub use error::{Error, Result};
+pub use error::{Error, ErrorKind, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
+pub use input::{resized, CameraAxes, FieldOfView, PatchSize, MAX_PATH_FRAMES, ROTATION_TOLERANCE};
+pub use motion::{fit_pinhole, interpolate, motion_path, scene_centre, up_axis, Motion, MotionOptions};
 pub use output::{
     check_output_path, clean_up_on_signals, clean_up_on_signals_then, folder_of, same_file, sibling, stop,
     write_all_atomic, write_atomic, OutputFiles, Staged, MAX_NAME_BYTES, STOP_SECONDS, TEMP_MARK,

@@ -63,13 +63,6 @@ impl Intrinsics {
     pub fn msn(width: usize, height: usize) -> Intrinsics {
         Intrinsics::from_sensor(MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, width, height)
     }
-
-    /// Square pixels and a centred principal point, from the horizontal field of view in radians (NeRF's
-    /// `camera_angle_x`).
-    pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
-        let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
-        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
-    }
 }
 
 /// Floats a term takes in a GPU upload: hi (x, y, z, kind), then lo (x, y, z, 0); kind is

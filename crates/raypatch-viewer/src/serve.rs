@@ -186,21 +186,13 @@ fn render_jobs(shared: &Shared, scenes: &[Vec<Scene>]) {
 /// One render: the camera the job asks for, through its model's encoding of its scene.
 fn render(job: &Job, scenes: &[Vec<Scene>], entries: &[SceneEntry]) -> Reply {
     let query = &job.query;
-    let camera = entries[query.scene]
-        .camera(query.pose, query.width, query.height)
-        .map_err(|e| HttpError::bad(format!("pose: {e}")))?;
+    let camera = entries[query.scene].camera(query.pose, query.width, query.height).map_err(|e| HttpError::of(&e))?;
     let scene = &scenes[query.model][query.scene];
     if scene.cached_plans() >= MAX_CACHED_PLANS {
         scene.engine_scene().clear_render_plans();
     }
     let request = Request { outputs: Outputs::of(&[query.output.output()]), region: None };
     let start = Instant::now();
-    let rendered = scene.render(&camera, &request).map_err(|e| match e {
-        raypatch::Error::Camera(_) => HttpError::bad(format!("pose: {e}")),
-        raypatch::Error::Engine(raypatch::raypatch_engine::EngineError::TooLarge { .. }) => {
-            HttpError::bad(format!("size: {e}"))
-        }
-        e => HttpError::new(500, format!("render: {e}")),
-    })?;
+    let rendered = scene.render(&camera, &request).map_err(|e| HttpError::of(&e).about("render"))?;
     Ok(Frame { rendered, render_time: start.elapsed() })
 }
