@@ -1,6 +1,16 @@
 // Activations and the functions shaders share (prepended to the sources of matmul, matmul_lanes, conv,
-// elementwise and gru by kernels/mod.rs). `act` codes follow `Activation::params`: 0 none, 1 ReLU, 2 LeakyReLU(slope), 3 exact
-// (erf) GELU.
+// elementwise and gru by kernels/mod.rs).
+
+// The codes of `Params.act` and `Params.mode`: their values are the wrappers' (kernels::Activation,
+// kernels::ConvMode), which tests/uniforms.rs checks against these.
+const ACT_NONE: u32 = 0u;
+const ACT_RELU: u32 = 1u;
+const ACT_LEAKY_RELU: u32 = 2u;
+// Exact (erf) GELU.
+const ACT_GELU: u32 = 3u;
+const MODE_OVERWRITE: u32 = 0u;
+const MODE_ACCUMULATE: u32 = 1u;
+const MODE_RESIDUAL: u32 = 2u;
 
 // 1 / (1 + exp(-v)) without overflow: exp only ever sees -|v| ≤ 0, and for v < 0 the form e / (1 + e),
 // e = exp(v), keeps the relative accuracy of the small results.
@@ -65,13 +75,13 @@ fn erf(v: vec4<f32>) -> vec4<f32> {
 
 fn activate(v: vec4<f32>, act: u32, slope: f32) -> vec4<f32> {
     switch act {
-        case 1u: {
+        case ACT_RELU: {
             return max(v, vec4<f32>(0.0));
         }
-        case 2u: {
+        case ACT_LEAKY_RELU: {
             return select(slope * v, v, v >= vec4<f32>(0.0));
         }
-        case 3u: {
+        case ACT_GELU: {
             return (0.5 * v) * (1.0 + erf(v * 0.70710678));
         }
         default: {
@@ -81,16 +91,16 @@ fn activate(v: vec4<f32>, act: u32, slope: f32) -> vec4<f32> {
 }
 
 // What a matmul or convolution writes: its sum `v` (bias added) against what out held (`prior`; read it
-// only when mode is not 0): mode 0 act(v), 1 prior + act(v) (accumulate), 2 act(prior + v) (residual before
-// the activation, kernels::conv::ConvMode). Columns past the output's width (`real` false) become 0 before
+// only when mode is not MODE_OVERWRITE): MODE_OVERWRITE act(v), MODE_ACCUMULATE prior + act(v), MODE_RESIDUAL
+// act(prior + v) (the residual before the activation). Columns past the output's width (`real` false) become 0 before
 // the accumulation, where prior is 0 too: the padding stays zero.
 fn epilogue(v: vec4<f32>, prior: vec4<f32>, mode: u32, act: u32, slope: f32, real: vec4<bool>) -> vec4<f32> {
     var r = v;
-    if (mode == 2u) {
+    if (mode == MODE_RESIDUAL) {
         r += prior;
     }
     r = select(vec4<f32>(0.0), activate(r, act, slope), real);
-    if (mode == 1u) {
+    if (mode == MODE_ACCUMULATE) {
         r += prior;
     }
     return r;

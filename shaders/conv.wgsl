@@ -107,7 +107,7 @@ fn store_one(v: vec4<f32>, pix: u32, col: u32) {
     let real = vec4<u32>(4u * col) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(p.cout);
     let o = pix * p.cout4 + col;
     var prior = vec4<f32>(0.0);
-    if (p.mode != 0u) {
+    if (p.mode != MODE_OVERWRITE) {
         prior = out[o];
     }
     out[o] = epilogue(v + b, prior, p.mode, p.act, p.slope, real);

@@ -1,7 +1,15 @@
 // Elementwise column map: out[r, j] = f(x[r, col + j]) for j < cols(out), zero in out's row padding.
-// f: 0 identity (copy a channel range), 1 sigmoid, 2 exp, 3 sigmoid(x)·scale + offset, 4 log(sigmoid(x)·scale +
-// offset) (DeFiNe's depth and log-depth). One invocation per vec4 of out.
-// `sigmoid` comes from the activation prelude (kernels/mod.rs).
+// One invocation per vec4 of out. `sigmoid` comes from the activation prelude (kernels/mod.rs).
+
+// The codes of `Params.f`: their values are kernels::elementwise::Map's, which tests/uniforms.rs checks
+// against these. Identity copies a channel range; the last two are DeFiNe's depth and log-depth.
+const MAP_IDENTITY: u32 = 0u;
+const MAP_SIGMOID: u32 = 1u;
+const MAP_EXP: u32 = 2u;
+// sigmoid(x)·scale + offset
+const MAP_SIGMOID_AFFINE: u32 = 3u;
+// log(sigmoid(x)·scale + offset)
+const MAP_LOG_SIGMOID_AFFINE: u32 = 4u;
 
 struct Params {
     rows: u32,
@@ -37,13 +45,13 @@ fn map_columns(
     // Padding lanes read the row's last column instead, to stay inside x's row.
     let at = r * p.x_ld + p.col + min(j, vec4<u32>(p.cols - 1u));
     var v = vec4<f32>(x[at.x], x[at.y], x[at.z], x[at.w]);
-    if (p.f == 1u) {
+    if (p.f == MAP_SIGMOID) {
         v = sigmoid(v);
-    } else if (p.f == 2u) {
+    } else if (p.f == MAP_EXP) {
         v = exp(v);
-    } else if (p.f >= 3u) {
+    } else if (p.f == MAP_SIGMOID_AFFINE || p.f == MAP_LOG_SIGMOID_AFFINE) {
         v = sigmoid(v) * p.scale + p.offset;
-        if (p.f == 4u) {
+        if (p.f == MAP_LOG_SIGMOID_AFFINE) {
             v = log(v);
         }
     }

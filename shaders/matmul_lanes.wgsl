@@ -132,7 +132,7 @@ fn finish(base: u32, row: u32, col: u32, v: vec4<f32>) {
     }
     let at = base + (row * p.ldo + col) / 4u;
     var prior = vec4<f32>(0.0);
-    if (p.mode != 0u) {
+    if (p.mode != MODE_OVERWRITE) {
         prior = out[at];
     }
     let real = vec4<u32>(col) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(p.n);

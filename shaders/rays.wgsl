@@ -3,11 +3,16 @@
 // its documentation for why double-single arithmetic).
 //
 // terms holds, per view, `width` column terms R·[u_j, 0, 0] then `height` row terms R·[0, v_i, 1] (+ the
-// camera centre for unit-depth points), each as hi (x, y, z, kind) then lo (x, y, z, 0): kind 0 for unit
-// directions (SRT, OSRT), 1 for unit-depth points (DeFiNe), the kind the view's terms were made for (the host
-// makes a camera's rays of its own kind; a kind from anywhere else, the model's, would make other rays). The
-// ray of pixel (v, i, j) is column j + row i, normalised when its kind is 0, written to
-// out[(v * height + i) * width + j, 0..3] (zeros in the row's padding).
+// camera centre for unit-depth points), each as hi (x, y, z, kind) then lo (x, y, z, 0): the kind
+// (RAY_KIND_*) the view's terms were made for (the host makes a camera's rays of its own kind; a kind from
+// anywhere else, the model's, would make other rays). The ray of pixel (v, i, j) is column j + row i,
+// normalised when its kind is RAY_KIND_UNIT_DIRECTION, written to out[(v * height + i) * width + j, 0..3]
+// (zeros in the row's padding).
+
+// The kinds the terms carry: their values are raypatch_model::pinhole::gpu_kind_of's, which tests/uniforms.rs
+// checks against these. Unit directions for SRT and OSRT, unit-depth points for DeFiNe.
+const RAY_KIND_UNIT_DIRECTION: f32 = 0.0;
+const RAY_KIND_UNIT_DEPTH_POINT: f32 = 1.0;
 
 struct Params {
     views: u32,
@@ -117,7 +122,7 @@ fn pinhole_rays(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         w[c] = df_add(term(column, c), term(row, c));
     }
     // The kind of the view's camera, which every term of the view carries.
-    if (terms[column * p.terms_ld + 3u] == 0.0) {
+    if (terms[column * p.terms_ld + 3u] == RAY_KIND_UNIT_DIRECTION) {
         let n2 = df_add(df_add(df_mul(w[0], w[0]), df_mul(w[1], w[1])), df_mul(w[2], w[2]));
         let r = df_inverse_sqrt(n2);
         for (var c = 0u; c < 3u; c++) {

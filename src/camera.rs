@@ -5,17 +5,13 @@
 
 use std::sync::Arc;
 
-use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
-use raypatch_model::error::Quoted;
+use glam::{DMat3, DMat4, DVec3, Vec3};
 use raypatch_model::pinhole::PinholeRays;
 use raypatch_model::TargetRays;
 
 use crate::error::{Error, Result};
+pub use crate::input::CameraAxes;
 pub use raypatch_model::RayKind;
-
-/// Largest |RᵀR − I| entry (and |det R − 1|) accepted for a rotation: poses stored as text with 6–7
-/// significant digits pass, a scaled or sheared matrix does not.
-pub const ROTATION_TOLERANCE: f64 = 1e-4;
 
 /// Largest angle between a pixel centre's ray and the optical axis of a pinhole camera (degrees): a field of
 /// view of up to 179.8°.
@@ -71,15 +67,6 @@ fn check_intrinsics(k: &Intrinsics) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The axes of a camera frame, for poses given as camera-to-world matrices.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CameraAxes {
-    /// x right, y down, the camera looks along +z (OpenCV, COLMAP; the MultiShapeNet look-at frame).
-    OpenCv,
-    /// x right, y up, the camera looks along −z (OpenGL, NeRF's `transforms.json`, Blender).
-    OpenGl,
 }
 
 /// Rays in the world frame, row-major, row 0 at the top: unit directions, or for [`RayKind::UnitDepthPoint`]
@@ -196,38 +183,17 @@ impl Camera {
     }
 
     /// A pinhole camera from intrinsics and a camera-to-world pose (rotation and camera centre; the bottom row
-    /// must be 0 0 0 1) whose camera frame has the given axes. The rotation must be orthonormal and
-    /// right-handed (within [`ROTATION_TOLERANCE`]): a scaled, sheared or mirrored pose is an error.
+    /// must be 0 0 0 1) whose camera frame has the given axes. The pose must be rigid
+    /// ([`input::check_pose`](crate::input::check_pose)): a scaled, sheared or mirrored pose is an error.
     pub fn pinhole(intrinsics: Intrinsics, camera_to_world: DMat4, axes: CameraAxes) -> Result<Camera> {
         check_intrinsics(&intrinsics)?;
-        let m = camera_to_world;
-        if !m.is_finite() {
-            return Err(Error::Camera(format!(
-                "pose {} holds NaN or infinity",
-                Quoted(format_args!("{:?}", m.to_cols_array_2d()))
-            )));
-        }
-        if (m.row(3) - DVec4::W).abs().max_element() > ROTATION_TOLERANCE {
-            return Err(Error::Camera(format!("pose bottom row is {}, expected 0 0 0 1", m.row(3))));
-        }
-        let r = DMat3::from_mat4(m);
-        let error = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |e, v| e.max(v.abs()));
-        if error > ROTATION_TOLERANCE || (r.determinant() - 1.0).abs() > ROTATION_TOLERANCE {
-            return Err(Error::Camera(format!(
-                "pose rotation is not orthonormal and right-handed \
-                 (max |RᵀR − I| = {error:.2e}, det = {:.6}, tolerance {ROTATION_TOLERANCE:e})",
-                r.determinant()
-            )));
-        }
-        let rotation = match axes {
-            CameraAxes::OpenCv => r,
-            CameraAxes::OpenGl => DMat3::from_cols(r.x_axis, -r.y_axis, -r.z_axis),
-        };
+        crate::input::check_pose(&camera_to_world)?;
+        let m = axes.to_opencv(camera_to_world);
         Ok(Camera {
             position: m.w_axis.truncate(),
             width: intrinsics.width,
             height: intrinsics.height,
-            projection: Projection::Pinhole { intrinsics, rotation },
+            projection: Projection::Pinhole { intrinsics, rotation: DMat3::from_mat4(m) },
         })
     }
 

@@ -14,16 +14,13 @@
 
 use std::path::Path;
 
-use glam::DMat4;
 use raypatch_model::error::Quoted;
 use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics};
-use crate::dataset::{number, pixels};
+use crate::dataset::{json_pose, number, pixels};
 use crate::error::{Error, Result};
-
-/// Most frames a camera path may hold.
-pub const MAX_PATH_FRAMES: usize = 100_000;
+use crate::input::{FieldOfView, MAX_PATH_FRAMES};
 
 /// The cameras of a camera path file, in order, and its frame rate when it gives one.
 #[derive(Clone, Debug)]
@@ -79,10 +76,10 @@ pub fn load_camera_path(path: impl AsRef<Path>) -> Result<CameraPath> {
             _ => return Err(err(format!("`fps` is {}, expected a positive number", Quoted(v)))),
         },
     };
-    let axes = match root.get("convention").and_then(Value::as_str) {
+    let axes = match root.get("convention") {
         _ if nerfstudio => CameraAxes::OpenGl,
-        None | Some("opengl") => CameraAxes::OpenGl,
-        Some("opencv") => CameraAxes::OpenCv,
+        None | Some(Value::Null) => CameraAxes::OpenGl,
+        Some(Value::String(name)) => name.parse().map_err(|e| err(format!("`convention`: {}", reason(e))))?,
         Some(other) => {
             return Err(err(format!("`convention` is {}, expected \"opengl\" or \"opencv\"", Quoted(other))))
         }
@@ -94,37 +91,22 @@ pub fn load_camera_path(path: impl AsRef<Path>) -> Result<CameraPath> {
     if frames.is_empty() || frames.len() > MAX_PATH_FRAMES {
         return Err(err(format!("`{list_key}` holds {} cameras, expected 1 to {MAX_PATH_FRAMES}", frames.len())));
     }
-    let camera = |frame: &Value| -> std::result::Result<Camera, String> {
-        let intrinsics = intrinsics(&root, frame, width, height, nerfstudio)?;
-        Camera::pinhole(intrinsics, pose(frame)?, axes).map_err(|e| match e {
-            Error::Camera(reason) => reason,
-            other => other.to_string(),
-        })
+    let camera = |frame: &Value| -> Result<Camera> {
+        let intrinsics = intrinsics(&root, frame, width, height, nerfstudio).map_err(Error::Camera)?;
+        Camera::pinhole(intrinsics, json_pose(frame, "camera_to_world").map_err(Error::Camera)?, axes)
     };
     let cameras = (frames.iter().enumerate())
-        .map(|(i, frame)| camera(frame).map_err(|reason| err(format!("`{list_key}` {i}: {reason}"))))
+        .map(|(i, frame)| camera(frame).map_err(|e| err(format!("`{list_key}` {i}: {}", reason(e)))))
         .collect::<Result<Vec<_>>>()?;
     Ok(CameraPath { cameras, fps })
 }
 
-/// A frame's camera-to-world matrix: `camera_to_world` as 16 numbers (row-major) or 4 rows of 4.
-fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
-    let value = frame.get("camera_to_world").ok_or("no `camera_to_world`")?;
-    let numbers: Vec<&Value> = match value.as_array() {
-        Some(rows) if rows.len() == 4 && rows.iter().all(Value::is_array) => {
-            rows.iter().flat_map(|r| r.as_array().map(|r| r.iter().collect::<Vec<_>>()).unwrap_or_default()).collect()
-        }
-        Some(flat) => flat.iter().collect(),
-        None => return Err(format!("`camera_to_world` is {}, expected a 4x4 matrix", Quoted(value))),
-    };
-    let values: Vec<f64> = numbers.iter().filter_map(|v| v.as_f64()).filter(|v| v.is_finite()).collect();
-    if numbers.len() != 16 || values.len() != 16 {
-        return Err(format!(
-            "`camera_to_world` must hold 16 finite numbers (a 4x4 matrix), it holds {}",
-            Quoted(value)
-        ));
+/// What is wrong with a frame's camera, as its line in the file's error says it.
+fn reason(e: Error) -> String {
+    match e {
+        Error::Camera(reason) => reason,
+        other => other.to_string(),
     }
-    Ok(DMat4::from_cols_array(&values.try_into().expect("16 values")).transpose())
 }
 
 /// A frame's intrinsics: `fov` (vertical, degrees), or `fl_x`/`fl_y`/`cx`/`cy`, from the frame or else the
@@ -141,10 +123,7 @@ fn intrinsics(
     let get = |key: &str| number(shared, frame, key);
     let (cx, cy) = (get("cx")?.unwrap_or(width as f64 / 2.0), get("cy")?.unwrap_or(height as f64 / 2.0));
     if let Some(fov) = get("fov")? {
-        if !(fov > 0.0 && fov < 180.0) {
-            return Err(format!("`fov` is {fov}, expected a vertical field of view in degrees in (0, 180)"));
-        }
-        let focal = (height as f64 / 2.0) / (fov.to_radians() / 2.0).tan();
+        let focal = FieldOfView::degrees(fov).map_err(|e| format!("`fov` is {e}"))?.focal(height);
         return Ok(Intrinsics { width, height, fx: focal, fy: focal, cx, cy });
     }
     match (get("fl_x")?, get("fl_y")?) {

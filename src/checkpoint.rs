@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 /// checkpoint (a model file is already one).
 pub fn save_checkpoint_model(checkpoint: &Path, out: &Path) -> Result<usize> {
     let refuse = |reason: &str| Error::io(out, "cannot write", std::io::Error::other(reason.to_string()));
-    if same_file(checkpoint, out) {
+    if crate::output::same_file(checkpoint, out) {
         return Err(refuse("is the input checkpoint itself: choose another output path"));
     }
     crate::output::check_output_path(out)?;
@@ -27,18 +27,4 @@ pub fn save_checkpoint_model(checkpoint: &Path, out: &Path) -> Result<usize> {
     raypatch_engine::models::build(&loaded, raypatch_engine::nn::ReadLimits::NONE)?;
     crate::output::write_atomic(out, bytes)?;
     Ok(loaded.tensor_count())
-}
-
-/// Whether two paths name the same file (through `./`, symlinks and hard links).
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        #[cfg(unix)]
-        (Ok(x), Ok(y)) => {
-            use std::os::unix::fs::MetadataExt;
-            x.dev() == y.dev() && x.ino() == y.ino()
-        }
-        #[cfg(not(unix))]
-        (Ok(_), Ok(_)) => a.canonicalize().ok() == b.canonicalize().ok(),
-        _ => false,
-    }
 }

@@ -346,7 +346,8 @@ pub fn load_pose(path: impl AsRef<Path>, like: &Camera) -> Result<Camera> {
             Some((k, _)) if (k.width, k.height) == (width, height) => k,
             _ => Intrinsics::msn(width, height),
         };
-        pose(&root).and_then(|m| Camera::pinhole(intrinsics, m, CameraAxes::OpenGl).map_err(|e| e.to_string()))
+        json_pose(&root, "transform_matrix")
+            .and_then(|m| Camera::pinhole(intrinsics, m, CameraAxes::OpenGl).map_err(|e| e.to_string()))
     };
     camera.map_err(err)
 }
@@ -382,11 +383,8 @@ fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std:
         }
     }
     let focal_from_angle = |key: &str, angle: f64, size: usize| {
-        if angle > 0.0 && angle < std::f64::consts::PI {
-            Ok(0.5 * size as f64 / (0.5 * angle).tan())
-        } else {
-            Err(format!("`{key}` is {angle}, expected a field of view in radians between 0 and π"))
-        }
+        let fov = crate::input::FieldOfView::radians(angle).map_err(|e| format!("`{key}` is {e}"))?;
+        Ok::<_, String>(fov.focal(size))
     };
     let fx = match (get("fl_x")?, get("camera_angle_x")?) {
         (Some(f), _) => f,
@@ -401,23 +399,25 @@ fn nerf_camera(root: &Value, frame: &Value, width: usize, height: usize) -> std:
     let cx = get("cx")?.unwrap_or(width as f64 / 2.0);
     let cy = get("cy")?.unwrap_or(height as f64 / 2.0);
     let intrinsics = Intrinsics { width, height, fx, fy, cx, cy };
-    Camera::pinhole(intrinsics, pose(frame)?, CameraAxes::OpenGl).map_err(|e| e.to_string())
+    Camera::pinhole(intrinsics, json_pose(frame, "transform_matrix")?, CameraAxes::OpenGl).map_err(|e| e.to_string())
 }
 
-/// The `transform_matrix` of a frame: 4 rows of 4 finite numbers.
-fn pose(frame: &Value) -> std::result::Result<DMat4, String> {
-    let bad = || "`transform_matrix` must be 4 rows of 4 finite numbers".to_string();
-    let rows = frame.get("transform_matrix").and_then(Value::as_array).ok_or_else(bad)?;
-    if rows.len() != 4 {
-        return Err(bad());
-    }
-    let mut m = [[0.0f64; 4]; 4];
-    for (r, row) in rows.iter().enumerate() {
-        let row = row.as_array().filter(|row| row.len() == 4).ok_or_else(bad)?;
-        for (c, v) in row.iter().enumerate() {
-            m[r][c] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(bad)?;
+/// A camera-to-world pose under `key` of a JSON object, as 4 rows of 4 numbers or 16 numbers row by row (the
+/// JSON read here, the numbers checked by `crate::input`): `transform_matrix` in `transforms.json` and pose
+/// files, `camera_to_world` in camera paths.
+pub(crate) fn json_pose(object: &Value, key: &str) -> std::result::Result<DMat4, String> {
+    let expected = "4 rows of 4 finite numbers, or 16 finite numbers row by row";
+    let value = object.get(key).ok_or_else(|| format!("no `{key}` (expected {expected})"))?;
+    let numbers: Vec<&Value> = match value.as_array() {
+        Some(rows) if rows.len() == 4 && rows.iter().all(|r| r.as_array().is_some_and(|r| r.len() == 4)) => {
+            rows.iter().flat_map(|r| r.as_array().into_iter().flatten()).collect()
         }
+        Some(flat) if flat.len() == 16 => flat.iter().collect(),
+        _ => Vec::new(),
+    };
+    let values: Vec<f64> = numbers.iter().filter_map(|v| v.as_f64()).filter(|v| v.is_finite()).collect();
+    if numbers.len() != 16 || values.len() != 16 {
+        return Err(format!("`{key}` must hold {expected} (a 4x4 matrix), it holds {}", Quoted(value)));
     }
-    // The JSON is row-major; glam builds from columns.
-    Ok(DMat4::from_cols_array_2d(&m).transpose())
+    crate::input::pose_from_numbers(&values).map_err(|e| e.to_string())
 }

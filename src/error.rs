@@ -32,6 +32,15 @@ pub enum Error {
         /// The operating system's error.
         source: std::io::Error,
     },
+    /// An output that cannot be written where it was asked (checked before anything is written): a path that is
+    /// not a regular file or whose folder is missing, an input, or the same file as another output.
+    #[error("{path}: {reason}")]
+    Output {
+        /// The output, with the flag or argument that named it where there is one (`--out x.png`).
+        path: String,
+        /// What is wrong, e.g. "would overwrite the input given by --model".
+        reason: String,
+    },
     /// An image that could not be decoded or encoded.
     #[error("{path}: {reason}")]
     Image {
@@ -57,6 +66,26 @@ pub enum Error {
     /// Images that cannot be compared (metrics).
     #[error("metrics: {0}")]
     Metrics(String),
+    /// Camera input refused before any work (`crate::input`): a pose that is not finite and rigid, an axis
+    /// convention's name, an image size the model's patch size does not divide, a frame count out of range.
+    #[error("{0}")]
+    Input(String),
+}
+
+/// Whose fault an [`Error`](enum@Error) is: what each surface maps to its own answer, in one table each (the
+/// CLI's exit code, the viewer's HTTP status, Python's exception class).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// What the caller asked for: a size, pose, camera, flag, option or request the engine cannot take, or one
+    /// too large for this device's buffers or float32.
+    Input,
+    /// A model, scene, image or camera file that is missing, unreadable or malformed, or an output that cannot
+    /// be written.
+    File,
+    /// The device: no adapter, a device lost or failing, out of memory.
+    Device,
+    /// A broken invariant of raypatch itself: a bug.
+    Internal,
 }
 
 /// `Result` with [`Error`](enum@Error).
@@ -73,6 +102,32 @@ impl From<raypatch_engine::EngineError> for Error {
 }
 
 impl Error {
+    /// Whose fault this error is.
+    ///
+    /// ```
+    /// use raypatch::{Engine, EngineOptions, ErrorKind};
+    /// # let engine = Engine::new(EngineOptions::default())?;
+    /// assert_eq!(engine.load("no/such/model.safetensors").err().map(|e| e.kind()), Some(ErrorKind::File));
+    /// assert_eq!("blender".parse::<raypatch::CameraAxes>().unwrap_err().kind(), ErrorKind::Input);
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn kind(&self) -> ErrorKind {
+        use raypatch_engine::EngineError as E;
+        match self {
+            Error::Model(_) | Error::Io { .. } | Error::Output { .. } | Error::Image { .. } | Error::Cameras { .. } => {
+                ErrorKind::File
+            }
+            Error::Camera(_) | Error::Views(_) | Error::Metrics(_) | Error::Input(_) => ErrorKind::Input,
+            Error::Engine(e) => match e {
+                E::Model(_) => ErrorKind::File,
+                // Values that overflow float32 are the weights' or the inputs' (hardening: render-frame exits 2).
+                E::AdapterNotFound(_) | E::TooLarge { .. } | E::NonFinite { .. } | E::Request(_) => ErrorKind::Input,
+                E::NoAdapter(_) | E::Device(_) | E::OutOfMemory(_) => ErrorKind::Device,
+                E::Bug(_) => ErrorKind::Internal,
+            },
+        }
+    }
+
     pub(crate) fn io(path: &std::path::Path, action: &'static str, source: std::io::Error) -> Error {
         Error::Io { path: path.display().to_string(), action, source }
     }

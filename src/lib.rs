@@ -43,6 +43,7 @@ mod font;
 pub mod fuzzing;
 mod gif;
 mod image;
+pub mod input;
 pub mod metrics;
 mod motion;
 #[cfg(not(target_family = "wasm"))]
@@ -51,19 +52,23 @@ mod panels;
 mod render;
 
 pub use camera::{
-    Camera, CameraAxes, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES,
-    MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, ROTATION_TOLERANCE,
+    Camera, Intrinsics, RayGrid, RayKind, MAX_RAY_ANGLE_DEGREES, MIN_FIELD_OF_VIEW_DEGREES, MSN_FOCAL_LENGTH,
+    MSN_SENSOR_WIDTH,
 };
-pub use camera_path::{load_camera_path, CameraPath, MAX_PATH_FRAMES};
+pub use camera_path::{load_camera_path, CameraPath};
 #[cfg(not(target_family = "wasm"))]
 pub use checkpoint::save_checkpoint_model;
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView, MAX_SCENE_PIXELS};
-pub use error::{Error, Result};
+pub use error::{Error, ErrorKind, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-pub use motion::{fit_pinhole, interpolate, motion_path, resized, scene_centre, up_axis, Motion, MotionOptions};
+pub use input::{resized, CameraAxes, FieldOfView, PatchSize, MAX_PATH_FRAMES, ROTATION_TOLERANCE};
+pub use motion::{fit_pinhole, interpolate, motion_path, scene_centre, up_axis, Motion, MotionOptions};
 #[cfg(not(target_family = "wasm"))]
-pub use output::{check_output_path, clean_up_on_signals, folder_of, write_all_atomic, write_atomic, Staged};
+pub use output::{
+    check_output_path, clean_up_on_signals, clean_up_on_signals_then, folder_of, same_file, sibling, stop,
+    write_all_atomic, write_atomic, OutputFiles, Staged, MAX_NAME_BYTES, STOP_SECONDS, TEMP_MARK,
+};
 pub use panels::{scaled_to_height, side_by_side};
 pub use raypatch_engine::pipeline_cache::{driver_cache_note, prepare_driver_cache};
 pub use raypatch_engine::{

@@ -1,6 +1,6 @@
 //! Camera motions for videos: presets about a scene's centre (orbit, spiral, zoom, closeup, eyeroll, after
 //! stelzner/srt's `render.py --motion`), smooth interpolation between key cameras (Catmull-Rom positions, slerped
-//! rotations), and a camera's size or field of view changed.
+//! rotations). A camera's size or field of view is changed by `crate::input::resized`.
 //!
 //! Every camera here is a pinhole camera. Cameras given as rays (scene files store rays) are first fitted with
 //! one ([`fit_pinhole`]): a centred principal point and the pose and focal lengths their corner rays give,
@@ -156,7 +156,17 @@ fn fade(t: f64) -> f64 {
 /// `options.frames` cameras with `start`'s intrinsics. The start camera is first placed at the options'
 /// elevation and radius (its own by default), at its own azimuth, looking at the centre.
 pub fn motion_path(motion: Motion, start: (Intrinsics, DMat4), options: &MotionOptions) -> Result<Vec<Camera>> {
+    let n = crate::input::check_frames(options.frames)?;
+    if let Some(e) = options.elevation.filter(|e| !(-90.0..=90.0).contains(e)) {
+        return Err(Error::Camera(format!("elevation {e}: expected degrees from -90 to 90")));
+    }
     let (intrinsics, pose) = start;
+    if !options.centre.is_finite() || !options.up.is_finite() || options.up.length() < 1e-9 {
+        return Err(Error::Camera(format!(
+            "centre {} and up {}: expected finite points, a non-zero up",
+            options.centre, options.up
+        )));
+    }
     let (centre, up) = (options.centre, options.up.normalize());
     let offset = pose.w_axis.truncate() - centre;
     let level = offset - up * offset.dot(up);
@@ -172,7 +182,6 @@ pub fn motion_path(motion: Motion, start: (Intrinsics, DMat4), options: &MotionO
     };
     let look = |eye: DVec3, target: DVec3, k: Intrinsics| Camera::look_at(eye, target, up, k);
     let eye = place(0.0, elevation, radius);
-    let n = options.frames;
     let tau = std::f64::consts::TAU;
     (0..n)
         .map(|i| {
@@ -221,6 +230,7 @@ fn level_of(v: DVec3, up: DVec3) -> DVec3 {
 /// slerped between neighbouring keys, focal lengths and principal points linear. Every key must have the
 /// same image size.
 pub fn interpolate(keys: &[(Intrinsics, DMat4)], frames: usize) -> Result<Vec<Camera>> {
+    let frames = crate::input::check_frames(frames)?;
     let Some(&(first, _)) = keys.first() else {
         return Err(Error::Camera("no key camera to interpolate between".into()));
     };
@@ -262,29 +272,4 @@ pub fn interpolate(keys: &[(Intrinsics, DMat4)], frames: usize) -> Result<Vec<Ca
             Camera::pinhole(intrinsics, DMat4::from_rotation_translation(rotation, position), CameraAxes::OpenCv)
         })
         .collect()
-}
-
-/// Intrinsics of another image size and/or vertical field of view (degrees): a new size keeps the vertical
-/// field of view (the focal lengths scale with the height) and centres the principal point; a field of view
-/// sets square pixels with the focal length (height / 2) / tan(fov / 2).
-pub fn resized(intrinsics: Intrinsics, size: Option<(usize, usize)>, fov: Option<f64>) -> Result<Intrinsics> {
-    let (width, height) = size.unwrap_or((intrinsics.width, intrinsics.height));
-    crate::image::check_image_size(width, height).map_err(Error::Camera)?;
-    let scale = height as f64 / intrinsics.height as f64;
-    let mut k = Intrinsics {
-        width,
-        height,
-        fx: intrinsics.fx * scale,
-        fy: intrinsics.fy * scale,
-        cx: if size.is_some() { width as f64 / 2.0 } else { intrinsics.cx },
-        cy: if size.is_some() { height as f64 / 2.0 } else { intrinsics.cy },
-    };
-    if let Some(fov) = fov {
-        if !(fov > 0.0 && fov < 180.0) {
-            return Err(Error::Camera(format!("fov {fov}: expected a vertical field of view in degrees in (0, 180)")));
-        }
-        let focal = (height as f64 / 2.0) / (fov.to_radians() / 2.0).tan();
-        k = Intrinsics { fx: focal, fy: focal, ..k };
-    }
-    Ok(k)
 }

@@ -226,6 +226,11 @@ impl Model {
         self.inner.config.patch_size()
     }
 
+    /// The image sizes the model renders (see [`crate::input::check_patch_size`]).
+    pub fn target_sizes(&self) -> crate::input::PatchSize {
+        crate::input::PatchSize::of(&self.inner.config)
+    }
+
     /// What the model's rays are: unit directions (SRT, OSRT) or unit-depth points (DeFiNe). Cameras given by
     /// rays must hold this kind; pinhole cameras are turned into it.
     pub fn ray_kind(&self) -> RayKind {
@@ -451,8 +456,7 @@ impl<'m> Scene<'m> {
 
     /// [`render`](Self::render), ready once the GPU is done (the one a browser has).
     pub async fn render_async(&self, camera: &Camera, request: &Request) -> Result<Rendered> {
-        let config = &self.inner.model().config;
-        check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
+        self.check_target(camera)?;
         let frame = self.inner.render_async(&self.target_views(camera), *request).await?;
         Ok(Rendered { region: frame.region, outputs: frame.outputs })
     }
@@ -474,6 +478,7 @@ impl<'m> Scene<'m> {
     /// [`BATCH_BUDGET_BYTES`] of planned GPU memory with no buffer over the adapter's limit, spread evenly over
     /// the calls (so that the last is not much shorter: a path pads it).
     pub fn views_per_batch(&self, camera: &Camera, request: &Request, count: usize) -> Result<usize> {
+        self.check_target(camera)?;
         let fit = self.inner.views_within(&self.target_views(camera), *request, BATCH_BUDGET_BYTES)?;
         let calls = count.div_ceil(fit.max(1)).max(1);
         Ok(count.div_ceil(calls).max(1))
@@ -506,7 +511,7 @@ impl<'m> Scene<'m> {
         let mut failure = None;
         for (i, camera) in cameras.iter().enumerate() {
             let size = |c: &Camera| (c.width(), c.height(), c.pixels_per_ray());
-            let checked = check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera");
+            let checked = self.check_target(camera);
             let checked = checked.and_then(|_| match size(camera) == size(&cameras[0]) {
                 true => Ok(()),
                 false => Err(Error::Camera(format!(
@@ -532,13 +537,25 @@ impl<'m> Scene<'m> {
     /// What rendering `camera` with `request` computes: decoder queries, pixels, dispatches and planned memory
     /// (builds the plan if it does not exist yet).
     pub fn render_stats(&self, camera: &Camera, request: &Request) -> Result<RenderStats> {
+        self.check_target(camera)?;
         Ok(self.inner.render_stats(&self.target_views(camera), *request)?)
     }
 
     /// Renders op by op and returns each op's label and time (for profiling).
     #[cfg(not(target_family = "wasm"))]
     pub fn profile_render(&self, camera: &Camera, request: &Request) -> Result<raypatch_engine::OpTimes> {
+        self.check_target(camera)?;
         Ok(self.inner.profile_render(&self.target_views(camera), *request)?)
+    }
+
+    /// Checks a target camera against the model's contract: [`Model::check_camera`] and an image size the
+    /// patch size allows.
+    fn check_target(&self, camera: &Camera) -> Result<()> {
+        let config = &self.inner.model().config;
+        check_camera(camera, config.ray_kind(), config.position_octaves().1, "target camera")?;
+        let sizes = crate::input::PatchSize::of(config);
+        crate::input::check_patch_size(sizes, camera.width(), camera.height())
+            .map_err(|e| Error::Input(format!("target camera: {e}")))
     }
 
     /// `camera` as the engine's render target, with rays of the model's kind.

@@ -160,10 +160,14 @@ fn interpolation_passes_through_the_keys_smoothly() {
 }
 
 #[test]
-fn resizing_keeps_the_vertical_field_of_view_and_fov_sets_it() {
+fn resizing_keeps_the_vertical_field_of_view_and_the_principal_points_place_and_fov_sets_it() {
     let k = Intrinsics::msn(48, 32);
     let big = resized(k, Some((96, 64)), None).unwrap();
     assert_eq!((big.fx, big.cx, big.cy), (2.0 * k.fx, 48.0, 32.0));
+    // Off centre, to another aspect: fx and fy scale with the height, cx with the width, cy with the height.
+    let off = Intrinsics { width: 80, height: 60, fx: 70.0, fy: 72.0, cx: 30.0, cy: 20.0 };
+    let other = resized(off, Some((160, 90)), None).unwrap();
+    assert_eq!((other.fx, other.fy, other.cx, other.cy), (105.0, 108.0, 60.0, 30.0));
     let wide = resized(k, None, Some(90.0)).unwrap();
     assert!((wide.fy - 16.0).abs() < 1e-9 && wide.fx == wide.fy);
     assert!(resized(k, None, Some(180.0)).is_err() && resized(k, Some((0, 32)), None).is_err());

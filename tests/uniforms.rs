@@ -2,12 +2,13 @@
 //! Rust wrapper (`kernels::params!`). The shader reads the bytes the wrapper writes, so the two must agree
 //! on every member's name, offset and type and on the size; a reordered, renamed or retyped field on
 //! either side fails here, without a GPU. The shaders are the ones the engine compiles (variants included),
-//! from its one list, `kernels::UNIFORMS`.
+//! from its one list, `kernels::UNIFORMS`. The codes the kernels read from those fields (activations, modes,
+//! maps, ray kinds) are named WGSL constants whose values must be the wrappers' (`kernels::shader_codes`).
 
 mod common;
 
 use naga::{ArraySize, Handle, Module, ScalarKind, Type, TypeInner, VectorSize};
-use raypatch_engine::kernels::{Field, ParamsLayout, ALL_SHADERS, UNIFORMS, VARIANTS};
+use raypatch_engine::kernels::{shader_codes, Field, ParamsLayout, ShaderCode, ALL_SHADERS, UNIFORMS, VARIANTS};
 use raypatch_engine::wgpu::Features;
 
 /// A naga type as the Rust type that has its layout in a uniform, and that type's size:
@@ -148,5 +149,86 @@ fn a_mismatch_is_caught() {
         }
         let result = compare(shader.name, &edited, shader.features, rust);
         assert!(result.is_err(), "editing `{from}` into `{to}` went unnoticed");
+    }
+}
+
+/// The named constants of a shader's source, with their values.
+fn wgsl_constants(name: &str, source: &str, features: Features) -> Vec<(String, f64)> {
+    let (module, _) = common::validate_wgsl(name, source, features);
+    module
+        .constants
+        .iter()
+        .filter_map(|(_, c)| {
+            let value = match module.global_expressions[c.init] {
+                naga::Expression::Literal(naga::Literal::U32(v)) => v as f64,
+                naga::Expression::Literal(naga::Literal::I32(v)) => v as f64,
+                naga::Expression::Literal(naga::Literal::F32(v)) => v as f64,
+                _ => return None,
+            };
+            Some((c.name.clone()?, value))
+        })
+        .collect()
+}
+
+/// Where the shaders' code constants and the wrappers' codes disagree: a value that differs, a code the shader
+/// does not declare, or a constant of a code family (its prefix) that no wrapper value stands for.
+fn code_mismatches(codes: &[ShaderCode], source_of: impl Fn(&str) -> String) -> Vec<String> {
+    let family = |name: &str| name.split('_').next().unwrap_or_default().to_string();
+    let families: std::collections::BTreeSet<String> = codes.iter().map(|c| family(c.name)).collect();
+    let shaders: std::collections::BTreeSet<&str> = codes.iter().map(|c| c.shader).collect();
+    let mut mismatches = Vec::new();
+    for shader in shaders {
+        let features = ALL_SHADERS.iter().find(|s| s.name == shader).expect("a listed shader").features;
+        let constants = wgsl_constants(shader, &source_of(shader), features);
+        for code in codes.iter().filter(|c| c.shader == shader) {
+            match constants.iter().find(|(name, _)| name == code.name) {
+                Some((_, value)) if *value == code.value => {}
+                Some((_, value)) => {
+                    mismatches.push(format!("{shader}: {} is {value} in WGSL, {} in Rust", code.name, code.value))
+                }
+                None => mismatches.push(format!("{shader}: no WGSL constant {} (Rust code {})", code.name, code.value)),
+            }
+        }
+        for (name, _) in &constants {
+            let listed = codes.iter().any(|c| c.shader == shader && c.name == name);
+            if families.contains(&family(name)) && name.contains('_') && !listed {
+                mismatches.push(format!("{shader}: WGSL constant {name} stands for no Rust code"));
+            }
+        }
+    }
+    mismatches
+}
+
+fn shader_source(name: &str) -> String {
+    ALL_SHADERS.iter().find(|s| s.name == name).expect("a listed shader").wgsl().into_owned()
+}
+
+#[test]
+fn every_code_a_kernel_reads_has_the_wrappers_value_in_its_shader() {
+    let codes = shader_codes();
+    assert!(codes.len() >= 14, "activations, modes, maps and ray kinds: {codes:?}");
+    let mismatches = code_mismatches(&codes, shader_source);
+    assert!(mismatches.is_empty(), "{}", mismatches.join("\n"));
+}
+
+/// The comparison itself: a changed value, a renamed constant and an extra constant of a family are caught.
+#[test]
+fn a_code_mismatch_is_caught() {
+    let codes = shader_codes();
+    let edits = [
+        ("elementwise", "const ACT_GELU: u32 = 3u;", "const ACT_GELU: u32 = 4u;"),
+        ("elementwise", "const MAP_IDENTITY: u32 = 0u;", "const MAP_COPY: u32 = 0u;"),
+        (
+            "elementwise",
+            "const MODE_RESIDUAL: u32 = 2u;",
+            "const MODE_RESIDUAL: u32 = 2u;\nconst MODE_SCALED: u32 = 3u;",
+        ),
+        ("rays", "const RAY_KIND_UNIT_DEPTH_POINT: f32 = 1.0;", "const RAY_KIND_UNIT_DEPTH_POINT: f32 = 2.0;"),
+    ];
+    for (shader, from, to) in edits {
+        let source = shader_source(shader);
+        assert_eq!(source.matches(from).count(), 1, "`{from}` should occur once in {shader}");
+        let edited = |name: &str| if name == shader { source.replacen(from, to, 1) } else { shader_source(name) };
+        assert!(!code_mismatches(&codes, edited).is_empty(), "editing `{from}` into `{to}` went unnoticed");
     }
 }

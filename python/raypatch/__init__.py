@@ -125,13 +125,15 @@ def _bytes(array: np.ndarray) -> bytes:
     return array.astype("<f4", copy=False).tobytes()
 
 
-def _poses(name: str, poses, count: Optional[int] = None) -> list:
-    """Row-major 4x4 camera-to-world matrices as 16 floats each (float64: a pose is never rounded to float32)."""
+def _opencv_poses(name: str, poses, convention, count: Optional[int] = None) -> list:
+    """4x4 camera-to-world matrices ([4, 4] or [count, 4, 4], float64: a pose is never rounded to float32) with
+    the axes `convention` names, as the binding's row-major OpenCV poses (raypatch.input checks each is rigid)."""
     array = _array(name, poses)
     if array.ndim == 2 and count is None:
         array = array[None]
     array = _floats(name, array, (count, 4, 4), np.float64)
-    return [tuple(float(v) for v in pose.reshape(16)) for pose in array]
+    return _raypatch.opencv_poses(name, array.astype("<f8", copy=False).tobytes(), len(array),
+                                  _text("convention", convention))
 
 
 def _intrinsics(name: str, intrinsics, count: int) -> list:
@@ -268,13 +270,21 @@ class Rendered(dict):
 
     def save(self, path: PathLike, output: str = "rgb") -> None:
         """Writes the rgb image as a PNG (written beside, then renamed into place)."""
+        _raypatch.save_png(*self._rgb("save", output), _path("path", path))
+
+    def png(self, output: str = "rgb") -> bytes:
+        """The rgb image as the bytes of a PNG file (for raypatch.output.Staged.write)."""
+        return _raypatch.encode_png(*self._rgb("png", output))
+
+    def _rgb(self, what: str, output: str) -> tuple:
+        """The rgb image as bytes, width, height."""
         if output != "rgb" or "rgb" not in self:
-            raise InputError(f"save: needs the rgb output (rendered: {quoted(sorted(self))})")
+            raise InputError(f"{what}: needs the rgb output (rendered: {quoted(sorted(self))})")
         rgb = self["rgb"]
         if rgb.ndim != 3:
-            raise InputError("save: a batched render holds several views; save one, e.g. Rendered(rgb=r['rgb'][0])")
+            raise InputError(f"{what}: a batched render holds several views; take one, e.g. Rendered(rgb=r['rgb'][0])")
         height, width, _ = rgb.shape
-        _raypatch.save_png(_bytes(rgb), width, height, _path("path", path))
+        return _bytes(rgb), width, height
 
 
 def _rendered(raw: dict) -> Rendered:
@@ -360,10 +370,9 @@ class Model:
         if poses is None or intrinsics is None:
             raise InputError("encode: needs poses and intrinsics (or positions and rays)")
         k = _intrinsics("intrinsics", intrinsics, count)
-        poses = _poses("poses", poses, count)
-        scene = self._inner.encode_posed(_bytes(images), (count, height, width), poses, k,
-                                         _text("convention", convention))
-        cameras = [(_opencv(p, convention), (*k_i, width, height)) for p, k_i in zip(poses, k)]
+        poses = _opencv_poses("poses", poses, convention, count)
+        scene = self._inner.encode_posed(_bytes(images), (count, height, width), poses, k)
+        cameras = [(p, (*k_i, width, height)) for p, k_i in zip(poses, k)]
         return Scene(scene, self, (k[0], width, height), cameras=cameras)
 
     def encode_scene(self, data: SceneData) -> "Scene":
@@ -387,20 +396,23 @@ class Scene:
         self._cameras = cameras
 
     def _camera_of(self, intrinsics, size) -> Tuple[float, float, float, float, int, int]:
+        """(fx, fy, cx, cy, width, height): the intrinsics given at `size` (by default input view 0's size), or
+        input view 0's camera, resized to `size` when given (raypatch.input's one policy: the vertical field of
+        view and the principal point's relative position kept)."""
+        if size is not None:
+            if not isinstance(size, (tuple, list, np.ndarray)) or len(size) != 2:
+                raise InputError(f"size {quoted(size)}: expected (width, height)")
+            size = (_integer("width", size[0]), _integer("height", size[1]))
         if intrinsics is None:
             if self._camera is None:
                 raise InputError("render: needs intrinsics (the scene was not encoded from pinhole cameras)")
             k, width, height = self._camera
-        else:
-            k = _intrinsics("intrinsics", intrinsics, 1)[0]
-            width, height = (None, None) if self._camera is None else self._camera[1:]
-        if size is not None:
-            if not isinstance(size, (tuple, list, np.ndarray)) or len(size) != 2:
-                raise InputError(f"size {quoted(size)}: expected (width, height)")
-            width, height = _integer("width", size[0]), _integer("height", size[1])
-        elif width is None:
-            raise InputError("render: needs size=(width, height)")
-        return (*k, width, height)
+            return (*k, width, height) if size is None else _raypatch.resized_camera((*k, width, height), *size)
+        if size is None:
+            if self._camera is None:
+                raise InputError("render: needs size=(width, height)")
+            size = self._camera[1:]
+        return (*_intrinsics("intrinsics", intrinsics, 1)[0], *size)
 
     def render(self, pose, intrinsics=None, size: Optional[Sequence[int]] = None,
                outputs: Union[str, Iterable[str]] = ("rgb",), region: Optional[Sequence[int]] = None,
@@ -408,11 +420,10 @@ class Scene:
         """Renders a 4x4 camera-to-world ``pose`` (intrinsics and size: by default input view 0's). ``region`` =
         (x, y, width, height) renders only those pixels (and decodes only the patches they need)."""
         camera = self._camera_of(intrinsics, size)
-        pose = _poses("pose", pose)
+        pose = _opencv_poses("pose", pose, convention)
         if len(pose) != 1:
             raise InputError("render: one pose [4, 4]; render_many takes [T, 4, 4]")
-        raw = self._inner.render_posed(pose[0], camera, _text("convention", convention), _output_names(outputs),
-                                       _region(region))
+        raw = self._inner.render_posed((pose[0], camera), _output_names(outputs), _region(region))
         return _rendered(raw)
 
     def render_many(self, poses, intrinsics=None, size: Optional[Sequence[int]] = None,
@@ -421,7 +432,8 @@ class Scene:
         """Renders poses [T, 4, 4] as render does; each output gets a leading axis of T views. The views render
         as many at once as the engine's memory budget allows, each batch submitted before the last is read."""
         camera = self._camera_of(intrinsics, size)
-        cameras = [(_opencv(p, convention), camera) for p in _floats("poses", poses, (None, 4, 4), np.float64)]
+        poses = _floats("poses", poses, (None, 4, 4), np.float64)
+        cameras = [(p, camera) for p in _opencv_poses("poses", poses, convention)]
         if not cameras:
             return Rendered({})
         renders = [_rendered(raw) for raw in self._inner.render_batch(cameras, _output_names(outputs), _region(region))]
@@ -486,7 +498,7 @@ class Scene:
             raise InputError(f"render_path: give one of poses, camera_path and motion, not {' and '.join(given)}")
         if poses is not None:
             camera = self._camera_of(intrinsics, size)
-            cameras = [(_opencv(p, convention), camera) for p in _poses("poses", poses)]
+            cameras = [(p, camera) for p in _opencv_poses("poses", poses, convention)]
         elif camera_path is not None:
             cameras = _raypatch.camera_path_cameras(_path("camera_path", camera_path))[0]
         elif motion is not None:
@@ -507,16 +519,6 @@ class Scene:
         else:
             raise InputError("render_path: give poses, a camera_path or a motion")
         return _raypatch.interpolate_cameras(cameras, _integer("frames", frames)) if interpolate else cameras
-
-
-def _opencv(pose: Sequence[float], convention: str) -> tuple:
-    """A row-major 4x4 camera-to-world pose with OpenCV axes (y down, looking along +z)."""
-    if convention not in ("opengl", "opencv"):
-        raise InputError(f"convention {quoted(convention)}: expected 'opengl' or 'opencv'")
-    m = np.asarray(pose, dtype=np.float64).reshape(4, 4)
-    if convention == "opengl":
-        m = m @ np.diag([1.0, -1.0, -1.0, 1.0])
-    return tuple(m.reshape(-1).tolist())
 
 
 def _nonempty(name: str, value) -> np.ndarray:

@@ -10,15 +10,16 @@ once and then encodes every scene it is handed once and renders all its target v
 one row per target view (scene, view, psnr, ssim, and an OSRT model's fg_ari, a depth model's abs_rel, sq_rel,
 rmse and depth_pixels), sorted by scene and view: the same figures as a single process, and as
 `render-frame --metrics`. `render` writes DIR/<scene>/view_000.png, ... for every scene. Every argument and
-output is checked before Ray starts; any bad input: one line naming it on stderr, exit code 2, nothing written.
-Outputs are written all or none (raypatch.output): a failed scene, SIGINT or SIGTERM (exit 130 or 143) leaves
-nothing behind.
+output is checked before Ray starts; any bad input: one line naming it on stderr, exit code 2, nothing written
+(3: a GPU error, 70: anything else, such as Ray failing). Outputs are written all or none by render-frame's
+writer (raypatch.output): a failed scene, SIGINT or SIGTERM (exit 130 or 143) leaves nothing behind.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
 import os
 import re
@@ -26,7 +27,9 @@ import signal
 import sys
 from typing import List, Optional
 
-from . import Engine, Error, FileError, InputError, output
+import raypatch
+
+from . import Engine, Error, FileError, GpuError, InputError, output
 from ._text import excerpt, path_text, quoted
 from .evaluate import COLUMNS, SceneWorker, scene_name, scene_paths
 
@@ -87,34 +90,28 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def check_outputs(task: str, out: str, model: str, paths: List[str]) -> None:
-    """Refuses an --out that cannot be written or that would replace an input: the model, a scene file, a file
-    of a frames folder; for render also two scenes of one name (one output folder)."""
-    inputs = [("--model", model)] + [("--scenes", p) for p in paths if not os.path.isdir(p)]
-    frames = [("--scenes", p) for p in paths if os.path.isdir(p)]
+    """Refuses an --out that cannot be written or that would replace an input (raypatch.output.check_outputs):
+    the model, a scene file, a file of a frames folder; for render also two scenes of one name (one output
+    folder)."""
+    inputs = [("--model", model)] + [("--scenes", p) for p in paths]
     if task == "evaluate":
         if os.path.isdir(out):
             raise FileError(f"--out {path_text(out)}: is a folder; evaluate writes a CSV file")
-        output.refuse_inputs("--out", out, inputs, frames)
-        output.check_output_path("--out", out)
+        output.check_outputs([("--out", out)], [], inputs)
         return
-    if os.path.lexists(out) and not os.path.isdir(out):
-        raise FileError(f"--out {path_text(out)}: is not a folder; render writes a folder per scene into a folder")
-    parent = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(parent):
-        raise FileError(f"--out {path_text(out)}: folder {path_text(parent)} does not exist")
-    by_folder = {}
+    # Where views go: view_000.png, and any input's name that a view could have.
+    views = {"view_000.png"} | {os.path.basename(os.path.realpath(p)) for _, p in inputs}
+    views = sorted(v for v in views if _VIEW_FILE.fullmatch(v))
+    folders, files, by_name = [("--out", out)], [], {}
     for path in paths:
-        folder = os.path.join(out, scene_name(path))
-        other = by_folder.setdefault(output.identity(folder), path)
+        name = scene_name(path)
+        other = by_name.setdefault(name, path)
+        folder = os.path.join(out, name)
         if other != path:
             raise InputError(f"--scenes: {path_text(other)} and {path_text(path)} would both render into {path_text(folder)}")
-        if os.path.lexists(folder) and not os.path.isdir(folder):
-            raise FileError(f"--out {path_text(out)}: {path_text(folder)} is not a folder (scene {path_text(path)}'s)")
-        for given_by, given in inputs:
-            name = os.path.basename(os.path.realpath(given))
-            if _VIEW_FILE.fullmatch(name):
-                output.refuse_inputs("--out", os.path.join(folder, name), [(given_by, given)])
-        output.refuse_inputs("--out", os.path.join(folder, "view_000.png"), [], frames)
+        folders.append(("--out", folder))
+        files += [("--out", os.path.join(folder, view)) for view in views]
+    output.check_outputs(files, folders, inputs)
 
 
 def run(task: str, model: str, paths: List[str], out: str, address: Optional[str] = None, workers: int = 2,
@@ -163,22 +160,32 @@ def _first_line(error: Exception) -> str:
     return excerpt(lines[0] if lines else type(error).__name__, 300)
 
 
-def write_csv(rows: List[dict], path: str) -> None:
-    """The rows as CSV, sorted by scene and view, in `path` (a temporary of raypatch.output.Staged)."""
+def csv_bytes(rows: List[dict]) -> bytes:
+    """The rows as CSV, sorted by scene and view."""
     rows = sorted(rows, key=lambda r: (r["scene"], r["view"]))
     columns = [c for c in COLUMNS if any(c in r for r in rows)]
-    with open(path, "x", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=columns)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({c: repr(v) if isinstance(v, float) else v for c, v in row.items() if c in columns})
-        file.flush()
-        os.fsync(file.fileno())
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=columns)
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({c: repr(v) if isinstance(v, float) else v for c, v in row.items() if c in columns})
+    return text.getvalue().encode()
+
+
+# The exit code of each class of error, the first that matches: a bad input or file 2, the GPU 3, anything else
+# (Ray's own failures included) 70.
+_EXIT_CODES = ((InputError, 2), (FileError, 2), (GpuError, 3), (Error, 70))
 
 
 def _fail(error: Error) -> int:
     print(f"{PROG}: {error}", file=sys.stderr)
-    return 2
+    return next(code for kind, code in _EXIT_CODES if isinstance(error, kind))
+
+
+def _worker_error(row: dict) -> Error:
+    """A scene's error as its worker raised it: the class (one of raypatch's, by name) and the line."""
+    kind = getattr(raypatch, str(row.get("error_class")), Error)
+    return (kind if isinstance(kind, type) and issubclass(kind, Error) else Error)(row["error"])
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -203,18 +210,14 @@ def main(argv: Optional[List[str]] = None) -> int:
             folder = staged.folder(args.out) if args.task == "render" else ""
             rows = run(args.task, os.path.abspath(args.model), paths, folder, args.address, args.workers,
                        args.gpus_per_worker, args.adapter)
-            errors = [r["error"] for r in rows if "error" in r]
+            errors = [_worker_error(r) for r in rows if "error" in r]
             if errors:
-                for line in errors:
-                    print(f"{PROG}: {line}", file=sys.stderr)
-                return 2
+                return [_fail(e) for e in errors][0]
             if args.task == "evaluate":
-                write_csv(rows, staged.file(args.out))
+                staged.write(args.out, csv_bytes(rows))
             staged.commit()
         except Error as e:
             return _fail(e)
-        except OSError as e:
-            return _fail(FileError(f"--out {path_text(args.out)}: cannot write: {e.strerror or e}"))
     print(f"{len(rows)} view(s) of {len(paths)} scene(s) -> {args.out}")
     return 0
 

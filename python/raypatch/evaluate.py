@@ -10,7 +10,7 @@ from typing import List
 
 from . import Engine, Error, InputError, Model, depth_errors, fg_ari, load_scene, psnr, ssim
 from ._text import path_text
-from .output import Staged, check_output_path
+from .output import Staged
 
 # Columns of the results table, in order; a family's metrics that do not apply are left out.
 COLUMNS = ("scene", "view", "psnr", "ssim", "fg_ari", "abs_rel", "sq_rel", "rmse", "depth_pixels")
@@ -73,12 +73,9 @@ def render_scene(model: Model, path: str, out: str) -> List[str]:
     scene = model.encode_scene(data)
     folder = os.path.join(out, scene_name(path))
     files = [os.path.join(folder, f"view_{view:03}.png") for view in range(data.target_count)]
-    with Staged() as staged:
-        if not os.path.isdir(folder):
-            staged.new_folder(folder)
+    with Staged.planned([("--out", f) for f in files], [("--out", folder)], [("--scenes", path)]) as staged:
         for view, file in enumerate(files):
-            check_output_path("--out", file)
-            scene.render_view(view).save(staged.file(file))
+            staged.write(file, scene.render_view(view).png())
         staged.commit()
     return files
 
@@ -108,6 +105,6 @@ class SceneWorker:
                 else:
                     rows.extend({"scene": path, "file": f} for f in render_scene(self.model, path, self.out))
             except Error as e:
-                rows.append({"scene": path, "error": error_line(path, e)})
+                rows.append({"scene": path, "error": error_line(path, e), "error_class": type(e).__name__})
         columns = sorted({key for row in rows for key in row})
         return {key: [row.get(key, float("nan")) for row in rows] for key in columns}

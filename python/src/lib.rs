@@ -1,30 +1,29 @@
 //! `raypatch._raypatch`: the engine's Rust API (the `raypatch` crate) for Python. Arrays cross as bytes
 //! (little-endian f32 or u32, row-major) with their shapes beside them: the limited API of abi3 on
 //! Python 3.9 has no buffer protocol, and `raypatch/__init__.py` turns numpy arrays into bytes and back. The
-//! GIL is released while the engine works, so Python threads render at once.
+//! GIL is released while the engine works, so Python threads render at once. Errors and conversions:
+//! `convert.rs`; cameras and their paths: `paths.rs`.
 
+mod convert;
 mod paths;
+mod staging;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use glam::{DMat4, DVec3, Vec3};
-use pyo3::create_exception;
-use pyo3::exceptions::PyException;
+use glam::{DVec3, Vec3};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
-use raypatch::raypatch_model::error::{one_line, Quoted, MAX_QUOTED_CHARS};
+use raypatch::raypatch_model::error::{Quoted, MAX_QUOTED_CHARS};
 use raypatch::{
-    AdapterChoice, Camera, CameraAxes, EngineOptions, Image, InputView, Intrinsics, MatmulKernel, Output, Outputs,
-    Precision, RayGrid, Region, Request, SceneData,
+    AdapterChoice, Camera, EngineOptions, Image, InputView, MatmulKernel, Precision, RayGrid, Request, SceneData,
 };
 
-create_exception!(raypatch, Error, PyException, "Everything raypatch refuses or fails at: a one-line message.");
-create_exception!(raypatch, InputError, Error, "An input the engine cannot take: arrays, cameras, views, requests.");
-create_exception!(raypatch, FileError, Error, "A model, scene or image file that is missing or malformed.");
-create_exception!(raypatch, GpuError, Error, "No adapter, a device error, or values that overflow float32.");
-create_exception!(raypatch, EngineClosed, Error, "Work asked of an engine after `Engine.close()`.");
+use convert::{
+    f32_bytes, f32s, image_of, image_sizes, input_error, outputs_of, region_of, to_py, u32s, unsigned, EngineClosed,
+    Error, FileError, GpuError, InputError,
+};
 
 /// The bundled models (`assets/models`) by name, and the bundled scenes (`assets/scenes`).
 const BUNDLED_MODELS: [(&str, &[u8]); 6] = [
@@ -40,38 +39,6 @@ const BUNDLED_SCENES: [(&str, &[u8]); 2] = [
     ("scene-2000001", include_bytes!("../../assets/scenes/scene-2000001.safetensors")),
 ];
 
-/// The Python exception for an engine error, with the engine's message on one bounded line (`one_line`).
-fn to_py(e: raypatch::Error) -> PyErr {
-    use raypatch::raypatch_engine::EngineError;
-    let message = one_line(&e.to_string());
-    match e {
-        raypatch::Error::Model(_)
-        | raypatch::Error::Io { .. }
-        | raypatch::Error::Image { .. }
-        | raypatch::Error::Cameras { .. } => FileError::new_err(message),
-        raypatch::Error::Camera(_) | raypatch::Error::Views(_) | raypatch::Error::Metrics(_) => {
-            InputError::new_err(message)
-        }
-        raypatch::Error::Engine(EngineError::Request(_) | EngineError::TooLarge { .. }) => InputError::new_err(message),
-        raypatch::Error::Engine(_) => GpuError::new_err(message),
-    }
-}
-
-fn input_error(message: String) -> PyErr {
-    InputError::new_err(message)
-}
-
-/// A size, count or index from Python. The binding takes signed integers so that a negative one is an
-/// InputError naming the argument (an unsigned parameter would raise OverflowError).
-pub fn unsigned(name: &str, value: i64) -> PyResult<usize> {
-    usize::try_from(value).map_err(|_| input_error(format!("{name} {value}: expected 0 or more")))
-}
-
-/// `count` values of 4 bytes as a byte length, or an InputError where that overflows.
-fn byte_length(what: &str, count: usize) -> PyResult<usize> {
-    count.checked_mul(4).ok_or_else(|| input_error(format!("{what}: {count} values are more than memory holds")))
-}
-
 /// Whether the engine was closed; shared by the engine and everything loaded on it.
 #[derive(Clone, Default)]
 struct Alive(Arc<AtomicBool>);
@@ -83,64 +50,6 @@ impl Alive {
         }
         Ok(())
     }
-}
-
-/// Little-endian f32s from bytes, `count` of them.
-fn f32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<f32>> {
-    if bytes.len() != byte_length(what, count)? {
-        return Err(input_error(format!("{what}: {} bytes, expected {count} float32 values", bytes.len())));
-    }
-    Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
-}
-
-fn u32s(what: &str, bytes: &[u8], count: usize) -> PyResult<Vec<u32>> {
-    if bytes.len() != byte_length(what, count)? {
-        return Err(input_error(format!("{what}: {} bytes, expected {count} uint32 values", bytes.len())));
-    }
-    Ok(bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
-}
-
-fn f32_bytes<'py>(py: Python<'py>, values: &[f32]) -> Bound<'py, PyBytes> {
-    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-    PyBytes::new(py, &bytes)
-}
-
-fn axes(convention: &str) -> PyResult<CameraAxes> {
-    match convention {
-        "opengl" => Ok(CameraAxes::OpenGl),
-        "opencv" => Ok(CameraAxes::OpenCv),
-        other => Err(input_error(format!("convention {:?}: expected \"opengl\" or \"opencv\"", Quoted(other)))),
-    }
-}
-
-/// A pinhole camera from a row-major 4x4 camera-to-world pose and its intrinsics.
-fn pinhole(pose: [f64; 16], intrinsics: Intrinsics, convention: &str) -> PyResult<Camera> {
-    Camera::pinhole(intrinsics, DMat4::from_cols_array(&pose).transpose(), axes(convention)?).map_err(to_py)
-}
-
-/// A region `(x, y, width, height)` from Python.
-fn region_of(region: Option<(i64, i64, i64, i64)>) -> PyResult<Option<Region>> {
-    let Some((x, y, width, height)) = region else { return Ok(None) };
-    let (x, y) = (unsigned("region x", x)?, unsigned("region y", y)?);
-    Ok(Some(Region { x, y, width: unsigned("region width", width)?, height: unsigned("region height", height)? }))
-}
-
-fn outputs_of(names: Vec<String>) -> PyResult<Outputs> {
-    let mut outputs = Outputs::default();
-    for (i, name) in names.iter().enumerate() {
-        let output = Output::from_name(name).ok_or_else(|| {
-            let name = Quoted(name);
-            input_error(format!("outputs: {name:?} is not one of \"rgb\", \"logdepth\", \"depth\", \"segmentation\""))
-        })?;
-        outputs = if i == 0 { Outputs::of(&[output]) } else { outputs.with(output) };
-    }
-    Ok(outputs)
-}
-
-/// Reads an image of `[height, width, 3]` f32 values in [0, 1].
-fn image_of(what: &str, bytes: &[u8], width: i64, height: i64) -> PyResult<Image> {
-    let (_, width, height) = image_sizes(what, 1, width, height)?;
-    Image::new(width, height, f32s(what, bytes, width * height * 3)?).map_err(to_py)
 }
 
 /// The engine: one GPU adapter (a real GPU when there is one, else lavapipe).
@@ -278,7 +187,7 @@ impl Model {
     }
 
     /// Encodes `count` images (`[count, height, width, 3]` f32 in [0, 1]) seen by pinhole cameras: row-major
-    /// 4x4 camera-to-world poses and `(fx, fy, cx, cy)` each.
+    /// 4x4 camera-to-world poses with OpenCV axes (`paths::opencv_poses`) and `(fx, fy, cx, cy)` each.
     fn encode_posed(
         &self,
         py: Python<'_>,
@@ -286,7 +195,6 @@ impl Model {
         shape: (i64, i64, i64),
         poses: Vec<[f64; 16]>,
         intrinsics: Vec<(f64, f64, f64, f64)>,
-        convention: &str,
     ) -> PyResult<Scene> {
         let (count, width, height) = image_sizes("images", shape.0, shape.2, shape.1)?;
         let per = width * height * 3;
@@ -302,7 +210,8 @@ impl Model {
             .map(|i| {
                 let image = Image::new(width, height, values[i * per..(i + 1) * per].to_vec()).map_err(to_py)?;
                 let (fx, fy, cx, cy) = intrinsics[i];
-                let camera = pinhole(poses[i], Intrinsics { width, height, fx, fy, cx, cy }, convention)
+                let (width, height) = (width as i64, height as i64);
+                let camera = paths::camera_of((poses[i], (fx, fy, cx, cy, width, height)))
                     .map_err(|e| input_error(format!("view {i}: {}", e.value(py))))?;
                 Ok(InputView { image, camera })
             })
@@ -450,20 +359,17 @@ impl Scene {
 
 #[pymethods]
 impl Scene {
-    /// Renders a pinhole camera (row-major 4x4 camera-to-world pose, `(fx, fy, cx, cy, width, height)`):
-    /// `{output name: (bytes of f32, (height, width, channels))}` over the region (x, y, width, height).
-    #[pyo3(signature = (pose, intrinsics, convention, outputs, region=None))]
+    /// Renders a pinhole camera (see paths.rs): `{output name: (bytes of f32, (height, width, channels))}`
+    /// over the region (x, y, width, height).
+    #[pyo3(signature = (camera, outputs, region=None))]
     fn render_posed<'py>(
         &self,
         py: Python<'py>,
-        pose: [f64; 16],
-        intrinsics: paths::PinholeK,
-        convention: &str,
+        camera: paths::Pinhole,
         outputs: Vec<String>,
         region: Option<(i64, i64, i64, i64)>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let camera = pinhole(pose, paths::intrinsics_of(intrinsics)?, convention)?;
-        self.render_camera(py, &camera, outputs, region)
+        self.render_camera(py, &paths::camera_of(camera)?, outputs, region)
     }
 
     /// Renders pinhole cameras of one size (OpenCV poses, see paths.rs), one dict each (as `render_posed`):
@@ -548,25 +454,6 @@ fn depth_errors(predicted: &[u8], truth: &[u8], pixels: i64) -> PyResult<(f64, f
     Ok((e.abs_rel, e.sq_rel, e.rmse, e.pixels))
 }
 
-/// `count` images of `width` x `height` pixels checked against the engine's limits (each image's size, the
-/// views of a scene and their pixels) before anything is converted or allocated for them: (count, width,
-/// height), whose products cannot overflow.
-fn image_sizes(what: &str, count: i64, width: i64, height: i64) -> PyResult<(usize, usize, usize)> {
-    use raypatch::raypatch_model::views::MAX_VIEWS;
-    let (count, width, height) = (unsigned("images", count)?, unsigned("width", width)?, unsigned("height", height)?);
-    if count > MAX_VIEWS {
-        return Err(input_error(format!("{what}: {count} views; a scene may have at most {MAX_VIEWS}")));
-    }
-    raypatch::check_image_size(width, height).map_err(|reason| input_error(format!("{what}: {reason}")))?;
-    let most = raypatch::MAX_SCENE_PIXELS;
-    if count * width * height > most {
-        return Err(input_error(format!(
-            "{what}: {count} images of {width}x{height}; a scene holds at most {most} pixels"
-        )));
-    }
-    Ok((count, width, height))
-}
-
 /// [`image_sizes`] for the package, to check arrays before converting them.
 #[pyfunction]
 fn check_images(what: &str, count: i64, width: i64, height: i64) -> PyResult<()> {
@@ -620,5 +507,16 @@ fn _raypatch(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(paths::scene_centre, m)?)?;
     m.add_function(wrap_pyfunction!(paths::up_axis, m)?)?;
     m.add_function(wrap_pyfunction!(paths::camera_path_cameras, m)?)?;
+    m.add_class::<staging::Staged>()?;
+    m.add("TEMP_MARK", raypatch::TEMP_MARK)?;
+    m.add("MAX_NAME_BYTES", raypatch::MAX_NAME_BYTES)?;
+    m.add("STOP_SECONDS", raypatch::STOP_SECONDS)?;
+    m.add_function(wrap_pyfunction!(staging::check_outputs, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::sibling, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::encode_png, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::stop_on_signals, m)?)?;
+    m.add_function(wrap_pyfunction!(staging::stop, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::opencv_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::resized_camera, m)?)?;
     Ok(())
 }

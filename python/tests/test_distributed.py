@@ -198,3 +198,45 @@ def test_a_signal_mid_run_exits_128_plus_it_and_leaves_nothing(tmp_path, signum)
     finally:
         run.kill()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"], list(tmp_path.rglob("*"))
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_keeps_the_users_files(tmp_path, signum):
+    """As render-frame's signal tests: an --out folder holding a view the run would replace and a file beside it;
+    stopped while views are written, the run exits 128 + the signal and leaves both as they were, and nothing
+    of its own."""
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    for i in range(40):
+        (scenes / f"s{i:02}.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
+    out = tmp_path / "views"
+    (out / "s00").mkdir(parents=True)
+    (out / "s00" / "view_000.png").write_bytes(b"the user's")
+    (out / "notes.txt").write_bytes(b"mine")
+    before = listing(tmp_path)
+    run = subprocess.Popen([sys.executable, "-m", "raypatch.distributed", "render", "--model", str(MODEL), "--scenes",
+                            str(scenes), "--out", str(out), "--workers", "1"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not any(p.suffix == ".png" for p in tmp_path.glob(f".views{output.TEMP_MARK}*/*/*")):
+            assert run.poll() is None, run.communicate()
+            assert time.monotonic() < deadline, "no view rendered"
+            time.sleep(0.1)
+        run.send_signal(signum)
+        assert run.wait(timeout=60) == 128 + signum, run.communicate()
+        assert f"stopped by {signal.Signals(signum).name}" in run.stderr.read()
+    finally:
+        run.kill()
+    assert listing(tmp_path) == before and not ours(tmp_path)
+
+
+def test_an_output_hard_linked_to_an_input_is_refused(inputs, capsys):
+    """The same file by another name: a hard link to the model, a path through a symlinked folder."""
+    os.link(inputs / "views" / "a" / "view_000.png", inputs / "linked.png")
+    (inputs / "through").symlink_to(inputs / "views")
+    for out, model in ((inputs / "linked.png", inputs / "views" / "a" / "view_000.png"),
+                       (inputs / "through" / "a" / "view_000.png", inputs / "linked.png")):
+        code = ray_cli.main(["evaluate", "--model", str(model), "--scenes", str(inputs / "scenes"), "--out", str(out)])
+        line = one_error_line(capsys.readouterr().err)
+        assert code == 2 and "would overwrite the input given by --model" in line, line

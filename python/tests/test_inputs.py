@@ -157,3 +157,29 @@ def test_engine_messages_are_bounded_too(call):
     with pytest.raises(raypatch.Error) as error:
         call()
     assert "\n" not in str(error.value) and len(str(error.value)) <= 2000, str(error.value)[:2000]
+
+
+def test_bad_sizes_and_poses_are_input_errors(posed_scene):
+    """A size the model's patch size does not divide and a pose that is not rigid are InputErrors (checked by
+    raypatch.input, as on the CLI and the viewer), never FileErrors."""
+    model, images, poses, k, scene = posed_scene
+    nearest = "nearest valid sizes: 48x28, 48x32, 52x28, 52x32"
+    refused(raypatch.InputError, lambda: scene.render(poses[0], size=(50, 30)), "target size 50x30", nearest)
+    refused(raypatch.InputError, lambda: scene.render_many(poses, size=(50, 30)), "target size 50x30", nearest)
+    sheared = poses[0].copy()
+    sheared[0, 1] += 0.3
+    refused(raypatch.InputError, lambda: scene.render(sheared), "pose 0: pose rotation is not orthonormal")
+    refused(raypatch.InputError, lambda: model.encode(images, np.stack([poses[0], sheared]), k), "poses 1: ")
+    bottom = poses[0].copy()
+    bottom[3, 0] = 1.0
+    refused(raypatch.InputError, lambda: scene.render(bottom), "pose bottom row")
+
+
+def test_a_new_size_resizes_input_view_0s_camera(posed_scene):
+    """size= without intrinsics resizes input view 0's camera by raypatch's one policy: the focal lengths scale
+    with the height, the principal point keeps its place relative to the image."""
+    model, images, poses, k, scene = posed_scene
+    doubled = scene.render(poses[0], intrinsics=(210, 210, 80, 60), size=(160, 120))["rgb"]
+    assert np.array_equal(scene.render(poses[0], size=(160, 120))["rgb"], doubled)
+    wider = scene.render(poses[0], intrinsics=(105, 105, 80, 30), size=(160, 60))["rgb"]
+    assert np.array_equal(scene.render(poses[0], size=(160, 60))["rgb"], wider)

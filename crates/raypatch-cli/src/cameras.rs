@@ -7,9 +7,7 @@ use anyhow::{bail, Context, Result};
 use glam::DVec3;
 use raypatch::{Camera, Image, Intrinsics, Motion, MotionOptions, RayKind, SceneData};
 
-use crate::parse::{
-    parse_count, parse_elevation, parse_fov, parse_motion, parse_point, parse_radius, parse_size, parse_up,
-};
+use crate::parse::{parse_count, parse_degrees, parse_motion, parse_point, parse_radius, parse_size, parse_up};
 
 /// Frames of a motion or an interpolation when --frames is not given.
 const DEFAULT_FRAMES: usize = 36;
@@ -41,7 +39,7 @@ pub struct CameraArgs {
     #[arg(long, value_name = "N", value_parser = parse_count)]
     pub frames: Option<usize>,
     /// --motion: the start camera's elevation above the centre's level plane, degrees [default: its own].
-    #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = parse_elevation, requires = "motion")]
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = parse_degrees, requires = "motion")]
     pub elevation: Option<f64>,
     /// --motion: the start camera's distance from the centre [default: its own].
     #[arg(long, value_name = "R", value_parser = parse_radius, requires = "motion")]
@@ -64,7 +62,7 @@ pub struct CameraArgs {
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
     pub size: Option<(usize, usize)>,
     /// Render every camera with this vertical field of view in degrees, in (0, 180), square pixels.
-    #[arg(long, value_name = "DEG", value_parser = parse_fov)]
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = parse_degrees)]
     pub fov: Option<f64>,
 }
 
@@ -221,31 +219,13 @@ fn single_shots(args: &CameraArgs, data: &SceneData, views: &[usize]) -> Result<
     }
 }
 
-/// Checks that the patch size `k` divides every shot's image (unless the model resizes its output to any
-/// size); else an error naming the nearest sizes it divides.
-pub fn check_patch_size(shots: &[Shot], config: &raypatch::raypatch_model::ModelConfig, size_flag: bool) -> Result<()> {
-    let k = config.patch_size();
-    if config.resizes_output() {
-        return Ok(());
-    }
+/// Checks that the model renders every shot's image size (`raypatch::input::check_patch_size`), before any
+/// output is started.
+pub fn check_patch_size(shots: &[Shot], sizes: raypatch::PatchSize, size_flag: bool) -> Result<()> {
     for shot in shots {
         let (w, h) = (shot.camera.width(), shot.camera.height());
-        if w % k != 0 || h % k != 0 {
-            let near = |v: usize| if v.is_multiple_of(k) { vec![v] } else { vec![v / k * k, (v / k + 1) * k] };
-            let mut sizes: Vec<(usize, usize)> = near(w)
-                .into_iter()
-                .flat_map(|a| near(h).into_iter().map(move |b| (a, b)))
-                .filter(|&(a, b)| a > 0 && b > 0)
-                .collect();
-            sizes.sort_by_key(|&(a, b)| a.abs_diff(w) + b.abs_diff(h));
-            let list: Vec<String> = sizes.iter().map(|(a, b)| format!("{a}x{b}")).collect();
-            let what = if size_flag { "--size".to_string() } else { shot.label.clone() };
-            bail!(
-                "{what}: target size {w}x{h} (width x height) is not divisible by the model's patch size k={k}; nearest \
-                 valid sizes: {}",
-                list.join(", ")
-            );
-        }
+        let what = if size_flag { "--size".to_string() } else { shot.label.clone() };
+        raypatch::input::check_patch_size(sizes, w, h).with_context(|| what)?;
     }
     Ok(())
 }

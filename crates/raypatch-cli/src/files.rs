@@ -1,24 +1,17 @@
 //! The files a run writes: where each PNG goes (--out, --segmentation, --depth), the raw outputs (--out-raw), all
-//! checked before any GPU work and written all or none.
+//! checked before any GPU work (raypatch's OutputFiles) and written all or none.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
-use raypatch::{Output, Outputs, SceneData, Staged};
+use anyhow::{bail, Result};
+use raypatch::{Output, OutputFiles, Outputs, SceneData};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 
 use crate::cameras::Shot;
 use crate::video::{check_video_size, VideoFormat};
 use crate::Args;
-
-/// The files of a run, each with the flag that named it, and the folders to create for them.
-pub struct OutputFiles {
-    pub files: Vec<(&'static str, PathBuf)>,
-    /// Folders named by a flag that do not exist yet: created when writing, removed again if the writes fail.
-    new_folders: Vec<(&'static str, PathBuf)>,
-}
 
 /// Whether a PNG destination is a folder: an existing folder, or a name without extension that does not exist
 /// (else a `.png` file). Anything else that exists there (a file without the extension, a device such as
@@ -57,94 +50,6 @@ pub fn png_paths(flag: &str, dest: &Path, names: &[String]) -> Result<Vec<PathBu
             (false, _) => dest.with_file_name(format!("{stem}_{i:03}.png")),
         })
         .collect())
-}
-
-impl OutputFiles {
-    /// Checks that every output can be written: its folder must exist (or be creatable, for one of the
-    /// `folders` a flag names as its destination), anything already at its path must be a regular file, and no
-    /// output may be another output or one of the `inputs` (flag, path).
-    pub fn check(
-        files: Vec<(&'static str, PathBuf)>,
-        folders: &[(&'static str, &Path)],
-        inputs: &[(&str, PathBuf)],
-    ) -> Result<OutputFiles> {
-        let mut new_folders: Vec<(&'static str, PathBuf)> = Vec::new();
-        for &(flag, folder) in folders {
-            if folder.exists() || new_folders.iter().any(|(_, f)| f == folder) {
-                continue;
-            }
-            let parent = raypatch::folder_of(folder);
-            if !parent.is_dir() {
-                bail!("{flag} {}: cannot create the folder: {} is not a folder", folder.display(), parent.display());
-            }
-            new_folders.push((flag, folder.to_path_buf()));
-        }
-        let inputs: Vec<(&str, PathBuf)> = inputs.iter().map(|(flag, p)| (*flag, identity(p))).collect();
-        let mut seen: Vec<(&str, PathBuf)> = Vec::new();
-        for (flag, path) in &files {
-            let id = identity(path);
-            if let Some((other, _)) = seen.iter().find(|(_, p)| *p == id) {
-                bail!("{flag} {}: the same file as an output of {other}", path.display());
-            }
-            if let Some((input, _)) = inputs.iter().find(|(_, p)| *p == id) {
-                bail!("{flag} {}: would overwrite the input given by {input}", path.display());
-            }
-            if new_folders.iter().any(|(_, f)| path.parent() == Some(f.as_path())) {
-                if std::fs::symlink_metadata(path).is_ok() {
-                    bail!("{flag} {}: exists", path.display());
-                }
-            } else {
-                raypatch::check_output_path(path).with_context(|| flag.to_string())?;
-            }
-            seen.push((flag, id));
-        }
-        Ok(OutputFiles { files, new_folders })
-    }
-
-    /// Starts writing: creates the new folders; each output is then a temporary until [`Writing::commit`].
-    pub fn begin(&self) -> Result<Writing<'_>> {
-        let mut writing = Writing { files: self, staged: Staged::default() };
-        for (flag, folder) in &self.new_folders {
-            writing.staged.create_folder(folder).with_context(|| flag.to_string())?;
-        }
-        Ok(writing)
-    }
-
-    pub fn paths(&self) -> impl Iterator<Item = &Path> {
-        self.files.iter().map(|(_, p)| p.as_path())
-    }
-}
-
-/// A run's outputs being written: temporaries beside each output until [`commit`](Self::commit); dropped
-/// without a commit (or the run interrupted), the temporaries and the folders the run created are removed.
-pub struct Writing<'a> {
-    files: &'a OutputFiles,
-    staged: Staged,
-}
-
-impl Writing<'_> {
-    /// Opens the temporary of `path`, one of the checked outputs.
-    pub fn create(&mut self, path: &Path) -> Result<std::fs::File> {
-        debug_assert!(self.files.files.iter().any(|(_, p)| p == path), "{} was not checked", path.display());
-        Ok(self.staged.create(path)?)
-    }
-
-    pub fn staged(&mut self) -> &mut Staged {
-        &mut self.staged
-    }
-
-    /// Moves every output into place, all or none.
-    pub fn commit(self) -> Result<()> {
-        Ok(self.staged.commit()?)
-    }
-}
-
-/// Where a path points, for comparing outputs with each other and with the inputs: the canonical folder
-/// joined with the file name (the file itself may not exist yet).
-fn identity(path: &Path) -> PathBuf {
-    let folder = raypatch::folder_of(path);
-    let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());
-    folder.join(path.file_name().unwrap_or_default())
 }
 
 /// A safetensors file with one tensor per output, named by the output: `[T,H,W,channels]`, or `[T,H,W]` for
@@ -273,14 +178,15 @@ pub fn destinations<'a>(args: &'a Args, shots: &[Shot], data: &SceneData, output
         }
         files.push(("--out-raw", path.clone()));
     }
-    let mut inputs: Vec<(&str, PathBuf)> = data.files.iter().map(|f| ("--scene", f.clone())).collect();
+    let mut inputs: Vec<(&str, &Path)> = data.files.iter().map(|f| ("--scene", f.as_path())).collect();
     let cameras = &args.cameras;
     for (flag, path) in [("--model", &args.model), ("--pose", &cameras.pose), ("--camera-path", &cameras.camera_path)] {
         if let Some(path) = path {
-            inputs.push((flag, path.clone()));
+            inputs.push((flag, path));
         }
     }
-    let files = OutputFiles::check(files, &folders, &inputs)?;
+    let outputs: Vec<(&str, &Path)> = files.iter().map(|(flag, p)| (*flag, p.as_path())).collect();
+    let files = OutputFiles::check(&outputs, &folders, &inputs)?;
     Ok(Destinations { out, segmentation, depth, raw: args.out_raw.clone(), files })
 }
 

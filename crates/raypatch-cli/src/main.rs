@@ -19,8 +19,8 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use raypatch::raypatch_model::error::MAX_MESSAGE_CHARS;
 use raypatch::{
-    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Precision, Region, Request, SceneData,
-    SceneSource,
+    AdapterChoice, Engine, EngineOptions, ErrorKind, MatmulKernel, Output, Outputs, Precision, Region, Request,
+    SceneData, SceneSource,
 };
 
 use cameras::{check_patch_size, CameraArgs, Shot};
@@ -195,8 +195,20 @@ fn main() -> ExitCode {
                 Some(mib) => eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", one_line(&e)),
                 None => eprintln!("render-frame: error: {}", one_line(&e)),
             }
-            ExitCode::from(2)
+            ExitCode::from(exit_status(&e))
         }
+    }
+}
+
+/// The exit code of a failed run, from whose fault its error is (`raypatch::Error::kind`): 2 for what was asked
+/// or given (bad input, a missing or malformed file; also render-frame's own refusals, which carry no raypatch
+/// error, and flags clap refuses), 3 for the device, 70 (EX_SOFTWARE) for a bug.
+fn exit_status(e: &anyhow::Error) -> u8 {
+    let kind = e.chain().find_map(|c| c.downcast_ref::<raypatch::Error>()).map(raypatch::Error::kind);
+    match kind {
+        None | Some(ErrorKind::Input | ErrorKind::File) => 2,
+        Some(ErrorKind::Device) => 3,
+        Some(ErrorKind::Internal) => 70,
     }
 }
 
@@ -298,7 +310,7 @@ fn run(args: &Args) -> Result<()> {
     }
     let inputs: Vec<_> = inputs.iter().map(|&i| data.inputs[i].clone()).collect();
     let (shots, path_fps) = cameras::shots(&args.cameras, &data, &views, args.view.is_some(), model.ray_kind())?;
-    check_patch_size(&shots, model.config(), args.cameras.size.is_some())?;
+    check_patch_size(&shots, model.target_sizes(), args.cameras.size.is_some())?;
     let outputs = requested_outputs(args, &shots, model.outputs())?;
     let destinations = files::destinations(args, &shots, &data, outputs)?;
     let mut warnings = model.check_inputs(&inputs)?;
@@ -514,10 +526,27 @@ fn is_sequence(cameras: &CameraArgs) -> bool {
 }
 
 /// The files a run wrote, for its summary line: every one, or the first and last of many.
-fn written(files: &files::OutputFiles) -> String {
+fn written(files: &raypatch::OutputFiles) -> String {
     let paths: Vec<String> = files.paths().map(|p| p.display().to_string()).collect();
     match &paths[..] {
         [first, .., last] if paths.len() > 4 => format!("{first} ... {last} ({} files)", paths.len()),
         _ => paths.join(", "),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raypatch::raypatch_engine::EngineError;
+
+    /// The exit status of each kind of error, found under render-frame's own context.
+    #[test]
+    fn exit_statuses_follow_the_error_kind() {
+        let status = |e: raypatch::Error| exit_status(&anyhow::Error::from(e).context("--model m.safetensors"));
+        assert_eq!(status(raypatch::Error::Input("target size 50x30".into())), 2);
+        assert_eq!(status(raypatch::Error::Cameras { path: "pose.json".into(), reason: "no".into() }), 2);
+        assert_eq!(status(raypatch::Error::Engine(EngineError::Device("lost".into()))), 3);
+        assert_eq!(status(raypatch::Error::Engine(EngineError::Bug("plan".into()))), 70);
+        assert_eq!(exit_status(&anyhow::anyhow!("--frames 0: expected at least one frame")), 2);
     }
 }

@@ -11,14 +11,12 @@ pub fn quote(text: &str) -> String {
     format!("{:?}", Quoted(text))
 }
 
-/// Most renders one run makes (turntable frames, repeats): each takes at least milliseconds of GPU time.
-pub const MAX_RENDERS: usize = 100_000;
-
-/// A count of renders, 0 to [`MAX_RENDERS`].
+/// A count of renders (frames, repeats), 0 to [`raypatch::MAX_PATH_FRAMES`].
 pub fn parse_count(text: &str) -> Result<usize, String> {
+    let most = raypatch::MAX_PATH_FRAMES;
     match text.trim().parse::<usize>() {
-        Ok(n) if n <= MAX_RENDERS => Ok(n),
-        _ => Err(format!("expected a whole number from 0 to {MAX_RENDERS}")),
+        Ok(n) if n <= most => Ok(n),
+        _ => Err(format!("expected a whole number from 0 to {most}")),
     }
 }
 
@@ -73,15 +71,6 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
     Ok((w, h))
 }
 
-/// A vertical field of view in degrees, in (0, 180).
-pub fn parse_fov(text: &str) -> Result<f64, String> {
-    let quoted = quote(text);
-    match text.trim().parse::<f64>() {
-        Ok(f) if f > 0.0 && f < 180.0 => Ok(f),
-        _ => Err(format!("{quoted}: expected a vertical field of view in degrees, in (0, 180)")),
-    }
-}
-
 pub fn parse_motion(text: &str) -> Result<raypatch::Motion, String> {
     let quoted = quote(text);
     raypatch::Motion::from_name(text.trim()).ok_or_else(|| {
@@ -126,15 +115,12 @@ pub fn parse_up(text: &str) -> Result<glam::DVec3, String> {
     Ok(axis)
 }
 
-/// Finite numbers for --elevation (degrees, -90 to 90) and --radius (positive).
-pub fn parse_elevation(text: &str) -> Result<f64, String> {
-    let quoted = quote(text);
-    match text.trim().parse::<f64>() {
-        Ok(e) if (-90.0..=90.0).contains(&e) => Ok(e),
-        _ => Err(format!("{quoted}: expected degrees from -90 to 90")),
-    }
+/// A number for --fov and --elevation (whose ranges `raypatch::input` and `raypatch::motion_path` check).
+pub fn parse_degrees(text: &str) -> Result<f64, String> {
+    text.trim().parse::<f64>().map_err(|_| format!("{}: expected a number of degrees", quote(text)))
 }
 
+/// A finite, positive --radius.
 pub fn parse_radius(text: &str) -> Result<f64, String> {
     let quoted = quote(text);
     match text.trim().parse::<f64>() {

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use raypatch::{Camera, Image, Output, Outputs, Rendered, Request, Scene};
 
 use crate::cameras::Shot;
-use crate::files::{raw_bytes, Destinations, OutDest, Writing};
+use crate::files::{raw_bytes, Destinations, OutDest};
 use crate::panels::{frame_picture, widen_range, Panel};
 use crate::video::{FrameWriter, Mp4Mode};
 
@@ -39,8 +39,8 @@ pub struct Sequence<'a> {
 }
 
 /// What [`Sequence::render`] did: the frames' outputs when kept, timings, and the written outputs, still
-/// temporaries until [`Writing::commit`].
-pub struct Rendering<'a> {
+/// temporaries until [`Staged::commit`](raypatch::Staged::commit).
+pub struct Rendering {
     pub kept: Vec<Rendered>,
     pub frames: usize,
     pub region: raypatch::Region,
@@ -51,7 +51,7 @@ pub struct Rendering<'a> {
     pub each: Vec<Duration>,
     /// Frames per render call.
     pub batch: usize,
-    pub writing: Writing<'a>,
+    pub writing: raypatch::Staged,
 }
 
 impl Sequence<'_> {
@@ -101,14 +101,14 @@ impl Sequence<'_> {
     }
 
     /// Renders every shot, writing each frame's outputs as it comes.
-    pub fn render<'d>(&self, scene: &Scene, destinations: &'d Destinations) -> Result<Rendering<'d>> {
+    pub fn render(&self, scene: &Scene, destinations: &Destinations) -> Result<Rendering> {
         let cameras: Vec<Camera> = self.shots.iter().map(|s| s.camera.clone()).collect();
         let batch = self.batch(scene)?;
         let panel_range = self.panel_depth_range(scene, &cameras, batch)?;
         let mut writing = destinations.files.begin()?;
         let mut writer = match &destinations.out {
             Some(OutDest::Video(path, format)) => {
-                Some(FrameWriter::video(writing.staged(), *format, path, self.fps, self.mp4)?)
+                Some(FrameWriter::video(&mut writing, *format, path, self.fps, self.mp4)?)
             }
             Some(OutDest::Pngs(paths)) => Some(FrameWriter::Pngs { paths: paths.clone(), next: 0 }),
             None => None,
@@ -130,7 +130,7 @@ impl Sequence<'_> {
             region.get_or_insert(frame.region);
             if let Some(writer) = &mut writer {
                 let picture = frame_picture(self.panels, &frame, panel_range, self.input)?;
-                writer.push(writing.staged(), &picture).with_context(|| self.shots[i].label.clone())?;
+                writer.push(&mut writing, &picture).with_context(|| self.shots[i].label.clone())?;
             }
             if let Some(path) = destinations.segmentation.get(i) {
                 let (weights, slots) = frame.segmentation().expect("segmentation was requested");

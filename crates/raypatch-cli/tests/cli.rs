@@ -390,6 +390,22 @@ fn bad_cameras_and_frames() {
 }
 
 /// The f32 tensor `key` of a safetensors file written by a run.
+/// A size the model's patch size does not divide and a pose that is not rigid are input errors
+/// (`raypatch::ErrorKind::Input`): exit code 2, one line naming the flag or file, nothing written.
+#[test]
+fn bad_sizes_and_poses_are_input_errors() {
+    let dir = TempDir::new().unwrap();
+    let d = dir.path();
+    let nearest = "not divisible by the model's patch size k=4; nearest valid sizes: 48x28, 48x32, 52x28, 52x32";
+    fails(d, &["--orbit", "10", "--size", "50x30"], &["--size: target size 50x30", nearest]);
+    let sheared = r#"{"transform_matrix": [[1,0.3,0,0],[0,1,0,-6],[0,0,1,1],[0,0,0,1]]}"#;
+    std::fs::write(d.join("sheared.json"), sheared).unwrap();
+    fails(d, &["--pose", "sheared.json"], &["sheared.json", "pose rotation is not orthonormal"]);
+    std::fs::write(d.join("bottom.json"), r#"{"transform_matrix": [[1,0,0,0],[0,1,0,-6],[0,0,1,1],[1,0,0,1]]}"#)
+        .unwrap();
+    fails(d, &["--pose", "bottom.json"], &["bottom.json", "pose bottom row"]);
+}
+
 fn raw_f32(path: &Path, key: &str) -> Vec<f32> {
     TensorFile::open(path).unwrap().f32(key).unwrap().data
 }

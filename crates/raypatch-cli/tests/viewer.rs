@@ -1,7 +1,8 @@
 //! `render-frame --serve` as a process: hostile requests get one-line errors and the server keeps serving,
 //! 20 clients at once get their frames, two rendering at once get each their own, a flood gets errors without
-//! the server's memory growing, hundreds of slow clients do not keep a request waiting, Ctrl-C stops it cleanly,
-//! and the endpoint renders exactly what `render-frame --pose` renders.
+//! the server's memory growing, hundreds of slow clients do not keep a request waiting, Ctrl-C and SIGTERM stop
+//! it cleanly (exit 130 and 143, no temporary left), and the endpoint renders exactly what `render-frame --pose`
+//! renders.
 #![cfg(unix)]
 
 mod common;
@@ -27,9 +28,15 @@ struct Viewer {
 
 impl Viewer {
     fn start(args: &[&str]) -> Viewer {
+        Viewer::start_with(args, &[])
+    }
+
+    /// `start` with environment variables set.
+    fn start_with(args: &[&str], vars: &[(&str, &std::path::Path)]) -> Viewer {
         let mut child = Command::new(env!("CARGO_BIN_EXE_render-frame"))
             .args(["--serve", "--port", "0"])
             .args(args)
+            .envs(vars.iter().copied())
             .current_dir(root())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -45,9 +52,13 @@ impl Viewer {
         Viewer { child, address }
     }
 
-    /// Sends Ctrl-C; the exit code and what it printed after its first line.
-    fn stop(mut self) -> (i32, String) {
-        assert_eq!(unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGINT) }, 0);
+    /// Sends Ctrl-C; the exit code (130 once it stopped cleanly) and what it printed after its first line.
+    fn stop(self) -> (i32, String) {
+        self.stop_with(libc::SIGINT)
+    }
+
+    fn stop_with(mut self, signal: i32) -> (i32, String) {
+        assert_eq!(unsafe { libc::kill(self.child.id() as libc::pid_t, signal) }, 0);
         let start = Instant::now();
         let status = loop {
             if let Some(status) = self.child.try_wait().unwrap() {
@@ -191,7 +202,41 @@ fn hostile_requests_get_one_line_errors_and_the_viewer_keeps_serving() {
     assert!(frame.headers.contains("x-render-ms: "), "{}", frame.headers);
     assert_eq!((frame.image().width(), frame.image().height()), (40, 28));
     let (code, printed) = viewer.stop();
-    assert_eq!((code, printed.trim()), (0, "raypatch viewer: stopped"));
+    assert_eq!((code, printed.trim()), (130, "raypatch viewer: stopped"));
+}
+
+/// SIGINT and SIGTERM while clients ask for frames of new sizes (new render plans, pipelines compiled and the
+/// pipeline cache written at the stop): the viewer finishes, exits with 128 + the signal, and leaves no
+/// temporary where it writes.
+#[test]
+fn a_signal_while_serving_exits_128_plus_it_and_leaves_no_temporary() {
+    for (signal, code) in [(libc::SIGINT, 130), (libc::SIGTERM, 143)] {
+        let cache = tempfile::TempDir::new().unwrap();
+        let viewer = Viewer::start_with(&[], &[("RAYPATCH_CACHE_DIR", cache.path())]);
+        let address = viewer.address;
+        let frame = get(address, &format!("/render.png?pose={}&size=40x28", orbit_pose(10.0)));
+        assert_eq!(frame.status, 200, "{}", frame.text());
+        let done = Arc::new(AtomicBool::new(false));
+        let asking = done.clone();
+        let client = std::thread::spawn(move || {
+            for n in 1.. {
+                let Ok(mut stream) = TcpStream::connect(address) else { break };
+                let target = format!("/render.png?pose={}&size={}x28", orbit_pose(n as f64), 40 + 4 * (n % 8));
+                let _ = stream.write_all(format!("GET {target} HTTP/1.1\r\nHost: test\r\n\r\n").as_bytes());
+                let _ = stream.read_to_end(&mut Vec::new());
+                if asking.load(Ordering::Relaxed) {
+                    break;
+                }
+            }
+        });
+        std::thread::sleep(Duration::from_millis(500));
+        let (exit, printed) = viewer.stop_with(signal);
+        done.store(true, Ordering::Relaxed);
+        client.join().unwrap();
+        assert_eq!((exit, printed.trim()), (code, "raypatch viewer: stopped"));
+        let left = common::files(cache.path());
+        assert!(left.iter().all(|f| !f.ends_with(".tmp") && !f.contains(".raypatch-")), "{left:?}");
+    }
 }
 
 #[test]
@@ -257,7 +302,7 @@ fn twenty_clients_get_their_frames_and_floods_get_errors_without_memory_growing(
     std::thread::sleep(Duration::from_millis(1100));
     let reply = get(address, "/render.png");
     assert_eq!(reply.status, 200, "after the floods: {}", reply.text());
-    assert_eq!(viewer.stop().0, 0);
+    assert_eq!(viewer.stop().0, 130);
 }
 
 /// Two clients whose renders run at once (on the two render threads, one submitted while the other is read
@@ -286,7 +331,7 @@ fn two_clients_rendering_at_once_each_get_their_own_frames() {
     for client in clients {
         client.join().expect("both clients get their frames");
     }
-    assert_eq!(viewer.stop().0, 0);
+    assert_eq!(viewer.stop().0, 130);
 }
 
 /// The soft limit on open files, raised towards `wanted` as far as the hard limit allows (a viewer started
@@ -378,7 +423,7 @@ fn slow_idle_and_non_reading_clients_do_not_keep_a_request_waiting() {
     assert!(oldest.starts_with("HTTP/1.1 503") && oldest.contains("made room"), "{oldest}");
     assert_eq!(read_reply(crowd.next_back().unwrap(), Duration::from_millis(200)), "", "the newest is kept");
     drop(crowd);
-    assert_eq!(viewer.stop().0, 0);
+    assert_eq!(viewer.stop().0, 130);
 }
 
 #[test]
@@ -424,7 +469,7 @@ fn the_endpoint_renders_what_render_frame_renders_for_each_model_and_scene() {
         (refused.status, refused.text().trim()),
         (400, "output: `depth` is not one model 0 renders (it renders rgb)")
     );
-    assert_eq!(viewer.stop().0, 0);
+    assert_eq!(viewer.stop().0, 130);
 }
 
 #[test]

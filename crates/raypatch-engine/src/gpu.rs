@@ -207,13 +207,13 @@ impl Gpu {
                 adapters.into_iter().find(|a| a.get_info().name.to_lowercase().contains(&text))
             }
         }
-        .ok_or_else(|| {
-            EngineError::NoAdapter(match &options.adapter {
-                AdapterChoice::Auto => {
-                    "no adapter with compute shaders found (install a Vulkan driver, e.g. Mesa lavapipe)".into()
-                }
-                AdapterChoice::NameContains(t) => format!("no adapter whose name contains {t:?} (see --list-adapters)"),
-            })
+        .ok_or_else(|| match &options.adapter {
+            AdapterChoice::Auto => EngineError::NoAdapter(
+                "no adapter with compute shaders found (install a Vulkan driver, e.g. Mesa lavapipe)".into(),
+            ),
+            AdapterChoice::NameContains(t) => {
+                EngineError::AdapterNotFound(format!("no adapter whose name contains {t:?} (see --list-adapters)"))
+            }
         })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
@@ -282,7 +282,7 @@ impl Gpu {
             None => MatmulKernel::best_for(&info, features, &limits),
             Some(kernel) => {
                 if let Err(why) = kernel.supported(&info, features).and_then(|()| kernel.fits(&limits)) {
-                    return Err(EngineError::Device(format!("matmul kernel {kernel:?} on {}: {why}", info.name)));
+                    return Err(EngineError::Request(format!("matmul kernel {kernel:?} on {}: {why}", info.name)));
                 }
                 kernel
             }

@@ -283,7 +283,7 @@ impl PlanBuilder {
         for (t, info) in tensors.iter().enumerate() {
             gpu.check_binding_size(&info.name, info.bytes())?;
             if matches!(info.storage, Storage::Transient) && live[t].is_none() {
-                return Err(EngineError::Request(format!("plan bug: tensor {} is never used", info.name)));
+                return Err(EngineError::Bug(format!("plan: tensor {} is never used", info.name)));
             }
         }
         let slot_buffers: Vec<Arc<wgpu::Buffer>> = slot_bytes
@@ -366,8 +366,8 @@ impl PlanBuilder {
                 let row_bytes = info.row_bytes();
                 let offset = view.row_start as u64 * row_bytes;
                 if !offset.is_multiple_of(storage_align) {
-                    return Err(EngineError::Request(format!(
-                        "plan bug: op {} binds {} at byte offset {offset}, not a multiple of {storage_align}",
+                    return Err(EngineError::Bug(format!(
+                        "plan: op {} binds {} at byte offset {offset}, not a multiple of {storage_align}",
                         op.label, info.name
                     )));
                 }

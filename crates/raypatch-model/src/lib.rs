@@ -7,6 +7,7 @@ pub mod error;
 pub mod files;
 pub mod layout;
 pub mod official;
+pub mod patch_size;
 pub mod pinhole;
 pub mod rays;
 pub mod tensor_file;
@@ -20,6 +21,7 @@ pub use config::{
     SlotMixerConfig, SrtConfig, FAMILY_BASES,
 };
 pub use error::ModelError;
+pub use patch_size::PatchSize;
 pub use tensor_file::{HostTensor, TensorFile, MODEL_FORMAT};
 pub use views::{load_scene, InputViews, RaySource, SceneFile, TargetGrid, TargetRays, TargetViews};
 pub use weights::{load_model, LoadedModel};

@@ -63,13 +63,6 @@ impl Intrinsics {
     pub fn msn(width: usize, height: usize) -> Intrinsics {
         Intrinsics::from_sensor(MSN_FOCAL_LENGTH, MSN_SENSOR_WIDTH, width, height)
     }
-
-    /// Square pixels and a centred principal point, from the horizontal field of view in radians (NeRF's
-    /// `camera_angle_x`).
-    pub fn from_fov_x(fov_x: f64, width: usize, height: usize) -> Intrinsics {
-        let f = 0.5 * width as f64 / (0.5 * fov_x).tan();
-        Intrinsics { width, height, fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 }
-    }
 }
 
 /// Floats a term takes in a GPU upload: hi (x, y, z, kind), then lo (x, y, z, 0); kind is
@@ -184,10 +177,15 @@ impl PinholeRays {
     /// the GPU takes it from them, never from the model: a camera's rays are of its own kind on the GPU as on
     /// the host ([`ray`](Self::ray)).
     pub fn gpu_kind(&self) -> f32 {
-        match self.kind {
-            RayKind::UnitDirection => 0.0,
-            RayKind::UnitDepthPoint => 1.0,
-        }
+        gpu_kind_of(self.kind)
+    }
+}
+
+/// A ray kind as the GPU terms carry it ([`PinholeRays::gpu_kind`]; `shaders/rays.wgsl` names them `RAY_KIND_*`).
+pub fn gpu_kind_of(kind: RayKind) -> f32 {
+    match kind {
+        RayKind::UnitDirection => 0.0,
+        RayKind::UnitDepthPoint => 1.0,
     }
 }
 

@@ -5,6 +5,7 @@ use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
+use crate::patch_size::PatchSize;
 use crate::pinhole::PinholeRays;
 use crate::tensor_file::{HostTensor, TensorFile};
 
@@ -465,11 +466,7 @@ impl TargetViews {
                 self.count
             )));
         }
-        if !resizes_output && (!height.is_multiple_of(k) || !width.is_multiple_of(k)) {
-            return Err(err(format!(
-                "target size {width}x{height} (width x height) is not divisible by the model's patch size k={k}"
-            )));
-        }
+        PatchSize { k, any_size: resizes_output }.check(width, height).map_err(err)?;
         if height < k || width < k {
             return Err(err(format!(
                 "target size {width}x{height} (width x height) is smaller than one patch (k={k})"

@@ -2,7 +2,7 @@
 //! cameras and input thumbnails, and the cameras the page asks for.
 
 use glam::DMat4;
-use raypatch::{Camera, CameraAxes, Intrinsics, Model, Output, RayKind, SceneData};
+use raypatch::{input, Camera, CameraAxes, Intrinsics, Model, Output, PatchSize, RayKind, SceneData};
 use serde_json::json;
 
 /// The longest side of a rendered image, in pixels.
@@ -45,7 +45,8 @@ impl ViewOutput {
 pub struct ModelEntry {
     pub name: String,
     pub family: String,
-    pub k: usize,
+    /// The image sizes it renders: its patch size k, or any size.
+    pub sizes: PatchSize,
     pub outputs: Vec<ViewOutput>,
     /// Its precision and the kernels its GEMMs run on (`Model::computes_as`).
     pub computes: String,
@@ -57,7 +58,7 @@ impl ModelEntry {
         ModelEntry {
             name: file_name(model.path()),
             family: model.config().name(),
-            k: model.patch_size(),
+            sizes: model.target_sizes(),
             outputs,
             computes: model.computes_as(),
         }
@@ -86,40 +87,54 @@ impl SceneEntry {
     }
 
     /// The size renders take when none is asked for: the reference camera's, shrunk to fit the bounds on
-    /// requests if it must, each side rounded down to a multiple of the patch size `k`.
-    pub fn full_size(&self, k: usize) -> (usize, usize) {
+    /// requests if it must, then the nearest size within them that the model renders.
+    pub fn full_size(&self, sizes: PatchSize) -> (usize, usize) {
         let (w, h) = (self.reference.width() as f64, self.reference.height() as f64);
         let shrink = (MAX_SIDE as f64 / w.max(h)).min((MAX_PIXELS as f64 / (w * h)).sqrt()).min(1.0);
-        let side = |v: f64| ((v * shrink) as usize / k * k).max(k);
-        (side(w), side(h))
+        nearest_within(sizes, (w * shrink) as usize, (h * shrink) as usize)
+    }
+
+    /// The size the page renders while the camera moves: half the full size, then the nearest size the model
+    /// renders.
+    pub fn preview_size(&self, sizes: PatchSize) -> (usize, usize) {
+        let (w, h) = self.full_size(sizes);
+        nearest_within(sizes, w / 2, h / 2)
     }
 
     /// The camera at `pose` (camera-to-world, OpenGL axes as NeRF's `transform_matrix`) with an image of
-    /// `width` x `height`: the reference camera's intrinsics scaled to that size (the same view at any
-    /// resolution; exactly `render-frame --pose`'s camera at the reference size), or MultiShapeNet's when the
-    /// scene's cameras are given by rays.
+    /// `width` x `height`: the reference camera resized to that size (`raypatch::input::resized_to`: the same
+    /// view at any resolution; exactly `render-frame --pose`'s camera at the reference size), or MultiShapeNet's
+    /// when the scene's cameras are given by rays.
     pub fn camera(&self, pose: DMat4, width: usize, height: usize) -> raypatch::Result<Camera> {
         let intrinsics = match self.reference.as_pinhole() {
-            Some((k, _)) => {
-                let (sx, sy) = (width as f64 / k.width as f64, height as f64 / k.height as f64);
-                Intrinsics { width, height, fx: k.fx * sx, fy: k.fy * sy, cx: k.cx * sx, cy: k.cy * sy }
-            }
+            Some((k, _)) => input::resized_to(k, width, height)?,
             None => Intrinsics::msn(width, height),
         };
         Camera::pinhole(intrinsics, pose, CameraAxes::OpenGl)
     }
 }
 
-/// A camera's pose as 16 numbers, row-major camera-to-world in OpenGL axes (the `pose` parameter's form).
-/// A camera given by rays gets the pose of the centred pinhole camera that makes them (`raypatch::fit_pinhole`;
-/// scenes' rays are unit directions or, for DeFiNe scenes, points at depth 1); `None` when its rays span no
-/// width or height to fit that camera to.
-pub fn pose_of(camera: &Camera) -> Option<[f64; 16]> {
+/// The size nearest to `width` x `height` (each side at least 1) that the model renders within the bounds on
+/// requests (`raypatch::PatchSize::nearest`).
+fn nearest_within(sizes: PatchSize, width: usize, height: usize) -> (usize, usize) {
+    let within = |&(w, h): &(usize, usize)| w.max(h) <= MAX_SIDE && w * h <= MAX_PIXELS;
+    sizes.nearest(width.max(1), height.max(1)).into_iter().find(within).unwrap_or((sizes.k, sizes.k))
+}
+
+/// A camera's camera-to-world pose in OpenGL axes (the `pose` parameter's). A camera given by rays gets the
+/// pose of the centred pinhole camera that makes them (`raypatch::fit_pinhole`; scenes' rays are unit
+/// directions or, for DeFiNe scenes, points at depth 1); `None` when its rays span no width or height to fit
+/// that camera to.
+pub fn opengl_pose(camera: &Camera) -> Option<DMat4> {
     let points = camera.given_rays().is_some() && camera.check_rays(RayKind::UnitDepthPoint).is_ok();
     let kind = if points { RayKind::UnitDepthPoint } else { RayKind::UnitDirection };
     let (_, opencv) = raypatch::fit_pinhole(camera, kind).ok()?;
-    let opengl = DMat4::from_cols(opencv.x_axis, -opencv.y_axis, -opencv.z_axis, opencv.w_axis);
-    Some(opengl.transpose().to_cols_array())
+    Some(CameraAxes::OpenGl.to_opencv(opencv))
+}
+
+/// [`opengl_pose`] as the page reads it: 16 numbers, row by row.
+fn pose_of(camera: &Camera) -> Option<[f64; 16]> {
+    opengl_pose(camera).map(input::pose_numbers)
 }
 
 /// The last component of a path, so that the page never sees where files lie.
@@ -135,7 +150,7 @@ pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, li
     json!({
         "adapter": adapter,
         "models": models.iter().map(|m| json!({
-            "name": m.name, "family": m.family, "k": m.k, "computes": m.computes,
+            "name": m.name, "family": m.family, "k": m.sizes.k, "computes": m.computes,
             "outputs": m.outputs.iter().map(|o| o.name()).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "scenes": scenes.iter().map(|s| json!({
@@ -143,7 +158,8 @@ pub fn info_json(models: &[ModelEntry], scenes: &[SceneEntry], adapter: &str, li
             "width": s.reference.width(),
             "height": s.reference.height(),
             "pose": pose_of(&s.reference),
-            "sizes": models.iter().map(|m| s.full_size(m.k)).collect::<Vec<_>>(),
+            "sizes": models.iter().map(|m| s.full_size(m.sizes)).collect::<Vec<_>>(),
+            "preview_sizes": models.iter().map(|m| s.preview_size(m.sizes)).collect::<Vec<_>>(),
             "inputs": cameras(&s.input_cameras),
             "targets": cameras(&s.target_cameras),
         })).collect::<Vec<_>>(),
@@ -168,7 +184,7 @@ mod tests {
             target_cameras: vec![],
             thumbnails: vec![],
         };
-        let pose = DMat4::from_cols_array(&pose_of(&camera).unwrap()).transpose();
+        let pose = opengl_pose(&camera).unwrap();
         let again = scene.camera(pose, 80, 60).unwrap();
         for (a, b) in camera.rays().rays.iter().zip(&again.rays().rays) {
             assert!((*a - *b).abs().max_element() < 1e-6);
@@ -185,7 +201,12 @@ mod tests {
             let fitted = pose_of(&given).unwrap();
             assert!(fitted.iter().zip(pose_of(&camera).unwrap()).all(|(a, b)| (a - b).abs() < 1e-6), "{kind:?}");
         }
-        assert_eq!((scene.full_size(4), scene.full_size(8), scene.full_size(64)), ((80, 60), (80, 56), (64, 64)));
+        let k = |k: usize| PatchSize { k, any_size: false };
+        assert_eq!(
+            (scene.full_size(k(4)), scene.full_size(k(8)), scene.full_size(k(64))),
+            ((80, 60), (80, 56), (64, 64))
+        );
+        assert_eq!((scene.preview_size(k(4)), scene.preview_size(k(8))), ((40, 28), (40, 24)));
         assert_eq!(file_name("assets/models/a.safetensors"), "a.safetensors");
     }
 }

@@ -33,10 +33,33 @@ impl HttpError {
         HttpError::new(400, message)
     }
 
+    /// An error of the API, answered with the status of its kind ([`status_of`]).
+    pub fn of(e: &raypatch::Error) -> HttpError {
+        HttpError::new(status_of(e.kind()), e.to_string())
+    }
+
+    /// The same error, its message said to be about `what` (a parameter, or the render).
+    pub fn about(self, what: &str) -> HttpError {
+        HttpError { message: format!("{what}: {}", self.message), ..self }
+    }
+
     pub fn response(&self) -> Response {
         // One line, whatever the message holds.
         let line = self.message.replace(['\r', '\n'], " ");
         Response::new(self.status, "text/plain; charset=utf-8", format!("{line}\n").into_bytes())
+    }
+}
+
+/// The viewer's one table from whose fault an API error is to the HTTP status answered: the request's (400);
+/// a file's (422: the request was understood but the model or scene data it names cannot be processed; 404
+/// would say the client named something missing, and clients name nothing but indices); the device's (503:
+/// the server cannot render now); the viewer's own bug (500).
+pub fn status_of(kind: raypatch::ErrorKind) -> u16 {
+    match kind {
+        raypatch::ErrorKind::Input => 400,
+        raypatch::ErrorKind::File => 422,
+        raypatch::ErrorKind::Device => 503,
+        raypatch::ErrorKind::Internal => 500,
     }
 }
 
@@ -86,6 +109,7 @@ fn reason(status: u16) -> &'static str {
         409 => "Conflict",
         413 => "Payload Too Large",
         414 => "URI Too Long",
+        422 => "Unprocessable Content",
         429 => "Too Many Requests",
         431 => "Request Header Fields Too Large",
         500 => "Internal Server Error",

@@ -7,10 +7,11 @@
 //! connection, collecting request heads and writing responses on non-blocking sockets (`conn.rs`); a fixed pool
 //! of HTTP workers (`server.rs`) answers complete heads and encodes PNGs.
 
-mod catalog;
+// The catalog, HTTP and query modules are public for the crate's request tests.
+pub mod catalog;
 mod conn;
-mod http;
-mod query;
+pub mod http;
+pub mod query;
 mod queue;
 mod serve;
 mod server;

@@ -1,9 +1,10 @@
 //! The parameters of `GET /render.png` and `GET /input.png`, checked against what was loaded: indices, never
-//! paths; bounded sizes; finite poses.
+//! paths; bounded sizes; poses. The query string is read here; sizes and poses are checked by
+//! `raypatch::input`, whose refusals are answered with the status of their kind.
 
 use glam::DMat4;
 
-use crate::catalog::{pose_of, ModelEntry, SceneEntry, ViewOutput, MAX_PIXELS, MAX_SIDE};
+use crate::catalog::{opengl_pose, ModelEntry, SceneEntry, ViewOutput, MAX_PIXELS, MAX_SIDE};
 use crate::http::HttpError;
 
 /// The longest client id (the page's random id, which makes a client's newest camera replace its older one).
@@ -84,13 +85,12 @@ pub fn parse_render(
     };
     let reference = &scenes[scene].reference;
     let (width, height) = match size {
-        None => scenes[scene].full_size(entry.k),
-        Some(text) => parse_size(text, entry.k)?,
+        None => scenes[scene].full_size(entry.sizes),
+        Some(text) => parse_size(text, entry.sizes)?,
     };
     let pose = match pose {
         Some(text) => parse_pose(text)?,
-        None => pose_of(reference)
-            .map(|rows| DMat4::from_cols_array(&rows).transpose())
+        None => opengl_pose(reference)
             .ok_or_else(|| HttpError::bad("pose: required (this scene's cameras are given by rays, not poses)"))?,
     };
     let client = match client {
@@ -111,38 +111,31 @@ pub fn parse_render(
     Ok(RenderQuery { model, scene, output, width, height, pose, client })
 }
 
-/// `WxH`: whole pixels, each side 1 to [`MAX_SIDE`] and divisible by the patch size `k`, at most
-/// [`MAX_PIXELS`] in all.
-fn parse_size(text: &str, k: usize) -> Result<(usize, usize), HttpError> {
-    let expected = format!(
-        "expected WxH, sides 1 to {MAX_SIDE} divisible by the model's patch size k={k}, at most {MAX_PIXELS} pixels"
-    );
+/// `WxH`: whole pixels, each side 1 to [`MAX_SIDE`], at most [`MAX_PIXELS`] in all, and a size the model
+/// renders (`raypatch::input::check_patch_size`).
+fn parse_size(text: &str, sizes: raypatch::PatchSize) -> Result<(usize, usize), HttpError> {
+    let expected = format!("expected WxH, sides 1 to {MAX_SIDE}, at most {MAX_PIXELS} pixels");
     let bad = || HttpError::bad(format!("size: `{}`: {expected}", shorten(text)));
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
-    let side = |s: &str| s.parse::<usize>().ok().filter(|v| (1..=MAX_SIDE).contains(v) && v % k == 0);
-    match (side(w), side(h)) {
-        (Some(w), Some(h)) if w * h <= MAX_PIXELS => Ok((w, h)),
-        _ => Err(bad()),
-    }
+    let side = |s: &str| s.parse::<usize>().ok().filter(|v| (1..=MAX_SIDE).contains(v));
+    let (w, h) = match (side(w), side(h)) {
+        (Some(w), Some(h)) if w * h <= MAX_PIXELS => (w, h),
+        _ => return Err(bad()),
+    };
+    raypatch::input::check_patch_size(sizes, w, h).map_err(|e| HttpError::of(&e).about("size"))?;
+    Ok((w, h))
 }
 
-/// 16 finite numbers separated by commas (or spaces): a camera-to-world matrix, row by row.
+/// 16 numbers separated by commas (or spaces): a camera-to-world matrix, row by row, OpenGL axes (as NeRF's
+/// transform_matrix); `raypatch::input::pose_from_numbers` checks them.
 fn parse_pose(text: &str) -> Result<DMat4, HttpError> {
-    let expected = "expected 16 finite numbers, a 4x4 camera-to-world matrix row by row (OpenGL axes, as NeRF's \
-                    transform_matrix)";
-    let parts: Vec<&str> = text.split([',', ' ']).filter(|p| !p.is_empty()).take(17).collect();
-    if parts.len() != 16 {
-        return Err(HttpError::bad(format!("pose: {} numbers given: {expected}", parts.len())));
-    }
-    let mut rows = [0.0f64; 16];
-    for (i, part) in parts.iter().enumerate() {
-        rows[i] = part
-            .parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| HttpError::bad(format!("pose: number {i} is `{}`: {expected}", shorten(part))))?;
-    }
-    Ok(DMat4::from_cols_array(&rows).transpose())
+    let numbers = (text.split([',', ' ']).filter(|p| !p.is_empty()).take(17).enumerate())
+        .map(|(i, part)| {
+            part.parse::<f64>()
+                .map_err(|_| HttpError::bad(format!("pose: number {i} is `{}`: expected a number", shorten(part))))
+        })
+        .collect::<Result<Vec<f64>, HttpError>>()?;
+    raypatch::input::pose_from_numbers(&numbers).map_err(|e| HttpError::of(&e))
 }
 
 /// `GET /input.png?scene=S&view=I`: which input image.
@@ -159,9 +152,10 @@ mod tests {
 
     #[test]
     fn sizes_and_poses_are_bounded() {
-        assert_eq!(parse_size("80x60", 4), Ok((80, 60)));
+        let k4 = raypatch::PatchSize { k: 4, any_size: false };
+        assert_eq!(parse_size("80x60", k4), Ok((80, 60)));
         for bad in ["81x60", "0x4", "4096x4", "1024x1024", "80", "x", "-4x4", "8x8x8", "1e3x4"] {
-            assert_eq!(parse_size(bad, 4).unwrap_err().status, 400, "{bad}");
+            assert_eq!(parse_size(bad, k4).unwrap_err().status, 400, "{bad}");
         }
         let identity = "1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1";
         assert_eq!(parse_pose(identity), Ok(DMat4::IDENTITY));

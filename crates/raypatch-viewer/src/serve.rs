@@ -1,10 +1,13 @@
 //! `render-frame --serve`'s flags and its run: load, encode each scene once per model, start the HTTP side,
-//! render on the caller's thread and one more until Ctrl-C.
+//! render on the caller's thread and one more until Ctrl-C (or SIGTERM, SIGHUP), which raypatch's signal
+//! clean-up turns into a stop of the render queue (the connections finish, the pipeline cache is saved) and an
+//! exit code of 128 + the signal's number.
 
 use std::net::{IpAddr, SocketAddr, TcpListener};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicI32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -72,14 +75,15 @@ pub fn requested() -> bool {
 /// A file built into the program: the name it stands for in messages, and its bytes.
 pub type Bundled = (&'static str, &'static [u8]);
 
-/// `render-frame --serve`: parses the flags, serves until Ctrl-C; exit code 2 with one line on any error.
+/// `render-frame --serve`: parses the flags, serves until Ctrl-C (exit code 130; 143 for SIGTERM); exit code 2
+/// with one line on any error.
 pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
     // Before any thread or wgpu instance (a no-op where render-frame's main did it already): Mesa's shader cache
     // where it can be written, or off (issue 50).
     raypatch::prepare_driver_cache();
     let args = ServeArgs::parse();
     match run(&args, default_model, default_scene) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(signal) => ExitCode::from(u8::try_from(128 + signal).unwrap_or(1)),
         Err(e) => {
             eprintln!("render-frame: error: {e:#}");
             ExitCode::from(2)
@@ -87,7 +91,8 @@ pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
     }
 }
 
-fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Result<()> {
+/// Serves until a signal stops it; the signal's number.
+fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Result<i32> {
     let adapter = args.adapter.clone().map_or(AdapterChoice::Auto, AdapterChoice::NameContains);
     let options = EngineOptions { adapter, precision: args.precision, ..Default::default() };
     let engine = Engine::new(options).context("--adapter")?;
@@ -125,8 +130,13 @@ fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Resu
     let shared = Arc::new(Shared::new(model_entries, scene_entries, info));
     let url = format!("http://{}/", listener.local_addr()?);
     let http = Http::start(listener, shared.clone(), connections).context("cannot start the server threads")?;
-    let stopper = shared.clone();
-    ctrlc::set_handler(move || stopper.queue.stop()).context("cannot catch Ctrl-C")?;
+    let (stopper, stopped) = (shared.clone(), Arc::new(AtomicI32::new(0)));
+    let stopped_by = stopped.clone();
+    raypatch::clean_up_on_signals_then(move |signal| {
+        stopped_by.store(signal, Ordering::Release);
+        stopper.queue.stop();
+    })
+    .context("cannot catch Ctrl-C")?;
     println!(
         "raypatch viewer: {url} ({} model(s) x {} scene(s) encoded in {:.1} s on {adapter}; Ctrl-C stops)",
         models.len(),
@@ -143,7 +153,7 @@ fn run(args: &ServeArgs, default_model: Bundled, default_scene: Bundled) -> Resu
     });
     http.stop(Duration::from_secs(2));
     println!("raypatch viewer: stopped");
-    Ok(())
+    Ok(stopped.load(Ordering::Acquire))
 }
 
 /// Every scene encoded by every model, `[model][scene]`.
@@ -176,21 +186,13 @@ fn render_jobs(shared: &Shared, scenes: &[Vec<Scene>]) {
 /// One render: the camera the job asks for, through its model's encoding of its scene.
 fn render(job: &Job, scenes: &[Vec<Scene>], entries: &[SceneEntry]) -> Reply {
     let query = &job.query;
-    let camera = entries[query.scene]
-        .camera(query.pose, query.width, query.height)
-        .map_err(|e| HttpError::bad(format!("pose: {e}")))?;
+    let camera = entries[query.scene].camera(query.pose, query.width, query.height).map_err(|e| HttpError::of(&e))?;
     let scene = &scenes[query.model][query.scene];
     if scene.cached_plans() >= MAX_CACHED_PLANS {
         scene.engine_scene().clear_render_plans();
     }
     let request = Request { outputs: Outputs::of(&[query.output.output()]), region: None };
     let start = Instant::now();
-    let rendered = scene.render(&camera, &request).map_err(|e| match e {
-        raypatch::Error::Camera(_) => HttpError::bad(format!("pose: {e}")),
-        raypatch::Error::Engine(raypatch::raypatch_engine::EngineError::TooLarge { .. }) => {
-            HttpError::bad(format!("size: {e}"))
-        }
-        e => HttpError::new(500, format!("render: {e}")),
-    })?;
+    let rendered = scene.render(&camera, &request).map_err(|e| HttpError::of(&e).about("render"))?;
     Ok(Frame { rendered, render_time: start.elapsed() })
 }

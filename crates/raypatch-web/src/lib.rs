@@ -178,11 +178,10 @@ impl Camera {
     }
 }
 
-/// The page's camera input as the API's camera: the one place that converts it.
+/// The page's camera input as the API's camera: the pose through the API's input module (the checks and messages
+/// of every surface), in OpenGL axes as the page's orbit makes it.
 fn camera_of(pose: &[f64], intrinsics: raypatch::Intrinsics) -> Result<raypatch::Camera, String> {
-    let rows: [f64; 16] = pose.try_into().map_err(|_| format!("pose: {} numbers, expected 16", pose.len()))?;
-    // Row by row, as JSON writes a transform_matrix; glam builds from columns.
-    let camera_to_world = glam::DMat4::from_cols_array(&rows).transpose();
+    let camera_to_world = raypatch::input::pose_from_numbers(pose).map_err(|e| e.to_string())?;
     raypatch::Camera::pinhole(intrinsics, camera_to_world, raypatch::CameraAxes::OpenGl).map_err(|e| e.to_string())
 }
 
@@ -218,9 +217,9 @@ impl Scene {
     pub fn view_camera(&self, view: usize) -> Result<Vec<f64>, JsError> {
         let camera = &target(&self.targets, view)?.camera;
         let (k, opencv) = raypatch::fit_pinhole(camera, self.model.ray_kind()).map_err(error)?;
-        // OpenCV's camera axes (y down, looking along +z) to OpenGL's (y up, looking along -z).
-        let opengl = glam::DMat4::from_cols(opencv.x_axis, -opencv.y_axis, -opencv.z_axis, opencv.w_axis);
-        let mut numbers = opengl.transpose().to_cols_array().to_vec();
+        // The flip between the axis conventions is its own inverse.
+        let opengl = raypatch::CameraAxes::OpenGl.to_opencv(opencv);
+        let mut numbers = raypatch::input::pose_numbers(opengl).to_vec();
         numbers.extend([k.width as f64, k.height as f64, k.fx, k.fy, k.cx, k.cy]);
         Ok(numbers)
     }
@@ -349,7 +348,7 @@ mod tests {
         let (_, opencv) = camera.as_pinhole().unwrap();
         // OpenCV axes: looking along +z, which is world +y here.
         assert_eq!(opencv.z_axis.truncate(), glam::DVec3::new(0.0, 1.0, 0.0));
-        assert!(camera_of(&pose[..15], k).unwrap_err().contains("15 numbers, expected 16"));
+        assert!(camera_of(&pose[..15], k).unwrap_err().contains("pose: 15 numbers given"));
         let mut scaled = pose;
         scaled[0] = 2.0;
         assert!(camera_of(&scaled, k).unwrap_err().contains("not orthonormal"));

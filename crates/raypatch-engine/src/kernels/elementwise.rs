@@ -28,15 +28,33 @@ pub enum Map {
 }
 
 impl Map {
+    /// One of each variant ([`super::shader_codes`]).
+    pub(super) const ALL: [Map; 5] = [
+        Map::Identity,
+        Map::Sigmoid,
+        Map::Exp,
+        Map::SigmoidAffine { scale: 1.0, offset: 0.0 },
+        Map::LogSigmoidAffine { scale: 1.0, offset: 0.0 },
+    ];
+
+    /// The `MAP_*` constant of `shaders/elementwise.wgsl` and its value ([`super::ShaderCode`]).
+    pub(super) fn constant(self) -> (&'static str, f64) {
+        match self {
+            Map::Identity => ("MAP_IDENTITY", 0.0),
+            Map::Sigmoid => ("MAP_SIGMOID", 1.0),
+            Map::Exp => ("MAP_EXP", 2.0),
+            Map::SigmoidAffine { .. } => ("MAP_SIGMOID_AFFINE", 3.0),
+            Map::LogSigmoidAffine { .. } => ("MAP_LOG_SIGMOID_AFFINE", 4.0),
+        }
+    }
+
     /// The code the shader reads and its two constants.
     fn code(self) -> (u32, f32, f32) {
-        match self {
-            Map::Identity => (0, 1.0, 0.0),
-            Map::Sigmoid => (1, 1.0, 0.0),
-            Map::Exp => (2, 1.0, 0.0),
-            Map::SigmoidAffine { scale, offset } => (3, scale, offset),
-            Map::LogSigmoidAffine { scale, offset } => (4, scale, offset),
-        }
+        let (scale, offset) = match self {
+            Map::SigmoidAffine { scale, offset } | Map::LogSigmoidAffine { scale, offset } => (scale, offset),
+            _ => (1.0, 0.0),
+        };
+        (self.constant().1 as u32, scale, offset)
     }
 }
 

@@ -20,6 +20,33 @@ pub struct Field {
     pub ty: &'static str,
 }
 
+/// A code a shader reads from a `Params` field (an activation, a convolution mode, a map, a ray kind), as the
+/// named WGSL constant the shader compares with and the value the wrapper writes. The wrapper's value is the
+/// one source; `tests/uniforms.rs` checks that the shader declares the constant with that value, and that every
+/// constant of the code's family in the shader is listed here ([`SHADER_CODES`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShaderCode {
+    /// The shader (an [`ALL_SHADERS`] name) whose source declares the constant.
+    pub shader: &'static str,
+    /// The WGSL constant, e.g. `ACT_GELU`.
+    pub name: &'static str,
+    pub value: f64,
+}
+
+/// Every code the shaders share with the wrappers, each variant once.
+pub fn shader_codes() -> Vec<ShaderCode> {
+    let code = |shader, (name, value): (&'static str, f64)| ShaderCode { shader, name, value };
+    let activations = [Activation::None, Activation::Relu, Activation::LeakyRelu(0.0), Activation::Gelu];
+    let modes = [ConvMode::Overwrite, ConvMode::Accumulate, ConvMode::Residual];
+    let kinds = [raypatch_model::RayKind::UnitDirection, raypatch_model::RayKind::UnitDepthPoint];
+    // The activation prelude's constants, seen through a shader it is prepended to.
+    (activations.iter().map(|a| code("elementwise", a.constant())))
+        .chain(modes.iter().map(|m| code("elementwise", m.constant())))
+        .chain(elementwise::Map::ALL.iter().map(|m| code("elementwise", m.constant())))
+        .chain(kinds.iter().map(|&k| code("rays", rays::kind_constant(k))))
+        .collect()
+}
+
 /// A kernel's uniform as Rust declares it, to compare with its shader's `Params` (`tests/uniforms.rs`).
 #[derive(Clone, Copy, Debug)]
 pub struct ParamsLayout {
@@ -93,14 +120,20 @@ pub enum Activation {
 }
 
 impl Activation {
-    /// (code, slope) as the shaders' `Params` hold them: 0 none, 1 relu, 2 leaky relu, 3 gelu.
-    pub fn params(self) -> (u32, f32) {
+    /// The `ACT_*` constant of `shaders/activation.wgsl` and its value ([`ShaderCode`]).
+    fn constant(self) -> (&'static str, f64) {
         match self {
-            Activation::None => (0, 0.0),
-            Activation::Relu => (1, 0.0),
-            Activation::LeakyRelu(slope) => (2, slope),
-            Activation::Gelu => (3, 0.0),
+            Activation::None => ("ACT_NONE", 0.0),
+            Activation::Relu => ("ACT_RELU", 1.0),
+            Activation::LeakyRelu(_) => ("ACT_LEAKY_RELU", 2.0),
+            Activation::Gelu => ("ACT_GELU", 3.0),
         }
+    }
+
+    /// (code, slope) as the shaders' `Params` hold them.
+    pub fn params(self) -> (u32, f32) {
+        let slope = if let Activation::LeakyRelu(slope) = self { slope } else { 0.0 };
+        (self.constant().1 as u32, slope)
     }
 }
 
@@ -146,13 +179,18 @@ pub enum ConvMode {
 }
 
 impl ConvMode {
-    /// `mode` as the shader's `Params` holds it: 0 overwrite, 1 accumulate, 2 residual.
-    pub fn code(self) -> u32 {
+    /// The `MODE_*` constant of `shaders/activation.wgsl` and its value ([`ShaderCode`]).
+    fn constant(self) -> (&'static str, f64) {
         match self {
-            ConvMode::Overwrite => 0,
-            ConvMode::Accumulate => 1,
-            ConvMode::Residual => 2,
+            ConvMode::Overwrite => ("MODE_OVERWRITE", 0.0),
+            ConvMode::Accumulate => ("MODE_ACCUMULATE", 1.0),
+            ConvMode::Residual => ("MODE_RESIDUAL", 2.0),
         }
+    }
+
+    /// `mode` as the shader's `Params` holds it.
+    pub fn code(self) -> u32 {
+        self.constant().1 as u32
     }
 
     /// Whether the kernel reads `out`.

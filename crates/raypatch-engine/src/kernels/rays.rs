@@ -7,8 +7,18 @@ use crate::error::Result;
 use crate::gpu::Gpu;
 use crate::plan::{grid, Access, Op, PlanBuilder, View};
 use crate::tensor::padded_cols;
-use raypatch_model::pinhole::{Intrinsics, PinholeRays, TERM_FLOATS};
+use raypatch_model::pinhole::{gpu_kind_of, Intrinsics, PinholeRays, TERM_FLOATS};
 use raypatch_model::RayKind;
+
+/// The `RAY_KIND_*` constant of `shaders/rays.wgsl` for a kind, and the value its terms carry
+/// ([`super::ShaderCode`]).
+pub(super) fn kind_constant(kind: RayKind) -> (&'static str, f64) {
+    let name = match kind {
+        RayKind::UnitDirection => "RAY_KIND_UNIT_DIRECTION",
+        RayKind::UnitDepthPoint => "RAY_KIND_UNIT_DEPTH_POINT",
+    };
+    (name, gpu_kind_of(kind) as f64)
+}
 
 params! {
     /// The uniform of `shaders/rays.wgsl`.

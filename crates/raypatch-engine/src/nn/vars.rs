@@ -147,7 +147,7 @@ impl Vars<'_, '_> {
                         return Err(EngineError::TooLarge { what, bytes, max: limits.tensor_bytes });
                     }
                     if read.saturating_add(bytes) > limits.total_bytes {
-                        return Err(EngineError::Request(format!(
+                        return Err(EngineError::OutOfMemory(format!(
                             "{}: tensor `{key}` ({bytes} bytes) after {read} bytes of weights: more than the \
                              {} bytes of memory the host has free",
                             model.path, limits.total_bytes

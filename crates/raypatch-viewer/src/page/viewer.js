@@ -75,17 +75,14 @@ function changed(moving) {
   pump();
 }
 
-function patchSize() { return view.info.models[view.model].k; }
-
-/** Full size: the scene's, each side a multiple of k (the server's `sizes`). */
+/** Full size: the scene's, a size the model renders (the server's `sizes`). */
 function fullSize() {
   return view.info.scenes[view.scene].sizes[view.model];
 }
 
-/** While moving: half the full size, still multiples of k. */
+/** While moving: about half the full size, a size the model renders (the server's `preview_sizes`). */
 function previewSize() {
-  const [w, h] = fullSize(), k = patchSize();
-  return [Math.max(k, Math.floor(w / 2 / k) * k), Math.max(k, Math.floor(h / 2 / k) * k)];
+  return view.info.scenes[view.scene].preview_sizes[view.model];
 }
 
 /** Sends the newest camera when one is wanted; older requests still waiting on the server are replaced. */
