@@ -88,6 +88,40 @@ pub enum ErrorKind {
     Internal,
 }
 
+/// The exit code of a process that `error` stopped, from whose fault it is: the kind of the first
+/// [`Error`](enum@Error) among its causes. 2 for what was asked or given (bad input, a missing or malformed file;
+/// also a surface's own refusals, which carry no raypatch error), 3 for the device, 70 (EX_SOFTWARE) for a bug.
+/// render-frame and its viewer exit with it.
+pub fn exit_code(error: &(dyn std::error::Error + 'static)) -> u8 {
+    match causes(error).find_map(|c| c.downcast_ref::<Error>()).map(Error::kind) {
+        None | Some(ErrorKind::Input | ErrorKind::File) => 2,
+        Some(ErrorKind::Device) => 3,
+        Some(ErrorKind::Internal) => 70,
+    }
+}
+
+/// `error` and its causes on one bounded line, leaving out causes that an outer message already quotes: what a
+/// process prints before it exits with [`exit_code`].
+pub fn error_line(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut line = String::new();
+    for cause in causes(error) {
+        let text = cause.to_string().replace('\n', " ");
+        if !line.contains(&text) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&text);
+        }
+    }
+    raypatch_model::error::one_line(&line)
+}
+
+fn causes<'e>(
+    error: &'e (dyn std::error::Error + 'static),
+) -> impl Iterator<Item = &'e (dyn std::error::Error + 'static)> {
+    std::iter::successors(Some(error), |e| e.source())
+}
+
 /// `Result` with [`Error`](enum@Error).
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 

@@ -59,7 +59,7 @@ pub use camera_path::{load_camera_path, CameraPath};
 #[cfg(not(target_family = "wasm"))]
 pub use checkpoint::save_checkpoint_model;
 pub use dataset::{load_pose, SceneData, SceneSource, TargetView, MAX_SCENE_PIXELS};
-pub use error::{Error, ErrorKind, Result};
+pub use error::{error_line, exit_code, Error, ErrorKind, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use input::{resized, CameraAxes, FieldOfView, PatchSize, MAX_PATH_FRAMES, ROTATION_TOLERANCE};

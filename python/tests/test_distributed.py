@@ -177,26 +177,36 @@ def test_render_writes_all_scenes_or_none(tmp_path):
         assert listing(tmp_path) == before and not ours(tmp_path)
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_signal_mid_run_exits_128_plus_it_and_leaves_nothing(tmp_path, signum):
+def _forty_scenes(tmp_path):
     scenes = tmp_path / "scenes"
     scenes.mkdir()
     for i in range(40):
         (scenes / f"s{i:02}.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
-    out = tmp_path / "views"
+    return scenes
+
+
+def _stop_mid_views(tmp_path, scenes, out, signum) -> str:
+    """Renders `scenes` into `out` on one worker and sends `signum` once a view is being written; checks the run
+    exits 128 + the signal and returns its stderr."""
     run = subprocess.Popen([sys.executable, "-m", "raypatch.distributed", "render", "--model", str(MODEL), "--scenes",
                             str(scenes), "--out", str(out), "--workers", "1"], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300
-        while not any(p.suffix == ".png" for p in tmp_path.glob(f".views{output.TEMP_MARK}*/*/*")):
+        while not any(p.suffix == ".png" for p in tmp_path.glob(f".{out.name}{output.TEMP_MARK}*/*/*")):
             assert run.poll() is None, run.communicate()
             assert time.monotonic() < deadline, "no view rendered"
             time.sleep(0.1)
         run.send_signal(signum)
         assert run.wait(timeout=60) == 128 + signum, run.communicate()
+        return run.stderr.read()
     finally:
         run.kill()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_exits_128_plus_it_and_leaves_nothing(tmp_path, signum):
+    _stop_mid_views(tmp_path, _forty_scenes(tmp_path), tmp_path / "views", signum)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"], list(tmp_path.rglob("*"))
 
 
@@ -205,29 +215,14 @@ def test_a_signal_mid_run_keeps_the_users_files(tmp_path, signum):
     """As render-frame's signal tests: an --out folder holding a view the run would replace and a file beside it;
     stopped while views are written, the run exits 128 + the signal and leaves both as they were, and nothing
     of its own."""
-    scenes = tmp_path / "scenes"
-    scenes.mkdir()
-    for i in range(40):
-        (scenes / f"s{i:02}.safetensors").symlink_to(SCENES / "scene-2000000.safetensors")
+    scenes = _forty_scenes(tmp_path)
     out = tmp_path / "views"
     (out / "s00").mkdir(parents=True)
     (out / "s00" / "view_000.png").write_bytes(b"the user's")
     (out / "notes.txt").write_bytes(b"mine")
     before = listing(tmp_path)
-    run = subprocess.Popen([sys.executable, "-m", "raypatch.distributed", "render", "--model", str(MODEL), "--scenes",
-                            str(scenes), "--out", str(out), "--workers", "1"], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 300
-        while not any(p.suffix == ".png" for p in tmp_path.glob(f".views{output.TEMP_MARK}*/*/*")):
-            assert run.poll() is None, run.communicate()
-            assert time.monotonic() < deadline, "no view rendered"
-            time.sleep(0.1)
-        run.send_signal(signum)
-        assert run.wait(timeout=60) == 128 + signum, run.communicate()
-        assert f"stopped by {signal.Signals(signum).name}" in run.stderr.read()
-    finally:
-        run.kill()
+    stderr = _stop_mid_views(tmp_path, scenes, out, signum)
+    assert f"stopped by {signal.Signals(signum).name}" in stderr
     assert listing(tmp_path) == before and not ours(tmp_path)
 
 

@@ -19,8 +19,8 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use raypatch::raypatch_model::error::MAX_MESSAGE_CHARS;
 use raypatch::{
-    AdapterChoice, Engine, EngineOptions, ErrorKind, MatmulKernel, Output, Outputs, Precision, Region, Request,
-    SceneData, SceneSource,
+    AdapterChoice, Engine, EngineOptions, MatmulKernel, Output, Outputs, Precision, Region, Request, SceneData,
+    SceneSource,
 };
 
 use cameras::{check_patch_size, CameraArgs, Shot};
@@ -192,23 +192,13 @@ fn main() -> ExitCode {
                 )
             });
             match args.max_buffer_mib.filter(|_| too_large) {
-                Some(mib) => eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", one_line(&e)),
-                None => eprintln!("render-frame: error: {}", one_line(&e)),
+                Some(mib) => {
+                    eprintln!("render-frame: error: --max-buffer-mib {mib}: {}", raypatch::error_line(e.as_ref()))
+                }
+                None => eprintln!("render-frame: error: {}", raypatch::error_line(e.as_ref())),
             }
-            ExitCode::from(exit_status(&e))
+            ExitCode::from(raypatch::exit_code(e.as_ref()))
         }
-    }
-}
-
-/// The exit code of a failed run, from whose fault its error is (`raypatch::Error::kind`): 2 for what was asked
-/// or given (bad input, a missing or malformed file; also render-frame's own refusals, which carry no raypatch
-/// error, and flags clap refuses), 3 for the device, 70 (EX_SOFTWARE) for a bug.
-fn exit_status(e: &anyhow::Error) -> u8 {
-    let kind = e.chain().find_map(|c| c.downcast_ref::<raypatch::Error>()).map(raypatch::Error::kind);
-    match kind {
-        None | Some(ErrorKind::Input | ErrorKind::File) => 2,
-        Some(ErrorKind::Device) => 3,
-        Some(ErrorKind::Internal) => 70,
     }
 }
 
@@ -220,22 +210,6 @@ fn flag_error(e: clap::Error) -> ExitCode {
     }
     eprintln!("{}", raypatch::raypatch_model::error::one_line(text.trim_end()));
     ExitCode::from(2)
-}
-
-/// The error and its causes on one line, leaving out causes that an outer message already quotes; at most
-/// [`MAX_MESSAGE_CHARS`] characters, whatever they quote.
-fn one_line(e: &anyhow::Error) -> String {
-    let mut line = String::new();
-    for cause in e.chain() {
-        let text = cause.to_string().replace('\n', " ");
-        if !line.contains(&text) {
-            if !line.is_empty() {
-                line.push_str(": ");
-            }
-            line.push_str(&text);
-        }
-    }
-    raypatch::raypatch_model::error::one_line(&line)
 }
 
 /// Indices picked by `--FLAG LIST` among `count` items (`all`, or comma-separated indices).
@@ -536,17 +510,28 @@ fn written(files: &raypatch::OutputFiles) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use raypatch::raypatch_engine::EngineError;
 
     /// The exit status of each kind of error, found under render-frame's own context.
     #[test]
     fn exit_statuses_follow_the_error_kind() {
-        let status = |e: raypatch::Error| exit_status(&anyhow::Error::from(e).context("--model m.safetensors"));
+        let status =
+            |e: raypatch::Error| raypatch::exit_code(anyhow::Error::from(e).context("--model m.safetensors").as_ref());
         assert_eq!(status(raypatch::Error::Input("target size 50x30".into())), 2);
         assert_eq!(status(raypatch::Error::Cameras { path: "pose.json".into(), reason: "no".into() }), 2);
         assert_eq!(status(raypatch::Error::Engine(EngineError::Device("lost".into()))), 3);
         assert_eq!(status(raypatch::Error::Engine(EngineError::Bug("plan".into()))), 70);
-        assert_eq!(exit_status(&anyhow::anyhow!("--frames 0: expected at least one frame")), 2);
+        assert_eq!(raypatch::exit_code(anyhow::anyhow!("--frames 0: expected at least one frame").as_ref()), 2);
+    }
+
+    /// The line render-frame prints: the context, then each cause an outer message does not already quote.
+    #[test]
+    fn an_error_is_one_line_of_its_causes() {
+        let inner = anyhow::Error::from(raypatch::Error::Input("pose: number 3 is NaN\nexpected finite".into()));
+        let e = inner.context("--pose camera.json").context("--pose camera.json: cannot read");
+        assert_eq!(
+            raypatch::error_line(e.as_ref()),
+            "--pose camera.json: cannot read: pose: number 3 is NaN expected finite"
+        );
     }
 }

@@ -75,8 +75,8 @@ pub fn requested() -> bool {
 /// A file built into the program: the name it stands for in messages, and its bytes.
 pub type Bundled = (&'static str, &'static [u8]);
 
-/// `render-frame --serve`: parses the flags, serves until Ctrl-C (exit code 130; 143 for SIGTERM); exit code 2
-/// with one line on any error.
+/// `render-frame --serve`: parses the flags, serves until Ctrl-C (exit code 130; 143 for SIGTERM); on an error,
+/// one line and the exit code of its kind (`raypatch::exit_code`, as render-frame's).
 pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
     // Before any thread or wgpu instance (a no-op where render-frame's main did it already): Mesa's shader cache
     // where it can be written, or off (issue 50).
@@ -85,8 +85,8 @@ pub fn main(default_model: Bundled, default_scene: Bundled) -> ExitCode {
     match run(&args, default_model, default_scene) {
         Ok(signal) => ExitCode::from(u8::try_from(128 + signal).unwrap_or(1)),
         Err(e) => {
-            eprintln!("render-frame: error: {e:#}");
-            ExitCode::from(2)
+            eprintln!("render-frame: error: {}", raypatch::error_line(e.as_ref()));
+            ExitCode::from(raypatch::exit_code(e.as_ref()))
         }
     }
 }
