@@ -289,7 +289,7 @@ pub fn run(options: &Options) -> Result<()> {
         Err(why) => println!("PyTorch not timed: {why}"),
     }
 
-    let started = report::started();
+    let started = report::progress::started();
     let mut records = Vec::new();
     let mut kernels = Vec::new();
     if options.only.is_empty() && !options.accuracy {
@@ -345,7 +345,7 @@ impl Bench {
             kernels: kernels.to_vec(),
             paper_comparison: paper::compare(records),
         };
-        let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
+        let tables = report::tables::markdown(&results.results, &results.kernels, &results.pytorch)
             + &paper::markdown(&results.paper_comparison);
         let json = serde_json::to_string_pretty(&results)?;
         report::write_file(&options.out.join("results.json"), json.as_bytes())?;
@@ -558,7 +558,7 @@ impl Bench {
                 record.note = format!("{} PyTorch failed: {e:#}", record.note).trim().to_string();
             }
         }
-        report::print_row(&record);
+        report::progress::print_row(&record);
         Ok(record)
     }
 

@@ -12,7 +12,7 @@ use raypatch_model::TargetViews;
 use super::{model_outputs, set_times, Bench, Subject};
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
-use crate::report::print_row;
+use crate::report::progress::print_row;
 use crate::report::{KernelTime, Record};
 
 impl Bench {

@@ -319,7 +319,7 @@ impl Bench {
         let (wall, _) = measure::repeat(Repeats { warmup: 0, ..self.repeats }, run)?;
         set_times(&mut record, wall, None);
         record.note = format!("{batch} views per render call");
-        report::print_row(&record);
+        report::progress::print_row(&record);
         Ok(record)
     }
 
