@@ -1,5 +1,6 @@
 //! render-frame as a subprocess: good runs write what they say; every bad input exits with code 2, one line
-//! on stderr naming the file, tensor or flag and what was expected, and leaves no output file behind.
+//! on stderr naming the file, tensor or flag and what was expected, and leaves no output file behind. The depth
+//! outputs' tests are in `tests/depth.rs`.
 
 mod common;
 
