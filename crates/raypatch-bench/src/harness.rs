@@ -1,4 +1,4 @@
-//! The benchmark run: the options, the shared setup ([`Bench`]: GPU, repeats, PyTorch) and where the results go
+//! The benchmark run: the options, the shared setup (`Bench`: GPU, repeats, PyTorch) and where the results go
 //! (`results.json`, CSV, tables, plots, and `replot`). How one configuration is measured (encode, render timing,
 //! errors against the references and PyTorch) is in `harness/measurement.rs`; which random-weight
 //! configurations are swept in `harness/sweep.rs`; the golden cases and `--model` files in `harness/cases.rs`;
