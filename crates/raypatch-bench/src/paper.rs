@@ -6,7 +6,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::flops::attention_score_bytes;
-use crate::report::{bytes, table, Record};
+use crate::report::tables::{bytes, table};
+use crate::report::Record;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Comparison {

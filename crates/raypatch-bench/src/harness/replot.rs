@@ -46,7 +46,7 @@ pub fn replot(files: &[PathBuf], out: &Path) -> Result<()> {
         report::write_csv(&out.join("results.csv"), &results.results)?;
         report::write_csv(&out.join("kernels.csv"), &results.kernels)?;
     }
-    let tables = report::markdown(&results.results, &results.kernels, &results.pytorch)
+    let tables = report::tables::markdown(&results.results, &results.kernels, &results.pytorch)
         + &paper::markdown(&results.paper_comparison);
     report::write_file(&out.join("tables.md"), tables.as_bytes())?;
     plots::draw_all(&results.results, out)?;

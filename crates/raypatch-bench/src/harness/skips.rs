@@ -9,10 +9,11 @@ use raypatch_engine::gpu::{GpuTimes, TimestampMode};
 use raypatch_engine::{Output, Outputs, Region, Request};
 use raypatch_model::TargetViews;
 
-use super::{model_outputs, set_times, Bench, Subject};
+use super::measurement::{model_outputs, set_times, Subject};
+use super::Bench;
 use crate::flops;
 use crate::measure::{self, Sample, Stats};
-use crate::report::print_row;
+use crate::report::progress::print_row;
 use crate::report::{KernelTime, Record};
 
 impl Bench {

@@ -11,9 +11,9 @@ use raypatch_engine::encoded::BATCH_BUDGET_BYTES;
 use raypatch_engine::{EngineError, LoadOptions, MatmulKernel, Model, Precision, Request};
 use raypatch_model::TargetViews;
 
+use super::measurement::{model_outputs, set_times, Subject};
 use super::{
-    model_outputs, scene, set_times, size_text, Bench, Checkpoint, Size, Subject, FULL_SIZES, INPUT_SIZE, PATCH_SIZES,
-    QUICK_SIZES, SEED, SMALL_WIDTH,
+    scene, size_text, Bench, Checkpoint, Size, FULL_SIZES, INPUT_SIZE, PATCH_SIZES, QUICK_SIZES, SEED, SMALL_WIDTH,
 };
 use crate::measure::{self, Repeats, Sample};
 use crate::report::{self, KernelTime, Record};
@@ -319,7 +319,7 @@ impl Bench {
         let (wall, _) = measure::repeat(Repeats { warmup: 0, ..self.repeats }, run)?;
         set_times(&mut record, wall, None);
         record.note = format!("{batch} views per render call");
-        report::print_row(&record);
+        report::progress::print_row(&record);
         Ok(record)
     }
 

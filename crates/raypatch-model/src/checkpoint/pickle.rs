@@ -9,7 +9,10 @@
 //! the bytes that remain before anything is allocated for it; a memo entry is the index of a value, never a
 //! copy of it, so a pickle of shared references costs its size, not their expansion; the stack, the memo and
 //! every value count against [`MAX_MEMORY`]; values are traversed with a depth bound ([`MAX_DEPTH`], which also
-//! stops cycles made through the memo).
+//! stops cycles made through the memo). Reading the resulting values ([`Pickle::get`], [`Pickle::describe`], …)
+//! is in `pickle/values.rs`.
+
+mod values;
 
 use std::collections::HashMap;
 
@@ -513,89 +516,5 @@ pub fn kind(node: &Node) -> String {
         Node::Global(name) => format!("the name {name}"),
         Node::Persistent(_) => "a persistent reference".into(),
         Node::Call { .. } => "an object".into(),
-    }
-}
-
-impl Pickle {
-    pub fn node(&self, id: Id) -> &Node {
-        &self.nodes[id as usize]
-    }
-
-    /// The items of the dict `id` as (key, value), a later equal string key replacing an earlier one in place.
-    pub fn dict_items(&self, id: Id) -> Option<Vec<(Id, Id)>> {
-        let Node::Dict(items) = self.node(id) else { return None };
-        let mut out: Vec<(Id, Id)> = Vec::with_capacity(items.len());
-        let mut seen: HashMap<&str, usize> = HashMap::new();
-        for &(k, v) in items {
-            match self.node(k) {
-                Node::Str(key) => match seen.get(key.as_str()) {
-                    Some(&at) => out[at].1 = v,
-                    None => {
-                        seen.insert(key, out.len());
-                        out.push((k, v));
-                    }
-                },
-                _ => out.push((k, v)),
-            }
-        }
-        Some(out)
-    }
-
-    /// The value under the string key `key` of the dict `id`.
-    pub fn get(&self, id: Id, key: &str) -> Option<Id> {
-        let Node::Dict(items) = self.node(id) else { return None };
-        items.iter().rev().find(|&&(k, _)| matches!(self.node(k), Node::Str(s) if s == key)).map(|&(_, v)| v)
-    }
-
-    pub fn str(&self, id: Id) -> Option<&str> {
-        match self.node(id) {
-            Node::Str(s) => Some(s),
-            _ => None,
-        }
-    }
-
-    pub fn int(&self, id: Id) -> Option<i64> {
-        match self.node(id) {
-            Node::Int(v) => Some(*v),
-            _ => None,
-        }
-    }
-
-    /// The items of a tuple or list.
-    pub fn items(&self, id: Id) -> Option<&[Id]> {
-        match self.node(id) {
-            Node::Tuple(items) | Node::List(items) => Some(items),
-            _ => None,
-        }
-    }
-
-    /// The name of the global a call calls, if `id` is a call.
-    pub fn call_of(&self, id: Id) -> Option<(&str, Id)> {
-        match self.node(id) {
-            Node::Call { callable, args, .. } => match self.node(*callable) {
-                Node::Global(name) => Some((name, *args)),
-                _ => None,
-            },
-            _ => None,
-        }
-    }
-
-    /// A value as a message quotes it: short values whole, containers by kind and length.
-    pub fn describe(&self, id: Id) -> String {
-        match self.node(id) {
-            Node::Int(v) => format!("int {v}"),
-            Node::Float(v) => format!("float {v}"),
-            Node::Bool(v) => format!("bool {}", if *v { "True" } else { "False" }),
-            Node::Str(s) => format!("str {}", quoted(s)),
-            Node::List(items) | Node::Tuple(items) | Node::Set(items) => {
-                format!("{} of {} items", kind(self.node(id)), items.len())
-            }
-            Node::Dict(items) => format!("dict of {} items", items.len()),
-            Node::Call { .. } => match self.call_of(id) {
-                Some((name, _)) => format!("an object made by {name}"),
-                None => "an object".into(),
-            },
-            other => kind(other),
-        }
     }
 }
