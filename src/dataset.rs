@@ -1,7 +1,8 @@
 //! Posed views from disk: raypatch scene files (safetensors) and folders of PNGs with a NeRF-style
 //! `transforms.json`.
 
-use std::path::{Path, PathBuf};
+use std::borrow::Cow;
+use std::path::{Component, Path, PathBuf};
 
 use glam::{DMat4, Vec3};
 use raypatch_model::error::Quoted;
@@ -9,7 +10,7 @@ use serde_json::Value;
 
 use crate::camera::{Camera, CameraAxes, Intrinsics, RayGrid, RayKind};
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{Image, MAX_PNG_BYTES};
 use crate::render::InputView;
 
 /// Where a [`SceneData`] came from.
@@ -192,10 +193,50 @@ impl SceneData {
     pub fn from_frames(dir: impl AsRef<Path>) -> Result<SceneData> {
         let dir = dir.as_ref();
         let json_path = dir.join("transforms.json");
+        let text = read_json_text(&json_path)?;
+        let mut data = SceneData::frames_from(dir, &text, &Folder(dir))?;
+        data.files.insert(0, json_path);
+        Ok(data)
+    }
+
+    /// Reads a frames folder as [`from_frames`](Self::from_frames) does, from bytes: `transforms_json` and the
+    /// files it names, `file(name)` giving the bytes of the file at `name` (relative to the folder, `/`
+    /// between its parts, no `./`) where there is one (e.g. a folder a page was given). `folder` names the
+    /// folder in messages. Nothing is read from disk: a frame's file is one `file` gives, or the scene is
+    /// refused.
+    ///
+    /// ```
+    /// let json = br#"{"camera_angle_x": 0.8, "frames": [{"file_path": "r_0",
+    ///     "transform_matrix": [[1,0,0,0], [0,0,-1,-6], [0,1,0,1], [0,0,0,1]]}]}"#;
+    /// let png = raypatch::Image::new(4, 2, vec![0.5; 24])?.encode_png()?;
+    /// let data = raypatch::SceneData::from_frame_bytes("scene", json, |name| (name == "r_0.png").then_some(&png[..]))?;
+    /// assert_eq!((data.inputs.len(), data.targets[0].camera.width()), (1, 4));
+    /// let error = raypatch::SceneData::from_frame_bytes("scene", b"{", |_| None).unwrap_err().to_string();
+    /// assert!(error.starts_with("scene/transforms.json: not valid JSON"));
+    /// # Ok::<(), raypatch::Error>(())
+    /// ```
+    pub fn from_frame_bytes<'a>(
+        folder: &str,
+        transforms_json: &[u8],
+        file: impl Fn(&str) -> Option<&'a [u8]>,
+    ) -> Result<SceneData> {
+        let dir = Path::new(folder);
+        let json_path = dir.join("transforms.json");
+        let text = raypatch_model::files::within(transforms_json.len() as u64, MAX_JSON_BYTES)
+            .and_then(|()| raypatch_model::files::as_text(transforms_json))
+            .map_err(|e| Error::io(&json_path, "cannot read", e.into()))?;
+        let mut data = SceneData::frames_from(dir, text, &Named { dir: dir.to_path_buf(), file })?;
+        data.files.clear(); // nothing on disk to protect
+        Ok(data)
+    }
+
+    /// The views of the `transforms.json` of folder `dir` (its text `text`, its files from `files`): the one
+    /// reading of frames folders, on disk or given as bytes.
+    fn frames_from(dir: &Path, text: &str, files: &dyn FrameFiles<'_>) -> Result<SceneData> {
+        let json_path = dir.join("transforms.json");
         let shown = json_path.display().to_string();
         let err = |reason: String| Error::Cameras { path: shown.clone(), reason };
-        let text = read_json_text(&json_path)?;
-        let root: Value = serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+        let root: Value = serde_json::from_str(text).map_err(|e| err(format!("not valid JSON: {e}")))?;
         let frames = root.get("frames").and_then(Value::as_array).ok_or_else(|| err("no `frames` list".into()))?;
         if frames.is_empty() {
             return Err(err("`frames` is empty: the scene has no view".into()));
@@ -205,23 +246,23 @@ impl SceneData {
         }
         let mut inputs: Vec<InputView> = Vec::with_capacity(frames.len());
         let mut depths: Vec<Option<Vec<f32>>> = Vec::with_capacity(frames.len());
-        let mut files = Vec::with_capacity(frames.len() + 1);
-        files.push(json_path.clone());
+        let mut read = Vec::with_capacity(frames.len());
         let mut pixels = 0usize;
         for (i, frame) in frames.iter().enumerate() {
             let name = frame
                 .get("file_path")
                 .and_then(Value::as_str)
                 .ok_or_else(|| err(format!("frame {i}: no `file_path`")))?;
-            let file = frame_image_path(dir, name).map_err(|reason| err(format!("frame {i}: `file_path` {reason}")))?;
-            let image = Image::load_png(&file)?;
+            let file =
+                frame_image_path(files, name).map_err(|reason| err(format!("frame {i}: `file_path` {reason}")))?;
+            let image = Image::decode_png(&file.display().to_string(), &files.read(&file, MAX_PNG_BYTES)?)?;
             pixels += image.width() * image.height();
             if pixels > MAX_SCENE_PIXELS {
                 return Err(err(format!(
                     "frames 0 to {i} hold more than {MAX_SCENE_PIXELS} pixels, the most a scene may have"
                 )));
             }
-            files.push(file);
+            read.push(file);
             if let Some(first) = inputs.first() {
                 let (w, h) = (first.image.width(), first.image.height());
                 if (image.width(), image.height()) != (w, h) {
@@ -240,10 +281,11 @@ impl SceneData {
                     let depth_name = value.as_str().ok_or_else(|| {
                         err(format!("frame {i}: `depth_file_path` is {}, expected a file name", Quoted(value)))
                     })?;
-                    let depth_file = frame_image_path(dir, depth_name)
+                    let depth_file = frame_image_path(files, depth_name)
                         .map_err(|reason| err(format!("frame {i}: `depth_file_path` {reason}")))?;
-                    let depth = load_depth_png(&depth_file, image.width(), image.height())?;
-                    files.push(depth_file);
+                    let bytes = files.read(&depth_file, MAX_DEPTH_PNG_BYTES)?;
+                    let depth = decode_depth_png(&depth_file, &bytes, image.width(), image.height())?;
+                    read.push(depth_file);
                     Some(depth)
                 }
             });
@@ -254,20 +296,74 @@ impl SceneData {
             .zip(depths)
             .map(|(v, depth)| TargetView { camera: v.camera.clone(), image: Some(v.image.clone()), masks: None, depth })
             .collect();
-        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets, files })
+        Ok(SceneData { source: SceneSource::Frames(dir.to_path_buf()), inputs, targets, files: read })
+    }
+}
+
+/// Where the files a `transforms.json` names come from: its folder on disk, or files given by name.
+trait FrameFiles<'a> {
+    /// The file `name` (as the JSON writes it) stands for, as messages show it, or why there is none.
+    fn resolve(&self, name: &str) -> std::result::Result<PathBuf, String>;
+    /// The bytes of a file [`resolve`](Self::resolve) gave, at most `max_bytes`.
+    fn read(&self, file: &Path, max_bytes: u64) -> Result<Cow<'a, [u8]>>;
+}
+
+/// A frames folder on disk: names resolve inside it (see [`raypatch_model::files::resolve_inside`]).
+struct Folder<'a>(&'a Path);
+
+impl<'a> FrameFiles<'a> for Folder<'_> {
+    fn resolve(&self, name: &str) -> std::result::Result<PathBuf, String> {
+        raypatch_model::files::resolve_inside(self.0, name)
+    }
+
+    fn read(&self, file: &Path, max_bytes: u64) -> Result<Cow<'a, [u8]>> {
+        let bytes = raypatch_model::files::read_regular(file, max_bytes)
+            .map_err(|e| Error::io(file, "cannot read", e.into()))?;
+        Ok(Cow::Owned(bytes))
+    }
+}
+
+/// A frames folder given as files by name (`file`, see [`SceneData::from_frame_bytes`]), shown as in `dir`.
+struct Named<F> {
+    dir: PathBuf,
+    file: F,
+}
+
+impl<'a, F: Fn(&str) -> Option<&'a [u8]>> Named<F> {
+    /// The name `file` takes for a path under `dir` (parts joined by `/`).
+    fn key(&self, file: &Path) -> String {
+        let relative = file.strip_prefix(&self.dir).unwrap_or(file);
+        relative.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+    }
+}
+
+impl<'a, F: Fn(&str) -> Option<&'a [u8]>> FrameFiles<'a> for Named<F> {
+    fn resolve(&self, name: &str) -> std::result::Result<PathBuf, String> {
+        let relative = raypatch_model::files::check_relative(name)?;
+        let file =
+            self.dir.join(relative.components().filter(|c| matches!(c, Component::Normal(_))).collect::<PathBuf>());
+        match (self.file)(&self.key(&file)) {
+            Some(_) => Ok(file),
+            None => Err(format!("{:?}: no such file in the scene folder", Quoted(name))),
+        }
+    }
+
+    fn read(&self, file: &Path, max_bytes: u64) -> Result<Cow<'a, [u8]>> {
+        let bytes = (self.file)(&self.key(file)).unwrap_or_default();
+        raypatch_model::files::within(bytes.len() as u64, max_bytes)
+            .map_err(|e| Error::io(file, "cannot read", e.into()))?;
+        Ok(Cow::Borrowed(bytes))
     }
 }
 
 /// Integer depth units per metre in a frame's `depth_file_path` PNG: millimetres, as ScanNet stores depth.
 const DEPTH_PNG_UNITS_PER_METRE: f32 = 1000.0;
 
-/// Reads a depth PNG (grey, 16 or 8 bits; millimetres, 0 = no depth) of a `width` × `height` frame, in metres.
-fn load_depth_png(path: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
+/// Decodes a depth PNG (grey, 16 or 8 bits; millimetres, 0 = no depth) of a `width` × `height` frame, in metres.
+fn decode_depth_png(path: &Path, bytes: &[u8], width: usize, height: usize) -> Result<Vec<f32>> {
     let shown = path.display().to_string();
     let bad = |reason: String| Error::Image { path: shown.clone(), reason };
-    let bytes = raypatch_model::files::read_regular(path, MAX_DEPTH_PNG_BYTES)
-        .map_err(|e| Error::io(path, "cannot read", e.into()))?;
-    let reader = || image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
+    let reader = || image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
     let (w, h) = reader().into_dimensions().map_err(|e| bad(format!("not a readable PNG: {e}")))?;
     if (w as usize, h as usize) != (width, height) {
         return Err(bad(format!(
@@ -306,12 +402,12 @@ pub(crate) fn read_json_text(path: &Path) -> Result<String> {
     raypatch_model::files::read_regular_text(path, MAX_JSON_BYTES).map_err(|e| Error::io(path, "cannot read", e.into()))
 }
 
-/// The image of a frame: `name` inside `dir` (see [`raypatch_model::files::resolve_inside`]), with `.png`
-/// added when `name` has no extension and no such file exists.
-fn frame_image_path(dir: &Path, name: &str) -> std::result::Result<PathBuf, String> {
-    let as_given = raypatch_model::files::resolve_inside(dir, name);
+/// The image of a frame: the file `name` names among `files`, with `.png` added when `name` has no extension
+/// and no such file exists.
+fn frame_image_path(files: &dyn FrameFiles, name: &str) -> std::result::Result<PathBuf, String> {
+    let as_given = files.resolve(name);
     if as_given.is_err() && Path::new(name).extension().is_none() {
-        return raypatch_model::files::resolve_inside(dir, &format!("{name}.png"));
+        return files.resolve(&format!("{name}.png"));
     }
     as_given
 }

@@ -15,7 +15,7 @@ pub const MAX_IMAGE_SIDE: usize = 16384;
 /// the decoder holds on most adapters.
 pub const MAX_IMAGE_PIXELS: usize = 1 << 24;
 /// Largest PNG file read.
-const MAX_PNG_BYTES: u64 = 1 << 30;
+pub(crate) const MAX_PNG_BYTES: u64 = 1 << 30;
 
 /// Checks an image size against [`MAX_IMAGE_SIDE`] and [`MAX_IMAGE_PIXELS`]; the reason, width x height.
 pub fn check_image_size(width: usize, height: usize) -> std::result::Result<(), String> {

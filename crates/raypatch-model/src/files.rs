@@ -96,9 +96,7 @@ pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64), ReadError> {
 /// Reads a whole regular file (symlinks followed) of at most `max_bytes`.
 pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ReadError> {
     let (file, len) = open_regular(path)?;
-    if len > max_bytes {
-        return Err(ReadError::TooLarge { bytes: len, max: max_bytes });
-    }
+    within(len, max_bytes)?;
     let mut bytes = Vec::with_capacity(len as usize);
     file.take(len).read_to_end(&mut bytes).map_err(ReadError::Io)?;
     Ok(bytes)
@@ -107,8 +105,35 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ReadError> {
 /// Like [`read_regular`], as UTF-8 text.
 pub fn read_regular_text(path: &Path, max_bytes: u64) -> Result<String, ReadError> {
     let bytes = read_regular(path, max_bytes)?;
-    String::from_utf8(bytes)
+    as_text(&bytes)?;
+    Ok(String::from_utf8(bytes).expect("checked as UTF-8"))
+}
+
+/// A file's length `len` if it is at most `max_bytes` (files read whole, from disk or given as bytes).
+pub fn within(len: u64, max_bytes: u64) -> Result<(), ReadError> {
+    if len > max_bytes {
+        return Err(ReadError::TooLarge { bytes: len, max: max_bytes });
+    }
+    Ok(())
+}
+
+/// A whole file's bytes as UTF-8 text.
+pub fn as_text(bytes: &[u8]) -> Result<&str, ReadError> {
+    std::str::from_utf8(bytes)
         .map_err(|_| ReadError::Io(std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text")))
+}
+
+/// Whether `name` (as written in a scene folder's JSON) is a relative path without `..`: the names that may stand
+/// for a file inside the folder. Why not, where it is not.
+pub fn check_relative(name: &str) -> Result<&Path, String> {
+    let relative = Path::new(name);
+    if name.is_empty() || relative.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir)) {
+        return Err(format!(
+            "{:?} is not a relative path inside the scene folder (no `..`, no absolute path)",
+            Quoted(name)
+        ));
+    }
+    Ok(relative)
 }
 
 /// The file `name` (as written in a scene folder's JSON) inside `dir`: a relative path without `..` that
@@ -116,10 +141,7 @@ pub fn read_regular_text(path: &Path, max_bytes: u64) -> Result<String, ReadErro
 pub fn resolve_inside(dir: &Path, name: &str) -> Result<PathBuf, String> {
     let quoted = Quoted(name);
     let outside = || format!("{quoted:?} does not name a regular file inside the scene folder");
-    let relative = Path::new(name);
-    if name.is_empty() || relative.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir)) {
-        return Err(format!("{quoted:?} is not a relative path inside the scene folder (no `..`, no absolute path)"));
-    }
+    let relative = check_relative(name)?;
     let root = dir.canonicalize().map_err(|e| format!("{}: {e}", dir.display()))?;
     let joined = root.join(relative);
     if std::fs::symlink_metadata(&joined).is_err() {
