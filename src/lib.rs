@@ -63,7 +63,7 @@ pub use error::{error_line, exit_code, Error, ErrorKind, Result};
 pub use gif::GifWriter;
 pub use image::{check_image_size, slot_ids, Image, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 pub use input::{resized, CameraAxes, FieldOfView, PatchSize, MAX_PATH_FRAMES, ROTATION_TOLERANCE};
-pub use motion::{fit_pinhole, interpolate, motion_path, scene_centre, up_axis, Motion, MotionOptions};
+pub use motion::{fit_pinhole, fitted_poses, interpolate, motion_path, scene_centre, up_axis, Motion, MotionOptions};
 #[cfg(not(target_family = "wasm"))]
 pub use output::{
     check_output_path, clean_up_on_signals, clean_up_on_signals_then, folder_of, same_file, sibling, stop,

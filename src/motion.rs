@@ -65,6 +65,20 @@ pub struct MotionOptions {
     pub fade: bool,
 }
 
+impl MotionOptions {
+    /// `frames` frames about the scene whose cameras have `poses` ([`fitted_poses`]): looking at `centre`, by
+    /// default the point nearest their optical axes ([`scene_centre`], an error where there is none), `up` by
+    /// default the axis nearest theirs ([`up_axis`]); the start camera's own elevation and radius, no fade.
+    pub fn about(poses: &[DMat4], frames: usize, centre: Option<DVec3>, up: Option<DVec3>) -> Result<MotionOptions> {
+        let centre = match centre {
+            Some(centre) => centre,
+            None => scene_centre(poses)?,
+        };
+        let up = up.unwrap_or_else(|| up_axis(poses));
+        Ok(MotionOptions { frames, centre, up, elevation: None, radius: None, fade: false })
+    }
+}
+
 /// A camera's pinhole intrinsics and camera-to-world pose (OpenCV axes): its own for a pinhole camera, fitted
 /// from its rays (of `kind`) for a camera given as rays: a centred principal point, the forward axis along the
 /// sum of the corner rays, right from the left corners to the right ones, and each focal length from the
@@ -106,6 +120,12 @@ pub fn fit_pinhole(camera: &Camera, kind: RayKind) -> Result<(Intrinsics, DMat4)
     let pose =
         DMat4::from_cols(right.extend(0.0), down.extend(0.0), forward.extend(0.0), camera.position().extend(1.0));
     Ok((intrinsics, pose))
+}
+
+/// The camera-to-world poses (OpenCV axes) of `cameras`, each fitted with a pinhole camera ([`fit_pinhole`]):
+/// what [`scene_centre`], [`up_axis`] and [`MotionOptions::about`] take.
+pub fn fitted_poses<'a>(cameras: impl IntoIterator<Item = &'a Camera>, kind: RayKind) -> Result<Vec<DMat4>> {
+    cameras.into_iter().map(|camera| fit_pinhole(camera, kind).map(|(_, pose)| pose)).collect()
 }
 
 /// The point nearest to every camera's optical axis (least squares): where a ring of cameras looks. An error

@@ -115,21 +115,13 @@ pub fn shots(
     let shots = if let Some(motion) = args.motion {
         let start = pinhole(reference).context("--motion: the first target camera")?;
         let start = (sized(args, start.0)?, start.1);
-        let scene: Vec<_> = (data.inputs.iter().map(|v| &v.camera))
-            .chain(data.targets.iter().map(|t| &t.camera))
-            .map(|c| pinhole(c).map(|(_, pose)| pose))
-            .collect::<raypatch::Result<_>>()?;
-        let centre = match args.centre {
-            Some(centre) => centre,
-            None => raypatch::scene_centre(&scene).context("--motion (give --centre X,Y,Z)")?,
-        };
+        let cameras = (data.inputs.iter().map(|v| &v.camera)).chain(data.targets.iter().map(|t| &t.camera));
+        let scene = raypatch::fitted_poses(cameras, kind)?;
         let options = MotionOptions {
-            frames,
-            centre,
-            up: args.up.unwrap_or_else(|| raypatch::up_axis(&scene)),
             elevation: args.elevation,
             radius: args.radius,
             fade: args.fade,
+            ..MotionOptions::about(&scene, frames, args.centre, args.up).context("--motion (give --centre X,Y,Z)")?
         };
         let cameras =
             raypatch::motion_path(motion, start, &options).with_context(|| format!("--motion {}", motion.name()))?;
