@@ -1,7 +1,8 @@
 // The page: loads the wasm engine (pkg/, built by .ci/web.sh), the bundled model and scene (assets/), renders
-// view 0, then any camera the visitor orbits to. A file picker or a drop loads another model or scene; a bad
-// file shows its error and leaves the last good state in place. `window.app` is what the browser test drives.
-import init, { Camera, Engine, SceneFile } from './pkg/raypatch_web.js';
+// view 0, then any camera the visitor orbits to. A file picker or a drop loads another model or scene (a scene
+// file, or a frames folder: transforms.json and its images); a bad file shows its error and leaves the last good
+// state in place. `window.app` is what the browser test drives.
+import init, { Camera, Engine, SceneFile, SceneFolder } from './pkg/raypatch_web.js';
 
 const BUNDLED_MODEL = 'assets/fitted_scene-2000000_rpsrt_k4.safetensors';
 const BUNDLED_SCENE = 'assets/scene-2000000.safetensors';
@@ -101,17 +102,29 @@ async function use(model, modelName, sceneFile, sceneName) {
   requestFrame();
 }
 
-/** Loads a model and/or a scene (`{name, bytes}` each) and encodes the scene with the model, the current one for
- *  what is not given; on any error the last good model and scene stay. */
-app.load = ({ model, scene }, started = performance.now()) => exclusive(async () => {
+/** A scene from a frames folder `{name, files: {path inside it: bytes}}`. */
+function folderScene({ name, files }) {
+  const folder = new SceneFolder(name);
+  try {
+    for (const [path, bytes] of Object.entries(files)) folder.add(path, bytes);
+    return SceneFile.fromFolder(folder);
+  } finally {
+    folder.free();
+  }
+}
+
+/** Loads a model and/or a scene (`{name, bytes}` each; or a frames `folder`, see folderScene) and encodes the scene
+ *  with the model, the current one for what is not given; on any error the last good model and scene stay. */
+app.load = ({ model, scene, folder }, started = performance.now()) => exclusive(async () => {
   app.loadStart = started; // the first frame's time is counted from here
   const made = [];
   try {
     const m = model ? app.engine.loadModel(model.name, model.bytes) : app.model;
     if (model) made.push(m);
-    const s = scene ? SceneFile.fromBytes(scene.name, scene.bytes) : app.sceneFile;
-    if (scene) made.push(s);
-    await use(m, model ? model.name : app.modelName, s, scene ? scene.name : app.sceneName);
+    const given = scene || folder;
+    const s = scene ? SceneFile.fromBytes(scene.name, scene.bytes) : folder ? folderScene(folder) : app.sceneFile;
+    if (given) made.push(s);
+    await use(m, model ? model.name : app.modelName, s, given ? given.name : app.sceneName);
   } catch (e) {
     for (const object of made) object.free();
     throw e;
@@ -128,8 +141,28 @@ function isScene(bytes) {
   }
 }
 
-/** Loads files as `kind` ('model' or 'scene'), or each as what its content says (dropped files). */
+/** Loads a frames folder `name` from `{path, file}` entries (File objects by their paths inside it). */
+async function loadFolder(name, entries) {
+  clearError();
+  try {
+    const files = {};
+    for (const { path, file } of entries) files[path] = new Uint8Array(await file.arrayBuffer());
+    await app.load({ folder: { name, files } });
+  } catch (e) {
+    showError(messageOf(e));
+  }
+}
+
+/** Loads files as `kind` ('model', 'scene' or 'folder'), or each as what its content says (dropped files). A
+ *  folder pick's files, and scene files among which is a transforms.json, are a frames folder: named by the first
+ *  part of their paths (a folder pick's name), or `.` for files picked or dropped together. */
 async function loadFiles(files, kind) {
+  if (kind === 'folder' || (kind !== 'model' && files.some((f) => f.name === 'transforms.json'))) {
+    if (!files.length) return;
+    const parts = (f) => (f.webkitRelativePath || `./${f.name}`).split('/');
+    await loadFolder(parts(files[0])[0], files.map((file) => ({ path: parts(file).slice(1).join('/'), file })));
+    return;
+  }
   for (const file of files) {
     clearError(); // what shows is the last file's outcome
     try {
@@ -207,9 +240,17 @@ function requestFrame() {
   });
 }
 
-/** The floats of `outputs` for target view `view`, or for a camera `{pose, intrinsics}` (for the test). */
+/** The camera the test asks for: null for a target view (a number), a motion's frame `{motion, frames, index}`, or a
+ *  pinhole `{pose, intrinsics}`. */
+function askedCamera(camera) {
+  if (typeof camera === 'number') return null;
+  if (camera.motion) return app.scene.motionCamera(camera.motion, camera.frames, camera.index);
+  return cameraOf(camera.pose, camera.intrinsics);
+}
+
+/** The floats of `outputs` for target view `view`, or for a camera (see askedCamera) (for the test). */
 app.floats = (camera, outputs) => exclusive(async () => {
-  const made = typeof camera === 'number' ? null : cameraOf(camera.pose, camera.intrinsics);
+  const made = askedCamera(camera);
   try {
     const rendered = made ? await app.scene.render(made, outputs) : await app.scene.renderView(camera, outputs);
     try {
@@ -229,9 +270,9 @@ app.orbitCamera = (azimuth = 0, elevation = 0) => ({
 });
 
 /** Milliseconds a frame takes, the median of `count` renders one after another: of target view `camera`, or of a
- *  camera `{pose, intrinsics}`. */
+ *  camera (see askedCamera). */
 app.frameMs = (camera, count) => exclusive(async () => {
-  const made = typeof camera === 'number' ? null : cameraOf(camera.pose, camera.intrinsics);
+  const made = askedCamera(camera);
   const times = [];
   try {
     for (let i = 0; i < count; i++) {
@@ -245,6 +286,24 @@ app.frameMs = (camera, count) => exclusive(async () => {
   }
   return times.sort((a, b) => a - b)[count >> 1];
 });
+
+// ---- dropped folders ----
+
+const entryFile = (entry) => new Promise((resolve, reject) => entry.file(resolve, reject));
+
+/** The files under a dropped folder's entry, `{path, file}` with the path inside the folder. */
+async function folderFiles(folder, prefix = '') {
+  const found = [];
+  const reader = folder.createReader();
+  for (;;) {
+    const batch = await new Promise((resolve, reject) => reader.readEntries(resolve, reject));
+    if (!batch.length) return found;
+    for (const entry of batch) {
+      if (entry.isDirectory) found.push(...await folderFiles(entry, `${prefix}${entry.name}/`));
+      else found.push({ path: `${prefix}${entry.name}`, file: await entryFile(entry) });
+    }
+  }
+}
 
 // ---- moving: mouse, touch, keys ----
 
@@ -309,8 +368,8 @@ function controls() {
     app.orbit = orbitThrough([view[3], view[7], view[11]], app.orbit.centre, app.orbit.up);
     requestFrame();
   });
-  for (const kind of ['model', 'scene']) {
-    $(`${kind}-file`).addEventListener('change', async (e) => {
+  for (const [input, kind] of [['model-file', 'model'], ['scene-file', 'scene'], ['folder-file', 'folder']]) {
+    $(input).addEventListener('change', async (e) => {
       await loadFiles([...e.target.files], kind);
       e.target.value = '';
     });
@@ -325,7 +384,13 @@ function controls() {
   document.addEventListener('drop', async (e) => {
     e.preventDefault();
     document.body.classList.remove('dragging');
-    await loadFiles([...e.dataTransfer.files]);
+    // The entries must be taken now: the drop's items are gone once this handler awaits.
+    const entries = [...e.dataTransfer.items].map((item) => item.webkitGetAsEntry?.()).filter(Boolean);
+    const folders = entries.filter((entry) => entry.isDirectory);
+    const files = folders.length ? await Promise.all(entries.filter((entry) => entry.isFile).map(entryFile))
+      : [...e.dataTransfer.files];
+    if (files.length) await loadFiles(files);
+    for (const folder of folders) await loadFolder(folder.name, await folderFiles(folder));
   });
 }
 

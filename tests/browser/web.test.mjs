@@ -1,8 +1,10 @@
 // The engine in the browser (web/, built into target/web by .ci/web.sh): headless Chromium (Debian's package, WebGPU
 // on SwiftShader) driven by Playwright opens the page, waits for the bundled scene's first frame, and compares the
 // page's floats with native `render-frame --out-raw` for the same cameras: the bundled scene's view 0 and two orbit
-// cameras, and view 0 of every golden case (assets/golden, every family), each within MAX_ABS. A corrupt model and
-// a corrupt scene, loaded through the page's file pickers, must show render-frame's message for them, and a drag
+// cameras, frame 3 of a 12-frame orbit motion, and view 0 of every golden case (assets/golden, every family), each
+// within MAX_ABS; then a frames folder (transforms.json and PNGs) made of the bundled scene's target views, picked
+// as a folder, against render-frame reading the same folder. A corrupt model, a corrupt scene and a corrupt
+// transforms.json, loaded through the page's file pickers, must show render-frame's message for them, and a drag
 // must render after them. A screenshot (target/web/screenshot.png) must not be blank; without WebGPU the page must
 // say so. Ends with `web: N passed, M failed`.
 //
@@ -199,12 +201,67 @@ try {
     });
   }
 
-  // Back to the bundled model and scene for the hostile files and the screenshot.
-  await page.evaluate(async () => {
+  // Back to the bundled model and scene for the motion, the frames folder, the hostile files and the screenshot.
+  const loadBundled = () => page.evaluate(async () => {
     const fetched = async (url) => ({ name: url.split('/').pop(), bytes: new Uint8Array(await (await fetch(url)).arrayBuffer()) });
     await window.app.load({ model: await fetched('assets/fitted_scene-2000000_rpsrt_k4.safetensors'),
       scene: await fetched('assets/scene-2000000.safetensors') });
   });
+  await loadBundled();
+
+  await test('bundled scene, orbit motion frame 3 of 12: page = native', async () => {
+    const onPage = await page.evaluate(() => window.app.floats({ motion: 'orbit', frames: 12, index: 3 }, ['rgb']));
+    const native = nativeOutputs(['--model', bundledModel, '--scene', bundledScene, '--motion', 'orbit', '--frames', '12'],
+      ['rgb']);
+    if (native.refused) throw new Error(`render-frame refuses it: ${native.refused}`);
+    const frame = native.rgb.length / 12;
+    return compare(onPage, { rgb: native.rgb.slice(3 * frame, 4 * frame) }, ['rgb']);
+  });
+
+  // A frames folder of the bundled scene's target views: render-frame's renders as the images, the page's cameras
+  // of the views (OpenGL poses and intrinsics, as transforms.json holds them); file_path without `.png`.
+  const folder = path.join(work, 'frames');
+  const folderCameras = await page.evaluate(() => [0, 1].map((v) => Array.from(window.app.scene.viewCamera(v))));
+  const madeFolder = spawnSync(renderFrame, ['--model', bundledModel, '--scene', bundledScene, '--view', 'all',
+    '--out', folder], { encoding: 'utf8' });
+  const frames = folderCameras.map((camera, i) => {
+    const [w, h, fx, fy, cx, cy] = camera.slice(16);
+    const rows = [0, 1, 2, 3].map((r) => camera.slice(4 * r, 4 * r + 4));
+    return { file_path: `view_00${i}`, transform_matrix: rows, fl_x: fx, fl_y: fy, cx, cy, w, h };
+  });
+  fs.writeFileSync(path.join(folder, 'transforms.json'), JSON.stringify({ frames }));
+
+  await test('a frames folder picked on the page, view 0: page = native', async () => {
+    if (madeFolder.status !== 0) throw new Error(`render-frame could not make the folder: ${madeFolder.stderr.trim()}`);
+    await page.setInputFiles('#folder-file', folder);
+    await page.waitForFunction(() => document.getElementById('scene-name').textContent.startsWith('frames:') ||
+      !document.getElementById('error').hidden, null, { timeout: WAIT_MS });
+    const error = await errorText();
+    if (error) throw new Error(`the page says: ${error}`);
+    const onPage = await page.evaluate(() => window.app.floats(0, ['rgb']));
+    // The page encodes every frame; render-frame, reading a folder, encodes the frames not rendered unless told.
+    const native = nativeOutputs(['--model', bundledModel, '--scene', 'frames', '--input-views', 'all', '--view', '0'],
+      ['rgb'], work);
+    return compare(onPage, native, ['rgb']);
+  });
+
+  const badFolder = path.join(work, 'bad-frames');
+  fs.mkdirSync(badFolder);
+  fs.copyFileSync(path.join(folder, 'view_000.png'), path.join(badFolder, 'view_000.png'));
+  fs.writeFileSync(path.join(badFolder, 'transforms.json'), '{"frames": [{"file_path": "view_000",');
+  await test("a corrupt transforms.json shows render-frame's message and the page renders after it", async () => {
+    const before = await drawn();
+    await page.setInputFiles('#folder-file', badFolder);
+    await page.waitForFunction(() => document.getElementById('error').textContent.startsWith('bad-frames/'), null,
+      { timeout: WAIT_MS });
+    const shown = await errorText();
+    const expected = cliMessage('--scene', 'bad-frames');
+    if (shown !== expected) throw new Error(`the page says "${shown}", render-frame says "${expected}"`);
+    await page.locator('#reset').click();
+    await page.waitForFunction((n) => window.app.drawn > n, before, { timeout: WAIT_MS });
+    return `"${shown}"`;
+  });
+  await loadBundled();
   const badModel = path.join(work, 'bad-model.safetensors');
   fs.writeFileSync(badModel, Buffer.concat([Buffer.from([16, 0, 0, 0, 0, 0, 0, 0]), Buffer.from('{"a": not json }')]));
   const badScene = path.join(work, 'bad-scene.safetensors');

@@ -7,6 +7,7 @@
 //! while one is running is refused (`busy`), never interleaved.
 
 use std::cell::Cell;
+use std::collections::HashMap;
 use std::rc::Rc;
 
 use raypatch::raypatch_model::error::one_line;
@@ -139,6 +140,20 @@ impl SceneFile {
         Ok(SceneFile { name: name.to_string(), data: SceneData::from_bytes(name, bytes).map_err(error)? })
     }
 
+    /// A scene from a frames folder's files (`transforms.json` and the images it names), as
+    /// `render-frame --scene FOLDER` reads the folder on disk.
+    #[wasm_bindgen(js_name = fromFolder)]
+    pub fn from_folder(folder: &SceneFolder) -> Result<SceneFile, JsError> {
+        let transforms = folder
+            .files
+            .get("transforms.json")
+            .ok_or_else(|| JsError::new(&format!("{}: no transforms.json among the folder's files", folder.name)))?;
+        let data =
+            SceneData::from_frame_bytes(&folder.name, transforms, |name| folder.files.get(name).map(Vec::as_slice))
+                .map_err(error)?;
+        Ok(SceneFile { name: folder.name.clone(), data })
+    }
+
     /// Input views.
     #[wasm_bindgen(getter, js_name = inputCount)]
     pub fn input_count(&self) -> usize {
@@ -149,6 +164,28 @@ impl SceneFile {
     #[wasm_bindgen(getter, js_name = targetCount)]
     pub fn target_count(&self) -> usize {
         self.data.targets.len()
+    }
+}
+
+/// A frames folder's files by their names inside it (`transforms.json`, `images/r_0.png`, ...), gathered from
+/// a folder pick or drop before [`SceneFile::from_folder`] reads them.
+#[wasm_bindgen]
+pub struct SceneFolder {
+    name: String,
+    files: HashMap<String, Vec<u8>>,
+}
+
+#[wasm_bindgen]
+impl SceneFolder {
+    /// An empty folder; `name` names it in errors (`name/transforms.json: ...`).
+    #[wasm_bindgen(constructor)]
+    pub fn new(name: &str) -> SceneFolder {
+        SceneFolder { name: name.to_string(), files: HashMap::new() }
+    }
+
+    /// Adds the file at `path` inside the folder (parts joined by `/`).
+    pub fn add(&mut self, path: &str, bytes: Vec<u8>) {
+        self.files.insert(path.to_string(), bytes);
     }
 }
 
@@ -227,13 +264,47 @@ impl Scene {
     /// Where the page orbits: the point nearest every camera's optical axis (inputs and targets), then the world
     /// axis nearest the cameras' up directions.
     pub fn orbit(&self) -> Result<Vec<f64>, JsError> {
-        let cameras = self.inputs.iter().chain(self.targets.iter().map(|t| &t.camera));
-        let poses = cameras
-            .map(|c| raypatch::fit_pinhole(c, self.model.ray_kind()).map(|(_, pose)| pose))
-            .collect::<raypatch::Result<Vec<_>>>()
-            .map_err(error)?;
+        let poses = self.poses()?;
         let centre = raypatch::scene_centre(&poses).map_err(error)?;
         Ok([centre.to_array(), raypatch::up_axis(&poses).to_array()].concat())
+    }
+
+    /// Frame `index` of `frames` of a motion preset (orbit, spiral, zoom, closeup, eyeroll) from target view 0,
+    /// about the scene's centre: the camera `render-frame --motion NAME --frames N` renders as its frame
+    /// `index`; at `width` x `height` (keeping the vertical field of view) where both are given.
+    #[wasm_bindgen(js_name = motionCamera)]
+    pub fn motion_camera(
+        &self,
+        motion: &str,
+        frames: usize,
+        index: usize,
+        width: Option<usize>,
+        height: Option<usize>,
+    ) -> Result<Camera, JsError> {
+        let preset = raypatch::Motion::from_name(motion).ok_or_else(|| {
+            let known: Vec<&str> = raypatch::Motion::ALL.iter().map(|m| m.name()).collect();
+            error(format!("motion `{motion}`: expected one of {}", known.join(", ")))
+        })?;
+        let size = match (width, height) {
+            (Some(w), Some(h)) => Some((w, h)),
+            (None, None) => None,
+            _ => return Err(error(format!("motion {motion}: give both width and height, or neither"))),
+        };
+        let (k, pose) =
+            raypatch::fit_pinhole(&target(&self.targets, 0)?.camera, self.model.ray_kind()).map_err(error)?;
+        let k = raypatch::resized(k, size, None).map_err(error)?;
+        let options = raypatch::MotionOptions::about(&self.poses()?, frames, None, None).map_err(error)?;
+        let mut cameras = raypatch::motion_path(preset, (k, pose), &options).map_err(error)?;
+        if index >= cameras.len() {
+            return Err(error(format!("motion {motion}: frame {index}, the motion has {} frames", cameras.len())));
+        }
+        Ok(Camera(cameras.swap_remove(index)))
+    }
+
+    /// Every camera's pose (inputs and targets), fitted with a pinhole camera: what motions go about.
+    fn poses(&self) -> Result<Vec<glam::DMat4>, JsError> {
+        let cameras = self.inputs.iter().chain(self.targets.iter().map(|t| &t.camera));
+        raypatch::fitted_poses(cameras, self.model.ray_kind()).map_err(error)
     }
 
     /// The outputs the model that encoded this scene can render.
