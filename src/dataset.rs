@@ -517,3 +517,51 @@ pub(crate) fn json_pose(object: &Value, key: &str) -> std::result::Result<DMat4,
     }
     crate::input::pose_from_numbers(&values).map_err(|e| e.to_string())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::HashMap;
+
+    use super::*;
+
+    #[test]
+    fn a_frames_folder_reads_the_same_from_bytes_and_names_only_its_files() {
+        let dir = std::env::temp_dir().join(format!("raypatch-frame-bytes-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("images")).unwrap();
+        let pose = |x: f64| serde_json::json!([[1, 0, 0, x], [0, 0, -1, -6], [0, 1, 0, 1], [0, 0, 0, 1]]);
+        let json = serde_json::json!({ "camera_angle_x": 0.8, "frames": [
+            { "file_path": "./images/r_0", "transform_matrix": pose(0.0) },
+            { "file_path": "images/r_1.png", "transform_matrix": pose(1.0) },
+        ]})
+        .to_string();
+        let mut files = HashMap::new();
+        for i in 0..2 {
+            let png = Image::new(4, 2, vec![0.25 * i as f32; 24]).unwrap().encode_png().unwrap();
+            std::fs::write(dir.join(format!("images/r_{i}.png")), &png).unwrap();
+            files.insert(format!("images/r_{i}.png"), png);
+        }
+        std::fs::write(dir.join("transforms.json"), &json).unwrap();
+        let on_disk = SceneData::from_frames(&dir).unwrap();
+        let given = |name: &str| files.get(name).map(Vec::as_slice);
+        let from_bytes = SceneData::from_frame_bytes("scene", json.as_bytes(), given).unwrap();
+        assert_eq!(on_disk.inputs.len(), 2);
+        for (a, b) in on_disk.inputs.iter().zip(&from_bytes.inputs) {
+            assert_eq!(a.image.data(), b.image.data());
+            assert_eq!(a.camera.as_pinhole(), b.camera.as_pinhole());
+        }
+        assert_eq!(on_disk.files.len(), 3);
+        assert!(from_bytes.files.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+
+        let with_name = |name: &str| {
+            let json = serde_json::json!({ "camera_angle_x": 0.8,
+                "frames": [{ "file_path": name, "transform_matrix": pose(0.0) }] });
+            SceneData::from_frame_bytes("scene", json.to_string().as_bytes(), given).unwrap_err().to_string()
+        };
+        let error = with_name("../images/r_0.png");
+        assert!(error.starts_with("scene/transforms.json: frame 0: `file_path`"), "{error}");
+        assert!(error.contains("not a relative path inside the scene folder"), "{error}");
+        assert!(with_name("images/r_2").contains("\"images/r_2.png\": no such file in the scene folder"));
+        assert!(with_name("/images/r_0.png").contains("not a relative path"));
+    }
+}
