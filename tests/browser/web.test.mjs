@@ -3,7 +3,8 @@
 // page's floats with native `render-frame --out-raw` for the same cameras: the bundled scene's view 0 and two orbit
 // cameras, frame 3 of a 12-frame orbit motion, and view 0 of every golden case (assets/golden, every family), each
 // within MAX_ABS; then a frames folder (transforms.json and PNGs) made of the bundled scene's target views, picked
-// as a folder, against render-frame reading the same folder. A corrupt model, a corrupt scene and a corrupt
+// as a folder, against render-frame reading the same folder, and a second model picked from a file (rpsrt_k2) on
+// the bundled scene. A corrupt model, a corrupt scene and a corrupt
 // transforms.json, loaded through the page's file pickers, must show render-frame's message for them, and a drag
 // must render after them. A screenshot (target/web/screenshot.png) must not be blank; without WebGPU the page must
 // say so. Ends with `web: N passed, M failed`.
@@ -260,6 +261,19 @@ try {
     await page.locator('#reset').click();
     await page.waitForFunction((n) => window.app.drawn > n, before, { timeout: WAIT_MS });
     return `"${shown}"`;
+  });
+  await loadBundled();
+  // A second model as a visitor loads one: its file picked on the page, the bundled scene kept.
+  const secondModel = path.join(root, 'assets', 'models', 'rpsrt_k2.safetensors');
+  await test('a second model picked on the page renders the scene, view 0: page = native', async () => {
+    await page.setInputFiles('#model-file', secondModel);
+    await page.waitForFunction(() => document.getElementById('model-name').textContent.startsWith('rpsrt_k2.') ||
+      !document.getElementById('error').hidden, null, { timeout: WAIT_MS });
+    const error = await errorText();
+    if (error) throw new Error(`the page says: ${error}`);
+    const onPage = await page.evaluate(() => window.app.floats(0, ['rgb']));
+    const native = nativeOutputs(['--model', secondModel, '--scene', bundledScene, '--view', '0'], ['rgb']);
+    return compare(onPage, native, ['rgb']);
   });
   await loadBundled();
   const badModel = path.join(work, 'bad-model.safetensors');
