@@ -19,12 +19,19 @@ print(raypatch.DRIVER_CACHE_NOTE)
 """
 
 
-def test_a_failing_render_with_an_unwritable_home_says_one_line(tmp_path):
+def unwritable_home(tmp_path):
+    """A file standing where HOME's folders would be, and an environment whose HOME lies under it, with no cache
+    settings of the user's or Mesa's."""
     not_a_folder = tmp_path / "a-file"
     not_a_folder.write_text("not a folder")
     env = {k: v for k, v in os.environ.items()
            if k not in ("XDG_CACHE_HOME", "RAYPATCH_CACHE_DIR") and not k.startswith("MESA_")}
     env["HOME"] = str(not_a_folder / "home")
+    return not_a_folder, env
+
+
+def test_a_failing_render_with_an_unwritable_home_says_one_line(tmp_path):
+    not_a_folder, env = unwritable_home(tmp_path)
     result = subprocess.run([sys.executable, "-c", SCRIPT, str(not_a_folder / "frames" / "out.png")],
                             capture_output=True, text=True, env=env, timeout=600)
     assert result.returncode == 2, (result.stdout, result.stderr)
@@ -33,11 +40,7 @@ def test_a_failing_render_with_an_unwritable_home_says_one_line(tmp_path):
 
 
 def test_a_users_mesa_cache_is_kept_and_an_unwritable_home_is_noted(tmp_path):
-    not_a_folder = tmp_path / "a-file"
-    not_a_folder.write_text("not a folder")
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("XDG_CACHE_HOME", "RAYPATCH_CACHE_DIR") and not k.startswith("MESA_")}
-    env["HOME"] = str(not_a_folder / "home")
+    not_a_folder, env = unwritable_home(tmp_path)
     code = "import os, raypatch; print(raypatch.DRIVER_CACHE_NOTE); print(os.environ.get('MESA_SHADER_CACHE_DISABLE'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
     assert out.splitlines() == [out.splitlines()[0], "true"] and "Mesa's shader cache: off" in out, out

@@ -60,6 +60,14 @@ fn time_columns(r: &Record) -> [String; 3] {
     [stats_text(r.render_wall_ms), gpu_ms(r).map_or("-".into(), |g| format!("{:.2}", g.median_ms)), opt(host_ms(r), 2)]
 }
 
+/// A row's first columns in the golden and model-file tables: model, decoder, k, target, then [`time_columns`].
+fn identity_and_times(r: &Record) -> Vec<String> {
+    let mut row =
+        vec![r.model.clone(), r.decoder.clone(), r.k.to_string(), format!("{}x{}", r.target_views, r.target_size)];
+    row.extend(time_columns(r));
+    row
+}
+
 /// A Markdown table of `rows` under `header`, and a blank line, appended to `out`.
 pub fn table(out: &mut String, header: &[&str], rows: Vec<Vec<String>>) {
     *out += &format!("| {} |\n|{}\n", header.join(" | "), "---|".repeat(header.len()));
@@ -251,20 +259,15 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             .iter()
             .filter(|r| r.group == "golden")
             .map(|r| {
-                vec![
-                    r.model.clone(),
-                    r.decoder.clone(),
-                    r.k.to_string(),
-                    format!("{}x{}", r.target_views, r.target_size),
-                    time_columns(r)[0].clone(),
-                    time_columns(r)[1].clone(),
-                    time_columns(r)[2].clone(),
+                let mut row = identity_and_times(r);
+                row.extend([
                     opt(r.encode_ms.map(|e| e.median_ms), 2),
                     sci(r.max_err_pytorch),
                     sci(r.max_err_f64_reference),
                     sci(r.max_err_f64_model),
                     opt(r.psnr_db, 2),
-                ]
+                ]);
+                row
             })
             .collect(),
     );
@@ -293,14 +296,8 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
             files
                 .iter()
                 .map(|r| {
-                    vec![
-                        r.model.clone(),
-                        r.decoder.clone(),
-                        r.k.to_string(),
-                        format!("{}x{}", r.target_views, r.target_size),
-                        time_columns(r)[0].clone(),
-                        time_columns(r)[1].clone(),
-                        time_columns(r)[2].clone(),
+                    let mut row = identity_and_times(r);
+                    row.extend([
                         opt(r.fps, 2),
                         opt(r.encode_ms.map(|e| e.median_ms), 1),
                         r.render_peak_bytes.map_or("-".into(), bytes),
@@ -308,7 +305,8 @@ pub fn markdown(records: &[Record], kernels: &[KernelTime], pytorch: &str) -> St
                         sci(r.max_err_pytorch),
                         speed_ratios(r),
                         opt(r.psnr_db, 2),
-                    ]
+                    ]);
+                    row
                 })
                 .collect(),
         );
